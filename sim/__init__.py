@@ -1,0 +1,1 @@
+"""FFT water surface simulation on NVIDIA Warp (knows nothing of rendering)."""
