@@ -1,0 +1,110 @@
+"""Device-resident copy of a :class:`Scene`: allocated once, updated in place per frame."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import warp as wp
+
+from ..errors import SceneError
+from .model import LAYER_OPAQUE, LAYER_SPECULAR, Scene
+
+
+def device_free_bytes(device) -> int:
+    """Bytes that can still be allocated on ``device`` (GPU memory, or host RAM for ``cpu``)."""
+    dev = wp.get_device(device)
+    if dev.is_cuda:
+        return int(dev.free_memory)
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 1 << 62
+
+
+def check_memory(nbytes: int, what: str, device) -> None:
+    """Raise :class:`SceneError` before allocating ``nbytes`` that ``device`` cannot hold."""
+    free = device_free_bytes(device)
+    if nbytes > free:
+        raise SceneError(
+            f"{what} needs {nbytes / 2**30:.2f} GiB but device '{wp.get_device(device).alias}' has "
+            f"{free / 2**30:.2f} GiB free: lower the resolution or photon count"
+        )
+
+
+class DeviceScene:
+    """The scene's geometry and materials as Warp arrays on one device.
+
+    ====================  ===========  =======  ================================================
+    array                 shape        dtype    meaning
+    ====================  ===========  =======  ================================================
+    points                (V,)         vec3     vertex positions at this frame [m] (read by all views)
+    prev_points           (V,)         vec3     vertex positions at the previous frame [m] (motion)
+    normals               (V,)         vec3     unit vertex normals
+    indices               (3T,)        int32    flattened triangle vertex indices
+    triangle_material     (T,)         int32    material index per triangle
+    triangle_layers       (T,)         int32    ``LAYER_*`` bit mask per triangle
+    albedo                (M,)         vec3     diffuse reflectance, linear RGB
+    roughness             (M,)         float32
+    metallic              (M,)         float32
+    opacity               (M,)         float32
+    ior                   (M,)         float32
+    ====================  ===========  =======  ================================================
+    """
+
+    def __init__(self, scene: Scene, device=None):
+        self.scene = scene
+        self.device = wp.get_device(device)
+        scene.validate()
+        nbytes = scene.points.nbytes * 3 + scene.indices.nbytes * 2
+        check_memory(nbytes, f"the geometry of '{scene.source}' ({scene.triangle_count} triangles)", self.device)
+        d = self.device
+        self.points = wp.array(scene.points.astype(np.float32), dtype=wp.vec3, device=d)
+        self.prev_points = wp.clone(self.points)
+        self.normals = wp.array(scene.normals.astype(np.float32), dtype=wp.vec3, device=d)
+        self.indices = wp.array(scene.indices.astype(np.int32).reshape(-1), dtype=wp.int32, device=d)
+        self.triangle_material = wp.array(scene.triangle_material.astype(np.int32), dtype=wp.int32, device=d)
+        layers = scene.triangle_layers()
+        self.triangle_layers = wp.array(layers, dtype=wp.int32, device=d)
+        mats = scene.materials
+        self.albedo = wp.array(np.array([m.albedo for m in mats], dtype=np.float32), dtype=wp.vec3, device=d)
+        self.roughness = wp.array(np.array([m.roughness for m in mats], dtype=np.float32), device=d)
+        self.metallic = wp.array(np.array([m.metallic for m in mats], dtype=np.float32), device=d)
+        self.opacity = wp.array(np.array([m.opacity for m in mats], dtype=np.float32), device=d)
+        self.ior = wp.array(np.array([m.ior for m in mats], dtype=np.float32), device=d)
+        self.has_layer = {LAYER_OPAQUE: bool(np.any(layers & LAYER_OPAQUE)), LAYER_SPECULAR: bool(np.any(layers & LAYER_SPECULAR))}
+        self._bvh: dict[int, tuple[wp.Mesh, wp.array]] = {}
+
+    @property
+    def triangle_count(self) -> int:
+        return self.scene.triangle_count
+
+    def begin_frame(self) -> None:
+        """Keep this frame's points as the previous frame's before dynamic meshes are moved."""
+        wp.copy(self.prev_points, self.points)
+
+    def mesh_points(self, mesh_index: int) -> tuple[wp.array, wp.array]:
+        """Views (no copy) of one mesh's points and normals, for ``sim/`` to write in place."""
+        r = self.scene.meshes[mesh_index]
+        a, b = r.vertex_start, r.vertex_start + r.vertex_count
+        return self.points[a:b], self.normals[a:b]
+
+    def bvh(self, layer: int = LAYER_OPAQUE | LAYER_SPECULAR) -> tuple[wp.Mesh, wp.array]:
+        """A ``wp.Mesh`` BVH over the triangles of ``layer`` and the map from its faces to scene triangles.
+
+        Built once, refit by :meth:`refit` when points move. Raises :class:`SceneError` for a layer
+        without triangles (building a ``wp.Mesh`` of zero triangles corrupts Warp's CUDA allocator).
+        """
+        if layer not in self._bvh:
+            tri = np.nonzero(self.scene.triangle_layers() & layer)[0].astype(np.int32)
+            if tri.size == 0:
+                raise SceneError(f"no triangles in raster layer {layer}: cannot build a BVH", file=self.scene.source)
+            idx = wp.array(self.scene.indices[tri].astype(np.int32).reshape(-1), dtype=wp.int32, device=self.device)
+            mesh = wp.Mesh(points=self.points, indices=idx)
+            self._bvh[layer] = (mesh, wp.array(tri, dtype=wp.int32, device=self.device))
+        return self._bvh[layer]
+
+    def refit(self) -> None:
+        """Refit every BVH after points moved (never rebuilds)."""
+        for mesh, _ in self._bvh.values():
+            mesh.refit()
