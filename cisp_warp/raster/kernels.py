@@ -1,0 +1,411 @@
+"""Warp kernels of the software rasterizer: triangle setup, tiled visibility raster, attribute resolve.
+
+The visibility buffer holds one uint64 per pixel: the high 32 bits are the linear depth quantised
+over [0, far] (2^32 steps, so ordering is exact to far·2.3e-10), the low 32 bits the triangle id.
+``wp.atomic_min`` on it keeps the nearest triangle. The resolve pass then intersects the pixel's ray
+with that triangle, so depth, position and barycentrics are exact, not quantised.
+
+Large triangles do not serialise onto one thread: setup counts the 8x8-pixel tiles each (clipped)
+triangle's bounding box touches, an exclusive scan turns counts into offsets, and a grid-stride
+kernel hands out (triangle, tile) work items, finding each item's triangle by binary search.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .views import ViewParams, pixel_ray_world, view_point, view_project
+
+TILE = 8  #: tile edge [pixels] of one raster work item
+EMPTY_KEY = wp.constant(wp.uint64(0xFFFFFFFFFFFFFFFF))  #: visibility value of a pixel no triangle covers
+DEPTH_STEPS = wp.constant(4294967040.0)  # largest float32 below 2^32: the quantised depth fits 32 bits
+
+
+@wp.func
+def _clip_lerp(p: wp.vec3, q: wp.vec3, dp: float, dq: float, near: float) -> wp.vec3:
+    """Point where segment p->q (view space, depths dp, dq) crosses depth ``near``."""
+    s = (near - dp) / (dq - dp)
+    return p + (q - p) * s
+
+
+@wp.func
+def _emit(
+    view: ViewParams,
+    slot: int,
+    p0: wp.vec3,
+    p1: wp.vec3,
+    p2: wp.vec3,
+    tiles_x: int,
+    tiles_y: int,
+    sub_v: wp.array(dtype=wp.vec3),
+    sub_bbox: wp.array(dtype=wp.vec4i),
+    tile_count: wp.array(dtype=wp.int32),
+):
+    """Project one (clipped) view-space triangle and record its screen vertices and tile box."""
+    a = view_project(view, p0)
+    b = view_project(view, p1)
+    c = view_project(view, p2)
+    # third component becomes what interpolates linearly in screen space: 1/depth or depth
+    if view.orthographic == 0:
+        a = wp.vec3(a[0], a[1], 1.0 / a[2])
+        b = wp.vec3(b[0], b[1], 1.0 / b[2])
+        c = wp.vec3(c[0], c[1], 1.0 / c[2])
+    area2 = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])
+    if wp.abs(area2) < 1.0e-12:
+        return
+    if area2 < 0.0:
+        t = b
+        b = c
+        c = t
+    w = float(view.width)
+    h = float(view.height)
+    xmin = wp.clamp(wp.min(wp.min(a[0], b[0]), c[0]), -2.0, w + 2.0)
+    xmax = wp.clamp(wp.max(wp.max(a[0], b[0]), c[0]), -2.0, w + 2.0)
+    ymin = wp.clamp(wp.min(wp.min(a[1], b[1]), c[1]), -2.0, h + 2.0)
+    ymax = wp.clamp(wp.max(wp.max(a[1], b[1]), c[1]), -2.0, h + 2.0)
+    # pixels whose centres (i + 0.5) can lie inside
+    i0 = wp.max(int(wp.ceil(xmin - 0.5)), 0)
+    i1 = wp.min(int(wp.floor(xmax - 0.5)), view.width - 1)
+    j0 = wp.max(int(wp.ceil(ymin - 0.5)), 0)
+    j1 = wp.min(int(wp.floor(ymax - 0.5)), view.height - 1)
+    if i0 > i1 or j0 > j1:
+        return
+    sub_v[3 * slot + 0] = a
+    sub_v[3 * slot + 1] = b
+    sub_v[3 * slot + 2] = c
+    sub_bbox[slot] = wp.vec4i(i0, j0, i1, j1)
+    tile_count[slot] = (i1 / TILE - i0 / TILE + 1) * (j1 / TILE - j0 / TILE + 1)
+
+
+@wp.kernel
+def setup_triangles(
+    view: ViewParams,
+    points: wp.array(dtype=wp.vec3),  # (V,) world positions [m] (read)
+    indices: wp.array(dtype=wp.int32),  # (3T,) (read)
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits (read)
+    layer_mask: int,
+    tiles_x: int,
+    tiles_y: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) screen vertices (px, py, 1/depth or depth) (write)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) pixel box i0, j0, i1, j1 (write)
+    tile_count: wp.array(dtype=wp.int32),  # (2T,) tiles touched, 0 = culled (write)
+):
+    """Near-clip each triangle of the layer into at most two, project them, count their tiles."""
+    t = wp.tid()
+    tile_count[2 * t] = 0
+    tile_count[2 * t + 1] = 0
+    if (layers[t] & layer_mask) == 0:
+        return
+    a = view_point(view, points[indices[3 * t]])
+    b = view_point(view, points[indices[3 * t + 1]])
+    c = view_point(view, points[indices[3 * t + 2]])
+    da = -a[2]
+    db = -b[2]
+    dc = -c[2]
+    near = view.near
+    n_in = int(0)
+    if da >= near:
+        n_in += 1
+    if db >= near:
+        n_in += 1
+    if dc >= near:
+        n_in += 1
+    if n_in == 0:
+        return
+    if n_in == 3:
+        _emit(view, 2 * t, a, b, c, tiles_x, tiles_y, sub_v, sub_bbox, tile_count)
+        return
+    # rotate so that p is the odd vertex out (the one inside when n_in == 1, outside when n_in == 2)
+    p = a
+    q = b
+    r = c
+    dp = da
+    dq = db
+    dr = dc
+    odd_b = (n_in == 1 and db >= near) or (n_in == 2 and db < near)
+    odd_c = (n_in == 1 and dc >= near) or (n_in == 2 and dc < near)
+    if odd_b:
+        p = b
+        q = c
+        r = a
+        dp = db
+        dq = dc
+        dr = da
+    elif odd_c:
+        p = c
+        q = a
+        r = b
+        dp = dc
+        dq = da
+        dr = db
+    if n_in == 1:
+        _emit(view, 2 * t, p, _clip_lerp(p, q, dp, dq, near), _clip_lerp(p, r, dp, dr, near), tiles_x, tiles_y, sub_v, sub_bbox, tile_count)
+    else:
+        # p outside; polygon q, r, r->p, p->q
+        x_rp = _clip_lerp(r, p, dr, dp, near)
+        x_pq = _clip_lerp(p, q, dp, dq, near)
+        _emit(view, 2 * t, q, r, x_rp, tiles_x, tiles_y, sub_v, sub_bbox, tile_count)
+        _emit(view, 2 * t + 1, q, x_rp, x_pq, tiles_x, tiles_y, sub_v, sub_bbox, tile_count)
+
+
+@wp.func
+def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
+    return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
+
+
+@wp.kernel
+def raster_tiles(
+    view: ViewParams,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    stride: int,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
+):
+    """Grid-stride over (sub-triangle, tile) work items; depth-test every covered pixel centre."""
+    item = wp.tid()
+    total = tile_end[n_sub - 1]
+    while item < total:
+        lo = int(0)
+        hi = n_sub - 1
+        while lo < hi:
+            mid = (lo + hi) / 2
+            if tile_end[mid] > item:
+                hi = mid
+            else:
+                lo = mid + 1
+        s = lo
+        start = int(0)
+        if s > 0:
+            start = tile_end[s - 1]
+        box = sub_bbox[s]
+        tx0 = box[0] / TILE
+        ty0 = box[1] / TILE
+        tw = box[2] / TILE - tx0 + 1
+        local = item - start
+        tx = tx0 + local % tw
+        ty = ty0 + local / tw
+        a = sub_v[3 * s + 0]
+        b = sub_v[3 * s + 1]
+        c = sub_v[3 * s + 2]
+        inv_area = 1.0 / _edge(a, b, c[0], c[1])
+        tri = wp.uint64(s / 2)
+        i_lo = wp.max(tx * TILE, box[0])
+        i_hi = wp.min(tx * TILE + TILE - 1, box[2])
+        j_lo = wp.max(ty * TILE, box[1])
+        j_hi = wp.min(ty * TILE + TILE - 1, box[3])
+        for j in range(j_lo, j_hi + 1):
+            y = float(j) + 0.5
+            for i in range(i_lo, i_hi + 1):
+                x = float(i) + 0.5
+                w0 = _edge(b, c, x, y)
+                w1 = _edge(c, a, x, y)
+                w2 = _edge(a, b, x, y)
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
+                    depth = z
+                    if view.orthographic == 0:
+                        depth = 1.0 / z
+                    if depth > 0.0 and depth <= view.far:
+                        q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
+                        key = (q << wp.uint64(32)) | tri
+                        wp.atomic_min(visibility, j * view.width + i, key)
+        item += stride
+
+
+@wp.func
+def triangle_hit(view: ViewParams, key: wp.uint64, pixel: int, points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)):
+    """Exact hit of a pixel's ray with the triangle of a visibility key.
+
+    Returns (triangle id or -1, depth [m], world position [m], clamped barycentrics, ray direction).
+    """
+    px = float(pixel % view.width) + 0.5
+    py = float(pixel / view.width) + 0.5
+    o, d = pixel_ray_world(view, px, py)
+    if key == EMPTY_KEY:
+        return int(-1), float(0.0), wp.vec3(0.0), wp.vec3(0.0), d
+    tri = int(key & wp.uint64(0xFFFFFFFF))
+    p0 = points[indices[3 * tri + 0]]
+    p1 = points[indices[3 * tri + 1]]
+    p2 = points[indices[3 * tri + 2]]
+    e1 = p1 - p0
+    e2 = p2 - p0
+    pv = wp.cross(d, e2)
+    det = wp.dot(e1, pv)
+    t = float(0.0)
+    u = float(0.0)
+    v = float(0.0)
+    if wp.abs(det) > 1.0e-30:
+        inv = 1.0 / det
+        s = o - p0
+        u = wp.dot(s, pv) * inv
+        qv = wp.cross(s, e1)
+        v = wp.dot(d, qv) * inv
+        t = wp.dot(e2, qv) * inv
+    else:  # ray in the triangle's plane: fall back to the quantised raster depth
+        t = float(wp.float64(key >> wp.uint64(32)) / wp.float64(DEPTH_STEPS) * wp.float64(view.far))
+    b1 = wp.clamp(u, 0.0, 1.0)
+    b2 = wp.clamp(v, 0.0, 1.0)
+    b0 = wp.max(1.0 - b1 - b2, 0.0)
+    sb = b0 + b1 + b2
+    bary = wp.vec3(b0, b1, b2) / sb
+    return tri, t, o + d * t, bary, d
+
+
+@wp.func
+def interp_normal(tri: int, bary: wp.vec3, normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)) -> wp.vec3:
+    n = normals[indices[3 * tri]] * bary[0] + normals[indices[3 * tri + 1]] * bary[1] + normals[indices[3 * tri + 2]] * bary[2]
+    return wp.normalize(n)
+
+
+@wp.func
+def facing_normal(n: wp.vec3, tri: int, d: wp.vec3, points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)) -> wp.vec3:
+    """Flip shading normal ``n`` to the side of the triangle the ray ``d`` arrives from (two-sided surfaces)."""
+    p0 = points[indices[3 * tri]]
+    ng = wp.cross(points[indices[3 * tri + 1]] - p0, points[indices[3 * tri + 2]] - p0)
+    if wp.dot(ng, d) > 0.0:
+        ng = -ng
+    if wp.dot(n, ng) < 0.0:
+        return -n
+    return n
+
+
+@wp.kernel
+def resolve_depth(
+    view: ViewParams,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read)
+    points: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (write)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) triangle id, -1 = none (write)
+):
+    p = wp.tid()
+    tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
+    depth[p] = t
+    tri_id[p] = tri
+
+
+@wp.kernel
+def resolve_opaque(
+    view: ViewParams,
+    prev_view: ViewParams,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read)
+    points: wp.array(dtype=wp.vec3),  # (V,) [m] (read)
+    prev_points: wp.array(dtype=wp.vec3),  # (V,) previous frame [m] (read)
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    mat_roughness: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = none (write)
+    position: wp.array(dtype=wp.vec3),  # (H*W,) world position [m] (write)
+    normal: wp.array(dtype=wp.vec3),  # (H*W,) unit normal facing the view (write)
+    albedo: wp.array(dtype=wp.vec3),  # (H*W,) (write)
+    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) (write)
+    motion: wp.array(dtype=wp.vec2),  # (H*W,) pixel offset to where this surface point was last frame (write)
+):
+    """Opaque G-buffer: every attribute of the nearest opaque surface per pixel."""
+    p = wp.tid()
+    tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
+    tri_id[p] = tri
+    depth[p] = t
+    if tri < 0:
+        position[p] = wp.vec3(0.0)
+        normal[p] = wp.vec3(0.0)
+        albedo[p] = wp.vec3(0.0)
+        roughness[p] = 0.0
+        motion[p] = wp.vec2(0.0)
+        return
+    position[p] = x
+    normal[p] = facing_normal(interp_normal(tri, bary, normals, indices), tri, d, points, indices)
+    m = triangle_material[tri]
+    albedo[p] = mat_albedo[m]
+    roughness[p] = mat_roughness[m]
+    i0 = indices[3 * tri]
+    i1 = indices[3 * tri + 1]
+    i2 = indices[3 * tri + 2]
+    x_prev = prev_points[i0] * bary[0] + prev_points[i1] * bary[1] + prev_points[i2] * bary[2]
+    q = view_project(prev_view, view_point(prev_view, x_prev))
+    motion[p] = wp.vec2(q[0] - (float(p % view.width) + 0.5), q[1] - (float(p / view.width) + 0.5))
+
+
+@wp.kernel
+def resolve_specular(
+    view: ViewParams,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read)
+    opaque_depth: wp.array(dtype=wp.float32),  # (H*W,) opaque layer depth, 0 = none (read)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),  # (H*W,) [m], 0 = none or hidden behind opaque (write)
+    position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write)
+    normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write)
+    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
+):
+    """Specular layer (RSM specular texels, camera water layer): nearest specular surface in front of the opaque one."""
+    p = wp.tid()
+    tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
+    od = opaque_depth[p]
+    if tri >= 0 and od > 0.0 and t >= od:
+        tri = -1
+    tri_id[p] = tri
+    if tri < 0:
+        depth[p] = 0.0
+        position[p] = wp.vec3(0.0)
+        normal[p] = wp.vec3(0.0)
+        roughness[p] = 0.0
+        ior[p] = 1.0
+        return
+    depth[p] = t
+    position[p] = x
+    normal[p] = interp_normal(tri, bary, normals, indices)
+    m = triangle_material[tri]
+    roughness[p] = mat_roughness[m]
+    ior[p] = mat_ior[m]
+
+
+@wp.func
+def spot_falloff(cos_angle: float, cone_angle: float, softness: float) -> float:
+    """Spot cone profile: 1 inside ``cone_angle·(1 − softness)``, smoothstep to 0 at ``cone_angle``."""
+    angle = wp.acos(wp.clamp(cos_angle, -1.0, 1.0))
+    if angle >= cone_angle:
+        return 0.0
+    inner = cone_angle * (1.0 - wp.clamp(softness, 0.0, 1.0))
+    if angle <= inner:
+        return 1.0
+    s = (cone_angle - angle) / (cone_angle - inner)
+    return s * s * (3.0 - 2.0 * s)
+
+
+@wp.kernel
+def rsm_flux(
+    view: ViewParams,
+    light_rgb: wp.vec3,  # irradiance [W/m²] (distant) or intensity [W/sr] (point, spot), per channel
+    spot_axis: wp.vec3,  # world direction of the spot axis (unused unless is_spot)
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) [sr], perspective views (read)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) specular layer (read)
+    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
+):
+    """Flux per RSM texel: irradiance × texel area (orthographic), intensity × texel solid angle (perspective)."""
+    p = wp.tid()
+    if tri_id[p] < 0:
+        flux[p] = wp.vec3(0.0)
+        return
+    if view.orthographic != 0:
+        flux[p] = light_rgb / (view.fx * view.fy)
+        return
+    scale = texel_solid_angle[p]
+    if is_spot != 0:
+        o, d = pixel_ray_world(view, float(p % view.width) + 0.5, float(p / view.width) + 0.5)
+        scale = scale * spot_falloff(wp.dot(wp.normalize(d), spot_axis), cone_angle, cone_softness)
+    flux[p] = light_rgb * scale

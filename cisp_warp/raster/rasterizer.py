@@ -1,0 +1,224 @@
+"""The software rasterizer and the two kinds of view it fills: the camera G-buffer and light RSMs.
+
+Every buffer is a flat Warp array of ``height * width`` pixels in row-major order (row 0 at the
+top); ``numpy()`` helpers reshape to (height, width[, C]). Buffers are allocated once, when the
+pass is built, and overwritten every frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+import warp as wp
+
+from ..scene.device import DeviceScene, check_memory
+from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR, Light, LightKind
+from . import kernels as K
+from .views import View, light_views, shadow_view
+
+
+class Rasterizer:
+    """Visibility-buffer rasterizer over one :class:`DeviceScene`; its scratch is allocated once."""
+
+    def __init__(self, scene: DeviceScene):
+        self.scene = scene
+        d = scene.device
+        n_sub = 2 * scene.triangle_count
+        self.sub_v = wp.zeros(3 * n_sub, dtype=wp.vec3, device=d)  # screen vertices of clipped triangles
+        self.sub_bbox = wp.zeros(n_sub, dtype=wp.vec4i, device=d)  # their pixel boxes
+        self.tile_count = wp.zeros(n_sub, dtype=wp.int32, device=d)  # 8x8 tiles each touches
+        self.tile_end = wp.zeros(n_sub, dtype=wp.int32, device=d)  # inclusive scan of tile_count
+        # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially
+        self.stride = (1 << 18) if d.is_cuda else (1 << 10)
+
+    def draw(self, view: K.ViewParams, layer: int, visibility: wp.array) -> None:
+        """Rasterize the triangles of ``layer`` into ``visibility`` (H*W uint64, overwritten)."""
+        d = self.scene.device
+        s = self.scene
+        visibility.fill_(0xFFFFFFFFFFFFFFFF)
+        tiles_x = (view.width + K.TILE - 1) // K.TILE
+        tiles_y = (view.height + K.TILE - 1) // K.TILE
+        wp.launch(K.setup_triangles, dim=s.triangle_count, device=d,
+                  inputs=[view, s.points, s.indices, s.triangle_layers, int(layer), tiles_x, tiles_y,
+                          self.sub_v, self.sub_bbox, self.tile_count])
+        wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
+        wp.launch(K.raster_tiles, dim=self.stride, device=d,
+                  inputs=[view, self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count, self.stride, visibility])
+
+
+def _pixels(shape_hw, dtype, device):
+    return wp.zeros(shape_hw[0] * shape_hw[1], dtype=dtype, device=device)
+
+
+class _Buffers:
+    """Mixin: flat (H*W) Warp arrays that ``numpy()`` reshapes to images."""
+
+    width: int
+    height: int
+
+    def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
+        out = {}
+        for f in fields(self):
+            a = getattr(self, f.name)
+            if isinstance(a, wp.array) and a.shape[0] == self.width * self.height:
+                arr = a.numpy()
+                out[prefix + f.name] = arr.reshape((self.height, self.width) + arr.shape[1:])
+        return out
+
+
+@dataclass
+class SpecularLayer(_Buffers):
+    """Nearest specular surface in front of the opaque one, per pixel (RSM specular texels, camera water layer)."""
+
+    width: int
+    height: int
+    visibility: wp.array  #: (H*W,) uint64 packed depth | triangle id (scratch)
+    depth: wp.array  #: (H*W,) float32 linear depth [m]; 0 = none
+    position: wp.array  #: (H*W,) vec3 world position [m]
+    normal: wp.array  #: (H*W,) vec3 authored (outward) unit normal
+    roughness: wp.array  #: (H*W,) float32
+    ior: wp.array  #: (H*W,) float32 index of refraction behind the surface
+    tri_id: wp.array  #: (H*W,) int32 triangle id; -1 = none
+
+    @staticmethod
+    def allocate(width: int, height: int, device) -> "SpecularLayer":
+        hw = (height, width)
+        return SpecularLayer(width, height, _pixels(hw, wp.uint64, device), _pixels(hw, wp.float32, device),
+                             _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.float32, device),
+                             _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device))
+
+    def resolve(self, scene: DeviceScene, view: K.ViewParams, opaque_depth: wp.array) -> None:
+        wp.launch(K.resolve_specular, dim=self.width * self.height, device=scene.device,
+                  inputs=[view, self.visibility, opaque_depth, scene.points, scene.normals, scene.indices,
+                          scene.triangle_material, scene.roughness, scene.ior,
+                          self.depth, self.position, self.normal, self.roughness, self.ior, self.tri_id])
+
+
+@dataclass
+class GBuffer(_Buffers):
+    """Camera G-buffer: the opaque layer and the water (specular, transmissive) layer in front of it."""
+
+    width: int
+    height: int
+    visibility: wp.array  #: (H*W,) uint64 (scratch)
+    depth: wp.array  #: (H*W,) float32 linear depth [m]; 0 = no surface
+    position: wp.array  #: (H*W,) vec3 world position [m]
+    normal: wp.array  #: (H*W,) vec3 unit normal, facing the camera
+    albedo: wp.array  #: (H*W,) vec3 diffuse reflectance
+    roughness: wp.array  #: (H*W,) float32
+    tri_id: wp.array  #: (H*W,) int32; -1 = no surface
+    motion: wp.array  #: (H*W,) vec2 [pixels]: where this surface point was in the previous frame, minus here
+    water: SpecularLayer  #: nearest specular surface in front of the opaque one
+
+    @staticmethod
+    def allocate(width: int, height: int, device) -> "GBuffer":
+        check_memory(width * height * 160, f"a {width}x{height} G-buffer", device)
+        hw = (height, width)
+        return GBuffer(width, height, _pixels(hw, wp.uint64, device), _pixels(hw, wp.float32, device),
+                       _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device),
+                       _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device), _pixels(hw, wp.vec2, device),
+                       SpecularLayer.allocate(width, height, device))
+
+    def render(self, raster: Rasterizer, view: K.ViewParams, prev_view: K.ViewParams) -> None:
+        """Fill both layers for the camera ``view``; motion is measured against ``prev_view``."""
+        s = raster.scene
+        raster.draw(view, LAYER_OPAQUE, self.visibility)
+        wp.launch(K.resolve_opaque, dim=self.width * self.height, device=s.device,
+                  inputs=[view, prev_view, self.visibility, s.points, s.prev_points, s.normals, s.indices,
+                          s.triangle_material, s.albedo, s.roughness,
+                          self.depth, self.position, self.normal, self.albedo, self.roughness, self.tri_id, self.motion])
+        raster.draw(view, LAYER_SPECULAR, self.water.visibility)
+        self.water.resolve(s, view, self.depth)
+
+    def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
+        out = super().numpy(prefix)
+        out.update(self.water.numpy(prefix + "water_"))
+        out.pop(prefix + "visibility", None)
+        out.pop(prefix + "water_visibility", None)
+        return out
+
+
+@dataclass
+class RSMView(_Buffers):
+    """One view of a reflective shadow map: opaque depth, the specular layer and the flux it receives."""
+
+    view: View
+    width: int
+    height: int
+    visibility: wp.array  #: (H*W,) uint64 (scratch)
+    opaque_depth: wp.array  #: (H*W,) float32 linear depth of the nearest opaque surface [m]; 0 = none
+    opaque_tri: wp.array  #: (H*W,) int32
+    shadow_depth: wp.array  #: (H*W,) float32 depth of the nearest surface of any kind [m]; 0 = none
+    specular: SpecularLayer
+    flux: wp.array  #: (H*W,) vec3 [W]: power the light sends through the texel onto its specular surface
+    solid_angle: wp.array  #: (H*W,) float32 [sr] per texel (perspective views; zeros for orthographic)
+
+    @staticmethod
+    def allocate(view: View, device) -> "RSMView":
+        w, h = view.width, view.height
+        check_memory(w * h * 96, f"a {w}x{h} reflective shadow map", device)
+        hw = (h, w)
+        sa = view.texel_solid_angle().astype(np.float32).reshape(-1) if not view.orthographic else np.zeros(w * h, np.float32)
+        return RSMView(view, w, h, _pixels(hw, wp.uint64, device), _pixels(hw, wp.float32, device),
+                       _pixels(hw, wp.int32, device), _pixels(hw, wp.float32, device),
+                       SpecularLayer.allocate(w, h, device), _pixels(hw, wp.vec3, device),
+                       wp.array(sa, dtype=wp.float32, device=device))
+
+    def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
+        out = super().numpy(prefix)
+        out.update({k: v for k, v in self.specular.numpy(prefix + "specular_").items() if not k.endswith("visibility")})
+        for k in ("visibility", "solid_angle", "opaque_tri"):
+            out.pop(prefix + k, None)
+        return out
+
+
+@wp.kernel
+def _nearest_depth(spec_depth: wp.array(dtype=wp.float32), opaque_depth: wp.array(dtype=wp.float32),
+                   out: wp.array(dtype=wp.float32)):
+    p = wp.tid()
+    d = spec_depth[p]
+    out[p] = wp.where(d > 0.0, d, opaque_depth[p])
+
+
+class LightMaps:
+    """All views of one light: its RSM views and, for a distant light, a scene-wide shadow view."""
+
+    def __init__(self, scene: DeviceScene, light: Light, rsm_size: int):
+        self.scene = scene
+        self.light = light
+        self.rsm = [RSMView.allocate(v, scene.device) for v in light_views(scene.scene, light, rsm_size)]
+        self.params = [r.view.params() for r in self.rsm]
+        sv = shadow_view(scene.scene, light, rsm_size)
+        self.shadow_view = sv
+        if sv is not None:
+            self.shadow_params = sv.params()
+            self.shadow_visibility = wp.zeros(sv.width * sv.height, dtype=wp.uint64, device=scene.device)
+            self.shadow_depth_buf = wp.zeros(sv.width * sv.height, dtype=wp.float32, device=scene.device)
+            self.shadow_tri = wp.zeros(sv.width * sv.height, dtype=wp.int32, device=scene.device)
+
+    def shadow_maps(self) -> list[tuple[K.ViewParams, wp.array]]:
+        """(view, depth of nearest surface of any layer) pairs that together cover what the light reaches."""
+        if self.shadow_view is not None:
+            return [(self.shadow_params, self.shadow_depth_buf)]
+        return [(p, r.shadow_depth) for p, r in zip(self.params, self.rsm)]
+
+    def render(self, raster: Rasterizer) -> None:
+        s = self.scene
+        light = self.light
+        rgb = light.radiometric_rgb.astype(np.float32)
+        axis = np.asarray(light.direction, dtype=np.float32)
+        for view, r in zip(self.params, self.rsm):
+            n = r.width * r.height
+            raster.draw(view, LAYER_OPAQUE, r.visibility)
+            wp.launch(K.resolve_depth, dim=n, device=s.device, inputs=[view, r.visibility, s.points, s.indices, r.opaque_depth, r.opaque_tri])
+            raster.draw(view, LAYER_SPECULAR, r.specular.visibility)
+            r.specular.resolve(s, view, r.opaque_depth)
+            wp.launch(K.rsm_flux, dim=n, device=s.device,
+                      inputs=[view, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
+                              float(light.cone_angle), float(light.cone_softness), r.solid_angle, r.specular.tri_id, r.flux])
+            wp.launch(_nearest_depth, dim=n, device=s.device, inputs=[r.specular.depth, r.opaque_depth, r.shadow_depth])
+        if self.shadow_view is not None:
+            raster.draw(self.shadow_params, LAYER_OPAQUE | LAYER_SPECULAR, self.shadow_visibility)
+            wp.launch(K.resolve_depth, dim=self.shadow_view.width * self.shadow_view.height, device=s.device,
+                      inputs=[self.shadow_params, self.shadow_visibility, s.points, s.indices, self.shadow_depth_buf, self.shadow_tri])

@@ -1,0 +1,238 @@
+"""Views: the camera and the light views (reflective shadow maps), as one Warp struct.
+
+A view looks down its local -Z axis with +Y up. Pixel (column i, row j) has its centre at
+(i + 0.5, j + 0.5); rows grow downwards. With view-space point (x, y, z) and linear depth
+``depth = -z`` (metres, positive in front of the view):
+
+=============  =========================================  =====================================
+projection     pixel of a view-space point                ray through pixel (px, py)
+=============  =========================================  =====================================
+perspective    px = cx + fx·x/depth,  py = cy − fy·y/depth  origin 0, dir ((px−cx)/fx, −(py−cy)/fy, −1)
+orthographic   px = cx + fx·x,        py = cy − fy·y        origin ((px−cx)/fx, −(py−cy)/fy, 0), dir (0, 0, −1)
+=============  =========================================  =====================================
+
+With these rays the ray parameter *t* equals the linear depth for both projections.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..errors import SceneError
+from ..scene.model import LAYER_SPECULAR, Camera, Light, LightKind, Scene, look_at_matrix
+
+
+@wp.struct
+class ViewParams:
+    """One view, as kernels see it."""
+
+    world_to_view: wp.mat44  #: rigid transform, world [m] -> view [m]
+    view_to_world: wp.mat44  #: its inverse
+    fx: float  #: pixels per unit of x/depth (perspective) or per metre (orthographic)
+    fy: float
+    cx: float  #: principal point [pixels]
+    cy: float
+    near: float  #: nearest depth drawn [m]
+    far: float  #: farthest depth drawn [m]
+    width: int
+    height: int
+    orthographic: int  #: 1 for orthographic, 0 for perspective
+
+
+@wp.func
+def view_point(view: ViewParams, p_world: wp.vec3) -> wp.vec3:
+    """World point -> view-space point [m]."""
+    return wp.transform_point(view.world_to_view, p_world)
+
+
+@wp.func
+def view_project(view: ViewParams, p_view: wp.vec3) -> wp.vec3:
+    """View-space point -> (px, py, depth): continuous pixel coordinates and linear depth [m]."""
+    depth = -p_view[2]
+    if view.orthographic != 0:
+        return wp.vec3(view.cx + view.fx * p_view[0], view.cy - view.fy * p_view[1], depth)
+    inv = 1.0 / wp.max(depth, 1.0e-20)
+    return wp.vec3(view.cx + view.fx * p_view[0] * inv, view.cy - view.fy * p_view[1] * inv, depth)
+
+
+@wp.func
+def world_project(view: ViewParams, p_world: wp.vec3) -> wp.vec3:
+    """World point -> (px, py, depth)."""
+    return view_project(view, view_point(view, p_world))
+
+
+@wp.func
+def pixel_ray_view(view: ViewParams, px: float, py: float):
+    """View-space ray (origin, direction) through continuous pixel coordinates; t along it is depth."""
+    x = (px - view.cx) / view.fx
+    y = -(py - view.cy) / view.fy
+    if view.orthographic != 0:
+        return wp.vec3(x, y, 0.0), wp.vec3(0.0, 0.0, -1.0)
+    return wp.vec3(0.0, 0.0, 0.0), wp.vec3(x, y, -1.0)
+
+
+@wp.func
+def pixel_ray_world(view: ViewParams, px: float, py: float):
+    """World-space ray (origin, direction) through continuous pixel coordinates; t along it is depth."""
+    o, d = pixel_ray_view(view, px, py)
+    return wp.transform_point(view.view_to_world, o), wp.transform_vector(view.view_to_world, d)
+
+
+@wp.func
+def view_eye_world(view: ViewParams, p_world: wp.vec3) -> wp.vec3:
+    """Unit vector from ``p_world`` towards the view (the eye point, or the ortho view plane)."""
+    if view.orthographic != 0:
+        return wp.transform_vector(view.view_to_world, wp.vec3(0.0, 0.0, 1.0))
+    return wp.normalize(wp.transform_point(view.view_to_world, wp.vec3(0.0, 0.0, 0.0)) - p_world)
+
+
+@dataclass(frozen=True)
+class View:
+    """Host-side description of a view; ``params`` builds the kernel struct."""
+
+    to_world: np.ndarray  #: 4x4 view-to-world, rigid
+    width: int
+    height: int
+    near: float
+    far: float
+    fx: float
+    fy: float
+    orthographic: bool = False
+    name: str = "camera"
+
+    @property
+    def cx(self) -> float:
+        return 0.5 * self.width
+
+    @property
+    def cy(self) -> float:
+        return 0.5 * self.height
+
+    def params(self) -> ViewParams:
+        v = ViewParams()
+        m = np.asarray(self.to_world, dtype=np.float64)
+        inv = np.linalg.inv(m)
+        v.view_to_world = wp.mat44(*m.astype(np.float32).flatten())
+        v.world_to_view = wp.mat44(*inv.astype(np.float32).flatten())
+        v.fx, v.fy, v.cx, v.cy = float(self.fx), float(self.fy), float(self.cx), float(self.cy)
+        v.near, v.far = float(self.near), float(self.far)
+        v.width, v.height = int(self.width), int(self.height)
+        v.orthographic = 1 if self.orthographic else 0
+        return v
+
+    def project(self, p_world: np.ndarray) -> np.ndarray:
+        """numpy twin of ``world_project``: (..., 3) world points -> (..., 3) (px, py, depth)."""
+        inv = np.linalg.inv(np.asarray(self.to_world, dtype=np.float64))
+        p = np.asarray(p_world, dtype=np.float64) @ inv[:3, :3].T + inv[:3, 3]
+        depth = -p[..., 2]
+        if self.orthographic:
+            return np.stack([self.cx + self.fx * p[..., 0], self.cy - self.fy * p[..., 1], depth], -1)
+        return np.stack([self.cx + self.fx * p[..., 0] / depth, self.cy - self.fy * p[..., 1] / depth, depth], -1)
+
+    def texel_solid_angle(self) -> np.ndarray:
+        """Exact solid angle [sr] of every pixel of a perspective view, shape (height, width), float64.
+
+        The solid angle of the rectangle [x0, x1] x [y0, y1] on the plane at unit depth is
+        F(x1, y1) − F(x0, y1) − F(x1, y0) + F(x0, y0) with F(x, y) = atan(x·y / sqrt(1 + x² + y²)),
+        so the pixels of a view tile its frustum's solid angle exactly.
+        """
+        xs = (np.arange(self.width + 1) - self.cx) / self.fx
+        ys = (np.arange(self.height + 1) - self.cy) / self.fy
+        X, Y = np.meshgrid(xs, ys)
+        F = np.arctan(X * Y / np.sqrt(1.0 + X * X + Y * Y))
+        return F[1:, 1:] - F[1:, :-1] - F[:-1, 1:] + F[:-1, :-1]
+
+
+def camera_view(camera: Camera) -> View:
+    """The camera's view. Square pixels; ``fov_y`` (or ``ortho_height``) sets the vertical extent."""
+    camera.validate()
+    m = np.asarray(camera.to_world, dtype=np.float64).copy()
+    for k in range(3):  # strip scale: views are rigid
+        m[:3, k] /= np.linalg.norm(m[:3, k])
+    if camera.orthographic:
+        f = camera.height / camera.ortho_height
+    else:
+        f = 0.5 * camera.height / math.tan(0.5 * camera.fov_y)
+    return View(m, int(camera.width), int(camera.height), float(camera.near), float(camera.far), f, f,
+                bool(camera.orthographic), "camera")
+
+
+def _scene_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
+def _ortho_fit(direction: np.ndarray, fit_lo, fit_hi, scene_lo, scene_hi, size: int, name: str) -> View:
+    """Orthographic view along ``direction`` whose image covers the box ``fit`` and whose depth covers the scene."""
+    d = direction / np.linalg.norm(direction)
+    centre = 0.5 * (np.asarray(fit_lo) + np.asarray(fit_hi))
+    basis = look_at_matrix(centre - d, centre)
+    r, u = basis[:3, 0], basis[:3, 1]
+    fit = _scene_corners(np.asarray(fit_lo), np.asarray(fit_hi)) - centre
+    xr = np.abs(fit @ r).max()
+    yr = np.abs(fit @ u).max()
+    span = max(xr, yr, 1e-6)
+    # a margin of one texel on each side, and never a degenerate extent
+    xr = max(xr, 1e-3 * span) * (1.0 + 2.0 / size)
+    yr = max(yr, 1e-3 * span) * (1.0 + 2.0 / size)
+    along = (_scene_corners(np.asarray(scene_lo), np.asarray(scene_hi)) - centre) @ d
+    diag = float(np.linalg.norm(np.asarray(scene_hi) - np.asarray(scene_lo)))
+    back = -along.min() + 0.01 * diag + 1e-3
+    m = basis.copy()
+    m[:3, 3] = centre - d * back
+    far = back + along.max() + 0.01 * diag + 1e-3
+    return View(m, size, size, 1e-4 * far, far, size / (2.0 * xr), size / (2.0 * yr), True, name)
+
+
+_CUBE_FACES = (
+    ("px", (1.0, 0.0, 0.0), (0.0, -1.0, 0.0)),
+    ("nx", (-1.0, 0.0, 0.0), (0.0, -1.0, 0.0)),
+    ("py", (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    ("ny", (0.0, -1.0, 0.0), (0.0, 0.0, -1.0)),
+    ("pz", (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
+    ("nz", (0.0, 0.0, -1.0), (0.0, -1.0, 0.0)),
+)
+
+
+def light_views(scene: Scene, light: Light, size: int) -> list[View]:
+    """The reflective-shadow-map views of one light.
+
+    * distant: one orthographic view fitted to the caustic-casting (specular) geometry — seed 003's
+      projection volume — whose depth range spans the whole scene; all geometry when nothing is specular;
+    * spot: one perspective view along the cone axis whose field of view is the cone (six cube faces
+      when the cone is wider than 170°);
+    * point: six 90° cube faces.
+    """
+    if size <= 0:
+        raise SceneError(f"RSM size must be positive, got {size}", prim=light.name)
+    lo, hi = scene.bounds()
+    diag = float(np.linalg.norm(hi - lo))
+    if light.kind == LightKind.DISTANT:
+        try:
+            flo, fhi = scene.bounds(LAYER_SPECULAR)
+        except SceneError:
+            flo, fhi = lo, hi
+        return [_ortho_fit(np.asarray(light.direction, dtype=np.float64), flo, fhi, lo, hi, size, f"rsm_{light.safe_name}")]
+    pos = np.asarray(light.position, dtype=np.float64)
+    far = float(np.linalg.norm(_scene_corners(lo, hi) - pos, axis=1).max()) + 0.01 * diag
+    near = max(1e-4 * far, 1e-4)
+    if light.kind == LightKind.SPOT and light.cone_angle < math.radians(85.0):
+        half = min(light.cone_angle * 1.02 + 1e-3, math.radians(85.0))
+        f = 0.5 * size / math.tan(half)
+        m = look_at_matrix(pos, pos + np.asarray(light.direction, dtype=np.float64))
+        return [View(m, size, size, near, far, f, f, False, f"rsm_{light.safe_name}")]
+    f = 0.5 * size  # tan(45°) = 1
+    return [View(look_at_matrix(pos, pos + np.asarray(fwd), up), size, size, near, far, f, f, False,
+                 f"rsm_{light.safe_name}_{tag}") for tag, fwd, up in _CUBE_FACES]
+
+
+def shadow_view(scene: Scene, light: Light, size: int) -> View | None:
+    """For a distant light, an orthographic shadow-map view fitted to the whole scene (its RSM covers
+    only the specular geometry); None for point and spot lights, whose RSM views see everything lit."""
+    if light.kind != LightKind.DISTANT:
+        return None
+    lo, hi = scene.bounds()
+    return _ortho_fit(np.asarray(light.direction, dtype=np.float64), lo, hi, lo, hi, size, f"shadow_{light.safe_name}")
