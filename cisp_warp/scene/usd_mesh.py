@@ -1,0 +1,314 @@
+"""``UsdGeom.Mesh`` -> world-space triangles with unit normals and a material per triangle.
+
+Rules (each one a test in ``tests/test_usd_import.py``):
+
+* Polygons of any size are triangulated: a fan from the first corner when the fan is valid (every
+  fan triangle faces along the polygon's Newell normal, which holds for convex polygons), else ear
+  clipping in the polygon's plane. ``holeIndices`` faces are dropped.
+* ``orientation = leftHanded`` and transforms with a negative determinant each flip the winding, so
+  output triangles are counter-clockwise seen from the side their normal points to.
+* Points go through ``XformCache.GetLocalToWorldTransform`` and the stage's unit/up-axis map; normals
+  through its inverse transpose.
+* Authored normals (``primvars:normals`` over ``normals``) of any interpolation are used. Without
+  them, normals are "auto-smooth": the area-weighted vertex normal, except at corners whose triangle
+  is more than ``CREASE_ANGLE_DEG`` off it, which take the triangle's own normal (hard edges stay hard).
+* Vertex layout: when every corner of a point has the same normal, output vertex ``i`` is the prim's
+  point ``i`` (unused points kept), so ``sim/`` and time-sampled updates can write points in place.
+  Otherwise (face-varying / uniform normals, hard edges) corners are split into one vertex per distinct
+  (point, normal). **Dynamic meshes are never split**: their corner normals are averaged per point.
+* Triangles of zero area (relative to the mesh size) are dropped with one warning naming the prim and
+  the count; a mesh left with no triangle is skipped (the caller reports it).
+* ``cisp:water:*`` attributes -> ``water`` dict (namespace stripped, plain Python values), ``dynamic``;
+  time-sampled ``points`` -> ``dynamic`` too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pxr import UsdGeom
+
+from ..errors import SceneError
+from .usd_material import MaterialTable, face_materials
+from .usd_stage import StageContext, python_value
+
+CREASE_ANGLE_DEG = 45.0  #: computed normals: corners more than this off the vertex normal stay flat
+DEGENERATE_AREA = 1e-12  #: a triangle with |cross| <= this × (mesh bounding diagonal)² has zero area
+WATER_NAMESPACE = "cisp:water:"
+
+
+@dataclass
+class MeshPart:
+    """One imported mesh in world space, before it is concatenated into the scene arrays."""
+
+    path: str
+    points: np.ndarray  #: (V, 3) float32 [m]
+    normals: np.ndarray  #: (V, 3) float32, unit
+    indices: np.ndarray  #: (T, 3) int32, counter-clockwise, into ``points``
+    triangle_material: np.ndarray  #: (T,) int32 into the MaterialTable
+    dynamic: bool = False
+    water: dict | None = None
+
+
+def _unit(v: np.ndarray, fallback=(0.0, 1.0, 0.0)) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    out = np.where(n > 0.0, v / np.where(n > 0.0, n, 1.0), np.asarray(fallback, dtype=v.dtype))
+    return out
+
+
+def _ear_clip(p2: np.ndarray) -> list[tuple[int, int, int]]:
+    """Triangles (local corner ids) of a simple polygon given counter-clockwise in 2-D, O(n²)."""
+
+    def cross(a, b, c):
+        return (p2[b, 0] - p2[a, 0]) * (p2[c, 1] - p2[a, 1]) - (p2[b, 1] - p2[a, 1]) * (p2[c, 0] - p2[a, 0])
+
+    remaining = list(range(len(p2)))
+    tris = []
+    while len(remaining) > 3:
+        m = len(remaining)
+        for k in range(m):
+            a, b, c = remaining[k - 1], remaining[k], remaining[(k + 1) % m]
+            if cross(a, b, c) <= 0.0:  # reflex or collinear corner: not an ear
+                continue
+            if any(
+                cross(a, b, j) >= 0.0 and cross(b, c, j) >= 0.0 and cross(c, a, j) >= 0.0
+                for j in remaining
+                if j not in (a, b, c)
+            ):
+                continue
+            tris.append((a, b, c))
+            remaining.pop(k)
+            break
+        else:  # no ear: self-intersecting or degenerate polygon, finish with a fan
+            break
+    tris += [(remaining[0], remaining[k], remaining[k + 1]) for k in range(1, len(remaining) - 1)]
+    return tris
+
+
+def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate polygons; returns (face id per triangle (T,), face-vertex corner ids (T, 3)).
+
+    ``points`` (N, 3) float64 world positions, ``counts`` (F,) corners per face (>= 3), ``indices``
+    (sum(counts),) point id per corner. Winding follows the polygon's corner order.
+    """
+    starts = np.cumsum(counts) - counts
+    ntri = counts - 2
+    tri_face = np.repeat(np.arange(len(counts)), ntri)
+    k = np.arange(len(tri_face)) - np.repeat(np.cumsum(ntri) - ntri, ntri)
+    c0 = starts[tri_face]
+    corners = np.stack([c0, c0 + 1 + k, c0 + 2 + k], axis=1)
+    poly = counts > 3
+    if not np.any(poly):
+        return tri_face, corners
+    # Newell normal per face: sum over edges of cross(p_c, p_next(c)).
+    face_of_corner = np.repeat(np.arange(len(counts)), counts)
+    nxt = np.arange(len(indices)) + 1
+    nxt[starts + counts - 1] = starts
+    newell = np.zeros((len(counts), 3))
+    np.add.at(newell, face_of_corner, np.cross(points[indices], points[indices[nxt]]))
+    p = points[indices[corners]]
+    tri_n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    bad_tri = np.einsum("ij,ij->i", tri_n, newell[tri_face]) <= 0.0
+    bad_faces = np.unique(tri_face[bad_tri & poly[tri_face]])
+    if bad_faces.size == 0:
+        return tri_face, corners
+    keep = ~np.isin(tri_face, bad_faces)
+    extra_face, extra_corners = [], []
+    for f in bad_faces:
+        s, n = int(starts[f]), int(counts[f])
+        q = points[indices[s : s + n]]
+        axis = int(np.argmax(np.abs(newell[f])))
+        u, v = ((axis + 1) % 3, (axis + 2) % 3) if newell[f, axis] >= 0.0 else ((axis + 2) % 3, (axis + 1) % 3)
+        for t in _ear_clip(q[:, [u, v]]):
+            extra_face.append(f)
+            extra_corners.append([s + t[0], s + t[1], s + t[2]])
+    tri_face = np.concatenate([tri_face[keep], np.asarray(extra_face, dtype=tri_face.dtype)])
+    corners = np.concatenate([corners[keep], np.asarray(extra_corners, dtype=corners.dtype).reshape(-1, 3)])
+    order = np.argsort(tri_face, kind="stable")
+    return tri_face[order], corners[order]
+
+
+def _authored_normals(ctx: StageContext, mesh: UsdGeom.Mesh, n_points, n_faces, n_corners, path):
+    """(values (K, 3), interpolation) of authored normals, or None (warns when they are unusable)."""
+    pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("normals")
+    if pv and pv.HasAuthoredValue():
+        values, interp = pv.ComputeFlattened(ctx.time), pv.GetInterpolation()
+    elif mesh.GetNormalsAttr().HasAuthoredValue():
+        values, interp = ctx.get(mesh.GetNormalsAttr()), mesh.GetNormalsInterpolation()
+    else:
+        return None
+    if values is None or len(values) == 0:
+        return None
+    n = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+    expected = {"constant": 1, "uniform": n_faces, "vertex": n_points, "varying": n_points, "faceVarying": n_corners}
+    if interp not in expected or len(n) != expected[interp]:
+        ctx.warn(f"normals have {len(n)} values for interpolation '{interp}' (expected "
+                 f"{expected.get(interp, '?')}): ignored, normals computed instead", path)
+        return None
+    if not np.all(np.isfinite(n)) or np.any(np.linalg.norm(n, axis=1) == 0.0):
+        ctx.warn("normals contain NaN, Inf or zero vectors: ignored, normals computed instead", path)
+        return None
+    return n, interp
+
+
+def _display_color(ctx, mesh, tri_face, tri_point, tri_corner, n_points, n_faces, n_corners, path):
+    """Colour per triangle (T, 3) from ``primvars:displayColor``, or None."""
+    pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("displayColor")
+    if not (pv and pv.HasAuthoredValue()):
+        return None
+    values = pv.ComputeFlattened(ctx.time)
+    if values is None or len(values) == 0:
+        return None
+    c = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+    interp = pv.GetInterpolation()
+    expected = {"constant": 1, "uniform": n_faces, "vertex": n_points, "varying": n_points, "faceVarying": n_corners}
+    if interp not in expected or len(c) != expected[interp] or not np.all(np.isfinite(c)):
+        ctx.warn(f"displayColor has {len(c)} values for interpolation '{interp}' (expected "
+                 f"{expected.get(interp, '?')}) or non-finite values: ignored", path)
+        return None
+    if interp == "constant":
+        return np.repeat(c, len(tri_face), axis=0)
+    if interp == "uniform":
+        return c[tri_face]
+    if interp == "faceVarying":
+        return c[tri_corner].mean(axis=1)
+    return c[tri_point].mean(axis=1)
+
+
+def read_water(ctx: StageContext, prim) -> dict | None:
+    """``cisp:water:*`` attributes as {name without the namespace: plain Python value}, or None."""
+    water = {}
+    for attr in prim.GetAttributes():
+        name = attr.GetName()
+        if name.startswith(WATER_NAMESPACE):
+            water[name[len(WATER_NAMESPACE):]] = python_value(ctx.get(attr))
+    return water or None
+
+
+def read_mesh(ctx: StageContext, mesh: UsdGeom.Mesh, table: MaterialTable) -> tuple[MeshPart | None, str]:
+    """Import one mesh; returns (part, "") or (None, reason it was skipped). Bad data -> SceneError."""
+    prim = mesh.GetPrim()
+    path = str(prim.GetPath())
+    points_attr = mesh.GetPointsAttr()
+    raw = ctx.get(points_attr)
+    if raw is None or len(raw) == 0:
+        return None, "the mesh has no points"
+    P = np.asarray(raw, dtype=np.float64).reshape(-1, 3)
+    bad = ~np.all(np.isfinite(P), axis=1)
+    if np.any(bad):
+        raise SceneError(f"points contain NaN or Inf ({int(bad.sum())} points, first at index "
+                         f"{int(np.argmax(bad))})", prim=path)
+    counts = np.asarray(ctx.get(mesh.GetFaceVertexCountsAttr()) or [], dtype=np.int64)
+    indices = np.asarray(ctx.get(mesh.GetFaceVertexIndicesAttr()) or [], dtype=np.int64)
+    if counts.size == 0:
+        return None, "the mesh has no faces (faceVertexCounts is empty)"
+    if np.any(counts < 3):
+        f = int(np.argmax(counts < 3))
+        raise SceneError(f"face {f} has {int(counts[f])} vertices: a face needs at least 3 "
+                         "(faceVertexCounts)", prim=path)
+    if int(counts.sum()) != indices.size:
+        raise SceneError(f"faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has "
+                         f"{indices.size} entries", prim=path)
+    out = (indices < 0) | (indices >= len(P))
+    if np.any(out):
+        k = int(np.argmax(out))
+        raise SceneError(f"faceVertexIndices[{k}] = {int(indices[k])} is out of range: the mesh has "
+                         f"{len(P)} points", prim=path)
+
+    M = ctx.to_world(prim)
+    lin = M[:3, :3]
+    det = float(np.linalg.det(lin))
+    if not (abs(det) > 1e-300):
+        return None, "its transform is singular (zero scale): no area"
+    Pw = P @ lin.T + M[:3, 3]
+
+    tri_face, tri_corner = triangulate(Pw, counts, indices)
+    holes = np.asarray(ctx.get(mesh.GetHoleIndicesAttr()) or [], dtype=np.int64)
+    if holes.size:
+        keep = ~np.isin(tri_face, holes)
+        tri_face, tri_corner = tri_face[keep], tri_corner[keep]
+    if (str(ctx.get(mesh.GetOrientationAttr())) == "leftHanded") != (det < 0.0):
+        tri_corner = tri_corner[:, [0, 2, 1]]
+    tri_point = indices[tri_corner]
+
+    # Degenerate (zero-area) triangles.
+    tp = Pw[tri_point]
+    tri_n = np.cross(tp[:, 1] - tp[:, 0], tp[:, 2] - tp[:, 0])
+    diag2 = float(np.sum((Pw.max(axis=0) - Pw.min(axis=0)) ** 2))
+    good = np.linalg.norm(tri_n, axis=1) > DEGENERATE_AREA * diag2
+    n_tri = len(good)
+    if not np.any(good):
+        return None, f"all {n_tri} triangles are degenerate (zero area)"
+    if not np.all(good):
+        ctx.warn(f"{n_tri - int(good.sum())} of {n_tri} triangles are degenerate (zero area): dropped", path)
+        tri_face, tri_corner, tri_point, tri_n = tri_face[good], tri_corner[good], tri_point[good], tri_n[good]
+
+    water = read_water(ctx, prim)
+    dynamic = water is not None or points_attr.GetNumTimeSamples() > 1
+
+    # Normals per triangle corner (T, 3, 3), or per point (N, 3) when authored per vertex.
+    normal_map = np.linalg.inv(lin).T
+    authored = _authored_normals(ctx, mesh, len(P), len(counts), indices.size, path)
+    point_normals = corner_normals = None
+    if authored is not None:
+        n, interp = authored
+        n = _unit(n @ normal_map.T)
+        if interp in ("vertex", "varying"):
+            point_normals = n
+        elif interp == "constant":
+            point_normals = np.repeat(n, len(P), axis=0)
+        elif interp == "uniform":
+            corner_normals = np.repeat(n[tri_face][:, None, :], 3, axis=1)
+        else:
+            corner_normals = n[tri_corner]
+    else:
+        vn = np.zeros_like(Pw)
+        for j in range(3):
+            np.add.at(vn, tri_point[:, j], tri_n)
+        vn = _unit(vn)
+        corner_normals = vn[tri_point]
+        flat = _unit(tri_n)
+        crease = np.einsum("tjk,tk->tj", corner_normals, flat) < math.cos(math.radians(CREASE_ANGLE_DEG))
+        if not np.any(crease):
+            point_normals = vn
+        else:
+            corner_normals = np.where(crease[:, :, None], flat[:, None, :], corner_normals)
+
+    if point_normals is None and dynamic:  # keep vertex i = point i for in-place updates
+        acc = np.zeros_like(Pw)
+        for j in range(3):
+            np.add.at(acc, tri_point[:, j], corner_normals[:, j])
+        point_normals, corner_normals = _unit(acc), None
+
+    if point_normals is not None:
+        vert_points, vert_normals, tri_vert = Pw, point_normals, tri_point
+    else:
+        flat_pid = tri_point.reshape(-1)
+        flat_n = np.ascontiguousarray(corner_normals.reshape(-1, 3), dtype=np.float32)
+        key = np.column_stack([flat_pid, flat_n.view(np.int32).astype(np.int64)])
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        vert_points, vert_normals = Pw[flat_pid[first]], flat_n[first]
+        tri_vert = inverse.reshape(-1, 3)
+
+    # Materials: bound per face, else displayColor per triangle, else the default.
+    face_mat = face_materials(ctx, prim, len(counts), table)
+    tri_mat = face_mat[tri_face]
+    unbound = tri_mat < 0
+    if np.any(unbound):
+        colors = _display_color(ctx, mesh, tri_face, tri_point, tri_corner, len(P), len(counts), indices.size, path)
+        if colors is None:
+            tri_mat[unbound] = table.default()
+        else:
+            tri_mat[unbound] = table.display_colors(colors[unbound])
+
+    return MeshPart(
+        path=path,
+        points=vert_points.astype(np.float32),
+        normals=vert_normals.astype(np.float32),
+        indices=tri_vert.astype(np.int32),
+        triangle_material=tri_mat.astype(np.int32),
+        dynamic=bool(dynamic),
+        water=water,
+    ), ""
