@@ -1,0 +1,101 @@
+"""The frame: raster light views and camera, light the scene, composite. One class owns every buffer.
+
+>>> r = Renderer(load_usd("scenes_usd/cornell_flooded.usda"), RenderSettings(), device="cpu")
+>>> r.render_frame()
+>>> aovs = r.aovs()          # dict of numpy arrays, host copies
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import warp as wp
+
+from .errors import SceneError
+from .raster import GBuffer, LightMaps, Rasterizer, camera_view
+from .scene import Camera, DeviceScene, Scene
+from .shade import DirectLighting, composite
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """What a render is asked for. Frozen and hashable: passes may specialise kernels on it."""
+
+    width: int | None = None  #: image width [pixels]; None = the scene camera's
+    height: int | None = None  #: image height [pixels]; None = the scene camera's
+    rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
+
+    def validate(self) -> None:
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, (int, np.integer)) or v <= 0):
+                raise SceneError(f"--{name} must be a positive integer, got {v!r}")
+        if not isinstance(self.rsm_size, (int, np.integer)) or not (1 <= self.rsm_size <= 16384):
+            raise SceneError(f"--rsm-size must be an integer in [1, 16384], got {self.rsm_size!r}")
+
+
+class Renderer:
+    """Renders frames of one scene on one device. Every buffer is allocated here, once."""
+
+    def __init__(self, scene: Scene, settings: RenderSettings | None = None, device=None):
+        self.settings = settings or RenderSettings()
+        self.settings.validate()
+        self.device = wp.get_device(device)
+        cam = scene.camera
+        if self.settings.width or self.settings.height:
+            cam = replace(cam, width=self.settings.width or cam.width, height=self.settings.height or cam.height)
+            scene.camera = cam
+        scene.validate()
+        self.scene = scene
+        self.gpu = DeviceScene(scene, self.device)
+        self.raster = Rasterizer(self.gpu)
+        self.gbuffer = GBuffer.allocate(cam.width, cam.height, self.device)
+        self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size) for light in scene.lights]
+        self.direct = DirectLighting(self.gbuffer, self.device)
+        n = cam.width * cam.height
+        self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
+        self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        self.view = camera_view(cam)
+        self.view_params = self.view.params()
+        self.prev_view_params = self.view_params
+        self.frame = 0
+
+    def set_camera(self, camera: Camera) -> None:
+        """Move the camera (same resolution); the previous pose is kept for motion vectors."""
+        if (camera.width, camera.height) != (self.gbuffer.width, self.gbuffer.height):
+            camera = replace(camera, width=self.gbuffer.width, height=self.gbuffer.height)
+        self.scene.camera = camera
+        self.view = camera_view(camera)
+        self.view_params = self.view.params()
+
+    def render_frame(self) -> None:
+        """Raster, light and composite one frame; everything stays on the device."""
+        g = self.gbuffer
+        for lm in self.lights:
+            lm.render(self.raster)
+        g.render(self.raster, self.view_params, self.prev_view_params)
+        self.direct.render(g, self.lights)
+        w = g.water
+        wp.launch(composite, dim=g.width * g.height, device=self.device,
+                  inputs=[self.view_params, g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                          w.depth, w.position, w.normal, w.ior, self.surface_radiance, self.final])
+        self.prev_view_params = self.view_params
+        self.frame += 1
+
+    def aovs(self, include_rsm: bool = True) -> dict[str, np.ndarray]:
+        """Host copies of the frame's AOVs, images of shape (H, W[, C]), float32 / int32."""
+        g = self.gbuffer
+        shape = (g.height, g.width)
+        gb = g.numpy()
+        out = {k: gb[k] for k in ("depth", "position", "normal", "albedo", "roughness", "tri_id", "motion",
+                                  "water_depth", "water_normal")}
+        out["direct_irradiance"] = self.direct.irradiance.numpy().reshape(shape + (3,))
+        out["final"] = self.final.numpy().reshape(shape + (3,))
+        if include_rsm:
+            for lm in self.lights:
+                for r in lm.rsm:
+                    for k, v in r.numpy().items():
+                        out[f"{r.view.name}_{k}"] = v
+        return out

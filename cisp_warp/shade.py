@@ -1,0 +1,165 @@
+"""Shading: direct light with shadow maps, and compositing of the water layer into the final HDR image.
+
+Radiance is in W/(m² sr) per RGB channel; a diffuse receiver reflects L = albedo/π · E.
+Specular surfaces cast shadows here: light that reaches a receiver through water arrives only as
+photons (the caustic irradiance), so nothing is counted twice.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from .optics import fresnel_dielectric
+from .raster.views import ViewParams, world_project
+from .raster.rasterizer import GBuffer, LightMaps
+from .raster.kernels import spot_falloff
+from .scene.model import LightKind
+
+INV_PI = wp.constant(1.0 / math.pi)
+
+
+@wp.func
+def shadow_visibility(view: ViewParams, shadow_depth: wp.array(dtype=wp.float32), x: wp.vec3, n: wp.vec3, to_light: wp.vec3):
+    """(inside, visibility in [0, 1]) of world point ``x`` in one shadow map, bilinear percentage-closer.
+
+    The lookup point is pushed off the surface along its normal by 1.5 texels and compared with a
+    one-texel depth bias: texel size is 1/fx [m] for orthographic views and depth/fx for perspective.
+    """
+    q0 = world_project(view, x)
+    texel = 1.0 / view.fx
+    if view.orthographic == 0:
+        texel = q0[2] / view.fx
+    nl = n
+    if wp.dot(nl, to_light) < 0.0:
+        nl = -nl
+    q = world_project(view, x + nl * (1.5 * texel))
+    if q[2] <= 0.0 or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(view.width) or q[1] >= float(view.height):
+        return int(0), float(1.0)
+    fx = q[0] - 0.5
+    fy = q[1] - 0.5
+    i0 = int(wp.floor(fx))
+    j0 = int(wp.floor(fy))
+    ax = fx - float(i0)
+    ay = fy - float(j0)
+    vis = float(0.0)
+    for dj in range(2):
+        for di in range(2):
+            i = wp.clamp(i0 + di, 0, view.width - 1)
+            j = wp.clamp(j0 + dj, 0, view.height - 1)
+            sd = shadow_depth[j * view.width + i]
+            lit = float(1.0)
+            if sd > 0.0 and q[2] > sd + texel:
+                lit = 0.0
+            wx = wp.where(di == 0, 1.0 - ax, ax)
+            wy = wp.where(dj == 0, 1.0 - ay, ay)
+            vis += wx * wy * lit
+    return int(1), vis
+
+
+@wp.kernel
+def direct_light(
+    shadow_view: ViewParams,
+    shadow_depth: wp.array(dtype=wp.float32),  # (Hs*Ws,) nearest surface depth of the shadow map [m] (read)
+    exclusive: int,  # 1: add only points inside this view (one of several cube faces)
+    kind: int,  # LightKind
+    light_rgb: wp.vec3,  # W/m² (distant) or W/sr (point, spot)
+    light_pos: wp.vec3,  # [m]
+    light_dir: wp.vec3,  # unit direction of travel (distant), spot axis
+    cone_angle: float,
+    cone_softness: float,
+    depth: wp.array(dtype=wp.float32),  # (H*W,) camera G-buffer (read)
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) direct irradiance [W/m²] on the opaque surface (accumulate)
+):
+    p = wp.tid()
+    if depth[p] <= 0.0:
+        return
+    x = position[p]
+    n = normal[p]
+    e = wp.vec3(0.0)
+    to_light = -light_dir
+    if kind == 0:
+        e = light_rgb
+    else:
+        dl = light_pos - x
+        r2 = wp.max(wp.dot(dl, dl), 1.0e-12)
+        to_light = dl / wp.sqrt(r2)
+        e = light_rgb / r2
+        if kind == 2:
+            e = e * spot_falloff(wp.dot(-to_light, light_dir), cone_angle, cone_softness)
+    cos_n = wp.dot(n, to_light)
+    if cos_n <= 0.0:
+        return
+    inside, vis = shadow_visibility(shadow_view, shadow_depth, x, n, to_light)
+    if exclusive != 0 and inside == 0:
+        return
+    irradiance[p] = irradiance[p] + e * (cos_n * vis)
+
+
+@wp.kernel
+def composite(
+    camera: ViewParams,
+    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+    albedo: wp.array(dtype=wp.vec3),
+    direct_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
+    caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
+    water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+    water_position: wp.array(dtype=wp.vec3),
+    water_normal: wp.array(dtype=wp.vec3),
+    water_ior: wp.array(dtype=wp.float32),
+    surface_radiance: wp.array(dtype=wp.vec3),  # (H*W,) radiance of the opaque surface [W/(m² sr)] (write)
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
+):
+    """Lambertian receivers (direct + caustic irradiance); water transmits (1 − F) of what lies behind it.
+
+    The surface behind the water is read at the same pixel here; screen-space refraction and
+    reflection of the water replace this in the caustics pass.
+    """
+    p = wp.tid()
+    l_surface = wp.vec3(0.0)
+    if depth[p] > 0.0:
+        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p]) * INV_PI
+    surface_radiance[p] = l_surface
+    l = l_surface
+    if water_depth[p] > 0.0:
+        x = water_position[p]
+        eye = wp.transform_point(camera.view_to_world, wp.vec3(0.0))
+        v = wp.normalize(eye - x)
+        n = water_normal[p]
+        eta = water_ior[p]
+        c = wp.dot(v, n)
+        if c < 0.0:  # seen from inside the medium
+            c = -c
+            eta = 1.0 / eta
+        f = fresnel_dielectric(c, eta)
+        l = l_surface * (1.0 - f)
+    final[p] = l
+
+
+class DirectLighting:
+    """Direct irradiance [W/m²] on the camera's opaque surfaces from every light, shadowed by every surface."""
+
+    def __init__(self, gbuffer: GBuffer, device):
+        self.device = device
+        self.irradiance = wp.zeros(gbuffer.width * gbuffer.height, dtype=wp.vec3, device=device)
+
+    def render(self, gbuffer: GBuffer, lights: list[LightMaps]) -> None:
+        self.irradiance.zero_()
+        for lm in lights:
+            light = lm.light
+            maps = lm.shadow_maps()
+            rgb = light.radiometric_rgb.astype(np.float32)
+            for view, depth in maps:
+                wp.launch(direct_light, dim=gbuffer.width * gbuffer.height, device=self.device,
+                          inputs=[view, depth, int(len(maps) > 1), int(light.kind), wp.vec3(*rgb),
+                                  wp.vec3(*np.asarray(light.position, np.float32)),
+                                  wp.vec3(*np.asarray(light.direction, np.float32)),
+                                  float(light.cone_angle), float(light.cone_softness),
+                                  gbuffer.depth, gbuffer.position, gbuffer.normal, self.irradiance])
+
+
+__all__ = ["DirectLighting", "composite", "direct_light", "LightKind"]
