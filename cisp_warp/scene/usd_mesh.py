@@ -10,8 +10,9 @@ Rules (each one a test in ``tests/test_usd_import.py``):
 * Points go through ``XformCache.GetLocalToWorldTransform`` and the stage's unit/up-axis map; normals
   through its inverse transpose.
 * Authored normals (``primvars:normals`` over ``normals``) of any interpolation are used. Without
-  them, normals are "auto-smooth": the area-weighted vertex normal, except at corners whose triangle
-  is more than ``CREASE_ANGLE_DEG`` off it, which take the triangle's own normal (hard edges stay hard).
+  them, normals are "auto-smooth": at each corner, the area-weighted mean of the normals of the
+  triangles around its point that are within ``CREASE_ANGLE_DEG`` of the corner's own triangle, so
+  curved surfaces are smooth and hard edges (a cube's) stay hard.
 * Vertex layout: when every corner of a point has the same normal, output vertex ``i`` is the prim's
   point ``i`` (unused points kept), so ``sim/`` and time-sampled updates can write points in place.
   Otherwise (face-varying / uniform normals, hard edges) corners are split into one vertex per distinct
@@ -34,7 +35,7 @@ from ..errors import SceneError
 from .usd_material import MaterialTable, face_materials
 from .usd_stage import StageContext, python_value
 
-CREASE_ANGLE_DEG = 45.0  #: computed normals: corners more than this off the vertex normal stay flat
+CREASE_ANGLE_DEG = 45.0  #: computed normals: triangles meeting at more than this form a hard edge
 DEGENERATE_AREA = 1e-12  #: a triangle with |cross| <= this × (mesh bounding diagonal)² has zero area
 WATER_NAMESPACE = "cisp:water:"
 
@@ -128,6 +129,32 @@ def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> 
     corners = np.concatenate([corners[keep], np.asarray(extra_corners, dtype=corners.dtype).reshape(-1, 3)])
     order = np.argsort(tri_face, kind="stable")
     return tri_face[order], corners[order]
+
+
+def auto_smooth_normals(tri_point: np.ndarray, tri_n: np.ndarray, n_points: int):
+    """Normals where none are authored: (per-point (N, 3), None) when the mesh has no hard edge, else
+    (None, per-corner (T, 3, 3)).
+
+    A corner's normal is the area-weighted sum of the normals of the triangles around its point that
+    lie within ``CREASE_ANGLE_DEG`` of its own triangle (``tri_n``: (T, 3) area-weighted normals).
+    """
+    flat = _unit(tri_n)
+    pid = tri_point.reshape(-1)
+    tri = np.repeat(np.arange(len(tri_point)), 3)
+    order = np.argsort(pid, kind="stable")
+    size = np.bincount(pid, minlength=n_points)
+    start = np.cumsum(size) - size
+    k = size[pid[order]]  # corners sharing the point of each (sorted) corner
+    i = np.repeat(order, k)
+    j = order[np.repeat(start[pid[order]], k) + (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k))]
+    smooth = np.einsum("ij,ij->i", flat[tri[i]], flat[tri[j]]) >= math.cos(math.radians(CREASE_ANGLE_DEG))
+    if np.all(smooth):
+        vn = np.zeros((n_points, 3))
+        np.add.at(vn, pid, tri_n[tri])
+        return _unit(vn), None
+    acc = np.zeros((len(pid), 3))
+    np.add.at(acc, i[smooth], tri_n[tri[j[smooth]]])
+    return None, _unit(acc).reshape(-1, 3, 3)
 
 
 def _authored_normals(ctx: StageContext, mesh: UsdGeom.Mesh, n_points, n_faces, n_corners, path):
@@ -264,17 +291,7 @@ def read_mesh(ctx: StageContext, mesh: UsdGeom.Mesh, table: MaterialTable) -> tu
         else:
             corner_normals = n[tri_corner]
     else:
-        vn = np.zeros_like(Pw)
-        for j in range(3):
-            np.add.at(vn, tri_point[:, j], tri_n)
-        vn = _unit(vn)
-        corner_normals = vn[tri_point]
-        flat = _unit(tri_n)
-        crease = np.einsum("tjk,tk->tj", corner_normals, flat) < math.cos(math.radians(CREASE_ANGLE_DEG))
-        if not np.any(crease):
-            point_normals = vn
-        else:
-            corner_normals = np.where(crease[:, :, None], flat[:, None, :], corner_normals)
+        point_normals, corner_normals = auto_smooth_normals(tri_point, tri_n, len(P))
 
     if point_normals is None and dynamic:  # keep vertex i = point i for in-place updates
         acc = np.zeros_like(Pw)
