@@ -160,8 +160,13 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
 
     rs = _render_settings(stage, settings)
     cam_prim = _pick_camera(stage, cameras, camera_path, rs)
-    w, h = _resolution(ctx, rs, width, height)
-    check_memory(w * h * GBUFFER_BYTES_PER_PIXEL, f"a {w}x{h} G-buffer", device)
+    w, h, where = _resolution(ctx, rs, width, height)
+    try:
+        check_memory(w * h * GBUFFER_BYTES_PER_PIXEL, f"a {w}x{h} G-buffer", device)
+    except SceneError as exc:
+        raise SceneError(exc.reason, prim=where) from None
+    if w * h > MAX_PIXELS:
+        raise SceneError(f"resolution {w}x{h} has more than 2^31 pixels, beyond 32-bit indexing", prim=where)
     policy = str(ctx.get(rs.GetAspectRatioConformPolicyAttr())) if rs else "expandAperture"
     camera = read_camera(ctx, cam_prim, w, h, policy)
 
@@ -196,7 +201,8 @@ def _pick_camera(stage, cameras, camera_path, rs):
     return cameras[0]
 
 
-def _resolution(ctx, rs, width, height) -> tuple[int, int]:
+def _resolution(ctx, rs, width, height) -> tuple[int, int, str]:
+    """(width, height, where it came from) with the precedence of the module docstring."""
     where = "width/height"
     base = DEFAULT_RESOLUTION
     if rs:
@@ -217,9 +223,7 @@ def _resolution(ctx, rs, width, height) -> tuple[int, int]:
         h = int(height) if height is not None else int(round(int(width) * base[1] / base[0]))
     if w <= 0 or h <= 0:
         raise SceneError(f"resolution must be positive, got {w}x{h}", prim=where)
-    if w * h > MAX_PIXELS:
-        raise SceneError(f"resolution {w}x{h} has more than 2^31 pixels, beyond 32-bit indexing", prim=where)
-    return w, h
+    return w, h, where
 
 
 def _conform_vertical_aperture(ha: float, va: float, aspect: float, policy: str) -> float:

@@ -1,0 +1,239 @@
+"""Write the malformed-USD corpus that ``tests/test_malformed.py`` loads, and its ``expected.json``.
+
+Every file here is one way a scene can be broken. ``expected.json`` maps each file name to the prim
+path the error message must name (or null when the problem is the whole file) and a keyword the
+reason must contain. Run ``python tests/malformed/make_corpus.py`` after changing a case and commit
+the files it writes (they are small).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+HEADER = """#usda 1.0
+(
+    defaultPrim = "World"
+    metersPerUnit = {mpu}
+    upAxis = "{up}"{extra_meta}
+)
+"""
+
+FLOOR = """
+    def Mesh "Floor"{mesh_meta}
+    {{
+        int[] faceVertexCounts = {counts}
+        int[] faceVertexIndices = {indices}
+        point3f[] points = {points}{mesh_extra}
+    }}
+"""
+
+SUN = """
+    def DistantLight "Sun"
+    {{
+        float inputs:intensity = {intensity}
+        float inputs:exposure = {exposure}
+        float3 xformOp:rotateXYZ = (-90, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]
+    }}
+"""
+
+CAMERA = """
+    def Camera "Cam"
+    {{
+        float focalLength = {focal}
+        float horizontalAperture = 32
+        float verticalAperture = {vap}
+        float2 clippingRange = {clip}
+        double3 xformOp:translate = (0, 1, 5)
+        float3 xformOp:scale = {cam_scale}
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:scale"]
+    }}
+"""
+
+QUAD_POINTS = "[(-1, 0, -1), (1, 0, -1), (1, 0, 1), (-1, 0, 1)]"
+DEFAULTS = dict(
+    mpu="1",
+    up="Y",
+    extra_meta="",
+    counts="[4]",
+    indices="[0, 3, 2, 1]",
+    points=QUAD_POINTS,
+    mesh_extra="",
+    mesh_meta="",
+    intensity="3",
+    exposure="0",
+    focal="35",
+    vap="18",
+    clip="(0.1, 100)",
+    cam_scale="(1, 1, 1)",
+)
+
+
+def stage_text(floor=True, sun=True, camera=True, extra_world="", extra_root="", **kw) -> str:
+    """A valid flat-floor stage (quad, distant light, camera) with parts replaced or left out."""
+    v = dict(DEFAULTS, **kw)
+    body = (FLOOR.format(**v) if floor else "") + (SUN.format(**v) if sun else "")
+    body += (CAMERA.format(**v) if camera else "") + extra_world
+    return HEADER.format(**v) + '\ndef Xform "World"\n{' + body + "}\n" + extra_root
+
+
+def render_settings(res: str) -> str:
+    return f"""
+def Scope "Render"
+{{
+    def RenderSettings "Settings"
+    {{
+        uniform int2 resolution = {res}
+    }}
+}}
+"""
+
+
+WATER_MATERIAL = """
+    def Scope "Looks"
+    {{
+        def Material "Water"
+        {{
+            token outputs:surface.connect = </World/Looks/Water/Surface.outputs:surface>
+            def Shader "Surface"
+            {{
+                uniform token info:id = "UsdPreviewSurface"
+                float inputs:ior = {ior}
+                float inputs:opacity = 0
+                float inputs:roughness = 0
+                token outputs:surface
+            }}
+        }}
+    }}
+"""
+
+BOUND_META = """ (
+        prepend apiSchemas = ["MaterialBindingAPI"]
+    )"""
+BOUND = """
+        rel material:binding = </World/Looks/Water>"""
+
+
+def cases() -> dict[str, tuple[bytes | str, str | None, str]]:
+    """file name -> (content, prim the message must name or None, keyword of the reason)."""
+    valid = stage_text()
+    c: dict[str, tuple[bytes | str, str | None, str]] = {}
+    # --- not a (complete) USD file
+    c["empty.usda"] = ("", None, "empty")
+    c["text_renamed.usda"] = ("These are not the prims you are looking for.\n", None, "not a readable USD file")
+    c["png_renamed.usda"] = (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(64)), None, "not a readable USD")
+    c["truncated.usda"] = (valid[: int(len(valid) * 0.6)], None, "not a readable USD file")
+    c["garbage.usdc"] = (b"PXR-USDC" + bytes((i * 37) % 251 for i in range(200)), None, "not a readable USD")
+    c["usd_text_named.txt"] = (valid, None, "not a USD file")
+    c["header_only.usda"] = ("#usda 1.0\n", None, "no renderable triangles")
+    # --- stage metadata
+    c["zero_meters_per_unit.usda"] = (stage_text(mpu="0"), None, "metersPerUnit")
+    c["x_up_axis.usda"] = (stage_text(up="X"), None, "upAxis")
+    # --- mesh topology and values
+    c["nan_points.usda"] = (stage_text(points="[(-1, 0, -1), (nan, 0, -1), (1, 0, 1), (-1, 0, 1)]"),
+                            "/World/Floor", "NaN")
+    c["inf_points.usda"] = (stage_text(points="[(-1, 0, -1), (1, 0, -1), (1, inf, 1), (-1, 0, 1)]"),
+                            "/World/Floor", "Inf")
+    c["index_out_of_range.usda"] = (stage_text(indices="[0, 3, 2, 7]"), "/World/Floor", "out of range")
+    c["negative_index.usda"] = (stage_text(indices="[0, 3, -2, 1]"), "/World/Floor", "out of range")
+    c["counts_sum_mismatch.usda"] = (stage_text(counts="[5]"), "/World/Floor", "faceVertexCounts sum")
+    c["huge_face_count.usda"] = (stage_text(counts="[2000000000]"), "/World/Floor", "faceVertexCounts sum")
+    c["face_with_two_vertices.usda"] = (stage_text(counts="[2, 2]"), "/World/Floor", "at least 3")
+    c["negative_face_count.usda"] = (stage_text(counts="[-4, 8]", indices="[0, 3, 2, 1]"),
+                                     "/World/Floor", "at least 3")
+    c["mesh_without_points.usda"] = (stage_text(points="[]", counts="[]", indices="[]"), "/World/Floor",
+                                     "no points")
+    c["mesh_without_faces.usda"] = (stage_text(counts="[]", indices="[]"), "/World/Floor", "no faces")
+    c["all_triangles_degenerate.usda"] = (stage_text(points="[(0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0)]"),
+                                          "/World/Floor", "degenerate")
+    c["no_mesh.usda"] = (stage_text(floor=False), None, "no renderable triangles")
+    c["nan_xform.usda"] = (stage_text(mesh_extra="""
+        double3 xformOp:translate = (nan, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]"""), "/World/Floor", "NaN")
+    c["subset_index_out_of_range.usda"] = (stage_text(
+        mesh_meta=BOUND_META,
+        mesh_extra=BOUND + """
+        def GeomSubset "Part" (
+            prepend apiSchemas = ["MaterialBindingAPI"]
+        )
+        {
+            uniform token elementType = "face"
+            uniform token familyName = "materialBind"
+            int[] indices = [0, 5]
+            rel material:binding = </World/Looks/Water>
+        }""",
+        extra_world=WATER_MATERIAL.format(ior="1.33")), "/World/Floor/Part", "out of range")
+    # --- materials
+    c["zero_ior.usda"] = (stage_text(mesh_meta=BOUND_META, mesh_extra=BOUND,
+                                     extra_world=WATER_MATERIAL.format(ior="0")),
+                          "/World/Looks/Water/Surface", "ior")
+    c["negative_ior.usda"] = (stage_text(mesh_meta=BOUND_META, mesh_extra=BOUND,
+                                     extra_world=WATER_MATERIAL.format(ior="-1.33")),
+                              "/World/Looks/Water/Surface", "ior")
+    c["nan_ior.usda"] = (stage_text(mesh_meta=BOUND_META, mesh_extra=BOUND,
+                                     extra_world=WATER_MATERIAL.format(ior="nan")),
+                         "/World/Looks/Water/Surface", "ior")
+    # --- lights
+    c["no_light.usda"] = (stage_text(sun=False), None, "no light")
+    c["only_rect_light.usda"] = (stage_text(sun=False, extra_world="""
+    def RectLight "Rect"
+    {
+        float inputs:intensity = 10
+    }
+"""), "/World/Rect", "no usable light")
+    c["only_dome_light.usda"] = (stage_text(sun=False, extra_world="""
+    def DomeLight "Dome"
+    {
+    }
+"""), "/World/Dome", "no usable light")
+    c["negative_intensity.usda"] = (stage_text(intensity="-3"), "/World/Sun", "intensity")
+    c["nan_intensity.usda"] = (stage_text(intensity="nan"), "/World/Sun", "intensity")
+    c["inf_exposure.usda"] = (stage_text(exposure="inf"), "/World/Sun", "exposure")
+    c["zero_spot_cone.usda"] = (stage_text(sun=False, extra_world="""
+    def SphereLight "Spot" (
+        prepend apiSchemas = ["ShapingAPI"]
+    )
+    {
+        bool treatAsPoint = 1
+        float inputs:shaping:cone:angle = 0
+    }
+"""), "/World/Spot", "cone")
+    # --- camera
+    c["no_camera.usda"] = (stage_text(camera=False), None, "no camera")
+    c["zero_focal_length.usda"] = (stage_text(focal="0"), "/World/Cam", "focalLength")
+    c["nan_focal_length.usda"] = (stage_text(focal="nan"), "/World/Cam", "focalLength")
+    c["zero_aperture.usda"] = (stage_text(vap="0"), "/World/Cam", "verticalAperture")
+    c["clip_near_after_far.usda"] = (stage_text(clip="(100, 0.1)"), "/World/Cam", "clippingRange")
+    c["clip_near_zero.usda"] = (stage_text(clip="(0, 100)"), "/World/Cam", "clippingRange")
+    c["camera_zero_scale.usda"] = (stage_text(cam_scale="(0, 0, 0)"), "/World/Cam", "singular")
+    # --- resolution
+    c["zero_resolution.usda"] = (stage_text(extra_root=render_settings("(0, 360)")), "/Render/Settings",
+                                 "resolution")
+    c["negative_resolution.usda"] = (stage_text(extra_root=render_settings("(640, -360)")), "/Render/Settings",
+                                     "resolution")
+    c["resolution_beyond_memory.usda"] = (stage_text(extra_root=render_settings("(1000000, 1000000)")),
+                                          "/Render/Settings", "G-buffer")
+    return c
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=HERE, help="folder to write into (default: next to this script)")
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    expected = {}
+    for name, (content, prim, keyword) in cases().items():
+        data = content.encode() if isinstance(content, str) else content
+        (args.out / name).write_bytes(data)
+        expected[name] = {"prim": prim, "keyword": keyword}
+    (args.out / "expected.json").write_text(json.dumps(expected, indent=2, sort_keys=True) + "\n")
+    print(f"wrote {len(expected)} malformed files and expected.json to {os.path.relpath(args.out)}")
+
+
+if __name__ == "__main__":
+    main()
