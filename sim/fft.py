@@ -52,11 +52,12 @@ def radix4_rows_kernel(
     twiddle: wp.array(dtype=wp.vec2),  # (N,) exp(+2 pi i k / N), read
     quarter: int,  # r = n / 4, a quarter of the current sub-transform length
     stride: int,  # s = N / n
+    log2_stride: int,  # log2(s): p = b / s, q = b % s by shift and mask (no integer division)
 ):
     """One radix-4 stage along the last axis (x) of every row of every field; dim (F, N, N/4)."""
     f, row, b = wp.tid()
-    p = b // stride
-    q = b - p * stride
+    p = b >> log2_stride
+    q = b & (stride - 1)
     x0 = src[f, row, q + stride * p]
     x1 = src[f, row, q + stride * (p + quarter)]
     x2 = src[f, row, q + stride * (p + 2 * quarter)]
@@ -80,11 +81,12 @@ def radix4_columns_kernel(
     twiddle: wp.array(dtype=wp.vec2),  # (N,) exp(+2 pi i k / N), read
     quarter: int,
     stride: int,
+    log2_stride: int,
 ):
     """One radix-4 stage along the middle axis (z); dim (F, N/4, N), column fastest (coalesced)."""
     f, b, col = wp.tid()
-    p = b // stride
-    q = b - p * stride
+    p = b >> log2_stride
+    q = b & (stride - 1)
     x0 = src[f, q + stride * p, col]
     x1 = src[f, q + stride * (p + quarter), col]
     x2 = src[f, q + stride * (p + 2 * quarter), col]
@@ -165,7 +167,8 @@ class InverseFFT2D:
                 src, dst = buffers
                 if length >= 4:
                     launch = wp.launch(radix4, dim=dim4,
-                                       inputs=[src, dst, self.twiddle, length // 4, stride],
+                                       inputs=[src, dst, self.twiddle, length // 4, stride,
+                                               stride.bit_length() - 1],
                                        device=self.device, record_cmd=True)
                     length, stride = length // 4, stride * 4
                 else:
