@@ -13,6 +13,7 @@ import numpy as np
 import warp as wp
 
 from .errors import SceneError
+from .photons import CISP, PhotonSettings
 from .raster import GBuffer, LightMaps, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite
@@ -25,6 +26,8 @@ class RenderSettings:
     width: int | None = None  #: image width [pixels]; None = the scene camera's
     height: int | None = None  #: image height [pixels]; None = the scene camera's
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
+    method: str = "cisp"  #: photon method: "cisp", or "none" for direct light only
+    photons: PhotonSettings = PhotonSettings()
 
     def validate(self) -> None:
         for name in ("width", "height"):
@@ -33,6 +36,12 @@ class RenderSettings:
                 raise SceneError(f"--{name} must be a positive integer, got {v!r}")
         if not isinstance(self.rsm_size, (int, np.integer)) or not (1 <= self.rsm_size <= 16384):
             raise SceneError(f"--rsm-size must be an integer in [1, 16384], got {self.rsm_size!r}")
+        if self.method not in METHODS:
+            raise SceneError(f"--method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        self.photons.validate()
+
+
+METHODS = ("cisp", "none")
 
 
 class Renderer:
@@ -60,6 +69,9 @@ class Renderer:
         self.view = camera_view(cam)
         self.view_params = self.view.params()
         self.prev_view_params = self.view_params
+        self.photons = None
+        if self.settings.method == "cisp":
+            self.photons = CISP(self.gbuffer, self.view, self.lights, self.settings.photons, self.device)
         self.frame = 0
 
     def set_camera(self, camera: Camera) -> None:
@@ -77,6 +89,9 @@ class Renderer:
             lm.render(self.raster)
         g.render(self.raster, self.view_params, self.prev_view_params)
         self.direct.render(g, self.lights)
+        if self.photons is not None:
+            self.photons.trace(g, self.view_params, self.frame)
+            wp.copy(self.caustic_irradiance, self.photons.photon_map)
         w = g.water
         wp.launch(composite, dim=g.width * g.height, device=self.device,
                   inputs=[self.view_params, g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
@@ -93,6 +108,9 @@ class Renderer:
                                   "water_depth", "water_normal")}
         out["direct_irradiance"] = self.direct.irradiance.numpy().reshape(shape + (3,))
         out["final"] = self.final.numpy().reshape(shape + (3,))
+        if self.photons is not None:
+            out["photon_map"] = self.photons.photon_map.numpy().reshape(shape + (3,))
+            out["caustics"] = self.caustic_irradiance.numpy().reshape(shape + (3,))
         if include_rsm:
             for lm in self.lights:
                 for r in lm.rsm:
