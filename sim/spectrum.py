@@ -43,9 +43,11 @@ def wavenumbers(resolution: int, patch_size: float) -> tuple[np.ndarray, np.ndar
 
 
 def dispersion(k: np.ndarray, depth: float) -> np.ndarray:
-    """Finite-depth angular frequency omega(k) = sqrt(g k tanh(k h)) [rad/s]."""
+    """Finite-depth angular frequency omega(k) = sqrt(g k tanh(k h)) [rad/s]; h = inf is deep."""
     k = np.asarray(k, dtype=np.float64)
-    return np.sqrt(GRAVITY * k * np.tanh(k * depth))
+    with np.errstate(invalid="ignore"):  # 0 * inf at k = 0 in deep water
+        kh = np.where(k > 0.0, k * depth, 0.0)
+    return np.sqrt(GRAVITY * k * np.tanh(kh))
 
 
 def dispersion_slope(k: np.ndarray, depth: float) -> np.ndarray:

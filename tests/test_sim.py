@@ -39,7 +39,10 @@ def numpy_twin(params: WaterParams, t: float) -> dict:
     n = params.resolution
     kx, kz = wavenumbers(n, params.patch_size)
     k = np.hypot(kx, kz)
-    omega = np.sqrt(GRAVITY * k * np.tanh(k * params.depth))
+    if math.isinf(params.depth):
+        omega = np.sqrt(GRAVITY * k)
+    else:
+        omega = np.sqrt(GRAVITY * k * np.tanh(k * params.depth))
     h0 = initial_amplitudes(params)
     h0_minus = np.roll(np.flip(h0, (0, 1)), 1, axis=(0, 1))  # h0(-k) in FFT order
     h_k = h0 * np.exp(-1j * omega * t) + np.conj(h0_minus) * np.exp(1j * omega * t)
@@ -135,6 +138,15 @@ def test_surface_matches_numpy_twin(device, spectrum):
         if name == "jacobian":
             value = value - 1.0
         assert relative_error(value, reference) <= 1e-5, name
+
+
+def test_deep_water_is_finite_and_matches_twin(device):
+    params = small_params(depth=math.inf, spectrum="phillips")
+    water = FFTWater(params, device)
+    water.evaluate(0.7)
+    height = water.height.numpy()
+    assert np.all(np.isfinite(height)) and np.any(height != 0.0)
+    assert relative_error(height, numpy_twin(params, 0.7)["height"]) <= 1e-5
 
 
 def test_zero_choppiness_gives_no_horizontal_displacement(device):
