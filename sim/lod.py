@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .mesh import _check_rect
+from .mesh import check_rect
 from .params import SimParameterError, WaterParams, check_finite
 
 #: Default FFT size cap. 1024^2 is 4 packed complex fields x 2 ping-pong buffers = 64 MiB plus
@@ -77,7 +77,7 @@ def choose_lod(camera_footprint: float, light_footprint: float, rect, peak_wavel
     cam = check_finite("camera_footprint", camera_footprint, 0.0, strict=True)
     light = check_finite("light_footprint", light_footprint, 0.0, strict=True)
     peak = check_finite("peak_wavelength", peak_wavelength, 0.0, strict=True)
-    x0, z0, x1, z1 = _check_rect(rect)
+    x0, z0, x1, z1 = check_rect(rect)
     samples = int(samples_per_wavelength)
     if samples < 2:
         raise SimParameterError(

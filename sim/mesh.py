@@ -106,7 +106,8 @@ def grid_triangles(nx: int, nz: int) -> np.ndarray:
     return np.stack([v00, v01, v10, v10, v01, v11], axis=-1).astype(np.int32).ravel()
 
 
-def _check_rect(rect) -> tuple[float, float, float, float]:
+def check_rect(rect) -> tuple[float, float, float, float]:
+    """(x_min, z_min, x_max, z_max) [m] as floats, or ``SimParameterError`` naming ``rect``."""
     try:
         x0, z0, x1, z1 = (check_finite("rect", c) for c in rect)
     except (TypeError, ValueError) as error:
@@ -116,11 +117,13 @@ def _check_rect(rect) -> tuple[float, float, float, float]:
             f"rect={rect!r} is invalid: expected (x_min, z_min, x_max, z_max) in metres") from None
     if not (x1 > x0 and z1 > z0):
         raise SimParameterError(
-            f"rect={rect!r} is invalid: need x_max > x_min and z_max > z_min (x_min, z_min, x_max, z_max)")
+            f"rect={rect!r} is invalid: need x_max > x_min and z_max > z_min "
+            "in (x_min, z_min, x_max, z_max)")
     return x0, z0, x1, z1
 
 
-def _check_vertex_counts(vertex_counts) -> tuple[int, int]:
+def check_vertex_counts(vertex_counts) -> tuple[int, int]:
+    """(nx, nz) as ints >= 2 with nx * nz <= MAX_VERTICES, or ``SimParameterError``."""
     try:
         nx, nz = vertex_counts
         ok = all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 2
@@ -157,9 +160,9 @@ class WaterMesh:
             raise SimParameterError(f"water={water!r} is invalid: expected an FFTWater")
         self.water = water
         self.device = water.device
-        self.rect = _check_rect(rect)
+        self.rect = check_rect(rect)
         self.y0 = check_finite("y0", y0)
-        self.vertex_counts = _check_vertex_counts(vertex_counts)
+        self.vertex_counts = check_vertex_counts(vertex_counts)
         nx, nz = self.vertex_counts
         self.vertex_count = nx * nz
         self.pin_border = bool(pin_border)

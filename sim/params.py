@@ -120,7 +120,8 @@ class WaterParams:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
-            raise _fail("keys", unknown, f"unknown WaterParams keys; known keys are {sorted(known)}")
+            raise _fail("keys", unknown,
+                        f"unknown WaterParams keys; known keys are {sorted(known)}")
         return cls(**dict(values))
 
     def replace(self, **changes: Any) -> "WaterParams":

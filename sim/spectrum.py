@@ -129,14 +129,16 @@ def donelan_banner_spreading(omega: np.ndarray, omega_p: float, theta: np.ndarra
 def tma_depth_factor(omega: np.ndarray, depth: float) -> np.ndarray:
     """Kitaigorodskii depth attenuation phi(omega, h) of the TMA spectrum (Bouws et al. 1985)."""
     w_h = omega * np.sqrt(depth / GRAVITY)
-    return np.where(w_h <= 1.0, 0.5 * w_h**2, np.where(w_h < 2.0, 1.0 - 0.5 * (2.0 - w_h) ** 2, 1.0))
+    return np.where(w_h <= 1.0, 0.5 * w_h**2,
+                    np.where(w_h < 2.0, 1.0 - 0.5 * (2.0 - w_h) ** 2, 1.0))
 
 
 def jonswap_spectrum(kx: np.ndarray, kz: np.ndarray, params: WaterParams) -> np.ndarray:
     """JONSWAP (TMA in finite depth) spectrum Psi(k) [m^4] with Donelan-Banner spreading.
 
     S(omega) = alpha g^2 omega^-5 exp(-5/4 (omega_p/omega)^4) gamma^r,
-    r = exp(-(omega - omega_p)^2 / (2 sigma^2 omega_p^2)), sigma = 0.07 (omega <= omega_p) else 0.09,
+    r = exp(-(omega - omega_p)^2 / (2 sigma^2 omega_p^2)),
+    sigma = 0.07 (omega <= omega_p) else 0.09,
     alpha = 0.076 (U^2/(F g))^0.22, omega_p = 22 (g^2/(U F))^(1/3), gamma = 3.3 (Hasselmann 1973).
     Converted to wavenumber: Psi(k) = S(omega) phi_TMA(omega, h) D(omega, theta) (d omega/dk) / k.
     """

@@ -138,6 +138,10 @@ class FFTWater:
         h0 = np.asarray(h0)
         if h0.shape != (n, n):
             raise SimParameterError(f"h0 shape {h0.shape} is invalid: expected ({n}, {n})")
+        if np.any(h0[n // 2, :] != 0) or np.any(h0[:, n // 2] != 0):
+            raise SimParameterError(
+                "h0 is invalid: the Nyquist row and column (index N/2) must be zero, their "
+                "spectral derivatives have no Hermitian partner on the grid")
         kx, kz = wavenumbers(n, params.patch_size)
         omega = dispersion(np.hypot(kx, kz), params.depth)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from sim import FFTWater, InverseFFT2D, SimParameterError, WaterMesh, WaterParams, choose_lod
+from sim import FFTWater, InverseFFT2D, WaterMesh, WaterParams
 from sim.spectrum import (GRAVITY, initial_amplitudes, peak_wavelength, wavenumber_spectrum,
                           wavenumbers)
 
@@ -270,12 +270,12 @@ def test_same_seed_same_surface_different_seed_different(device):
 
 def test_evaluate_writes_in_place(device):
     water = FFTWater(small_params(), device)
-    pointers = [getattr(water, name).ptr for name in ("height", "displacement", "slope", "jacobian")]
+    names = ("height", "displacement", "slope", "jacobian")
+    pointers = [getattr(water, name).ptr for name in names]
     water.evaluate(0.1)
     first = water.height.numpy().copy()
     water.evaluate(0.6)
-    assert [getattr(water, name).ptr
-            for name in ("height", "displacement", "slope", "jacobian")] == pointers
+    assert [getattr(water, name).ptr for name in names] == pointers
     assert not np.array_equal(first, water.height.numpy())
 
 
