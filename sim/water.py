@@ -170,7 +170,7 @@ class FFTWater:
 
     @property
     def launches_per_frame(self) -> int:
-        """Kernel launches per ``evaluate``: spectrum, 2 log2 N FFT stages, unpack."""
+        """Kernel launches per ``evaluate``: spectrum, 2 ceil(log4 N) FFT stages, unpack."""
         return 2 + self.fft.launch_count
 
     def evaluate_spectrum(self, t: float) -> None:

@@ -4,7 +4,7 @@
 For each N: median over ``--repeats`` timed frames after two warm-up frames, with
 ``wp.synchronize_device`` before and after each timed call. Columns:
 
-- ``evaluate``: one whole frame (spectrum kernel, 2 log2 N FFT stages, unpack kernel).
+- ``evaluate``: one whole frame (spectrum kernel, 2 ceil(log4 N) FFT stages, unpack kernel).
 - ``warp fft``: the inverse FFT alone (4 packed complex fields).
 - ``numpy.fft``: ``numpy.fft.ifft2`` of the same 4 complex64 fields, (4, N, N), on the host.
 
