@@ -480,3 +480,56 @@ def test_resolution_beyond_memory_is_refused_before_allocating(tmp_path):
     add_mesh(stage, "/World/M", UNIT_QUAD, [4], [0, 1, 2, 3])
     with pytest.raises(SceneError, match="s.usda"):
         save_and_load(stage, width=10**6, height=10**5)  # 1e11 px × 64 B ≈ 6 TiB
+
+
+# ---------------------------------------------------------------------------------------------- shipped scene
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+CORNELL = ROOT / "scenes_usd" / "cornell_flooded.usda"
+
+
+def _cornell_generator():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_cornell_flooded", ROOT / "tools" / "make_cornell_flooded.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_cornell_flooded_loads_as_seed_000_describes_it():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SceneWarning)  # the shipped scene imports without a warning
+        scene = load_usd(CORNELL)
+    lo, hi = scene.bounds()
+    np.testing.assert_allclose(lo, [-0.5, 0.0, -0.5], atol=1e-6)
+    np.testing.assert_allclose(hi, [0.5, 1.0, 0.5], atol=1e-6)
+    (spot,) = scene.lights
+    assert spot.kind == LightKind.SPOT and spot.intensity == pytest.approx(2.0)
+    np.testing.assert_allclose(spot.direction, [0, -1, 0], atol=1e-9)
+    # The cone reaches the walls (x or z = ±0.5) only below the water line.
+    assert spot.position[1] - 0.5 / math.tan(spot.cone_angle) < 0.35 - 0.01
+    water = next(m for m in scene.meshes if m.water)
+    assert water.dynamic and water.path == "/World/Water"
+    assert water.water["depth"] == 0.35 and water.water["spectrum"] == "phillips"
+    t = slice(water.triangle_start, water.triangle_start + water.triangle_count)
+    mat = scene.materials[scene.triangle_material[t][0]]
+    assert mat.transmissive and mat.roughness == 0.0 and mat.ior == pytest.approx(2.4)
+    y = scene.points[water.vertex_start : water.vertex_start + water.vertex_count, 1]
+    assert 0.001 < y.max() - 0.35 < 0.01 and 0.001 < 0.35 - y.min() < 0.01  # waves of a few mm
+    # shading normals agree with the counter-clockwise geometric normals everywhere
+    n_geo = tri_normal(scene)
+    n_shade = scene.normals[scene.indices].astype(np.float64).mean(axis=1)
+    assert np.einsum("ij,ij->i", n_geo, n_shade).min() > 0.9
+    cam = scene.camera
+    assert (cam.width, cam.height) == (640, 360) and math.degrees(cam.fov_y) == pytest.approx(40.0, abs=0.1)
+    assert (cam.near, cam.far) == pytest.approx((0.05, 20.0))
+    names = {m.name for m in scene.materials}
+    assert {"/World/Looks/Red", "/World/Looks/Green", "/World/Looks/White", "/World/Looks/Water"} <= names
+
+
+def test_cornell_generator_is_deterministic_and_in_sync_with_the_committed_file(tmp_path):
+    gen = _cornell_generator()
+    stage = gen.build(tmp_path / "c.usda", 2.4, 96, 0)
+    assert gen.validation_errors(stage) == []
+    assert (tmp_path / "c.usda").read_bytes() == CORNELL.read_bytes(), "rerun tools/make_cornell_flooded.py"
