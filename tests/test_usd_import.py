@@ -74,9 +74,10 @@ def test_triangulation_preserves_area_and_winding(tmp_path):
     ell = [(3, 0, 0), (6, 0, 0), (6, 1, 0), (4, 1, 0), (4, 3, 0), (3, 3, 0)]
     # arrow-head pentagon whose first corner is the reflex one.
     arrow = [(8, 1, 0), (7, 0, 0), (10, 1, 0), (7, 2, 0), (7.5, 1.5, 0)]
-    pts = UNIT_QUAD + pent + ell + arrow
-    counts = [4, 5, 6, 5]
-    idx = list(range(4)) + list(range(4, 9)) + list(range(9, 15)) + list(range(15, 20))
+    dart = [(11.3, 0.3, 0), (11, 0, 0), (12, 0, 0), (11, 1, 0)]  # non-convex quad, reflex first corner
+    pts = UNIT_QUAD + pent + ell + arrow + dart
+    counts = [4, 5, 6, 5, 4]
+    idx = list(range(4)) + list(range(4, 9)) + list(range(9, 15)) + list(range(15, 20)) + list(range(20, 24))
     add_mesh(stage, "/World/M", pts, counts, idx)
     scene = save_and_load(stage)
 
@@ -85,7 +86,7 @@ def test_triangulation_preserves_area_and_winding(tmp_path):
         return 0.5 * abs(np.dot(xy[:, 0], np.roll(xy[:, 1], -1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], -1)))
 
     assert scene.triangle_count == sum(c - 2 for c in counts)
-    assert np.isclose(tri_area(scene).sum(), sum(shoelace(p) for p in (UNIT_QUAD, pent, ell, arrow)))
+    assert np.isclose(tri_area(scene).sum(), sum(shoelace(p) for p in (UNIT_QUAD, pent, ell, arrow, dart)))
     np.testing.assert_allclose(tri_normal(scene), np.tile([0.0, 0.0, 1.0], (scene.triangle_count, 1)), atol=1e-6)
     # Every triangle of the L lies inside the L (its centroid is not in the notch x>4, y>1).
     c = scene.points[scene.indices].mean(axis=1)

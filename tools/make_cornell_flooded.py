@@ -272,8 +272,10 @@ def validation_errors(stage: Usd.Stage) -> list[str]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output .usda (default: {DEFAULT_OUT.relative_to(ROOT)})")
-    ap.add_argument("--ior", type=float, default=2.4, help="index of refraction of the water (default: 2.4, as in seed 000)")
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT,
+                    help=f"output .usda (default: {DEFAULT_OUT.relative_to(ROOT)})")
+    ap.add_argument("--ior", type=float, default=2.4,
+                    help="index of refraction of the water (default: 2.4, as in seed 000)")
     ap.add_argument("--water-resolution", type=int, default=96, help="water grid quads per side (default: 96)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the static waves and of cisp:water:seed (default: 0)")
     args = ap.parse_args(argv)

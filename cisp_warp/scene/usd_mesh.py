@@ -60,29 +60,33 @@ def _unit(v: np.ndarray, fallback=(0.0, 1.0, 0.0)) -> np.ndarray:
 
 
 def _ear_clip(p2: np.ndarray) -> list[tuple[int, int, int]]:
-    """Triangles (local corner ids) of a simple polygon given counter-clockwise in 2-D, O(n²)."""
+    """Triangles (local corner ids) of a simple polygon given counter-clockwise in 2-D.
 
-    def cross(a, b, c):
-        return (p2[b, 0] - p2[a, 0]) * (p2[c, 1] - p2[a, 1]) - (p2[b, 1] - p2[a, 1]) * (p2[c, 0] - p2[a, 0])
-
+    O(n²) ears × O(n) vectorised containment tests; a polygon with no ear left (self-intersecting
+    or degenerate) is finished with a fan.
+    """
     remaining = list(range(len(p2)))
     tris = []
     while len(remaining) > 3:
         m = len(remaining)
-        for k in range(m):
-            a, b, c = remaining[k - 1], remaining[k], remaining[(k + 1) % m]
-            if cross(a, b, c) <= 0.0:  # reflex or collinear corner: not an ear
+        r = np.asarray(remaining)
+        q = p2[r]
+        prev, nxt = np.roll(q, 1, axis=0), np.roll(q, -1, axis=0)
+        e1, e2 = q - prev, nxt - prev
+        convex = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] > 0.0  # corner turns left: an ear candidate
+        for k in np.nonzero(convex)[0]:
+            a, b, c = prev[k], q[k], nxt[k]
+            others = np.delete(q, [(k - 1) % m, k, (k + 1) % m], axis=0)
+
+            def side(u, v):
+                return (v[0] - u[0]) * (others[:, 1] - u[1]) - (v[1] - u[1]) * (others[:, 0] - u[0]) >= 0.0
+
+            if np.any(side(a, b) & side(b, c) & side(c, a)):
                 continue
-            if any(
-                cross(a, b, j) >= 0.0 and cross(b, c, j) >= 0.0 and cross(c, a, j) >= 0.0
-                for j in remaining
-                if j not in (a, b, c)
-            ):
-                continue
-            tris.append((a, b, c))
-            remaining.pop(k)
+            tris.append((remaining[(k - 1) % m], remaining[k], remaining[(k + 1) % m]))
+            remaining.pop(int(k))
             break
-        else:  # no ear: self-intersecting or degenerate polygon, finish with a fan
+        else:
             break
     tris += [(remaining[0], remaining[k], remaining[k + 1]) for k in range(1, len(remaining) - 1)]
     return tris
@@ -113,6 +117,14 @@ def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> 
     tri_n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     bad_tri = np.einsum("ij,ij->i", tri_n, newell[tri_face]) <= 0.0
     bad_faces = np.unique(tri_face[bad_tri & poly[tri_face]])
+    # A non-convex quad is split along its other diagonal (vectorised); larger polygons are ear-clipped.
+    quads = bad_faces[counts[bad_faces] == 4]
+    if quads.size:
+        first = np.searchsorted(tri_face, quads)  # the first of each quad's two fan triangles
+        s = starts[quads]
+        corners[first] = np.stack([s + 1, s + 2, s + 3], axis=1)
+        corners[first + 1] = np.stack([s + 1, s + 3, s], axis=1)
+        bad_faces = bad_faces[counts[bad_faces] != 4]
     if bad_faces.size == 0:
         return tri_face, corners
     keep = ~np.isin(tri_face, bad_faces)

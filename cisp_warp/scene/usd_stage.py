@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 import warnings
 from dataclasses import dataclass, field
 
@@ -23,6 +24,7 @@ _Z_UP_TO_Y_UP = np.array(
 )
 
 _USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+_PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # cisp_warp/
 
 
 def tf_reason(exc: BaseException) -> str:
@@ -96,8 +98,12 @@ class StageContext:
         return attr.Get(self.time)
 
     def warn(self, reason: str, prim: str | None = None) -> None:
+        """Emit a :class:`SceneWarning` naming the file and ``prim``, attributed to the importer's caller."""
         where = f"file '{self.path}'" + (f", prim '{prim}'" if prim else "")
-        warnings.warn(SceneWarning(f"{where}: {reason}"), stacklevel=3)
+        frame, level = sys._getframe(0), 1
+        while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
+            frame, level = frame.f_back, level + 1
+        warnings.warn(SceneWarning(f"{where}: {reason}"), stacklevel=level)
 
 
 def finite_float(value, what: str, prim: str, lo: float | None = None, hi: float | None = None) -> float:
