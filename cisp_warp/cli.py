@@ -27,10 +27,46 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time", type=float, default=None, help="USD time code to render (default: the stage's start time code)")
     p.add_argument("--camera", default=None, help="prim path of the camera (default: the first camera found)")
     p.add_argument("--rsm-size", type=int, default=1024, help="edge of each reflective shadow map view [texels]")
+    p.add_argument("--method", default="cisp", choices=["cisp", "none"],
+                   help="caustics method: cisp (Cascaded Image-Space Photon Tracing) or none (direct light only)")
+    p.add_argument("--photons", type=parse_count, default=parse_count("1M"),
+                   help="photons per light per frame; accepts 500k, 1M, 2M, or a plain integer")
+    p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
+    p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
+                   help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")
+    p.add_argument("--roughness-cutoff", type=float, default=0.3, help="RSM texels rougher than this emit no photons")
+    p.add_argument("--luminance-cutoff", type=float, default=0.01,
+                   help="RSM texels dimmer than this fraction of the brightest emit no photons")
+    p.add_argument("--frames", default=None, metavar="A:B",
+                   help="render time codes A..B-1 as a sequence (temporal filter carried across frames)")
+    p.add_argument("--stats", action="store_true", help="print the photon energy ledger of each frame")
     p.add_argument("--exposure", type=float, default=None, help="tone-mapping exposure in stops (default: automatic)")
     p.add_argument("--no-rsm-aovs", action="store_true", help="do not write the rsm_<light>_* AOVs")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return p
+
+
+def parse_count(text: str) -> int:
+    """Photon counts with SI suffixes: '500k' -> 500000, '1M' -> 1000000; plain integers pass through."""
+    t = str(text).strip().lower()
+    mult = {"k": 1_000, "m": 1_000_000}.get(t[-1:], 1)
+    try:
+        value = float(t[:-1] if mult > 1 else t) * mult
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a photon count: {text!r} (use e.g. 500k, 1M or 2000000)") from None
+    if value < 1 or value != int(value):
+        raise argparse.ArgumentTypeError(f"photon count must be a positive integer, got {text!r}")
+    return int(value)
+
+
+def parse_frames(text: str) -> range:
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise SceneError(f"--frames must be A:B with integers A < B, got {text!r}") from None
+    if b <= a:
+        raise SceneError(f"--frames must be A:B with A < B, got {text!r}")
+    return range(a, b)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
 
     wp.config.quiet = True
     from .image_io import write_aovs, write_png
+    from .photons import PhotonSettings
     from .render import Renderer, RenderSettings
     from .usd_import import load_usd
 
@@ -53,24 +90,50 @@ def main(argv: list[str] | None = None) -> int:
             wp.get_device(device)
         except (RuntimeError, ValueError) as e:
             raise SceneError(f"unknown --device '{device}': {e}. Use cpu or cuda:N") from e
-        settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size)
+        photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
+                                 roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff)
+        settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
+                                  method=args.method, photons=photons)
         settings.validate()
+        frames = parse_frames(args.frames) if args.frames else None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)
-            scene = load_usd(args.scene, time_code=args.time, width=args.width, height=args.height, camera_path=args.camera, device=device)
+            first = frames.start if frames else args.time
+            scene = load_usd(args.scene, time_code=first, width=args.width, height=args.height, camera_path=args.camera, device=device)
         for w in caught:
             say(f"warning: {w.message}")
+        exposure = None if args.exposure is None else 2.0 ** args.exposure
         t0 = time.perf_counter()
         renderer = Renderer(scene, settings, device=device)
-        renderer.render_frame()
-        aovs = renderer.aovs(include_rsm=not args.no_rsm_aovs)
-        dt = time.perf_counter() - t0
-        written = write_aovs(args.out, aovs)
-        exposure = None if args.exposure is None else 2.0 ** args.exposure
-        write_png(os.path.join(args.out, "final.png"), aovs["final"], exposure)
-        cam = renderer.scene.camera
-        say(f"rendered {args.scene} at {cam.width}x{cam.height} on {device} in {dt:.2f} s; "
-            f"wrote final.png and {len(written)} AOV files to {args.out}")
+        if frames is None:
+            renderer.render_frame()
+            aovs = renderer.aovs(include_rsm=not args.no_rsm_aovs)
+            dt = time.perf_counter() - t0
+            written = write_aovs(args.out, aovs)
+            write_png(os.path.join(args.out, "final.png"), aovs["final"], exposure)
+            if args.stats and renderer.photons is not None:
+                print(renderer.photons.read_ledger().table())
+            cam = renderer.scene.camera
+            say(f"rendered {args.scene} at {cam.width}x{cam.height} on {device} in {dt:.2f} s; "
+                f"wrote final.png and {len(written)} AOV files to {args.out}")
+        else:
+            from tqdm import tqdm
+
+            os.makedirs(args.out, exist_ok=True)
+            for code in tqdm(frames, desc="frames", unit="frame", disable=args.quiet):
+                if code != frames.start:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", SceneWarning)
+                        renderer.update_scene(load_usd(args.scene, time_code=code, width=args.width,
+                                                       height=args.height, camera_path=args.camera, device=device))
+                renderer.render_frame()
+                aovs = renderer.aovs(include_rsm=False)
+                keep = {f"{k}.{code:04d}": aovs[k] for k in ("photon_map", "caustics", "final") if k in aovs}
+                write_aovs(args.out, keep)
+                write_png(os.path.join(args.out, f"final.{code:04d}.png"), aovs["final"], exposure)
+                if args.stats and renderer.photons is not None:
+                    print(f"frame {code}:\n{renderer.photons.read_ledger().table()}")
+            say(f"rendered {len(frames)} frames of {args.scene} on {device} in {time.perf_counter() - t0:.2f} s to {args.out}")
     except SceneError as e:
         print(f"cisp-render: error: {e}", file=sys.stderr)
         return 2

@@ -82,6 +82,21 @@ class Renderer:
         self.view = camera_view(camera)
         self.view_params = self.view.params()
 
+    def update_scene(self, scene: Scene) -> None:
+        """Take the camera and the moved points of ``scene`` (same topology) for the next frame.
+
+        For stages whose animation is baked into USD time samples; this copies the points from the
+        host. Simulated water is written in place on the device instead (``sim.WaterMesh``).
+        """
+        if scene.points.shape != self.scene.points.shape or not np.array_equal(scene.indices, self.scene.indices):
+            raise SceneError("the stage's topology changes over time; only points may be animated", file=scene.source)
+        self.gpu.begin_frame()
+        if any(m.dynamic for m in scene.meshes):
+            self.gpu.points.assign(scene.points.astype(np.float32))
+            self.gpu.normals.assign(scene.normals.astype(np.float32))
+        self.scene.points, self.scene.normals, self.scene.time = scene.points, scene.normals, scene.time
+        self.set_camera(scene.camera)
+
     def render_frame(self) -> None:
         """Raster, light and composite one frame; everything stays on the device."""
         g = self.gbuffer

@@ -353,7 +353,7 @@ def resolve_specular(
     p = wp.tid()
     tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
     od = opaque_depth[p]
-    if tri >= 0 and od > 0.0 and t >= od:
+    if tri >= 0 and od > 0.0 and t > od * 1.00001:  # behind an opaque surface (a mirror is both layers)
         tri = -1
     tri_id[p] = tri
     if tri < 0:
