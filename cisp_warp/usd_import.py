@@ -101,6 +101,8 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
     else:
         code, time = 0.0, Usd.TimeCode.EarliestTime()
     ctx = StageContext.from_stage(stage, path, time)
+    for err in stage.GetCompositionErrors():  # e.g. a missing referenced file: its prims are absent
+        ctx.warn(f"composition error, the scene may be incomplete: {err}")
     table = MaterialTable(ctx)
 
     parts: list[MeshPart] = []

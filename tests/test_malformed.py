@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from cisp_warp.errors import SceneError
+from cisp_warp.errors import SceneError, SceneWarning
 from cisp_warp.usd_import import load_usd
 
 CORPUS = Path(__file__).resolve().parent / "malformed"
@@ -85,3 +85,11 @@ def test_bad_arguments(valid_stage, kwargs, keyword):
     with pytest.raises(SceneError) as info:
         load_usd(valid_stage, **kwargs)
     assert keyword in str(info.value) and "valid.usda" in str(info.value)
+
+
+def test_missing_reference_warns_and_still_loads(valid_stage):
+    reference = 'def Xform "World" (\n    references = @./gone.usda@\n)\n'
+    valid_stage.write_text(valid_stage.read_text().replace('def Xform "World"\n', reference, 1))
+    with pytest.warns(SceneWarning, match="gone.usda"):
+        scene = load_usd(valid_stage)
+    assert scene.triangle_count == 2
