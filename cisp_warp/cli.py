@@ -31,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="caustics method: cisp (Cascaded Image-Space Photon Tracing) or none (direct light only)")
     p.add_argument("--photons", type=parse_count, default=parse_count("1M"),
                    help="photons per light per frame; accepts 500k, 1M, 2M, or a plain integer")
+    p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"],
+                   help="photon-map denoiser: SVGF, the 7x7 Gaussian gather of seed 004, or none")
     p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
     p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
                    help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")
@@ -93,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
                                  roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff)
         settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
-                                  method=args.method, photons=photons)
+                                  method=args.method, photons=photons, denoiser=args.denoiser)
         settings.validate()
         frames = parse_frames(args.frames) if args.frames else None
         with warnings.catch_warnings(record=True) as caught:

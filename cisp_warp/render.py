@@ -7,11 +7,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from contextlib import nullcontext
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import warp as wp
 
+from .denoise import SVGF, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import CISP, PhotonSettings
 from .raster import GBuffer, LightMaps, Rasterizer, camera_view
@@ -28,6 +30,8 @@ class RenderSettings:
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
     method: str = "cisp"  #: photon method: "cisp", or "none" for direct light only
     photons: PhotonSettings = PhotonSettings()
+    denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
+    svgf: SVGFSettings = field(default_factory=SVGFSettings)
 
     def validate(self) -> None:
         for name in ("width", "height"):
@@ -38,10 +42,13 @@ class RenderSettings:
             raise SceneError(f"--rsm-size must be an integer in [1, 16384], got {self.rsm_size!r}")
         if self.method not in METHODS:
             raise SceneError(f"--method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.denoiser not in DENOISERS:
+            raise SceneError(f"--denoiser must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
         self.photons.validate()
 
 
 METHODS = ("cisp", "none")
+DENOISERS = ("svgf", "gather", "none")
 
 
 class Renderer:
@@ -72,6 +79,11 @@ class Renderer:
         self.photons = None
         if self.settings.method == "cisp":
             self.photons = CISP(self.gbuffer, self.view, self.lights, self.settings.photons, self.device)
+        self.denoiser = None
+        if self.settings.denoiser == "svgf":
+            self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
+        elif self.settings.denoiser == "gather":
+            self.denoiser = GaussianGather(cam.width, cam.height, self.device)
         self.frame = 0
 
     def set_camera(self, camera: Camera) -> None:
@@ -97,20 +109,34 @@ class Renderer:
         self.scene.points, self.scene.normals, self.scene.time = scene.points, scene.normals, scene.time
         self.set_camera(scene.camera)
 
-    def render_frame(self) -> None:
-        """Raster, light and composite one frame; everything stays on the device."""
+    def render_frame(self, timer=None) -> None:
+        """Raster, light, trace photons, denoise and composite one frame; everything stays on the device.
+
+        ``timer``: a :class:`cisp_warp.timing.StageTimer` to time the stages (benchmarks only).
+        """
+        stage = timer.stage if timer is not None else (lambda name: nullcontext())
         g = self.gbuffer
-        for lm in self.lights:
-            lm.render(self.raster)
-        g.render(self.raster, self.view_params, self.prev_view_params)
-        self.direct.render(g, self.lights)
+        with stage("raster"):
+            for lm in self.lights:
+                lm.render(self.raster)
+            g.render(self.raster, self.view_params, self.prev_view_params)
+        with stage("direct"):
+            self.direct.render(g, self.lights)
         if self.photons is not None:
-            self.photons.trace(g, self.view_params, self.frame)
-            wp.copy(self.caustic_irradiance, self.photons.photon_map)
+            with stage("trace+store"):
+                self.photons.trace(g, self.view_params, self.frame)
+            with stage("denoise"):
+                if isinstance(self.denoiser, SVGF):
+                    self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
+                elif isinstance(self.denoiser, GaussianGather):
+                    self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)
+                else:
+                    wp.copy(self.caustic_irradiance, self.photons.photon_map)
         w = g.water
-        wp.launch(composite, dim=g.width * g.height, device=self.device,
-                  inputs=[self.view_params, g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
-                          w.depth, w.position, w.normal, w.ior, self.surface_radiance, self.final])
+        with stage("shade"):
+            wp.launch(composite, dim=g.width * g.height, device=self.device,
+                      inputs=[self.view_params, g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                              w.depth, w.position, w.normal, w.ior, self.surface_radiance, self.final])
         self.prev_view_params = self.view_params
         self.frame += 1
 

@@ -1,0 +1,63 @@
+#!/usr/bin/env python3
+"""Raster benchmark: ms per view (camera G-buffer, each RSM view) for a USD scene; prints a table.
+
+    python tools/bench_raster.py                       # flooded Cornell box, 1920x1080, RSM 2048², default device
+    python tools/bench_raster.py --device cpu --smoke  # seconds, tiny sizes
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import warp as wp
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scene", default=os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda"))
+    p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
+    p.add_argument("--width", type=int, default=1920)
+    p.add_argument("--height", type=int, default=1080)
+    p.add_argument("--rsm-size", type=int, default=2048)
+    p.add_argument("--frames", type=int, default=20, help="timed frames (after 3 warm-up frames)")
+    p.add_argument("--smoke", action="store_true", help="tiny sizes and 2 frames: a quick check that it runs")
+    args = p.parse_args(argv)
+    if args.smoke:
+        args.width, args.height, args.rsm_size, args.frames = 64, 36, 64, 2
+    wp.init()
+    from cisp_warp.raster import GBuffer, LightMaps, Rasterizer, camera_view
+    from cisp_warp.scene import DeviceScene
+    from cisp_warp.timing import StageTimer
+    from cisp_warp.usd_import import load_usd
+
+    device = wp.get_device(args.device)
+    scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
+    gpu = DeviceScene(scene, device)
+    raster = Rasterizer(gpu)
+    view = camera_view(scene.camera)
+    params = view.params()
+    gbuf = GBuffer.allocate(view.width, view.height, device)
+    lights = [LightMaps(gpu, light, args.rsm_size) for light in scene.lights]
+    timer = StageTimer(device)
+    for frame in range(3 + args.frames):
+        if frame == 3:
+            timer = StageTimer(device)
+        with timer.stage(f"camera G-buffer {view.width}x{view.height}"):
+            gbuf.render(raster, params, params)
+        for lm in lights:
+            with timer.stage(f"RSM {lm.light.safe_name} ({len(lm.rsm)} view(s) of {args.rsm_size}²)"):
+                lm.render(raster)
+    print(f"device: {device.alias} ({device.name}); scene {os.path.basename(args.scene)}: "
+          f"{scene.triangle_count} triangles; median of {args.frames} frames")
+    print(f"{'view':<48}{'ms':>10}")
+    for name, ms in timer.medians().items():
+        print(f"{name:<48}{ms:10.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
