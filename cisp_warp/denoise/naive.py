@@ -1,0 +1,92 @@
+"""Naive twin of one SVGF à-trous level: per-pixel Python loops in float64, for tests only.
+
+Written from the equations (Schied et al. 2017, eqs. 1-5), not from the kernel, so that the two
+agree only if both say the same thing: see :func:`.kernels_svgf.atrous` for the formula.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+B3 = {0: 3.0 / 8.0, 1: 1.0 / 4.0, 2: 1.0 / 16.0}  # 1-D B3-spline taps by |offset|
+REC709 = np.array([0.2126, 0.7152, 0.0722])  # luminance weights
+VARIANCE_EPS = 1.0e-10  # as kernels_svgf.VARIANCE_EPS
+DEPTH_NOISE_REL = 1.0e-4  # as kernels_svgf.DEPTH_NOISE_REL
+
+
+def depth_slope_naive(depth: np.ndarray) -> np.ndarray:
+    """‖∇z‖ per pixel (H, W) from the smaller one-sided difference per axis to a neighbour with a surface."""
+    h, w = depth.shape
+    out = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            z = depth[y, x]
+            if z <= 0:
+                continue
+            g = []
+            for (ya, xa), (yb, xb) in (((y, x - 1), (y, x + 1)), ((y - 1, x), (y + 1, x))):
+                diffs = [abs(z - depth[yy, xx]) for yy, xx in ((ya, xa), (yb, xb))
+                         if 0 <= yy < h and 0 <= xx < w and depth[yy, xx] > 0]
+                g.append(min(diffs) if diffs else 0.0)
+            out[y, x] = np.hypot(g[0], g[1])
+    return out
+
+
+def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarray, normal: np.ndarray,
+                       step: int, sigma_depth: float, sigma_normal: float, sigma_luminance: float,
+                       conserve_energy: bool):
+    """One à-trous level. ``color`` (H, W, 3), ``variance`` (H, W), ``depth`` (H, W) [m] (0 = none),
+    ``normal`` (H, W, 3). Returns (color_out (H, W, 3), variance_out (H, W)) in float64.
+
+    Builds the level's matrix A row by row (out_p = Σ_q A_pq c_q, Var_p = Σ_q A_pq² Var_q) from the
+    symmetric weights w_pq: A_pq = w_pq / norm for q ≠ p, A_pp = 1 − Σ_{q≠p} A_pq, with norm = Σ_q w_pq
+    (paper) or 1 (energy-conserving exchange form).
+    """
+    color = color.astype(np.float64)
+    variance = variance.astype(np.float64)
+    depth = depth.astype(np.float64)
+    normal = normal.astype(np.float64)
+    h, w = depth.shape
+    lum = color @ REC709
+    slope = depth_slope_naive(depth)
+    # 3x3 Gaussian of the variance over pixels with a surface
+    var_blur = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            if depth[y, x] <= 0:
+                continue
+            kw, kv = 0.0, 0.0
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    yy, xx = y + dy, x + dx
+                    if 0 <= yy < h and 0 <= xx < w and depth[yy, xx] > 0:
+                        k = (0.5 if dx == 0 else 0.25) * (0.5 if dy == 0 else 0.25)
+                        kw += k
+                        kv += k * variance[yy, xx]
+            var_blur[y, x] = kv / kw
+    color_out = np.zeros_like(color)
+    variance_out = np.zeros_like(variance)
+    for y in range(h):
+        for x in range(w):
+            z = depth[y, x]
+            if z <= 0:
+                continue
+            taps = {}  # (yy, xx) -> w_pq, q != p
+            for dy in range(-2, 3):
+                for dx in range(-2, 3):
+                    yy, xx = y + dy * step, x + dx * step
+                    if (dx, dy) == (0, 0) or not (0 <= yy < h and 0 <= xx < w) or depth[yy, xx] <= 0:
+                        continue
+                    zq = depth[yy, xx]
+                    phi_z = sigma_depth * (max(slope[y, x], slope[yy, xx]) * step * np.hypot(dx, dy)
+                                           + DEPTH_NOISE_REL * max(z, zq))
+                    phi_l = sigma_luminance * np.sqrt(0.5 * (var_blur[y, x] + var_blur[yy, xx]) + VARIANCE_EPS)
+                    w_n = max(float(normal[y, x] @ normal[yy, xx]), 0.0) ** sigma_normal
+                    taps[yy, xx] = (B3[abs(dx)] * B3[abs(dy)] * w_n
+                                    * np.exp(-abs(z - zq) / phi_z - abs(lum[y, x] - lum[yy, xx]) / phi_l))
+            norm = 1.0 if conserve_energy else B3[0] ** 2 + sum(taps.values())
+            a = {q: wq / norm for q, wq in taps.items()}
+            a[y, x] = 1.0 - sum(a.values())
+            color_out[y, x] = sum(aq * color[q] for q, aq in a.items())
+            variance_out[y, x] = sum(aq * aq * variance[q] for q, aq in a.items())
+    return color_out, variance_out
