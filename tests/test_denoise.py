@@ -184,10 +184,11 @@ def test_atrous_level_matches_naive_twin(device, step, conserve):
     slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
     var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
     scratch = wp.zeros(w * h, dtype=wp.float32, device=device)
+    weight_sum = wp.zeros(w * h, dtype=wp.float32, device=device)
     c_out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     v_out = wp.zeros(w * h, dtype=wp.float32, device=device)
     launch_atrous_level(dev["irradiance"], var_in, dev["depth"], dev["normal"], slope, w, h, step, s, scratch,
-                        c_out, v_out)
+                        weight_sum, c_out, v_out)
     c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
                                       s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve)
     c_warp = c_out.numpy().reshape(h, w, 3)

@@ -273,6 +273,59 @@ def blur_variance(
     variance_blurred[p] = sum_v / sum_w
 
 
+@wp.func
+def atrous_weight(color_in: wp.array(dtype=wp.vec3), variance_blurred: wp.array(dtype=wp.float32),
+                  depth: wp.array(dtype=wp.float32), normal: wp.array(dtype=wp.vec3), slope: wp.array(dtype=wp.float32),
+                  p: int, q: int, dx: int, dy: int, step: int,
+                  sigma_depth: float, sigma_normal: float, sigma_luminance: float) -> float:
+    """w_pq of the à-trous level, symmetric in p and q (see :func:`atrous`); q must have a surface."""
+    z_p = depth[p]
+    z_q = depth[q]
+    dist = float(step) * wp.sqrt(float(dx * dx + dy * dy))
+    phi_z = sigma_depth * (wp.max(slope[p], slope[q]) * dist + DEPTH_NOISE_REL * wp.max(z_p, z_q))
+    phi_l = sigma_luminance * wp.sqrt(0.5 * wp.max(variance_blurred[p] + variance_blurred[q], 0.0) + VARIANCE_EPS)
+    w_geo = edge_stop_depth_normal(z_p, z_q, phi_z, normal[p], normal[q], sigma_normal)
+    w_lum = wp.exp(-wp.abs(luminance(color_in[p]) - luminance(color_in[q])) / phi_l)
+    return b3_spline(dx) * b3_spline(dy) * w_geo * w_lum
+
+
+@wp.kernel
+def atrous_weight_sum(
+    color_in: wp.array(dtype=wp.vec3),
+    variance_blurred: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    normal: wp.array(dtype=wp.vec3),
+    slope: wp.array(dtype=wp.float32),
+    width: int,
+    height: int,
+    step: int,
+    sigma_depth: float,
+    sigma_normal: float,
+    sigma_luminance: float,
+    weight_sum: wp.array(dtype=wp.float32),
+):
+    """W_p = Σ_q w_pq over the level's taps, centre ((3/8)², every edge stop 1) included; 0 without a surface.
+
+    Reads the same arrays as :func:`atrous`; writes ``weight_sum`` (H*W float32, in (0, 1]).
+    """
+    y, x = wp.tid()
+    p = y * width + x
+    if depth[p] <= 0.0:
+        weight_sum[p] = 0.0
+        return
+    sum_w = b3_spline(0) * b3_spline(0)
+    for dy in range(-2, 3):
+        for dx in range(-2, 3):
+            qx = x + dx * step
+            qy = y + dy * step
+            if (dx != 0 or dy != 0) and qx >= 0 and qx < width and qy >= 0 and qy < height:
+                q = qy * width + qx
+                if depth[q] > 0.0:
+                    sum_w += atrous_weight(color_in, variance_blurred, depth, normal, slope, p, q, dx, dy, step,
+                                           sigma_depth, sigma_normal, sigma_luminance)
+    weight_sum[p] = sum_w
+
+
 @wp.kernel
 def atrous(
     color_in: wp.array(dtype=wp.vec3),
@@ -281,6 +334,7 @@ def atrous(
     depth: wp.array(dtype=wp.float32),
     normal: wp.array(dtype=wp.vec3),
     slope: wp.array(dtype=wp.float32),
+    weight_sum: wp.array(dtype=wp.float32),
     width: int,
     height: int,
     step: int,
@@ -294,8 +348,9 @@ def atrous(
     """One level of the edge-avoiding à-trous wavelet (paper section 4.3; Falcor SVGFAtrous).
 
     Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (float32, luminance variance) and its 3x3 blur
-    ``variance_blurred``, the G-buffer copy ``depth`` ([m], 0 = none) and ``normal``, and ``slope``
-    (float32 [m/pixel], ‖∇z‖). Writes ``color_out`` and ``variance_out``; they must not alias the inputs.
+    ``variance_blurred``, the G-buffer copy ``depth`` ([m], 0 = none) and ``normal``, ``slope``
+    (float32 [m/pixel], ‖∇z‖) and ``weight_sum`` (float32, W from :func:`atrous_weight_sum`). Writes
+    ``color_out`` and ``variance_out``; they must not alias the inputs.
 
     Taps q are 5x5 at ``step`` pixels apart, each with the B3-spline weight h(dx)·h(dy) times
 
@@ -303,57 +358,44 @@ def atrous(
                    - |l_p - l_q| / (σ_l sqrt((g3x3(Var)_p + g3x3(Var)_q) / 2) + ε_l)) · max(0, n_p·n_q)^σ_n
 
     (‖∇z‖‖p−q‖ bounds the paper's |∇z·(p−q)| as Falcor does). Each factor is made symmetric in p and
-    q, so w_pq = w_qp; with the paper's one-sided form (p's variance and slope) they reduce to the
-    paper's when p and q agree.
+    q, so w_pq = w_qp; where p and q agree they are the paper's one-sided factors.
 
-    Both forms below are c'_p = c_p + Σ_{q≠p} w_pq (c_q − c_p) / norm, Var'_p = Σ_q A_pq² Var_q with
-    A_pq = w_pq / norm (q ≠ p), A_pp = 1 − Σ_{q≠p} A_pq (the paper's Σw² Var / (Σw)² when normalised):
+    The level is c'_p = Σ_q A_pq c_q = c_p + Σ_{q≠p} A_pq (c_q − c_p) with A_pp = 1 − Σ_{q≠p} A_pq, and
+    Var'_p = Σ_q A_pq² Var_q, where for q ≠ p
 
-    ``conserve_energy == 0``: norm = Σ_q w_pq, the paper's normalised gather Σ w c / Σ w. A constant
-    stays constant, but the luminance weights depend on the signal, so the image mean is biased
-    (sparse photon maps lose about 1 % per level, and the loss compounds through the colour history).
-    ``conserve_energy != 0``: norm = 1 (Σ_q h(dx)h(dy) = 1 bounds Σ_q w_pq). Because w_pq = w_qp, what p
-    takes from q, q gives to p: Σ_p c'_p = Σ_p c_p exactly, a constant still stays constant, and since
-    Σ_{q≠p} w_pq ≤ 1 − (3/8)² the result is a convex combination (no negative irradiance). Weight that
-    edge stops remove stays with the centre instead of being spread over the surviving taps, so pixels
-    by silhouettes and image borders are smoothed less.
+    * ``conserve_energy == 0``: A_pq = w_pq / W_p, the paper's normalised gather Σ w c / Σ w. A constant
+      stays constant, but the luminance weights depend on the signal and A is not symmetric, so the
+      image mean is biased (sparse photon maps lose several per cent, compounded through the history);
+    * ``conserve_energy != 0``: A_pq = w_pq / max(W_p, W_q), symmetric, so what p takes from q, q gives
+      to p and Σ_p c'_p = Σ_p c_p exactly. A constant still stays constant, Σ_{q≠p} A_pq ≤ 1 − w_pp / W_p
+      keeps it a convex combination (no negative irradiance), and where neighbours' W agree it is the
+      paper's filter. Where they differ (silhouettes, image borders) the pixel with the larger W sets
+      the exchange, so the pixel with the smaller one keeps more of itself.
     """
     y, x = wp.tid()
     p = y * width + x
-    z = depth[p]
-    if z <= 0.0:
+    if depth[p] <= 0.0:
         color_out[p] = wp.vec3(0.0)
         variance_out[p] = 0.0
         return
-    n = normal[p]
     c_p = color_in[p]
-    l_p = luminance(c_p)
-    var_p = variance_blurred[p]
-    slope_p = slope[p]
-
-    w_centre = b3_spline(0) * b3_spline(0)  # every edge stop is 1 for q = p
-    sum_w = w_centre  # Σ_q w_pq, centre included
-    sum_dc = wp.vec3(0.0)  # Σ_{q≠p} w_pq (c_q − c_p)
-    sum_wv = float(0.0)  # Σ_{q≠p} w_pq² Var_q
+    w_p = weight_sum[p]
+    sum_a = float(0.0)  # Σ_{q≠p} A_pq
+    sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
+    sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q
     for dy in range(-2, 3):
         for dx in range(-2, 3):
             qx = x + dx * step
             qy = y + dy * step
             if (dx != 0 or dy != 0) and qx >= 0 and qx < width and qy >= 0 and qy < height:
                 q = qy * width + qx
-                z_q = depth[q]
-                if z_q > 0.0:
-                    c_q = color_in[q]
-                    dist = float(step) * wp.sqrt(float(dx * dx + dy * dy))
-                    phi_z = sigma_depth * (wp.max(slope_p, slope[q]) * dist + DEPTH_NOISE_REL * wp.max(z, z_q))
-                    phi_l = sigma_luminance * wp.sqrt(0.5 * wp.max(var_p + variance_blurred[q], 0.0) + VARIANCE_EPS)
-                    w_geo = edge_stop_depth_normal(z, z_q, phi_z, n, normal[q], sigma_normal)
-                    w = b3_spline(dx) * b3_spline(dy) * w_geo * wp.exp(-wp.abs(l_p - luminance(c_q)) / phi_l)
-                    sum_w += w
-                    sum_dc += w * (c_q - c_p)
-                    sum_wv += w * w * variance_in[q]
-    # c'_p = Σ_q A_pq c_q with A_pq = w_pq / norm (q ≠ p) and A_pp = 1 − Σ_{q≠p} A_pq
-    norm = wp.where(conserve_energy != 0, 1.0, sum_w)
-    a_centre = 1.0 - (sum_w - w_centre) / norm
-    color_out[p] = c_p + sum_dc / norm
-    variance_out[p] = sum_wv / (norm * norm) + a_centre * a_centre * variance_in[p]
+                if depth[q] > 0.0:
+                    w = atrous_weight(color_in, variance_blurred, depth, normal, slope, p, q, dx, dy, step,
+                                      sigma_depth, sigma_normal, sigma_luminance)
+                    a = w / wp.where(conserve_energy != 0, wp.max(w_p, weight_sum[q]), w_p)
+                    sum_a += a
+                    sum_dc += a * (color_in[q] - c_p)
+                    sum_av += a * a * variance_in[q]
+    a_centre = 1.0 - sum_a
+    color_out[p] = c_p + sum_dc
+    variance_out[p] = sum_av + a_centre * a_centre * variance_in[p]

@@ -39,8 +39,8 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
     ``normal`` (H, W, 3). Returns (color_out (H, W, 3), variance_out (H, W)) in float64.
 
     Builds the level's matrix A row by row (out_p = Σ_q A_pq c_q, Var_p = Σ_q A_pq² Var_q) from the
-    symmetric weights w_pq: A_pq = w_pq / norm for q ≠ p, A_pp = 1 − Σ_{q≠p} A_pq, with norm = Σ_q w_pq
-    (paper) or 1 (energy-conserving exchange form).
+    symmetric weights w_pq and their sums W_p = Σ_q w_pq (centre included): for q ≠ p, A_pq = w_pq / W_p
+    (paper) or w_pq / max(W_p, W_q) (energy-conserving); A_pp = 1 − Σ_{q≠p} A_pq.
     """
     color = color.astype(np.float64)
     variance = variance.astype(np.float64)
@@ -64,28 +64,37 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
                         kw += k
                         kv += k * variance[yy, xx]
             var_blur[y, x] = kv / kw
+    def weights(y, x):
+        """{(yy, xx): w_pq} over the taps q ≠ p with a surface."""
+        z = depth[y, x]
+        taps = {}
+        for dy in range(-2, 3):
+            for dx in range(-2, 3):
+                yy, xx = y + dy * step, x + dx * step
+                if (dx, dy) == (0, 0) or not (0 <= yy < h and 0 <= xx < w) or depth[yy, xx] <= 0:
+                    continue
+                zq = depth[yy, xx]
+                phi_z = sigma_depth * (max(slope[y, x], slope[yy, xx]) * step * np.hypot(dx, dy)
+                                       + DEPTH_NOISE_REL * max(z, zq))
+                phi_l = sigma_luminance * np.sqrt(0.5 * (var_blur[y, x] + var_blur[yy, xx]) + VARIANCE_EPS)
+                w_n = max(float(normal[y, x] @ normal[yy, xx]), 0.0) ** sigma_normal
+                taps[yy, xx] = (B3[abs(dx)] * B3[abs(dy)] * w_n
+                                * np.exp(-abs(z - zq) / phi_z - abs(lum[y, x] - lum[yy, xx]) / phi_l))
+        return taps
+
+    weight_sum = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            if depth[y, x] > 0:
+                weight_sum[y, x] = B3[0] ** 2 + sum(weights(y, x).values())
     color_out = np.zeros_like(color)
     variance_out = np.zeros_like(variance)
     for y in range(h):
         for x in range(w):
-            z = depth[y, x]
-            if z <= 0:
+            if depth[y, x] <= 0:
                 continue
-            taps = {}  # (yy, xx) -> w_pq, q != p
-            for dy in range(-2, 3):
-                for dx in range(-2, 3):
-                    yy, xx = y + dy * step, x + dx * step
-                    if (dx, dy) == (0, 0) or not (0 <= yy < h and 0 <= xx < w) or depth[yy, xx] <= 0:
-                        continue
-                    zq = depth[yy, xx]
-                    phi_z = sigma_depth * (max(slope[y, x], slope[yy, xx]) * step * np.hypot(dx, dy)
-                                           + DEPTH_NOISE_REL * max(z, zq))
-                    phi_l = sigma_luminance * np.sqrt(0.5 * (var_blur[y, x] + var_blur[yy, xx]) + VARIANCE_EPS)
-                    w_n = max(float(normal[y, x] @ normal[yy, xx]), 0.0) ** sigma_normal
-                    taps[yy, xx] = (B3[abs(dx)] * B3[abs(dy)] * w_n
-                                    * np.exp(-abs(z - zq) / phi_z - abs(lum[y, x] - lum[yy, xx]) / phi_l))
-            norm = 1.0 if conserve_energy else B3[0] ** 2 + sum(taps.values())
-            a = {q: wq / norm for q, wq in taps.items()}
+            a = {q: wq / (max(weight_sum[y, x], weight_sum[q]) if conserve_energy else weight_sum[y, x])
+                 for q, wq in weights(y, x).items()}
             a[y, x] = 1.0 - sum(a.values())
             color_out[y, x] = sum(aq * color[q] for q, aq in a.items())
             variance_out[y, x] = sum(aq * aq * variance[q] for q, aq in a.items())

@@ -30,8 +30,8 @@ class SVGFSettings:
     normal_tolerance: float = 0.9  #: reprojection: smallest cosine between normals of a consistent tap
     feedback_level: int = 0  #: à-trous level whose output becomes the colour history (0 = first, as in
     #: the paper; -1 = the unfiltered temporal accumulation)
-    conserve_energy: bool = True  #: à-trous in exchange form (image mean kept exactly); False: the
-    #: paper's normalised gather, biased where luminance edge stops act (see kernels_svgf.atrous)
+    conserve_energy: bool = True  #: à-trous with symmetric weights A_pq = w_pq / max(W_p, W_q) (image mean
+    #: kept exactly); False: the paper's normalised gather, biased where luminance edge stops act
 
     def __post_init__(self):
         if not (0.0 < self.alpha_color <= 1.0 and 0.0 < self.alpha_moments <= 1.0):
@@ -50,22 +50,27 @@ class SVGFSettings:
 
 def launch_atrous_level(color_in: wp.array, variance_in: wp.array, depth: wp.array, normal: wp.array,
                         slope: wp.array, width: int, height: int, step: int, settings: SVGFSettings,
-                        variance_blurred: wp.array, color_out: wp.array, variance_out: wp.array) -> None:
-    """One à-trous level (:func:`.kernels_svgf.blur_variance`, then :func:`.kernels_svgf.atrous`).
+                        variance_blurred: wp.array, weight_sum: wp.array, color_out: wp.array,
+                        variance_out: wp.array) -> None:
+    """One à-trous level: :func:`.kernels_svgf.blur_variance`, :func:`.kernels_svgf.atrous_weight_sum`,
+    :func:`.kernels_svgf.atrous`.
 
     Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (H*W float32, luminance variance), ``depth``
     (H*W float32 [m], 0 = no surface), ``normal`` (H*W vec3), ``slope`` (H*W float32 [m/pixel], ‖∇z‖);
-    ``step`` is the tap spacing [pixels]. Writes the scratch ``variance_blurred`` (H*W float32) and
-    ``color_out``/``variance_out``, which must not alias the inputs.
+    ``step`` is the tap spacing [pixels]. Writes the scratch ``variance_blurred`` and ``weight_sum``
+    (H*W float32 each) and ``color_out``/``variance_out``, which must not alias the inputs.
     """
     dim = (height, width)
     d = color_in.device
     wp.launch(K.blur_variance, dim=dim, device=d, inputs=[variance_in, depth, width, height],
               outputs=[variance_blurred])
+    sigmas = [settings.sigma_depth, settings.sigma_normal, settings.sigma_luminance]
+    wp.launch(K.atrous_weight_sum, dim=dim, device=d,
+              inputs=[color_in, variance_blurred, depth, normal, slope, width, height, int(step), *sigmas],
+              outputs=[weight_sum])
     wp.launch(K.atrous, dim=dim, device=d,
-              inputs=[color_in, variance_in, variance_blurred, depth, normal, slope, width, height, int(step),
-                      settings.sigma_depth, settings.sigma_normal, settings.sigma_luminance,
-                      int(settings.conserve_energy)],
+              inputs=[color_in, variance_in, variance_blurred, depth, normal, slope, weight_sum, width, height,
+                      int(step), *sigmas, int(settings.conserve_energy)],
               outputs=[color_out, variance_out])
 
 
@@ -76,7 +81,7 @@ class SVGF:
     ``*_depth`` (H*W float32 [m], 0 = no surface), ``*_normal`` (vec3), ``*_color`` (vec3 [W/m²]),
     ``*_moments`` (vec2: luminance mean, mean square), ``*_history`` (int32 [frames]).
     Scratch: ``integrated`` (vec3 [W/m²], temporal accumulation), ``depth_slope`` (float32 [m/pixel]),
-    ``variance_blurred`` (float32), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
+    ``variance_blurred`` and ``weight_sum`` (float32), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
@@ -98,6 +103,7 @@ class SVGF:
         self.integrated = wp.zeros(n, dtype=wp.vec3, device=d)
         self.depth_slope = wp.zeros(n, dtype=wp.float32, device=d)
         self.variance_blurred = wp.zeros(n, dtype=wp.float32, device=d)
+        self.weight_sum = wp.zeros(n, dtype=wp.float32, device=d)
         self.filtered_color = pair(wp.vec3)
         self.filtered_variance = pair(wp.float32)
 
@@ -148,7 +154,7 @@ class SVGF:
             color_dst = out if level == s.atrous_levels - 1 else self.filtered_color[dst]
             launch_atrous_level(color_src, self.filtered_variance[src], self.cur_depth, self.cur_normal,
                                 self.depth_slope, w, h, 1 << level, s, self.variance_blurred,
-                                color_dst, self.filtered_variance[dst])
+                                self.weight_sum, color_dst, self.filtered_variance[dst])
             if level == s.feedback_level:
                 wp.copy(self.cur_color, color_dst)
             color_src = color_dst
