@@ -1,9 +1,10 @@
 """Warp kernels of SVGF (Schied et al. 2017) for caustic irradiance, one per Falcor SVGFPass stage.
 
 Stages (Falcor ``RenderPasses/SVGFPass``): :func:`reproject` (temporal accumulation of colour and
-luminance moments), :func:`filter_moments` (variance: temporal, or spatial where history is short; depth slope),
-:func:`blur_variance` and :func:`atrous` (one level of the variance-guided à-trous wavelet). Falcor's FinalModulate multiplies
-by albedo; the signal here is irradiance [W/m²], which is never demodulated, so there is no such stage.
+luminance moments), :func:`filter_moments` (variance: temporal, or spatial where history is short;
+depth slope), then per à-trous level :func:`blur_variance`, :func:`atrous_weight_sum` and :func:`atrous`
+(the variance-guided wavelet, made energy-conserving: see :func:`atrous`). Falcor's FinalModulate
+multiplies by albedo; the signal here is irradiance [W/m²], never demodulated, so it has no such stage.
 
 Every image is a flat array of ``height * width`` pixels, row-major, row 0 at the top; kernels are
 launched with ``dim=(height, width)``. A pixel *has a surface* when its depth is > 0 (the reproject
