@@ -81,7 +81,9 @@ class SVGF:
     ``*_depth`` (H*W float32 [m], 0 = no surface), ``*_normal`` (vec3), ``*_color`` (vec3 [W/m²]),
     ``*_moments`` (vec2: luminance mean, mean square), ``*_history`` (int32 [frames]).
     Scratch: ``integrated`` (vec3 [W/m²], temporal accumulation), ``depth_slope`` (float32 [m/pixel]),
-    ``variance_blurred`` and ``weight_sum`` (float32), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
+    ``variance_blurred`` and ``weight_sum`` (float32), ``filtered_color`` (2 x vec3),
+    ``filtered_variance`` (2 x float32). The Python-side tuple swaps mean a captured CUDA graph would
+    have to be captured for both parities of the swap.
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
