@@ -18,7 +18,7 @@ from .errors import SceneError
 from .photons import CISP, PhotonSettings
 from .raster import GBuffer, LightMaps, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
-from .shade import DirectLighting, composite
+from .shade import DirectLighting, composite, surface_radiance
 
 
 @dataclass(frozen=True)
@@ -76,6 +76,8 @@ class Renderer:
         self.view = camera_view(cam)
         self.view_params = self.view.params()
         self.prev_view_params = self.view_params
+        lo, hi = scene.bounds()
+        self.t_max = float(2.0 * np.linalg.norm(hi - lo)) + 1e-3  # longest screen-space ray [m]
         self.photons = None
         if self.settings.method == "cisp":
             self.photons = CISP(self.gbuffer, self.view, self.lights, self.settings.photons, self.device)
@@ -134,9 +136,13 @@ class Renderer:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
         w = g.water
         with stage("shade"):
-            wp.launch(composite, dim=g.width * g.height, device=self.device,
-                      inputs=[self.view_params, g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
-                              w.depth, w.position, w.normal, w.ior, self.surface_radiance, self.final])
+            n = g.width * g.height
+            wp.launch(surface_radiance, dim=n, device=self.device,
+                      inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.surface_radiance])
+            ps = self.settings.photons
+            wp.launch(composite, dim=n, device=self.device,
+                      inputs=[self.view_params, g.depth, self.surface_radiance, w.depth, w.position, w.normal, w.ior,
+                              self.t_max, ps.max_steps, ps.thickness, self.final])
         self.prev_view_params = self.view_params
         self.frame += 1
 

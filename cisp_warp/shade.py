@@ -12,7 +12,8 @@ import math
 import numpy as np
 import warp as wp
 
-from .optics import fresnel_dielectric
+from .optics import fresnel_dielectric, reflect, refract
+from .photons.march import MARCH_HIT, screen_march
 from .raster.views import ViewParams, world_project
 from .raster.rasterizer import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
@@ -101,42 +102,78 @@ def direct_light(
 
 
 @wp.kernel
-def composite(
-    camera: ViewParams,
+def surface_radiance(
     depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
     albedo: wp.array(dtype=wp.vec3),
     direct_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
     caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
-    water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
-    water_position: wp.array(dtype=wp.vec3),
-    water_normal: wp.array(dtype=wp.vec3),
-    water_ior: wp.array(dtype=wp.float32),
-    surface_radiance: wp.array(dtype=wp.vec3),  # (H*W,) radiance of the opaque surface [W/(m² sr)] (write)
-    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
+    radiance: wp.array(dtype=wp.vec3),  # (H*W,) Lambertian radiance of the opaque surface [W/(m² sr)] (write)
 ):
-    """Lambertian receivers (direct + caustic irradiance); water transmits (1 − F) of what lies behind it.
-
-    The surface behind the water is read at the same pixel here; screen-space refraction and
-    reflection of the water replace this in the caustics pass.
-    """
     p = wp.tid()
     l_surface = wp.vec3(0.0)
     if depth[p] > 0.0:
         l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p]) * INV_PI
-    surface_radiance[p] = l_surface
-    l = l_surface
+    radiance[p] = l_surface
+
+
+@wp.func
+def screen_space_lookup(camera: ViewParams, depth: wp.array(dtype=wp.float32), radiance: wp.array(dtype=wp.vec3),
+                        o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int, thickness: float):
+    """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer.
+
+    Returns (found, radiance); not found when the ray leaves the image or runs out of steps.
+    """
+    status, t, steps = screen_march(camera, depth, o, d, t_max, max_steps, thickness, 0.02)
+    if status != MARCH_HIT:
+        return int(0), wp.vec3(0.0)
+    q = world_project(camera, o + d * t)
+    i = wp.clamp(int(q[0]), 0, camera.width - 1)
+    j = wp.clamp(int(q[1]), 0, camera.height - 1)
+    return int(1), radiance[j * camera.width + i]
+
+
+@wp.kernel
+def composite(
+    camera: ViewParams,
+    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+    radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
+    water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+    water_position: wp.array(dtype=wp.vec3),
+    water_normal: wp.array(dtype=wp.vec3),
+    water_ior: wp.array(dtype=wp.float32),
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
+):
+    """Opaque pixels show their surface; water pixels Fresnel-blend screen-space refraction and reflection.
+
+    The refracted camera ray is marched through the opaque G-buffer (how caustics under water are
+    seen, the ESDSL paths of seed 000 Fig. 3); radiance crossing the boundary is scaled by
+    (n_t/n_i)² (L/n² is invariant along a ray). A reflected or refracted ray that leaves the image
+    sees nothing (black: the scene has no environment light), as a screen-space method must.
+    """
+    p = wp.tid()
+    l = radiance[p]
     if water_depth[p] > 0.0:
         x = water_position[p]
         eye = wp.transform_point(camera.view_to_world, wp.vec3(0.0))
         v = wp.normalize(eye - x)
         n = water_normal[p]
         eta = water_ior[p]
-        c = wp.dot(v, n)
-        if c < 0.0:  # seen from inside the medium
-            c = -c
+        if wp.dot(v, n) < 0.0:  # seen from inside the medium
+            n = -n
             eta = 1.0 / eta
-        f = fresnel_dielectric(c, eta)
-        l = l_surface * (1.0 - f)
+        f = fresnel_dielectric(wp.dot(v, n), eta)
+        d_in = -v
+        l = wp.vec3(0.0)
+        if f > 0.0:
+            found, lr = screen_space_lookup(camera, depth, radiance, x, reflect(d_in, n), t_max, max_steps, thickness)
+            l = l + lr * f
+        if f < 1.0:
+            dt = refract(d_in, n, eta)
+            found, lt = screen_space_lookup(camera, depth, radiance, x, dt, t_max, max_steps, thickness)
+            l = l + lt * ((1.0 - f) / (eta * eta))
     final[p] = l
 
 
