@@ -80,7 +80,7 @@ class Renderer:
         self.t_max = float(2.0 * np.linalg.norm(hi - lo)) + 1e-3  # longest screen-space ray [m]
         self.photons = None
         if self.settings.method == "cisp":
-            self.photons = CISP(self.gbuffer, self.view, self.lights, self.settings.photons, self.device)
+            self.photons = CISP(self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
         self.denoiser = None
         if self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)

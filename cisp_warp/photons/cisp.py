@@ -92,7 +92,9 @@ class Ledger:
 class CISP:
     """The photon pass of seed 000: allocates once, ``trace`` fills ``photon_map`` each frame."""
 
-    def __init__(self, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps], settings: PhotonSettings, device):
+    def __init__(self, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps], settings: PhotonSettings, device,
+                 t_max: float):
+        """``t_max``: the longest ray a photon may travel [m] (the renderer's scene-wide bound)."""
         settings.validate()
         self.settings = settings
         self.device = wp.get_device(device)
@@ -101,12 +103,11 @@ class CISP:
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.ledger = wp.zeros(3 * K.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
         self.max_lum = wp.zeros(len(lights), dtype=wp.float32, device=self.device)
+        self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         per_view = max(max(1, settings.photons // max(1, len(lm.rsm))) for lm in lights) if lights else 1
         self.hits = wp.zeros(per_view, dtype=wp.vec4, device=self.device)
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
-        self._solid_angle_size = (camera_view.width, camera_view.height, camera_view.fx, camera_view.orthographic)
-        lo, hi = lights[0].scene.scene.bounds() if lights else (np.zeros(3), np.ones(3))
-        self.t_max = float(2.0 * np.linalg.norm(hi - lo)) + 1e-3
+        self.t_max = float(t_max)
 
     def photons_per_view(self, lm: LightMaps) -> int:
         return max(1, self.settings.photons // len(lm.rsm))
@@ -119,7 +120,7 @@ class CISP:
         self.max_lum.zero_()
         mode = K.FOOTPRINT_EXACT if s.footprint == "exact" else K.FOOTPRINT_PAPER
         for li, lm in enumerate(self.lights):
-            lum = self.max_lum[li : li + 1]
+            lum = self._max_lum_of[li]
             for r in lm.rsm:
                 wp.launch(K.max_luminance, dim=r.width * r.height, inputs=[r.flux, lum], device=self.device)
             light = lm.light

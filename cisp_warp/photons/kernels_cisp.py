@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world, world_project
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
@@ -44,11 +45,6 @@ def book(ledger: wp.array(dtype=wp.float64), entry: int, power: wp.vec3):
     wp.atomic_add(ledger, 3 * entry + 0, wp.float64(power[0]))
     wp.atomic_add(ledger, 3 * entry + 1, wp.float64(power[1]))
     wp.atomic_add(ledger, 3 * entry + 2, wp.float64(power[2]))
-
-
-@wp.func
-def luminance(c: wp.vec3) -> float:
-    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 
 
 @wp.kernel
