@@ -1,5 +1,6 @@
 """Photon passes: every method hands back the same camera-resolution photon map (irradiance, W/m²)."""
 
-from .cisp import CISP, Ledger, PhotonSettings
+from .base import Ledger, PhotonPass, PhotonSettings
+from .cisp import CISP
 
-__all__ = ["CISP", "Ledger", "PhotonSettings"]
+__all__ = ["CISP", "Ledger", "PhotonPass", "PhotonSettings"]

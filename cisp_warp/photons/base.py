@@ -1,0 +1,153 @@
+"""What every photon method has: settings, the energy ledger, and a base class that owns the buffers.
+
+Every method hands back the same thing, so that they compare pixel for pixel:
+
+* ``photon_map``: (H*W,) vec3 irradiance [W/m²] on the camera's opaque G-buffer, per pixel, raw;
+* ``ledger``: where the power went (:class:`Ledger`), closing to the sampled power;
+* ``trace(gbuffer, camera_params, frame)``: fill both for one frame, all on the device.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..errors import SceneError
+from ..raster import GBuffer, LightMaps
+from ..raster.views import View
+from . import common as C
+
+
+@dataclass(frozen=True)
+class PhotonSettings:
+    """Settings of the photon pass; every field reaches a kernel."""
+
+    photons: int = 1 << 20  #: photons per light per frame, split evenly over a light's RSM views
+    seed: int = 0  #: with the frame number, reproduces a frame exactly
+    roughness_cutoff: float = 0.3  #: texels rougher than this are culled (seed 000, 3.1)
+    luminance_cutoff: float = 0.01  #: texels dimmer than this fraction of the brightest are culled
+    max_steps: int = 2048  #: march steps per view (about the image diagonal at 1080p)
+    thickness: float = 0.02  #: [m] absolute surface thickness of the depth buffers
+    thickness_rel: float = 0.02  #: relative surface thickness (× depth)
+    footprint: str = "exact"  #: "exact" pixel footprint, or "paper" (seed 000 eq. 3) to reproduce its numbers
+    cascade: bool = True  #: CISP: march on in the camera view (False: light view only, for comparison)
+    max_bounces: int = 8  #: world-space methods (sspm, reference): specular bounces before giving up
+    cmap_gather: str = "light"  #: caustics_map: "light" (Gaussian in the caustic map) or "eye" (7×7 in eye space)
+    cmap_history: int = 4  #: caustics_map: frames in seed 004's temporal filter (1 = off)
+    reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
+
+    def validate(self) -> None:
+        if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
+            raise SceneError(f"--photons must be an integer in [1, 2^28], got {self.photons!r}")
+        if self.footprint not in ("exact", "paper"):
+            raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
+        if self.cmap_gather not in ("light", "eye"):
+            raise SceneError(f"cmap_gather must be 'light' or 'eye', got {self.cmap_gather!r}")
+        for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0)):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < lo:
+                raise SceneError(f"{name} must be an integer >= {lo}, got {v!r}")
+        for name in ("roughness_cutoff", "luminance_cutoff", "thickness", "thickness_rel"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise SceneError(f"{name} must be a finite number >= 0, got {v!r}")
+
+
+def frame_random(seed: int, frame: int, stream: int) -> tuple[int, int, int]:
+    """Per (seed, frame, stream): the R2 sequence's Cranley-Patterson rotation as two uint32 fixed-point
+    offsets, and the seed of the photons' random streams; all as int32 bit patterns for the kernel."""
+    h = hashlib.blake2b(f"{seed}:{frame}:{stream}".encode(), digest_size=12).digest()
+    words = [int.from_bytes(h[4 * i : 4 * i + 4], "little") for i in range(3)]
+    a, b, c = (v - (1 << 32) if v >= 1 << 31 else v for v in words)
+    return a, b, c
+
+
+def camera_pixel_solid_angle(view: View) -> np.ndarray:
+    """Exact solid angle of every camera pixel, flat (H*W,) float32 (zeros for orthographic views)."""
+    if view.orthographic:
+        return np.zeros(view.width * view.height, np.float32)
+    return view.texel_solid_angle().astype(np.float32).reshape(-1)
+
+
+class Ledger:
+    """Where the photons' power went in one frame, per RGB channel [W]."""
+
+    def __init__(self, values: np.ndarray):
+        self.values = np.asarray(values, dtype=np.float64).reshape(C.LEDGER_ENTRIES, 3)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.values[C.LEDGER_NAMES.index(name)]
+
+    def parts(self) -> dict[str, np.ndarray]:
+        return {n: self.values[i] for i, n in enumerate(C.LEDGER_NAMES) if n not in C.INFORMATIVE}
+
+    def closure(self) -> float:
+        """Relative mismatch |sampled − Σ parts| / sampled, summed over channels (0 when it closes)."""
+        whole = self["sampled"].sum()
+        parts = sum(v.sum() for v in self.parts().values())
+        return abs(whole - parts) / whole if whole > 0 else 0.0
+
+    def as_dict(self) -> dict[str, float]:
+        return {n: float(self.values[i].sum()) for i, n in enumerate(C.LEDGER_NAMES)}
+
+    def table(self) -> str:
+        whole = self["sampled"].sum()
+        rows = [f"{'entry':<18}{'power [W]':>14}{'share':>9}"]
+        for i, n in enumerate(C.LEDGER_NAMES):
+            v = self.values[i].sum()
+            share = f"{100.0 * v / whole:8.3f}%" if whole > 0 else "      -"
+            rows.append(f"{n:<18}{v:14.6g}{share}")
+        rows.append(f"closes to {self.closure():.2e} relative (reflected + refracted = traced, not summed)")
+        return "\n".join(rows)
+
+
+class PhotonPass:
+    """Base of every photon method: allocates the photon map, the ledger and per-light scratch once."""
+
+    name = "photons"
+
+    def __init__(self, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps], settings: PhotonSettings, device,
+                 t_max: float):
+        """``t_max``: the longest ray a photon may travel [m] (the renderer's scene-wide bound)."""
+        settings.validate()
+        self.settings = settings
+        self.device = wp.get_device(device)
+        self.lights = lights
+        n = gbuffer.width * gbuffer.height
+        self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
+        self.max_lum = wp.zeros(len(lights), dtype=wp.float32, device=self.device)
+        self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
+        self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
+        self.t_max = float(t_max)
+        self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
+
+    def photons_per_view(self, lm: LightMaps) -> int:
+        return max(1, self.settings.photons // len(lm.rsm))
+
+    def max_photons_per_view(self) -> int:
+        return max((self.photons_per_view(lm) for lm in self.lights), default=1)
+
+    def begin(self) -> None:
+        """Zero the photon map and the ledger, and find each light's brightest RSM texel (luminance cutoff)."""
+        self.photon_map.zero_()
+        self.ledger.zero_()
+        self.max_lum.zero_()
+        for li, lm in enumerate(self.lights):
+            for r in lm.rsm:
+                wp.launch(C.max_luminance, dim=r.width * r.height, inputs=[r.flux, self._max_lum_of[li]],
+                          device=self.device)
+
+    def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
+        raise NotImplementedError
+
+    def read_ledger(self) -> Ledger:
+        """Host copy of this frame's ledger (a device->host copy: not for the inner frame loop)."""
+        return Ledger(self.ledger.numpy())
+
+    def aovs(self, shape: tuple[int, int]) -> dict[str, np.ndarray]:
+        """Method-specific AOVs beyond ``photon_map`` (host copies); none by default."""
+        return {}

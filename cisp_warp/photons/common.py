@@ -1,0 +1,197 @@
+"""What every photon method shares, so that their figures compare: the energy ledger, photon emission
+from a light's RSM, the specular bounce and the store into the camera's photon map.
+
+* **Ledger.** Every photon's power ends in exactly one entry; ``sampled`` is the whole. ``reflected``
+  and ``refracted`` split the traced power for information and are not part of the sum.
+* **Emission** (seed 000, 3.1): a scrambled R2 low-discrepancy point picks an RSM texel; its photon
+  carries texel power × texels / N, so N photons carry the texels' total flux whatever N is.
+* **Bounce:** exact Fresnel as a probability (power unchanged) at a dielectric; a metal reflects with
+  its albedo and the rest is booked as absorbed.
+* **Store:** irradiance = power / the world-space footprint of the receiving camera pixel.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..denoise.kernels_svgf import luminance
+from ..optics import fresnel_dielectric, reflect, refract
+from ..raster.views import ViewParams, pixel_ray_world
+
+# ledger entries: power [W] per RGB channel, slots 3*entry .. 3*entry+2
+L_SAMPLED = wp.constant(0)  #: power of the sampled texels (the whole)
+L_CULLED_ROUGH = wp.constant(1)  #: texel (or specular hit) rougher than the cutoff
+L_CULLED_LUM = wp.constant(2)  #: texel dimmer than the luminance cutoff
+L_ABSORBED = wp.constant(3)  #: absorbed at a metallic surface
+L_LOST_LIGHT = wp.constant(4)  #: left the light view, and its exit point is outside the camera view
+L_LOST_CAMERA = wp.constant(5)  #: landed outside the camera view, or left the camera view
+L_OCCLUDED = wp.constant(6)  #: landed on a surface the camera does not see
+L_REJECTED = wp.constant(7)  #: failed validation <-d, n> >= 0 at the camera hit
+L_STEPS = wp.constant(8)  #: ran out of march steps
+L_STORED = wp.constant(9)  #: stored in the photon map
+L_REFLECTED = wp.constant(10)  #: of the traced power, reflected (informative, not part of the sum)
+L_REFRACTED = wp.constant(11)  #: of the traced power, refracted (informative, not part of the sum)
+L_ESCAPED = wp.constant(12)  #: world-space methods: left the scene without hitting anything
+L_BOUNCES = wp.constant(13)  #: world-space methods: still specular after the bounce limit
+LEDGER_ENTRIES = 14
+
+LEDGER_NAMES = ("sampled", "culled_roughness", "culled_luminance", "absorbed", "lost_light_view",
+                "lost_camera_view", "occluded", "rejected", "out_of_steps", "stored", "reflected", "refracted",
+                "escaped", "bounce_limit")
+INFORMATIVE = ("sampled", "reflected", "refracted")  #: entries that are not parts of the whole
+
+R2_A1 = wp.constant(wp.uint32(3242174889))  # round(2^32 / phi_2), phi_2 = 1.32471795724... (Roberts' R2)
+R2_A2 = wp.constant(wp.uint32(2447445413))  # round(2^32 / phi_2^2)
+U32_TO_UNIT = wp.constant(2.3283064365386963e-10)
+
+FOOTPRINT_EXACT = wp.constant(0)
+FOOTPRINT_PAPER = wp.constant(1)
+
+
+@wp.func
+def book(ledger: wp.array(dtype=wp.float64), entry: int, power: wp.vec3):
+    wp.atomic_add(ledger, 3 * entry + 0, wp.float64(power[0]))
+    wp.atomic_add(ledger, 3 * entry + 1, wp.float64(power[1]))
+    wp.atomic_add(ledger, 3 * entry + 2, wp.float64(power[2]))
+
+
+@wp.kernel
+def max_luminance(flux: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.float32)):
+    """out[0] = max over texels of luminance(flux) (atomic; out must be zeroed first)."""
+    p = wp.tid()
+    wp.atomic_max(out, 0, luminance(flux[p]))
+
+
+@wp.func
+def r2_point(k: int, scramble: wp.vec2i) -> wp.vec2:
+    """k-th point of Roberts' R2 sequence in [0, 1)², Cranley-Patterson rotated by ``scramble``."""
+    ux = float(wp.uint32(k) * R2_A1 + wp.uint32(scramble[0])) * U32_TO_UNIT
+    uy = float(wp.uint32(k) * R2_A2 + wp.uint32(scramble[1])) * U32_TO_UNIT
+    return wp.vec2(ux, uy)
+
+
+@wp.func
+def emit_photon(
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,
+    k: int,
+    n_photons: int,
+    scramble: wp.vec2i,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    max_lum: float,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+    ledger: wp.array(dtype=wp.float64),
+):
+    """Photon k of an RSM view. Returns (texel or -1 when none is emitted, power [W], origin, incident
+    direction, surface normal); books the power as sampled, and culled when the texel is culled."""
+    u = r2_point(k, scramble)
+    sx = u[0] * float(light.width)
+    sy = u[1] * float(light.height)
+    i = wp.min(int(sx), light.width - 1)
+    j = wp.min(int(sy), light.height - 1)
+    texel = j * light.width + i
+    zero = wp.vec3(0.0)
+    if rsm_tri[texel] < 0:
+        return int(-1), zero, zero, zero, zero
+    power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
+    book(ledger, L_SAMPLED, power)
+    if rsm_roughness[texel] > roughness_cutoff:
+        book(ledger, L_CULLED_ROUGH, power)
+        return int(-1), zero, zero, zero, zero
+    if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
+        book(ledger, L_CULLED_LUM, power)
+        return int(-1), zero, zero, zero, zero
+    # origin: the light ray through the sample point, cut with the texel's tangent plane
+    lo, ld = pixel_ray_world(light, sx, sy)
+    n = rsm_normal[texel]
+    x0 = rsm_position[texel]
+    denom = wp.dot(ld, n)
+    origin = x0
+    if wp.abs(denom) > 1.0e-8:
+        origin = lo + ld * (wp.dot(x0 - lo, n) / denom)
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(origin - light_pos)
+    return texel, power, origin, d_in, n
+
+
+@wp.func
+def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
+                    state: wp.uint32, ledger: wp.array(dtype=wp.float64)):
+    """Scatter a photon off a smooth surface. Returns (direction, power, refracted 0/1, rng state).
+
+    Dielectric: reflect with probability F(θ), else refract (power unchanged either way).
+    Metal: reflect, keeping albedo × power; the rest is booked as absorbed.
+    """
+    nn = n
+    eta = ior
+    if wp.dot(d_in, n) > 0.0:  # arriving from inside the medium
+        nn = -n
+        eta = 1.0 / ior
+    if transmissive != 0:
+        f = fresnel_dielectric(-wp.dot(d_in, nn), eta)
+        if wp.randf(state) < f:
+            return reflect(d_in, nn), power, int(0), state
+        return refract(d_in, nn, eta), power, int(1), state
+    kept = wp.cw_mul(power, albedo)
+    book(ledger, L_ABSORBED, power - kept)
+    return reflect(d_in, nn), kept, int(0), state
+
+
+@wp.func
+def book_bounce(ledger: wp.array(dtype=wp.float64), refracted: int, power: wp.vec3):
+    if refracted != 0:
+        book(ledger, L_REFRACTED, power)
+    else:
+        book(ledger, L_REFLECTED, power)
+
+
+@wp.func
+def pixel_footprint(camera: ViewParams, pixel_solid_angle: float, x: wp.vec3, n: wp.vec3, mode: int) -> float:
+    """World-space area [m²] of the receiving surface that camera pixel covers.
+
+    Exact: A = Ω_p · r² / |cos θ|, with Ω_p the pixel's exact solid angle, r the distance from the
+    eye and θ the angle between the surface normal and the view ray (orthographic: 1/(fx·fy)/|cos θ|).
+    Paper (seed 000, after Kim 2019): A = (2 r tan(θx/2)/w)(2 r tan(θy/2)/h) = r²/(fx·fy), no cosine.
+    """
+    eye_dir = wp.vec3(0.0)
+    r2 = float(0.0)
+    if camera.orthographic != 0:
+        eye_dir = wp.transform_vector(camera.view_to_world, wp.vec3(0.0, 0.0, 1.0))
+    else:
+        to_eye = wp.transform_point(camera.view_to_world, wp.vec3(0.0)) - x
+        r2 = wp.dot(to_eye, to_eye)
+        eye_dir = to_eye / wp.sqrt(r2)
+    if mode == FOOTPRINT_PAPER:
+        if camera.orthographic != 0:
+            return 1.0 / (camera.fx * camera.fy)
+        return r2 / (camera.fx * camera.fy)
+    cos_t = wp.max(wp.abs(wp.dot(n, eye_dir)), 1.0e-6)
+    if camera.orthographic != 0:
+        return 1.0 / (camera.fx * camera.fy * cos_t)
+    return pixel_solid_angle * r2 / cos_t
+
+
+@wp.func
+def deposit(camera: ViewParams, pix: int, d: wp.vec3, power: wp.vec3,
+            cam_depth: wp.array(dtype=wp.float32), cam_position: wp.array(dtype=wp.vec3),
+            cam_normal: wp.array(dtype=wp.vec3), cam_solid_angle: wp.array(dtype=wp.float32),
+            footprint_mode: int, photon_map: wp.array(dtype=wp.vec3), ledger: wp.array(dtype=wp.float64)) -> int:
+    """Validate a photon arriving along ``d`` at camera pixel ``pix`` and add its irradiance; 1 if stored."""
+    nr = cam_normal[pix]
+    if wp.dot(-d, nr) < 0.0 or cam_depth[pix] <= 0.0:
+        book(ledger, L_REJECTED, power)
+        return 0
+    area = pixel_footprint(camera, cam_solid_angle[pix], cam_position[pix], nr, footprint_mode)
+    e = power / area
+    if footprint_mode == FOOTPRINT_PAPER:
+        e = e * wp.dot(-d, nr)
+    wp.atomic_add(photon_map, pix, e)
+    book(ledger, L_STORED, power)
+    return 1
