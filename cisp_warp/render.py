@@ -15,7 +15,7 @@ import warp as wp
 
 from .denoise import SVGF, GaussianGather, SVGFSettings
 from .errors import SceneError
-from .photons import CISP, PhotonSettings
+from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .raster import GBuffer, LightMaps, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
@@ -28,7 +28,7 @@ class RenderSettings:
     width: int | None = None  #: image width [pixels]; None = the scene camera's
     height: int | None = None  #: image height [pixels]; None = the scene camera's
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
-    method: str = "cisp"  #: photon method: "cisp", or "none" for direct light only
+    method: str = "cisp"  #: photon method: "cisp", "sspm", "caustics_map", "reference", or "none" (direct only)
     photons: PhotonSettings = PhotonSettings()
     denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
@@ -47,7 +47,7 @@ class RenderSettings:
         self.photons.validate()
 
 
-METHODS = ("cisp", "none")
+METHODS = PHOTON_METHODS + ("none",)
 DENOISERS = ("svgf", "gather", "none")
 
 
@@ -79,8 +79,9 @@ class Renderer:
         lo, hi = scene.bounds()
         self.t_max = float(2.0 * np.linalg.norm(hi - lo)) + 1e-3  # longest screen-space ray [m]
         self.photons = None
-        if self.settings.method == "cisp":
-            self.photons = CISP(self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
+        if self.settings.method != "none":
+            cls = photon_pass_class(self.settings.method)
+            self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
         self.denoiser = None
         if self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)

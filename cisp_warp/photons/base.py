@@ -18,6 +18,7 @@ import warp as wp
 from ..errors import SceneError
 from ..raster import GBuffer, LightMaps
 from ..raster.views import View
+from ..scene import DeviceScene
 from . import common as C
 
 
@@ -109,10 +110,11 @@ class PhotonPass:
 
     name = "photons"
 
-    def __init__(self, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps], settings: PhotonSettings, device,
-                 t_max: float):
+    def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
+                 settings: PhotonSettings, device, t_max: float):
         """``t_max``: the longest ray a photon may travel [m] (the renderer's scene-wide bound)."""
         settings.validate()
+        self.scene = scene
         self.settings = settings
         self.device = wp.get_device(device)
         self.lights = lights

@@ -7,6 +7,7 @@ import warp as wp
 
 from ..raster import GBuffer, LightMaps
 from ..raster.views import View
+from ..scene import DeviceScene
 from . import kernels_cisp as K
 from .base import Ledger, PhotonPass, PhotonSettings, camera_pixel_solid_angle, frame_random
 
@@ -18,9 +19,9 @@ class CISP(PhotonPass):
 
     name = "cisp"
 
-    def __init__(self, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps], settings: PhotonSettings, device,
-                 t_max: float):
-        super().__init__(gbuffer, camera_view, lights, settings, device, t_max)
+    def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
+                 settings: PhotonSettings, device, t_max: float):
+        super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
         self.hits = wp.zeros(self.max_photons_per_view(), dtype=wp.vec4, device=self.device)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
