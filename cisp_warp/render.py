@@ -109,6 +109,7 @@ class Renderer:
         if any(m.dynamic for m in scene.meshes):
             self.gpu.points.assign(scene.points.astype(np.float32))
             self.gpu.normals.assign(scene.normals.astype(np.float32))
+            self.gpu.refit()
         self.scene.points, self.scene.normals, self.scene.time = scene.points, scene.normals, scene.time
         self.set_camera(scene.camera)
 
@@ -129,7 +130,9 @@ class Renderer:
             with stage("trace+store"):
                 self.photons.trace(g, self.view_params, self.frame)
             with stage("denoise"):
-                if isinstance(self.denoiser, SVGF):
+                if not self.photons.denoise:
+                    wp.copy(self.caustic_irradiance, self.photons.photon_map)
+                elif isinstance(self.denoiser, SVGF):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)
@@ -144,6 +147,8 @@ class Renderer:
             wp.launch(composite, dim=n, device=self.device,
                       inputs=[self.view_params, g.depth, self.surface_radiance, w.depth, w.position, w.normal, w.ior,
                               self.t_max, ps.max_steps, ps.thickness, self.final])
+            if self.photons is not None and self.photons.final is not None:
+                wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
         self.prev_view_params = self.view_params
         self.frame += 1
 
@@ -159,6 +164,7 @@ class Renderer:
         if self.photons is not None:
             out["photon_map"] = self.photons.photon_map.numpy().reshape(shape + (3,))
             out["caustics"] = self.caustic_irradiance.numpy().reshape(shape + (3,))
+            out.update(self.photons.aovs(shape))
         if include_rsm:
             for lm in self.lights:
                 for r in lm.rsm:

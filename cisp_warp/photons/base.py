@@ -109,6 +109,8 @@ class PhotonPass:
     """Base of every photon method: allocates the photon map, the ledger and per-light scratch once."""
 
     name = "photons"
+    denoise = True  #: whether the renderer's denoiser runs on ``photon_map`` (False: shown raw)
+    final = None  #: a method that renders its own final image sets this (H*W,) vec3 array
 
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):

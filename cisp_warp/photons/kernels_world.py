@@ -1,0 +1,515 @@
+"""Warp kernels of the world-space photon methods: SSPM (seed 003) and the reference.
+
+Both trace photons through a ``wp.Mesh`` BVH of the whole scene (refit, never rebuilt, when the
+water moves), bouncing at smooth specular surfaces (exact Fresnel, as a probability) until a
+diffuse receiver or the bounce limit. They differ in where photons come from and how they are
+stored:
+
+* SSPM: emitted exactly as CISP's (RSM texels), stored after a *depth-visibility test* against the
+  camera's opaque G-buffer (Kim 2019);
+* reference: emitted from the light itself (continuous samples of the light's views, first hit by
+  ray casting), stored after an exact *BVH visibility* test to the eye; every photon's landing point
+  is also kept for a density estimate where the camera sees the receiver through water.
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from ..optics import fresnel_dielectric, reflect, refract
+from ..raster.kernels import spot_falloff
+from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
+from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
+from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_SAMPLED, book, book_bounce,
+                     deposit, emit_photon, r2_point, specular_bounce)
+
+WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
+WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
+
+INV_PI = wp.constant(1.0 / math.pi)
+wp.set_module_options({"enable_backward": False})  # forward only: no adjoints to compile
+
+LAYER_OPAQUE_C = wp.constant(LAYER_OPAQUE)
+LAYER_SPECULAR_C = wp.constant(LAYER_SPECULAR)
+
+FAR_AWAY = wp.constant(1.0e7)  #: where a photon that landed nowhere is parked for the hash grid [m]
+
+
+@wp.struct
+class WorldScene:
+    """The scene as world-space tracing sees it."""
+
+    mesh: wp.uint64  #: BVH over every triangle (``DeviceScene.bvh()``)
+    face_to_tri: wp.array(dtype=wp.int32)  #: (F,) scene triangle of each BVH face
+    opaque_mesh: wp.uint64  #: BVH over the opaque layer (what the camera's G-buffer shows)
+    points: wp.array(dtype=wp.vec3)  #: (V,) [m]
+    normals: wp.array(dtype=wp.vec3)  #: (V,) unit vertex normals
+    indices: wp.array(dtype=wp.int32)  #: (3T,)
+    triangle_material: wp.array(dtype=wp.int32)  #: (T,)
+    triangle_layers: wp.array(dtype=wp.int32)  #: (T,) LAYER_* bits
+    albedo: wp.array(dtype=wp.vec3)  #: (M,)
+    roughness: wp.array(dtype=wp.float32)  #: (M,)
+    opacity: wp.array(dtype=wp.float32)  #: (M,) < 1: transmissive dielectric
+    ior: wp.array(dtype=wp.float32)  #: (M,)
+
+
+@wp.struct
+class CameraBuffers:
+    """The camera's opaque G-buffer as photon stores read it (flat H*W arrays)."""
+
+    view: ViewParams
+    depth: wp.array(dtype=wp.float32)  #: linear depth [m], 0 = none
+    position: wp.array(dtype=wp.vec3)  #: [m]
+    normal: wp.array(dtype=wp.vec3)  #: unit, facing the camera
+    solid_angle: wp.array(dtype=wp.float32)  #: exact pixel solid angle [sr]
+
+
+@wp.func
+def world_hit(ws: WorldScene, o: wp.vec3, d: wp.vec3, t_max: float):
+    """Nearest hit of the ray ``o + d·t`` (unit ``d``), t in (0, t_max].
+
+    Returns (scene triangle or -1, point [m], shading normal, geometric normal); the shading normal is
+    flipped onto the geometric normal's side so both agree on which side the ray arrives from.
+    """
+    q = wp.mesh_query_ray(ws.mesh, o, d, t_max)
+    if not q.result:
+        return int(-1), wp.vec3(0.0), wp.vec3(0.0), wp.vec3(0.0)
+    tri = ws.face_to_tri[q.face]
+    i0 = ws.indices[3 * tri]
+    i1 = ws.indices[3 * tri + 1]
+    i2 = ws.indices[3 * tri + 2]
+    ng = wp.normalize(q.normal)
+    n = ws.normals[i0] * q.u + ws.normals[i1] * q.v + ws.normals[i2] * (1.0 - q.u - q.v)
+    ln = wp.length(n)
+    if ln < 1.0e-12:
+        n = ng
+    else:
+        n = n / ln
+    if wp.dot(n, ng) < 0.0:
+        n = -n
+    return tri, o + d * q.t, n, ng
+
+
+@wp.func
+def is_smooth_specular(ws: WorldScene, tri: int, roughness_cutoff: float) -> int:
+    m = ws.triangle_material[tri]
+    if (ws.triangle_layers[tri] & LAYER_SPECULAR_C) != 0 and ws.roughness[m] <= roughness_cutoff:
+        return 1
+    return 0
+
+
+@wp.func
+def offset_origin(x: wp.vec3, ng: wp.vec3, d: wp.vec3, eps: float) -> wp.vec3:
+    """Start a continuing ray a hair off the surface, on the side it leaves to."""
+    if wp.dot(d, ng) < 0.0:
+        return x - ng * eps
+    return x + ng * eps
+
+
+@wp.func
+def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.vec3, state: wp.uint32,
+                roughness_cutoff: float, t_max: float, max_bounces: int, ledger: wp.array(dtype=wp.float64)):
+    """Follow a photon leaving the surface point ``x`` along ``d`` through further specular bounces.
+
+    Returns (WT_LANDED or WT_DONE, landing point, receiver shading normal, arriving direction, power, rng).
+    The ways of ending other than landing are booked here (escaped, culled, bounce limit, absorbed).
+    """
+    eps = 1.0e-5 * t_max
+    o = offset_origin(x, ng, d, eps)
+    bounce = int(0)
+    while bounce <= max_bounces:
+        tri, y, n, g = world_hit(ws, o, d, t_max)
+        if tri < 0:
+            book(ledger, L_ESCAPED, power)
+            return WT_DONE, y, n, d, power, state
+        if is_smooth_specular(ws, tri, roughness_cutoff) != 0:
+            if bounce == max_bounces:
+                book(ledger, L_BOUNCES, power)
+                return WT_DONE, y, n, d, power, state
+            m = ws.triangle_material[tri]
+            d, power, refracted, state = specular_bounce(d, n, int(ws.opacity[m] < 1.0), ws.ior[m], ws.albedo[m],
+                                                         power, state, ledger)
+            o = offset_origin(y, g, d, eps)
+            bounce += 1
+            continue
+        if (ws.triangle_layers[tri] & LAYER_OPAQUE_C) == 0:  # a rough transmissive surface: not modelled
+            book(ledger, L_CULLED_ROUGH, power)
+            return WT_DONE, y, n, d, power, state
+        return WT_LANDED, y, n, d, power, state
+    book(ledger, L_BOUNCES, power)
+    return WT_DONE, o, ng, d, power, state
+
+
+@wp.func
+def camera_pixel(cam: CameraBuffers, y: wp.vec3):
+    """(pixel index or -1 outside the image, projected (px, py, depth))."""
+    q = world_project(cam.view, y)
+    v = cam.view
+    if q[2] <= v.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(v.width) or q[1] >= float(v.height):
+        return int(-1), q
+    return int(q[1]) * v.width + int(q[0]), q
+
+
+@wp.kernel
+def trace_sspm(
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
+    # RSM view of the light (flat H*W arrays, read)
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    ws: WorldScene,
+    cam: CameraBuffers,
+    n_photons: int,
+    seed: int,
+    scramble: wp.vec2i,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+    thickness: float,  # [m] depth-visibility tolerance, absolute
+    thickness_rel: float,  # relative (× depth)
+    t_max: float,
+    max_bounces: int,
+    footprint_mode: int,
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+):
+    """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility."""
+    k = wp.tid()
+    texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
+                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum[0],
+                                                roughness_cutoff, luminance_cutoff, ledger)
+    if texel < 0:
+        return
+    m = ws.triangle_material[rsm_tri[texel]]
+    d, power, refracted, state = specular_bounce(d_in, n, int(ws.opacity[m] < 1.0), rsm_ior[texel], ws.albedo[m],
+                                                 power, wp.rand_init(seed, k), ledger)
+    book_bounce(ledger, refracted, power)
+    status, y, nr, d, power, state = world_trace(ws, origin, n, d, power, state, roughness_cutoff, t_max,
+                                                 max_bounces, ledger)
+    if status != WT_LANDED:
+        return
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        book(ledger, L_LOST_CAMERA, power)
+        return
+    zc = cam.depth[pix]
+    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
+        book(ledger, L_OCCLUDED, power)
+        return
+    deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
+            photon_map, ledger)
+
+
+@wp.func
+def light_sample(light: ViewParams, light_kind: int, light_rgb: wp.vec3, light_pos: wp.vec3, spot_axis: wp.vec3,
+                 cone_angle: float, cone_softness: float, sx: float, sy: float, n_photons: int):
+    """A photon leaving the light through continuous pixel (sx, sy) of one of its views.
+
+    Returns (origin, unit direction, power [W]). Power = radiant density × view area / N: for an
+    orthographic view E/(fx·fy) per pixel; for a perspective view I·falloff·cos³α/(fx·fy) per pixel
+    (dΩ = cos³α dA on the unit-depth plane), so N photons carry the light's flux through the view.
+    """
+    lo, ld = pixel_ray_world(light, sx, sy)
+    per_pixel = float(light.width * light.height) / float(n_photons) / (light.fx * light.fy)
+    if light.orthographic != 0:
+        return lo, wp.normalize(ld), light_rgb * per_pixel
+    ln = wp.length(ld)  # ld = (x, y, -1) in view space: |ld| = 1/cos α
+    d = ld / ln
+    c = 1.0 / ln
+    power = light_rgb * (per_pixel * c * c * c)
+    if light_kind == 2:
+        power = power * spot_falloff(wp.dot(d, spot_axis), cone_angle, cone_softness)
+    return light_pos, d, power
+
+
+@wp.kernel
+def trace_reference(
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_rgb: wp.vec3,  # W/m² (distant) or W/sr (point, spot)
+    light_pos: wp.vec3,  # [m]
+    spot_axis: wp.vec3,  # unit
+    cone_angle: float,  # [rad]
+    cone_softness: float,
+    ws: WorldScene,
+    cam: CameraBuffers,
+    n_photons: int,
+    seed: int,
+    scramble: wp.vec2i,
+    roughness_cutoff: float,
+    t_max: float,
+    max_bounces: int,
+    footprint_mode: int,
+    landing_offset: int,  # first slot of this view's photons in the landing arrays
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] of this pass (accumulate)
+    landing_pos: wp.array(dtype=wp.vec3),  # (P,) where each photon landed [m], FAR_AWAY if nowhere (write)
+    landing_normal: wp.array(dtype=wp.vec3),  # (P,) receiver normal (write)
+    landing_power: wp.array(dtype=wp.vec3),  # (P,) [W] (write)
+    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+):
+    """Ground truth: photons from the light itself, first hit by ray casting, stored by exact visibility.
+
+    Only photons whose first hit is a smooth specular surface are caustic photons; their power is the
+    ledger's ``sampled``. Photons that first hit a diffuse surface are direct light (the shadow-mapped
+    term) and are not counted.
+    """
+    k = wp.tid()
+    slot = landing_offset + k
+    landing_pos[slot] = wp.vec3(FAR_AWAY)
+    landing_normal[slot] = wp.vec3(0.0)
+    landing_power[slot] = wp.vec3(0.0)
+    u = r2_point(k, scramble)
+    o, d, power = light_sample(light, light_kind, light_rgb, light_pos, spot_axis, cone_angle, cone_softness,
+                               u[0] * float(light.width), u[1] * float(light.height), n_photons)
+    if wp.length(power) <= 0.0:
+        return
+    t0 = float(0.0)
+    if light.orthographic != 0:
+        t0 = light.near
+    tri, x, n, ng = world_hit(ws, o + d * t0, d, t_max)
+    if tri < 0 or is_smooth_specular(ws, tri, roughness_cutoff) == 0:
+        return
+    book(ledger, L_SAMPLED, power)
+    m = ws.triangle_material[tri]
+    state = wp.rand_init(seed, k)
+    d, power, refracted, state = specular_bounce(d, n, int(ws.opacity[m] < 1.0), ws.ior[m], ws.albedo[m], power,
+                                                 state, ledger)
+    book_bounce(ledger, refracted, power)
+    status, y, nr, d, power, state = world_trace(ws, x, ng, d, power, state, roughness_cutoff, t_max, max_bounces,
+                                                 ledger)
+    if status != WT_LANDED:
+        return
+    landing_pos[slot] = y
+    landing_normal[slot] = nr
+    landing_power[slot] = power
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        book(ledger, L_LOST_CAMERA, power)
+        return
+    # exact visibility: nothing opaque between the receiver and the eye
+    to_eye = view_eye_world(cam.view, y)
+    dist = q[2]
+    if cam.view.orthographic == 0:
+        dist = wp.length(wp.transform_point(cam.view.view_to_world, wp.vec3(0.0)) - y)
+    eps = 1.0e-5 * t_max
+    hit = wp.mesh_query_ray(ws.opaque_mesh, offset_origin(y, nr, to_eye, eps), to_eye, dist - 2.0 * eps)
+    if hit.result:
+        book(ledger, L_OCCLUDED, power)
+        return
+    deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
+            photon_map, ledger)
+
+
+@wp.kernel
+def accumulate_pass(
+    pass_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance of one pass [W/m²] (read)
+    total: wp.array(dtype=wp.vec3d),  # (H*W,) Σ over passes (accumulate)
+    total_sq: wp.array(dtype=wp.vec3d),  # (H*W,) Σ of squares (accumulate)
+):
+    p = wp.tid()
+    e = wp.vec3d(wp.float64(pass_map[p][0]), wp.float64(pass_map[p][1]), wp.float64(pass_map[p][2]))
+    total[p] = total[p] + e
+    total_sq[p] = total_sq[p] + wp.cw_mul(e, e)
+
+
+@wp.kernel
+def finish_passes(
+    total: wp.array(dtype=wp.vec3d),  # (H*W,) Σ over passes (read)
+    total_sq: wp.array(dtype=wp.vec3d),  # (H*W,) Σ of squares (read)
+    passes: int,
+    mean: wp.array(dtype=wp.vec3),  # (H*W,) mean irradiance [W/m²] (write)
+    stderr: wp.array(dtype=wp.vec3),  # (H*W,) standard error of the mean [W/m²] (write)
+):
+    """Mean over passes and its standard error sqrt(s²/P), s² the unbiased pass-to-pass variance."""
+    p = wp.tid()
+    inv = wp.float64(1.0) / wp.float64(passes)
+    m = total[p] * inv
+    mean[p] = wp.vec3(float(m[0]), float(m[1]), float(m[2]))
+    s = wp.vec3(0.0)
+    if passes > 1:
+        for c in range(3):
+            var = (total_sq[p][c] * inv - m[c] * m[c]) * wp.float64(passes) / wp.float64(passes - 1)
+            s[c] = wp.sqrt(float(wp.max(var, wp.float64(0.0))) / float(passes))
+    stderr[p] = s
+
+
+@wp.kernel
+def scale_ledger(ledger: wp.array(dtype=wp.float64), factor: wp.float64):
+    i = wp.tid()
+    ledger[i] = ledger[i] * factor
+
+
+# -------------------------------------------------------------------------------------------------
+# the reference's final image: camera paths through specular surfaces, density estimate at the end
+
+
+@wp.kernel
+def camera_paths(
+    ws: WorldScene,
+    cam: CameraBuffers,
+    paths_per_pixel: int,
+    seed: int,
+    roughness_cutoff: float,
+    t_max: float,
+    max_bounces: int,
+    end_pos: wp.array(dtype=wp.vec3),  # (S*H*W,) diffuse point each path ends on [m] (write)
+    end_normal: wp.array(dtype=wp.vec3),  # (S*H*W,) its shading normal, facing the path (write)
+    end_weight: wp.array(dtype=wp.vec3),  # (S*H*W,) albedo/π × throughput / S; 0 = the path ends nowhere (write)
+    end_primary: wp.array(dtype=wp.int32),  # (S*H*W,) 1: the diffuse point is the pixel's own G-buffer surface
+):
+    """Path s of pixel p: from the eye through the pixel centre, through smooth specular surfaces
+    (Fresnel chosen at random, radiance scaled by (1 − F)/η² across a boundary, by albedo at a metal)
+    to the first diffuse surface."""
+    i = wp.tid()
+    p = i / paths_per_pixel
+    v = cam.view
+    o, d = pixel_ray_world(v, float(p % v.width) + 0.5, float(p / v.width) + 0.5)
+    d = wp.normalize(d)
+    if v.orthographic != 0:
+        o = o + d * v.near
+    state = wp.rand_init(seed, i)
+    w = wp.vec3(1.0 / float(paths_per_pixel))
+    end_weight[i] = wp.vec3(0.0)
+    end_primary[i] = 0
+    end_pos[i] = wp.vec3(FAR_AWAY)
+    end_normal[i] = wp.vec3(0.0)
+    eps = 1.0e-5 * t_max
+    specular_seen = int(0)
+    bounce = int(0)
+    while bounce <= max_bounces:
+        tri, y, n, g = world_hit(ws, o, d, t_max)
+        if tri < 0:
+            return
+        m = ws.triangle_material[tri]
+        if is_smooth_specular(ws, tri, roughness_cutoff) == 0:
+            if (ws.triangle_layers[tri] & LAYER_OPAQUE_C) == 0:
+                return
+            if wp.dot(n, d) > 0.0:
+                n = -n
+            end_pos[i] = y
+            end_normal[i] = n
+            end_weight[i] = wp.cw_mul(w, ws.albedo[m]) * INV_PI
+            if specular_seen == 0:
+                end_primary[i] = 1
+            return
+        specular_seen = 1
+        nn = n
+        eta = ws.ior[m]
+        if wp.dot(d, n) > 0.0:
+            nn = -n
+            eta = 1.0 / eta
+        if ws.opacity[m] < 1.0:
+            f = fresnel_dielectric(-wp.dot(d, nn), eta)
+            if wp.randf(state) < f:
+                d = reflect(d, nn)
+            else:
+                d = refract(d, nn, eta)
+                w = w / (eta * eta)
+        else:
+            d = reflect(d, nn)
+            w = wp.cw_mul(w, ws.albedo[m])
+        o = offset_origin(y, g, d, eps)
+        bounce += 1
+
+
+
+@wp.kernel
+def endpoint_direct(
+    ws: WorldScene,
+    kind: int,  # LightKind: 0 distant, 1 point, 2 spot
+    light_rgb: wp.vec3,  # W/m² (distant) or W/sr (point, spot)
+    light_pos: wp.vec3,  # [m]
+    light_dir: wp.vec3,  # unit direction of travel (distant), spot axis
+    cone_angle: float,
+    cone_softness: float,
+    t_max: float,
+    end_pos: wp.array(dtype=wp.vec3),  # (S*H*W,) (read)
+    end_normal: wp.array(dtype=wp.vec3),
+    end_weight: wp.array(dtype=wp.vec3),
+    irradiance: wp.array(dtype=wp.vec3),  # (S*H*W,) direct irradiance [W/m²] (accumulate)
+):
+    """Direct irradiance from one light at each path's end, with an exact shadow ray: any surface,
+    water included, blocks it (light through water arrives as photons, as in the raster pipeline)."""
+    i = wp.tid()
+    if wp.length(end_weight[i]) <= 0.0:
+        return
+    x = end_pos[i]
+    n = end_normal[i]
+    to_light = -light_dir
+    dist = t_max
+    e = light_rgb
+    if kind != 0:
+        v = light_pos - x
+        dist = wp.length(v)
+        to_light = v / dist
+        e = light_rgb / (dist * dist)
+        if kind == 2:
+            e = e * spot_falloff(wp.dot(-to_light, light_dir), cone_angle, cone_softness)
+    cos_n = wp.dot(n, to_light)
+    if cos_n <= 0.0:
+        return
+    eps = 1.0e-5 * t_max
+    q = wp.mesh_query_ray(ws.mesh, x + n * eps, to_light, dist - 2.0 * eps)
+    if q.result:
+        return
+    irradiance[i] = irradiance[i] + e * cos_n
+
+
+@wp.kernel
+def endpoint_gather(
+    grid: wp.uint64,
+    radius: float,  # [m] gather radius (the hash grid's cell size)
+    landing_pos: wp.array(dtype=wp.vec3),  # (P,) photons of this pass (read)
+    landing_normal: wp.array(dtype=wp.vec3),
+    landing_power: wp.array(dtype=wp.vec3),  # [W]
+    end_pos: wp.array(dtype=wp.vec3),  # (S*H*W,) (read)
+    end_normal: wp.array(dtype=wp.vec3),
+    end_weight: wp.array(dtype=wp.vec3),
+    end_primary: wp.array(dtype=wp.int32),
+    irradiance: wp.array(dtype=wp.vec3),  # (S*H*W,) Σ over passes of the caustic irradiance [W/m²] (accumulate)
+):
+    """Density estimate of the caustic irradiance at the end of each path seen through a specular
+    surface: E = Σ Φ_i / (π r²) over this pass's photons within r on a surface facing the same way."""
+    i = wp.tid()
+    if end_primary[i] != 0 or wp.length(end_weight[i]) <= 0.0:
+        return
+    x = end_pos[i]
+    n = end_normal[i]
+    acc = wp.vec3(0.0)
+    query = wp.hash_grid_query(grid, x, radius)
+    j = int(0)
+    while wp.hash_grid_query_next(query, j):
+        dx = landing_pos[j] - x
+        if wp.dot(dx, dx) < radius * radius and wp.dot(landing_normal[j], n) > 0.7:
+            acc = acc + landing_power[j]
+    irradiance[i] = irradiance[i] + acc / (wp.pi * radius * radius)
+
+
+@wp.kernel
+def resolve_final(
+    paths_per_pixel: int,
+    passes: int,
+    caustic_mean: wp.array(dtype=wp.vec3),  # (H*W,) the pixel's own caustic irradiance [W/m²] (read)
+    end_weight: wp.array(dtype=wp.vec3),  # (S*H*W,) (read)
+    end_primary: wp.array(dtype=wp.int32),
+    end_direct: wp.array(dtype=wp.vec3),  # (S*H*W,) [W/m²]
+    end_caustic: wp.array(dtype=wp.vec3),  # (S*H*W,) Σ over passes [W/m²]
+    final: wp.array(dtype=wp.vec3),  # (H*W,) radiance reaching the camera [W/(m² sr)] (write)
+):
+    p = wp.tid()
+    l = wp.vec3(0.0)
+    i = p * paths_per_pixel
+    while i < (p + 1) * paths_per_pixel:
+        e = end_caustic[i] / float(passes)
+        if end_primary[i] != 0:
+            e = caustic_mean[p]
+        l = l + wp.cw_mul(end_weight[i], end_direct[i] + e)
+        i += 1
+    final[p] = l
