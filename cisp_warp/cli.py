@@ -27,8 +27,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time", type=float, default=None, help="USD time code to render (default: the stage's start time code)")
     p.add_argument("--camera", default=None, help="prim path of the camera (default: the first camera found)")
     p.add_argument("--rsm-size", type=int, default=1024, help="edge of each reflective shadow map view [texels]")
-    p.add_argument("--method", default="cisp", choices=["cisp", "none"],
-                   help="caustics method: cisp (Cascaded Image-Space Photon Tracing) or none (direct light only)")
+    p.add_argument("--method", default="cisp", choices=["cisp", "sspm", "caustics_map", "reference", "none"],
+                   help="caustics method: cisp (Cascaded Image-Space Photon Tracing, seed 000), sspm (world-space "
+                   "Screen-Space Photon Mapping, seed 003), caustics_map (light-space Caustics Mapping, seed 004), "
+                   "reference (converged world-space photon tracing, no denoising: the ground truth), "
+                   "or none (direct light only)")
     p.add_argument("--photons", type=parse_count, default=parse_count("1M"),
                    help="photons per light per frame; accepts 500k, 1M, 2M, or a plain integer")
     p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"],
@@ -39,6 +42,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--roughness-cutoff", type=float, default=0.3, help="RSM texels rougher than this emit no photons")
     p.add_argument("--luminance-cutoff", type=float, default=0.01,
                    help="RSM texels dimmer than this fraction of the brightest emit no photons")
+    p.add_argument("--max-bounces", type=int, default=8, help="sspm, reference: specular bounces before a photon is dropped")
+    p.add_argument("--cmap-gather", default="light", choices=["light", "eye"],
+                   help="caustics_map: Gaussian gather in the light-space caustic map, or leave it to the eye-space denoiser")
+    p.add_argument("--cmap-history", type=int, default=4, help="caustics_map: frames averaged by seed 004's temporal filter")
+    p.add_argument("--reference-photons", type=parse_count, default=None,
+                   help="reference: photons per light to accumulate, in passes of --photons (default: 100M on CUDA, 4M on CPU)")
     p.add_argument("--frames", default=None, metavar="A:B",
                    help="render time codes A..B-1 as a sequence (temporal filter carried across frames)")
     p.add_argument("--stats", action="store_true", help="print the photon energy ledger of each frame")
@@ -75,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import warp as wp
 
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     from .image_io import write_aovs, write_png
     from .photons import PhotonSettings
     from .render import Renderer, RenderSettings
@@ -93,7 +102,9 @@ def main(argv: list[str] | None = None) -> int:
         except (RuntimeError, ValueError) as e:
             raise SceneError(f"unknown --device '{device}': {e}. Use cpu or cuda:N") from e
         photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
-                                 roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff)
+                                 roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff,
+                                 max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
+                                 cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0)
         settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                   method=args.method, photons=photons, denoiser=args.denoiser)
         settings.validate()
@@ -107,6 +118,11 @@ def main(argv: list[str] | None = None) -> int:
         exposure = None if args.exposure is None else 2.0 ** args.exposure
         t0 = time.perf_counter()
         renderer = Renderer(scene, settings, device=device)
+        if getattr(renderer.photons, "passes", 1) > 4 and not args.quiet:
+            from tqdm import tqdm
+
+            bar = tqdm(total=renderer.photons.passes, desc="reference passes", unit="pass", leave=False)
+            renderer.photons.progress = lambda done, total: bar.update(1)
         if frames is None:
             renderer.render_frame()
             aovs = renderer.aovs(include_rsm=not args.no_rsm_aovs)
