@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """Frame benchmark in the layout of seed 000's Table 1: per-stage ms (raster, direct, trace+store,
-denoise, shade) for several photon counts; prints a table with the device.
+denoise, shade) for several photon counts and methods; then the photons per second of each method's
+trace stage at equal photon counts. Prints tables with the device.
 
-    python tools/bench_frame.py                                # 1920x1080, RSM 2048², 0.5M/1M/2M photons
+    python tools/bench_frame.py                                # 1920x1080, RSM 2048², 0.5M/1M/2M photons, CISP
+    python tools/bench_frame.py --methods cisp,sspm,caustics_map,reference
     python tools/bench_frame.py --device cpu --width 320 --height 180 --rsm-size 256 --photons 50k,100k
     python tools/bench_frame.py --smoke                        # seconds
 """
@@ -28,12 +30,14 @@ def main(argv=None) -> int:
     p.add_argument("--height", type=int, default=1080)
     p.add_argument("--rsm-size", type=int, default=2048)
     p.add_argument("--photons", default="500k,1M,2M", help="comma-separated photon counts")
+    p.add_argument("--methods", default="cisp", help="comma-separated: cisp, sspm, caustics_map, reference")
     p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"])
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, 2 frames")
     args = p.parse_args(argv)
     if args.smoke:
         args.width, args.height, args.rsm_size, args.photons, args.frames = 64, 36, 64, "2k", 2
+    wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     wp.init()
     from cisp_warp.photons import PhotonSettings
     from cisp_warp.render import Renderer, RenderSettings
@@ -42,24 +46,36 @@ def main(argv=None) -> int:
 
     device = wp.get_device(args.device)
     counts = [parse_count(c) for c in args.photons.split(",")]
-    rows = []
-    for n in counts:
-        scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
-        settings = RenderSettings(rsm_size=args.rsm_size, photons=PhotonSettings(photons=n), denoiser=args.denoiser)
-        r = Renderer(scene, settings, device=device)
-        timer = None
-        for frame in range(3 + args.frames):
-            if frame == 3:
-                timer = StageTimer(device)
-            r.render_frame(timer)
-        rows.append((n, timer.medians()))
-    stages = list(rows[0][1])
-    print(f"device: {device.alias} ({device.name}); {args.width}x{args.height}, RSM {args.rsm_size}², "
-          f"denoiser {args.denoiser}; median ms over {args.frames} frames")
-    print(f"{'stage':<14}" + "".join(f"{n:>14,}" for n, _ in rows))
-    for s in stages:
-        print(f"{s:<14}" + "".join(f"{m[s]:14.3f}" for _, m in rows))
-    print(f"{'total':<14}" + "".join(f"{sum(m.values()):14.3f}" for _, m in rows))
+    methods = [m.strip() for m in args.methods.split(",")]
+    results = {}
+    for method in methods:
+        rows = []
+        for n in counts:
+            scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
+            # the reference traces two passes of n per frame here: its rate per photon is what is compared
+            photons = PhotonSettings(photons=n, reference_photons=2 * n)
+            settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
+            r = Renderer(scene, settings, device=device)
+            timer = None
+            for frame in range(3 + args.frames):
+                if frame == 3:
+                    timer = StageTimer(device)
+                r.render_frame(timer)
+            traced = n * getattr(r.photons, "passes", 1) * len(scene.lights)
+            rows.append((n, timer.medians(), traced))
+        results[method] = rows
+        stages = list(rows[0][1])
+        print(f"{method}: device {device.alias} ({device.name}); {args.width}x{args.height}, RSM {args.rsm_size}², "
+              f"denoiser {args.denoiser}; median ms over {args.frames} frames")
+        print(f"{'stage':<14}" + "".join(f"{n:>14,}" for n, _, _ in rows))
+        for s in stages:
+            print(f"{s:<14}" + "".join(f"{m[s]:14.3f}" for _, m, _ in rows))
+        print(f"{'total':<14}" + "".join(f"{sum(m.values()):14.3f}" for _, m, _ in rows))
+        print()
+    print(f"trace+store rate [million photons per second], device {device.alias} ({device.name})")
+    print(f"{'method':<14}" + "".join(f"{n:>14,}" for n in counts))
+    for method, rows in results.items():
+        print(f"{method:<14}" + "".join(f"{traced / m['trace+store'] / 1e3:14.2f}" for _, m, traced in rows))
     return 0
 
 
