@@ -1,0 +1,152 @@
+"""Render a range of time codes: numbered PNGs, an MP4, per-frame timings and memory, all streamed.
+
+``render_sequence(renderer, animation, codes, out_dir)`` drives an :class:`~cisp_warp.animation.Animation`
+through ``codes``; the renderer's temporal state (SVGF history, previous camera and points) carries from
+one frame to the next. Per frame only the outputs leave the device: ``final`` (and with ``aovs=True`` the
+raw and denoised caustic irradiance) as host copies. The image is tone mapped with one exposure for the
+whole sequence (the automatic exposure of the first frame unless one is given), so the video does not
+flicker, written as ``final.####.png`` (#### = the time code) and appended to ``final.mp4`` (H.264 through
+imageio-ffmpeg; without it a warning says so and the PNGs are still written).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .animation import Animation, memory_in_use
+from .errors import SceneError
+from .image_io import auto_exposure, tonemap, write_aovs
+
+
+class VideoWriter:
+    """H.264 MP4 through imageio-ffmpeg, fed one 8-bit RGB frame at a time (nothing is buffered).
+
+    ``error`` is None while it works; when imageio-ffmpeg or its ffmpeg is missing or ffmpeg fails, it
+    holds the reason, ``append`` does nothing more and a :class:`RuntimeWarning` has said why.
+    """
+
+    def __init__(self, path: str, fps: float):
+        self.path = path
+        self.fps = float(fps)
+        self.error: str | None = None
+        self._writer = None
+        self.frames = 0
+
+    def _fail(self, reason: str) -> None:
+        self.error = reason
+        self._writer = None
+        warnings.warn(f"no video written to '{self.path}': {reason}; the PNG frames are written", RuntimeWarning,
+                      stacklevel=3)
+
+    def append(self, rgb: np.ndarray) -> None:
+        """Add an (H, W, 3) uint8 frame; odd sizes are padded by one edge row or column (H.264 4:2:0)."""
+        if self.error is not None:
+            return
+        h, w = rgb.shape[:2]
+        rgb = np.pad(rgb, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+        try:
+            if self._writer is None:
+                import imageio_ffmpeg
+
+                self._writer = imageio_ffmpeg.write_frames(
+                    self.path, (rgb.shape[1], rgb.shape[0]), fps=self.fps, codec="libx264", quality=8,
+                    macro_block_size=1, ffmpeg_log_level="error")
+                self._writer.send(None)  # start ffmpeg
+            self._writer.send(np.ascontiguousarray(rgb))
+            self.frames += 1
+        except ImportError:
+            self._fail("imageio-ffmpeg is not installed (python3 -m pip install imageio-ffmpeg)")
+        except (OSError, RuntimeError, StopIteration) as exc:
+            self._fail(f"ffmpeg failed ({exc})")
+
+    def close(self) -> None:
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except (OSError, RuntimeError) as exc:
+                self._fail(f"ffmpeg failed when finishing the file ({exc})")
+            self._writer = None
+
+
+@dataclass
+class SequenceStats:
+    """What a sequence cost: seconds per frame (render + outputs) and memory [MiB] after each frame."""
+
+    codes: list[int] = field(default_factory=list)
+    seconds: list[float] = field(default_factory=list)
+    memory: list[dict[str, float]] = field(default_factory=list)
+    video: str | None = None
+
+    @property
+    def median_seconds(self) -> float:
+        return statistics.median(self.seconds) if self.seconds else 0.0
+
+    def summary(self) -> str:
+        """One line: frames, median s/frame, and each memory figure at the first and last frame."""
+        if not self.seconds:
+            return "no frames"
+        first, last = self.memory[0], self.memory[-1]
+        mem = ", ".join(f"{k} {first[k]:.1f} -> {last[k]:.1f} MiB" for k in first if k in last)
+        return (f"{len(self.seconds)} frames, median {self.median_seconds:.3f} s/frame; "
+                f"memory at frame {self.codes[0]} -> {self.codes[-1]}: {mem}")
+
+
+def render_sequence(renderer, animation: Animation, codes, out_dir: str, exposure: float | None = None,
+                    aovs: bool = False, video: bool = True, on_frame=None, progress=None) -> SequenceStats:
+    """Render time codes ``codes`` into ``out_dir`` (see the module docstring).
+
+    ``exposure``: tone-mapping scale (linear), None = automatic from the first frame; ``aovs``: also write
+    ``photon_map``, ``caustics`` and ``final`` per frame as ``NAME.####.exr`` / ``.npy``; ``on_frame(code)``
+    is called after each frame is written; ``progress``: wraps the iterable of codes (e.g. tqdm).
+    """
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"cannot create output directory: {exc.strerror}", file=out_dir) from None
+    g = renderer.gbuffer
+    shape = (g.height, g.width, 3)
+    stats = SequenceStats()
+    writer = VideoWriter(os.path.join(out_dir, "final.mp4"), animation.clock.time_codes_per_second) if video else None
+    from PIL import Image
+
+    codes = list(codes)
+    try:
+        for code in (progress(codes) if progress else codes):
+            t0 = time.perf_counter()
+            animation.set_time_code(code)
+            renderer.render_frame()
+            final = renderer.final.numpy().reshape(shape)  # the one host copy a frame needs
+            if exposure is None:
+                exposure = auto_exposure(final)
+            ldr = tonemap(final, exposure)
+            Image.fromarray(ldr).save(os.path.join(out_dir, f"final.{code:04d}.png"))
+            if writer is not None:
+                writer.append(ldr)
+            if aovs:
+                keep = {f"final.{code:04d}": final}
+                if renderer.photons is not None:
+                    keep[f"photon_map.{code:04d}"] = renderer.photons.photon_map.numpy().reshape(shape)
+                    keep[f"caustics.{code:04d}"] = renderer.caustic_irradiance.numpy().reshape(shape)
+                write_aovs(out_dir, keep)
+            wp.synchronize_device(renderer.device)
+            stats.seconds.append(time.perf_counter() - t0)
+            stats.codes.append(int(code))
+            stats.memory.append(memory_in_use(renderer.device))
+            if on_frame is not None:
+                on_frame(code)
+    finally:
+        if writer is not None:
+            writer.close()
+    if writer is not None and writer.error is None and writer.frames:
+        stats.video = writer.path
+    return stats
+
+
+__all__ = ["SequenceStats", "VideoWriter", "render_sequence"]
