@@ -49,7 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference-photons", type=parse_count, default=None,
                    help="reference: photons per light to accumulate, in passes of --photons (default: 100M on CUDA, 4M on CPU)")
     p.add_argument("--frames", default=None, metavar="A:B",
-                   help="render time codes A..B-1 as a sequence (temporal filter carried across frames)")
+                   help="render time codes A..B-1 as a sequence: final.####.png and final.mp4, the temporal filter "
+                   "carried across frames")
+    p.add_argument("--frame-aovs", action="store_true",
+                   help="with --frames, also write photon_map, caustics and final of every frame as NAME.####.exr/.npy")
+    p.add_argument("--no-sim", action="store_true",
+                   help="render the stage's own water points (baked time samples or the rest grid) instead of "
+                   "simulating cisp:water meshes with sim/")
     p.add_argument("--stats", action="store_true", help="print the photon energy ledger of each frame")
     p.add_argument("--exposure", type=float, default=None, help="tone-mapping exposure in stops (default: automatic)")
     p.add_argument("--no-rsm-aovs", action="store_true", help="do not write the rsm_<light>_* AOVs")
@@ -118,12 +124,16 @@ def main(argv: list[str] | None = None) -> int:
         exposure = None if args.exposure is None else 2.0 ** args.exposure
         t0 = time.perf_counter()
         renderer = Renderer(scene, settings, device=device)
+        from .animation import Animation
+
+        animation = Animation(renderer, args.scene, camera_path=args.camera, simulate=not args.no_sim)
         if getattr(renderer.photons, "passes", 1) > 4 and not args.quiet:
             from tqdm import tqdm
 
             bar = tqdm(total=renderer.photons.passes, desc="reference passes", unit="pass", leave=False)
             renderer.photons.progress = lambda done, total: bar.update(1)
         if frames is None:
+            animation.set_time_code(scene.time_code)
             renderer.render_frame()
             aovs = renderer.aovs(include_rsm=not args.no_rsm_aovs)
             dt = time.perf_counter() - t0
@@ -135,23 +145,27 @@ def main(argv: list[str] | None = None) -> int:
             say(f"rendered {args.scene} at {cam.width}x{cam.height} on {device} in {dt:.2f} s; "
                 f"wrote final.png and {len(written)} AOV files to {args.out}")
         else:
+            from functools import partial
+
             from tqdm import tqdm
 
-            os.makedirs(args.out, exist_ok=True)
-            for code in tqdm(frames, desc="frames", unit="frame", disable=args.quiet):
-                if code != frames.start:
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore", SceneWarning)
-                        renderer.update_scene(load_usd(args.scene, time_code=code, width=args.width,
-                                                       height=args.height, camera_path=args.camera, device=device))
-                renderer.render_frame()
-                aovs = renderer.aovs(include_rsm=False)
-                keep = {f"{k}.{code:04d}": aovs[k] for k in ("photon_map", "caustics", "final") if k in aovs}
-                write_aovs(args.out, keep)
-                write_png(os.path.join(args.out, f"final.{code:04d}.png"), aovs["final"], exposure)
+            from .sequence import render_sequence
+
+            def ledger(code):
                 if args.stats and renderer.photons is not None:
                     print(f"frame {code}:\n{renderer.photons.read_ledger().table()}")
-            say(f"rendered {len(frames)} frames of {args.scene} on {device} in {time.perf_counter() - t0:.2f} s to {args.out}")
+
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", RuntimeWarning)
+                warnings.simplefilter("ignore", SceneWarning)
+                stats = render_sequence(renderer, animation, frames, args.out, exposure, aovs=args.frame_aovs,
+                                        on_frame=ledger, progress=partial(tqdm, desc="frames", unit="frame",
+                                                                          disable=args.quiet))
+            for w in caught:
+                say(f"warning: {w.message}")
+            say(f"rendered {args.scene} time codes {frames.start}..{frames.stop - 1} on {device} in "
+                f"{time.perf_counter() - t0:.2f} s to {args.out} (final.####.png"
+                f"{', final.mp4' if stats.video else ''}): {stats.summary()}")
     except SceneError as e:
         print(f"cisp-render: error: {e}", file=sys.stderr)
         return 2
