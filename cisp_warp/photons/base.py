@@ -39,6 +39,7 @@ class PhotonSettings:
     cmap_gather: str = "light"  #: caustics_map: "light" (Gaussian in the caustic map) or "eye" (7×7 in eye space)
     cmap_history: int = 4  #: caustics_map: frames in seed 004's temporal filter (1 = off)
     reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
+    sort_photons: bool | None = None  #: trace RSM photons in texel (Morton) order; None = on CUDA only
 
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
@@ -128,6 +129,11 @@ class PhotonPass:
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
         self.t_max = float(t_max)
         self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
+        sort = settings.sort_photons if settings.sort_photons is not None else self.device.is_cuda
+        self.use_order = 1 if sort else 0
+        n_sort = 2 * self.max_photons_per_view() if sort else 1
+        self._sort_keys = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
+        self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
 
     def photons_per_view(self, lm: LightMaps) -> int:
         return max(1, self.settings.photons // len(lm.rsm))
@@ -144,6 +150,13 @@ class PhotonPass:
             for r in lm.rsm:
                 wp.launch(C.max_luminance, dim=r.width * r.height, inputs=[r.flux, self._max_lum_of[li]],
                           device=self.device)
+
+    def photon_order(self, params: wp.struct, n: int, scramble: wp.vec2i) -> wp.array:
+        """The order in which to trace the ``n`` photons of one RSM view (kernels take it with ``use_order``)."""
+        if self.use_order:
+            wp.launch(C.photon_sort_keys, dim=n, device=self.device, inputs=[params, scramble, self._sort_keys, self._order])
+            wp.utils.radix_sort_pairs(self._sort_keys, self._order, n)
+        return self._order
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

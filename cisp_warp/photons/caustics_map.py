@@ -129,7 +129,8 @@ class CausticsMap(PhotonPass):
                     params, int(light.kind), light_pos,
                     r.opaque_depth, r.opaque_tri, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                     cm.receiver_normal, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[li],
-                    n, rng_seed, wp.vec2i(sx, sy), float(s.roughness_cutoff), float(s.luminance_cutoff),
+                    n, rng_seed, wp.vec2i(sx, sy), self.photon_order(params, n, wp.vec2i(sx, sy)), self.use_order,
+                    float(s.roughness_cutoff), float(s.luminance_cutoff),
                     int(s.max_steps), float(s.thickness), float(s.thickness_rel), self.t_max,
                     cm.texel_power, self.ledger])
                 wp.launch(K.temporal_filter, dim=n_texels, device=self.device,

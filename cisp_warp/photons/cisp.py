@@ -39,7 +39,7 @@ class CISP(PhotonPass):
                     r.opaque_depth, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                     lm.scene.triangle_material, lm.scene.opacity, lm.scene.albedo, self._max_lum_of[li],
                     camera, gbuffer.depth, gbuffer.position, gbuffer.normal, self.solid_angle,
-                    n, rng_seed, wp.vec2i(sx, sy),
+                    n, rng_seed, wp.vec2i(sx, sy), self.photon_order(params, n, wp.vec2i(sx, sy)), self.use_order,
                     float(s.roughness_cutoff), float(s.luminance_cutoff), int(s.max_steps),
                     float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
                     self.photon_map, self.ledger, self.hits])

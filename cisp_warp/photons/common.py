@@ -71,6 +71,43 @@ def r2_point(k: int, scramble: wp.vec2i) -> wp.vec2:
 
 
 @wp.func
+def _spread_bits(v: int) -> int:
+    """The low 15 bits of v spread to the even bits (for a 2-D Morton code)."""
+    x = v & 0x7FFF
+    x = (x | (x << 8)) & 0x00FF00FF
+    x = (x | (x << 4)) & 0x0F0F0F0F
+    x = (x | (x << 2)) & 0x33333333
+    x = (x | (x << 1)) & 0x55555555
+    return x
+
+
+@wp.kernel
+def photon_sort_keys(
+    light: ViewParams,
+    scramble: wp.vec2i,
+    keys: wp.array(dtype=wp.int32),  # (2N,) Morton code of each photon's texel (write, first N)
+    values: wp.array(dtype=wp.int32),  # (2N,) photon index k (write, first N)
+):
+    """Keys to trace photons in texel (Morton) order: neighbouring threads then start from neighbouring
+    texels and mostly travel alike, which keeps a GPU warp's memory reads and march lengths coherent.
+    Each photon is still photon k of the R2 sequence; only the order of the threads changes."""
+    k = wp.tid()
+    u = r2_point(k, scramble)
+    i = wp.min(int(u[0] * float(light.width)), light.width - 1)
+    j = wp.min(int(u[1] * float(light.height)), light.height - 1)
+    keys[k] = _spread_bits(i) | (_spread_bits(j) << 1)
+    values[k] = k
+
+
+@wp.func
+def photon_index(order: wp.array(dtype=wp.int32), use_order: int, tid: int) -> int:
+    """The photon a thread traces: ``order[tid]`` when photons are sorted, else ``tid``."""
+    if use_order != 0:
+        return order[tid]
+    return tid
+
+
+@wp.func
 def emit_photon(
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot

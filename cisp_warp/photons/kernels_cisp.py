@@ -10,7 +10,8 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, world_project
-from .common import L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_STEPS, book, book_bounce, deposit, emit_photon, specular_bounce
+from .common import (L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_STEPS, book, book_bounce, deposit, emit_photon, photon_index,
+                     specular_bounce)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
 
 
@@ -41,6 +42,8 @@ def trace_photons(
     n_photons: int,
     seed: int,  # seed of this (frame, view)'s random streams
     scramble: wp.vec2i,  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
+    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+    use_order: int,
     roughness_cutoff: float,
     luminance_cutoff: float,  # relative to max_lum
     max_steps: int,
@@ -54,7 +57,7 @@ def trace_photons(
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) power [W] (accumulate)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (-1 none), for tests and stats
 ):
-    k = wp.tid()
+    k = photon_index(order, use_order, wp.tid())
     hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
     # 1.-2. texel from the scrambled R2 sequence, origin on the texel's tangent plane
     texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,

@@ -20,7 +20,7 @@ import warp as wp
 
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from .common import (FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, book, book_bounce, emit_photon,
-                     pixel_footprint, specular_bounce)
+                     photon_index, pixel_footprint, specular_bounce)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
 
 SQRT2 = wp.constant(1.4142135623730951)
@@ -95,6 +95,8 @@ def trace_to_caustic_map(
     n_photons: int,
     seed: int,  # seed of this (frame, view)'s random streams
     scramble: wp.vec2i,  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
+    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+    use_order: int,
     roughness_cutoff: float,
     luminance_cutoff: float,  # relative to max_lum
     max_steps: int,
@@ -111,7 +113,7 @@ def trace_to_caustic_map(
     ``lost_light_view``; one arriving on the side of its receiver the light does not see is ``rejected``;
     the rest are ``stored``: splatted into the caustic map in light space.
     """
-    k = wp.tid()
+    k = photon_index(order, use_order, wp.tid())
     texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
                                                 rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum[0],
                                                 roughness_cutoff, luminance_cutoff, ledger)

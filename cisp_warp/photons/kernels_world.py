@@ -23,7 +23,7 @@ from ..raster.kernels import spot_falloff
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_SAMPLED, book, book_bounce,
-                     deposit, emit_photon, r2_point, specular_bounce)
+                     deposit, emit_photon, photon_index, r2_point, specular_bounce)
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
 WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
@@ -170,6 +170,8 @@ def trace_sspm(
     n_photons: int,
     seed: int,
     scramble: wp.vec2i,
+    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+    use_order: int,
     roughness_cutoff: float,
     luminance_cutoff: float,
     thickness: float,  # [m] depth-visibility tolerance, absolute
@@ -181,7 +183,7 @@ def trace_sspm(
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
 ):
     """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility."""
-    k = wp.tid()
+    k = photon_index(order, use_order, wp.tid())
     texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
                                                 rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum[0],
                                                 roughness_cutoff, luminance_cutoff, ledger)

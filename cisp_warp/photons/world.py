@@ -65,6 +65,7 @@ class SSPM(_WorldPass):
                     params, int(light.kind), wp.vec3(*np.asarray(light.position, np.float32)),
                     sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[li],
                     self.world, self.cam, n, rng_seed, wp.vec2i(sx, sy),
+                    self.photon_order(params, n, wp.vec2i(sx, sy)), self.use_order,
                     float(s.roughness_cutoff), float(s.luminance_cutoff), float(s.thickness), float(s.thickness_rel),
                     self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger])
 
