@@ -42,7 +42,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade, UsdValidation, Vt
+from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
+
+ROOT_DIR = Path(__file__).resolve().parents[1]
+if str(ROOT_DIR) not in sys.path:
+    sys.path.insert(0, str(ROOT_DIR))
+
+from cisp_warp.usd_check import author_render_settings, export, validation_errors  # noqa: E402, F401
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "scenes_usd" / "cornell_flooded.usda"
@@ -246,27 +252,8 @@ def build(out: Path, ior: float, water_resolution: int, seed: int) -> Usd.Stage:
     look = Gf.Matrix4d().SetLookAt(Gf.Vec3d(*eye), Gf.Vec3d(*target), Gf.Vec3d(0, 1, 0)).GetInverse()
     cam.AddTransformOp().Set(look)
 
-    render = UsdGeom.Scope.Define(stage, "/Render")
-    render.GetPrim().SetDocumentation("Render settings: image size and camera.")
-    settings = UsdRender.Settings.Define(stage, "/Render/Settings")
-    settings.GetPrim().SetDocumentation(f"{RESOLUTION[0]}x{RESOLUTION[1]} through /World/Camera.")
-    settings.CreateResolutionAttr(Gf.Vec2i(*RESOLUTION))
-    settings.CreateCameraRel().SetTargets([cam.GetPath()])
-    stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
-
-    out.parent.mkdir(parents=True, exist_ok=True)
-    layer.Export(str(out))
-    return Usd.Stage.Open(str(out))
-
-
-def validation_errors(stage: Usd.Stage) -> list[str]:
-    """Messages of every error that the registered ``UsdValidation`` validators report on ``stage``."""
-    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
-    errors = UsdValidation.ValidationContext(validators).Validate(stage)
-    return [
-        f"{e.GetName()}: {e.GetMessage()}" for e in errors
-        if not e.HasNoError() and e.GetType() == UsdValidation.ValidationErrorType.Error
-    ]
+    author_render_settings(stage, cam, RESOLUTION)
+    return export(layer, out)
 
 
 def main(argv=None) -> int:
@@ -289,7 +276,6 @@ def main(argv=None) -> int:
     for e in errors:
         print(f"validation error: {e}", file=sys.stderr)
 
-    sys.path.insert(0, str(ROOT))
     from cisp_warp.usd_import import load_usd
 
     scene = load_usd(args.out)

@@ -54,13 +54,15 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade, UsdValidation, Vt
+from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "scenes_usd" / "pool.usda"
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from cisp_warp.usd_check import (author_render_settings, compliance_checker_errors,  # noqa: E402, F401
+                                 export, validation_errors)
 from sim import WaterParams  # noqa: E402  (the repository root is put on the path first)
 
 POOL_HALF = (4.0, 2.0)  #: basin interior half extents in x and z [m]
@@ -492,42 +494,11 @@ def build(out: Path, opts: PoolOptions = PoolOptions()) -> Usd.Stage:
         translate.Set(Gf.Vec3d(*eye), Usd.TimeCode(code))
         rotate.Set(_aim_rotation(aim - eye), Usd.TimeCode(code))
 
-    render = UsdGeom.Scope.Define(stage, "/Render")
-    render.GetPrim().SetDocumentation("Render settings: image size and camera.")
-    settings = UsdRender.Settings.Define(stage, "/Render/Settings")
-    settings.GetPrim().SetDocumentation(f"{RESOLUTION[0]}x{RESOLUTION[1]} through /World/Camera.")
-    settings.CreateResolutionAttr(Gf.Vec2i(*RESOLUTION))
-    settings.CreateCameraRel().SetTargets([cam.GetPath()])
-    stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
-
-    out.parent.mkdir(parents=True, exist_ok=True)
-    layer.Export(str(out))
-    return Usd.Stage.Open(str(out))
+    author_render_settings(stage, cam, RESOLUTION)
+    return export(layer, out)
 
 
 # ---------------------------------------------------------------------------------------------- checks
-
-
-def validation_errors(stage: Usd.Stage) -> list[str]:
-    """Every error that the registered ``UsdValidation`` validators report on ``stage``."""
-    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
-    errors = UsdValidation.ValidationContext(validators).Validate(stage)
-    return [
-        f"{e.GetName()}: {e.GetMessage()}" for e in errors
-        if not e.HasNoError() and e.GetType() == UsdValidation.ValidationErrorType.Error
-    ]
-
-
-def compliance_checker_errors(path: Path) -> list[str] | None:
-    """Errors and failed checks of ``UsdUtils.ComplianceChecker`` (``usdchecker``), or None where the installed
-    usd-core no longer has it (removed in usd-core 26 in favour of ``UsdValidation``)."""
-    try:
-        from pxr.UsdUtils.complianceChecker import ComplianceChecker
-    except ImportError:
-        return None
-    checker = ComplianceChecker(arkit=False, skipARKitRootLayerCheck=False, rootPackageOnly=False)
-    checker.CheckCompliance(str(path))
-    return list(checker.GetErrors()) + list(checker.GetFailedChecks())
 
 
 def _positive(text: str) -> float:
