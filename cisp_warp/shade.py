@@ -14,7 +14,7 @@ import warp as wp
 
 from .optics import fresnel_dielectric, reflect, refract
 from .photons.march import MARCH_HIT, screen_march
-from .raster.views import ViewParams, world_project
+from .raster.views import ViewParams, view_eye_world, world_project
 from .raster.rasterizer import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
@@ -157,8 +157,7 @@ def composite(
     l = radiance[p]
     if water_depth[p] > 0.0:
         x = water_position[p]
-        eye = wp.transform_point(camera.view_to_world, wp.vec3(0.0))
-        v = wp.normalize(eye - x)
+        v = view_eye_world(camera, x)  # towards the eye; the view plane's normal for an orthographic camera
         n = water_normal[p]
         eta = water_ior[p]
         if wp.dot(v, n) < 0.0:  # seen from inside the medium

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import warp as wp
 
+from ..errors import SceneError
 from ..scene.device import DeviceScene, check_memory
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR, Light, LightKind
 from . import kernels as K
@@ -196,6 +197,26 @@ class LightMaps:
             self.shadow_visibility = wp.zeros(sv.width * sv.height, dtype=wp.uint64, device=scene.device)
             self.shadow_depth_buf = wp.zeros(sv.width * sv.height, dtype=wp.float32, device=scene.device)
             self.shadow_tri = wp.zeros(sv.width * sv.height, dtype=wp.int32, device=scene.device)
+
+    def set_light(self, light: Light) -> None:
+        """Move or re-aim the light for the next frame: its views are refitted, every buffer is kept.
+
+        The light must keep its kind and its number and size of views (a spot's cone may change: the
+        texels' solid angles are rewritten). Every pass reads ``light`` and ``params`` at launch.
+        """
+        views = light_views(self.scene.scene, light, self.rsm[0].width)
+        if light.kind != self.light.kind or [(v.width, v.height) for v in views] != [(r.width, r.height) for r in self.rsm]:
+            raise SceneError(f"light '{light.name}' changes its kind or its views; build a new renderer",
+                             prim=light.name)
+        for r, v in zip(self.rsm, views):
+            if not v.orthographic and (v.fx, v.fy) != (r.view.fx, r.view.fy):
+                r.solid_angle.assign(v.texel_solid_angle().astype(np.float32).reshape(-1))
+            r.view = v
+        self.params = [r.view.params() for r in self.rsm]
+        sv = shadow_view(self.scene.scene, light, self.rsm[0].width)
+        if sv is not None:
+            self.shadow_view, self.shadow_params = sv, sv.params()
+        self.light = light
 
     def shadow_maps(self) -> list[tuple[K.ViewParams, wp.array]]:
         """(view, depth of nearest surface of any layer) pairs that together cover what the light reaches."""

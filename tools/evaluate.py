@@ -1,0 +1,358 @@
+#!/usr/bin/env python3
+"""Speed against accuracy: every method × photon count × denoiser on/off on every scene, measured against
+the converged reference, charted as a Pareto plot.
+
+    python tools/evaluate.py --preset small --out results/          # CPU, 160x90, about 5 minutes on 2 cores
+    python tools/evaluate.py --preset small --out results/ --all    # and the stability suite (tools/stability.py)
+    python tools/evaluate.py --preset full --device cuda:0 --out results_cuda/   # 1920x1080, 0.125M..4M photons
+    python tools/evaluate.py --smoke --out /tmp/eval                # seconds: what the tests run
+
+Per run (scene, method, photons, denoise): median stage times [ms] over the timed frames after warm-up
+(CUDA events on a GPU, synchronised wall clock on the CPU; cisp_warp.timing.StageTimer), and, averaged over
+the last frames, against the reference's photon map: the relative RMSE of the caustic irradiance over the
+pixels where the reference shows caustics (``caustics``, and the raw ``photon_map``), the energy ratio, and
+LDR-FLIP of the tone-mapped final image. The definitions are in cisp_warp/metrics.py; what "denoise" means
+per method in cisp_warp/evaluation.py. References are rendered once per scene and cached under --out.
+
+Writes OUT/results.csv, OUT/results.json (device, Warp version, preset, date, definitions) and
+OUT/pareto.png (relative RMSE and FLIP against frame time, log axes, one curve per method, one column per
+scene, solid = denoised, dashed = raw). FLIP needs ``flip-evaluator`` and the chart ``matplotlib``:
+``pip install -e .[eval]``; without them those columns are NaN and the chart is skipped, with a note.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+CORNELL = os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda")
+POOL = os.path.join(ROOT, "scenes_usd", "pool.usda")
+POOL_TIME_CODE = 48.0  #: 2 s into the pool's animation: simulated waves, the camera mid-dolly
+
+#: photons: per light per frame; reference: photons per light accumulated, in passes of ``reference_pass``
+#: (0 = the renderer's default: 1e8 on CUDA); frames: warm-up (untimed), timed, and the last ``measured``
+#: of the timed ones compared with the reference (a static scene: the denoisers' steady state)
+PRESETS = {
+    "smoke": dict(width=64, height=36, rsm_size=64, photons=[4_000, 16_000], warmup=2, timed=2, measured=1,
+                  reference=400_000, reference_pass=100_000, scenes=["sinusoid"]),
+    "small": dict(width=160, height=90, rsm_size=256, photons=[31_250, 62_500, 125_000, 250_000, 500_000],
+                  warmup=8, timed=5, measured=3, reference=16_000_000, reference_pass=1_000_000,
+                  scenes=["cornell", "pool", "sinusoid"]),
+    "full": dict(width=1920, height=1080, rsm_size=2048,
+                 photons=[125_000, 250_000, 500_000, 1_000_000, 2_000_000, 4_000_000],
+                 warmup=8, timed=20, measured=3, reference=0, reference_pass=4_000_000,
+                 scenes=["cornell", "pool", "sinusoid"]),
+}
+
+
+@dataclass
+class SceneSpec:
+    """How to build one evaluation scene at a resolution, and what to do to a renderer before its frames."""
+
+    name: str
+    make: Callable[[int, int], object]
+    prepare: Callable[[object], None] | None = None
+    key: str = ""  #: what the scene digest does not see (a file's simulation parameters, a time code)
+
+
+def file_digest(path: str) -> str:
+    with open(path, "rb") as f:
+        return hashlib.blake2b(f.read(), digest_size=8).hexdigest()
+
+
+def scene_specs(names: list[str]) -> list[SceneSpec]:
+    from cisp_warp import analytic
+    from cisp_warp.usd_import import load_usd
+
+    specs = []
+    for name in names:
+        if name == "cornell":
+            specs.append(SceneSpec("cornell", lambda w, h: load_usd(CORNELL, width=w, height=h)))
+        elif name == "pool":
+            if not os.path.exists(POOL):
+                print(f"note: {os.path.relpath(POOL, ROOT)} not found; the pool is left out", file=sys.stderr)
+                continue
+            from cisp_warp.animation import Animation
+
+            specs.append(SceneSpec("pool", lambda w, h: load_usd(POOL, width=w, height=h),
+                                   lambda r: Animation(r, POOL).set_time_code(POOL_TIME_CODE),
+                                   f"{file_digest(POOL)}@{POOL_TIME_CODE}"))
+        elif name == "sinusoid":
+            specs.append(SceneSpec("sinusoid", lambda w, h: analytic.sinusoidal_water(w, h)))
+        else:
+            raise SystemExit(f"unknown scene {name!r}: cornell, pool, sinusoid")
+    return specs
+
+
+def measure(shots: list[dict], ref: dict, mask: np.ndarray, footprint: np.ndarray, flip: bool) -> dict:
+    """Figures of the measured frames against the reference, each the mean over the frames."""
+    from cisp_warp import metrics as M
+
+    rows = []
+    for a in shots:
+        rows.append({
+            "rel_rmse": M.relative_rmse(a["caustics"], ref["photon_map"], mask),
+            "rel_rmse_raw": M.relative_rmse(a["photon_map"], ref["photon_map"], mask),
+            "energy_ratio": M.energy_ratio(a["caustics"], ref["photon_map"], footprint),
+            "energy_ratio_raw": M.energy_ratio(a["photon_map"], ref["photon_map"], footprint),
+            "flip": M.flip_ldr(a["final"], ref["final"]) if flip else math.nan,
+            "finite": bool(all(np.isfinite(v).all() for v in a.values() if v.dtype.kind == "f")),
+        })
+    out = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "finite"}
+    out["finite"] = all(r["finite"] for r in rows)
+    return out
+
+
+def pareto_chart(rows: list[dict], path: str, title: str) -> None:
+    """Relative RMSE (top) and FLIP (bottom) against frame time, log axes, one column per scene."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    colours = {m: c for m, c in zip(methods, ("tab:blue", "tab:orange", "tab:green", "tab:red"))}
+    have_flip = any(np.isfinite(r["flip"]) for r in rows)
+    metrics = [("rel_rmse", "relative RMSE of caustic irradiance")] + ([("flip", "LDR-FLIP of final image")]
+                                                                          if have_flip else [])
+    fig, axes = plt.subplots(len(metrics), len(scenes), figsize=(4.2 * len(scenes), 3.4 * len(metrics)),
+                             squeeze=False)
+    for j, scene in enumerate(scenes):
+        for i, (key, label) in enumerate(metrics):
+            ax = axes[i][j]
+            for m in methods:
+                for denoise, style in ((True, "-"), (False, "--")):
+                    pts = sorted((r["photons"], r["frame_ms"], r[key]) for r in rows if r["scene"] == scene
+                                 and r["method"] == m and r["denoise"] == denoise and np.isfinite(r[key]))
+                    if not pts:
+                        continue
+                    _, x, y = zip(*pts)  # joined in photon order
+                    ax.plot(x, y, style, marker="o", ms=3.5, color=colours[m],
+                            label=f"{m} {'denoised' if denoise else 'raw'}")
+            floor_key = {"rel_rmse": "reference_noise", "flip": "reference_flip"}[key]
+            floor = [r[floor_key] for r in rows if r["scene"] == scene]
+            if floor and np.isfinite(floor[0]):
+                ax.axhline(floor[0], color="grey", lw=0.8, ls=":", label="reference's own noise")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            for axis in (ax.xaxis, ax.yaxis):  # 1-2-5 ticks labelled in plain numbers
+                axis.set_major_locator(matplotlib.ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+                axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+                axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+            ax.grid(True, which="both", lw=0.3, alpha=0.5)
+            ax.set_xlabel("frame time [ms]")
+            if j == 0:
+                ax.set_ylabel(label)
+            if i == 0:
+                ax.set_title(scene)
+    axes[0][-1].legend(fontsize=7, loc="best")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def chart_title(meta: dict) -> str:
+    counts = sorted({r["photons"] for r in meta["runs"]})
+    c = meta["settings"]
+    return (f"{meta['device']} · Warp {meta['warp']} · {c['width']}x{c['height']}, RSM {c['rsm_size']}² · preset "
+            f"{meta['preset']} · {counts[0]:,} to {counts[-1]:,} photons per frame along each curve")
+
+
+FIELDS = ["scene", "method", "photons", "denoise", "width", "height", "frame_ms", "raster_ms", "direct_ms",
+          "trace_ms", "denoise_ms", "shade_ms", "rel_rmse", "rel_rmse_raw", "energy_ratio", "energy_ratio_raw",
+          "flip", "reference_noise", "reference_flip", "mask_pixels", "stored_share", "ledger_closure", "finite"]
+
+
+def print_table(rows: list[dict]) -> None:
+    print(f"{'scene':<9}{'method':<13}{'photons':>9} {'denoise':<8}{'ms':>9}{'relRMSE':>9}{'raw':>8}"
+          f"{'energy':>8}{'FLIP':>8}")
+    for r in rows:
+        print(f"{r['scene']:<9}{r['method']:<13}{r['photons']:>9,} {('on' if r['denoise'] else 'off'):<8}"
+              f"{r['frame_ms']:9.1f}{r['rel_rmse']:9.3f}{r['rel_rmse_raw']:8.3f}{r['energy_ratio']:8.3f}"
+              f"{r['flip']:8.3f}")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", choices=sorted(PRESETS), default="small",
+                   help="small: CPU-sized (160x90); full: 1920x1080 for a GPU; smoke: seconds")
+    p.add_argument("--smoke", action="store_true", help="same as --preset smoke")
+    p.add_argument("--out", default="results", help="output folder; references are cached in OUT/references")
+    p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
+    p.add_argument("--scenes", default=None, help="comma-separated subset of cornell,pool,sinusoid")
+    p.add_argument("--methods", default="cisp,sspm,caustics_map", help="comma-separated methods")
+    p.add_argument("--photons", default=None, help="comma-separated photon counts (500k, 1M, ...) instead of the preset's")
+    p.add_argument("--width", type=int, default=None, help="override the preset's image width [pixels]")
+    p.add_argument("--height", type=int, default=None, help="override the preset's image height [pixels]")
+    p.add_argument("--no-flip", action="store_true", help="skip FLIP (it is the slowest figure at full size)")
+    p.add_argument("--merge", action="store_true",
+                   help="keep the rows of other scenes already in OUT/results.json (same preset, device and size), "
+                   "so that a long preset can run one scene per command")
+    p.add_argument("--replot", action="store_true", help="only redraw OUT/pareto.png from OUT/results.json")
+    p.add_argument("--all", action="store_true", help="then run tools/stability.py with the same preset, device and out")
+    args = p.parse_args(argv)
+    if args.smoke:
+        args.preset = "smoke"
+    cfg = dict(PRESETS[args.preset])
+    if args.width:
+        cfg["width"] = args.width
+    if args.height:
+        cfg["height"] = args.height
+
+    if args.replot:
+        with open(os.path.join(args.out, "results.json")) as f:
+            data = json.load(f)
+        pareto_chart(data["runs"], os.path.join(args.out, "pareto.png"), chart_title(data))
+        print(f"wrote {args.out}/pareto.png")
+        return 0
+
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
+    wp.init()
+    from tqdm import tqdm
+
+    from cisp_warp import evaluation as E
+    from cisp_warp import metrics as M
+    from cisp_warp.cli import parse_count
+    from cisp_warp.render import Renderer
+
+    device = wp.get_device(args.device)
+    dev_name = E.device_name(device)
+    if args.photons:
+        cfg["photons"] = [parse_count(c) for c in args.photons.split(",")]
+    methods = args.methods.split(",")
+    specs = scene_specs(args.scenes.split(",") if args.scenes else cfg["scenes"])
+    flip = not args.no_flip and M.flip_available()
+    if not args.no_flip and not flip:
+        print("note: flip-evaluator is not installed (pip install -e .[eval]): FLIP is left out", file=sys.stderr)
+    os.makedirs(args.out, exist_ok=True)
+    cache = os.path.join(args.out, "references")
+    w, h, rsm = cfg["width"], cfg["height"], cfg["rsm_size"]
+    configs = [E.Config(m, n, d) for m in methods for d in (True, False) for n in cfg["photons"]]
+    t_start = time.perf_counter()
+    rows, references = [], {}
+    for spec in specs:
+        bar = tqdm(total=1, desc=f"{spec.name}: reference", unit="pass", leave=False)
+
+        def progress(k, n, bar=bar):
+            bar.total = n
+            bar.n = k
+            bar.refresh()
+
+        settings = E.reference_settings(rsm, cfg["reference_pass"], cfg["reference"])
+        (ref,), meta = E.cached_reference(cache, f"{spec.name}_{w}x{h}", [spec.make(w, h)], settings, device,
+                                          prepare=spec.prepare, key_extra=spec.key, progress=progress)
+        flip_floor = math.nan
+        if flip:  # FLIP of a second, independent reference (another seed): what FLIP sees of its noise
+            (ref2,), _ = E.cached_reference(cache, f"{spec.name}_{w}x{h}_seed1", [spec.make(w, h)],
+                                            E.reference_settings(rsm, cfg["reference_pass"], cfg["reference"], seed=1),
+                                            device, prepare=spec.prepare, key_extra=spec.key, progress=progress)
+            flip_floor = M.flip_ldr(ref2["final"], ref["final"])
+        bar.close()
+        mask = M.caustic_mask(ref)
+        meta.update(mask_pixels=int(mask.sum()), reference_noise=M.reference_noise(ref, mask),
+                    reference_flip=flip_floor)
+        references[spec.name] = meta
+        took = "cached" if meta["cached"] else f"{meta['seconds']:.1f} s"
+        tqdm.write(f"{spec.name}: reference {meta['photons']:,} photons per light ({took}), caustic mask "
+                   f"{meta['mask_pixels']} pixels, its own relative noise {meta['reference_noise']:.4f}")
+        footprint = None
+        for cfg_run in tqdm(configs, desc=spec.name, unit="run"):
+            r = Renderer(spec.make(w, h), E.render_settings(cfg_run, rsm), device=device)
+            if spec.prepare is not None:
+                spec.prepare(r)
+            timing, shots = E.run_frames(r, cfg["warmup"], cfg["timed"], cfg["measured"])
+            if footprint is None:
+                footprint = M.pixel_footprint(ref, r.view)
+            fig = measure(shots, ref, mask, footprint, flip)
+            ledger = r.photons.read_ledger()
+            s = timing.stages
+            rows.append({"scene": spec.name, "method": cfg_run.method, "photons": cfg_run.photons,
+                         "denoise": cfg_run.denoise, "width": w, "height": h, "frame_ms": timing.frame,
+                         "raster_ms": s.get("raster", 0.0), "direct_ms": s.get("direct", 0.0),
+                         "trace_ms": s.get("trace+store", 0.0), "denoise_ms": s.get("denoise", 0.0),
+                         "shade_ms": s.get("shade", 0.0), **fig, "reference_noise": meta["reference_noise"],
+                         "reference_flip": meta["reference_flip"],
+                         "mask_pixels": meta["mask_pixels"],
+                         "stored_share": float(ledger["stored"].sum() / max(ledger["sampled"].sum(), 1e-300)),
+                         "ledger_closure": float(ledger.closure())})
+    wall = time.perf_counter() - t_start
+    previous = os.path.join(args.out, "results.json")
+    if args.merge and os.path.exists(previous):
+        with open(previous) as f:
+            old = json.load(f)
+        if (old["device"], old["preset"]) == (dev_name, args.preset):
+            done = {spec.name for spec in specs}
+            kept = [r for r in old["runs"] if r["scene"] not in done and (r["width"], r["height"]) == (w, h)]
+            rows = kept + rows
+            references = {**{k: v for k, v in old["references"].items() if k not in done}, **references}
+            wall += old.get("wall_seconds", 0.0)
+        else:
+            print(f"note: {previous} is from another device or preset; not merged", file=sys.stderr)
+
+    with open(os.path.join(args.out, "results.csv"), "w", newline="") as f:
+        wr = csv.DictWriter(f, fieldnames=FIELDS)
+        wr.writeheader()
+        for r in rows:
+            wr.writerow({k: r[k] for k in FIELDS})
+    meta = {
+        "device": dev_name, "warp": wp.config.version, "source": E.source_version(), "preset": args.preset,
+        "settings": cfg,
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "command": " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]), "wall_seconds": wall,
+        "definitions": {
+            "caustic_mask": f"reference luminance > {M.MASK_FRACTION} x its 99th percentile and > "
+                            f"{M.MASK_SIGMAS} x its standard error (caustics_stderr), on a surface",
+            "rel_rmse": "sqrt(mean over mask of (Y - Y_ref)^2) / mean over mask of Y_ref; Y = Rec.709 luminance "
+                        "of the irradiance [W/m2]; rel_rmse of 'caustics' (after the denoiser), rel_rmse_raw of "
+                        "'photon_map'",
+            "energy_ratio": "sum over camera pixels of Y * exact pixel footprint [W], method / reference",
+            "flip": "mean LDR-FLIP (flip-evaluator, 67 ppd) of final vs the reference's final, both tone mapped "
+                    "by cisp_warp.image_io.tonemap with the reference's automatic exposure",
+            "frame_ms": "median over timed frames of the sum of the stages raster, direct, trace+store, denoise, "
+                        "shade (after warm-up; synchronised)",
+            "reference_noise": "the reference's own relative standard error over the mask",
+            "reference_flip": "LDR-FLIP between the reference and a second one of another seed: FLIP's noise floor",
+            "denoise": "cisp, sspm: SVGF on/off; caustics_map: seed 004's light-space gather and 4-frame "
+                       "temporal mean on/off",
+        },
+        "flip": "LDR-FLIP" if flip else None, "references": references, "runs": rows,
+    }
+    with open(os.path.join(args.out, "results.json"), "w") as f:
+        json.dump(meta, f, indent=1)
+    print(f"device: {dev_name}; Warp {wp.config.version}; preset {args.preset} ({w}x{h}, RSM {rsm}²); "
+          f"{wall:.0f} s")
+    print_table(rows)
+    try:
+        pareto_chart(rows, os.path.join(args.out, "pareto.png"), chart_title(meta))
+    except ImportError:
+        print("note: matplotlib is not installed (pip install -e .[eval]): no pareto.png", file=sys.stderr)
+    print(f"wrote {args.out}/results.csv, results.json" + (", pareto.png" if os.path.exists(
+        os.path.join(args.out, "pareto.png")) else ""))
+    if args.all:
+        import stability
+
+        return stability.main(["--preset", args.preset, "--out", args.out]
+                              + (["--device", args.device] if args.device else []))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

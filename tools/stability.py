@@ -1,0 +1,170 @@
+#!/usr/bin/env python3
+"""Stability suite: the cases where screen-space caustics fail (cisp_warp/stability_scenes.py), for every
+method, measured against the reference frame by frame.
+
+    python tools/stability.py --preset small --out results/     # CPU, 96x72, about 2 minutes on 2 cores
+    python tools/stability.py --preset full --device cuda:0 --out results_cuda/   # 1280x720
+    python tools/stability.py --smoke --out /tmp/stability       # seconds: what the tests run
+
+Per case and method (denoised as in cisp_warp/evaluation.py: SVGF for cisp and sspm, seed 004's own
+filters for caustics_map), over the last frames of a sequence (definitions in cisp_warp/metrics.py):
+
+* energy lost: 1 − power(caustics) / power(reference) over the case's receiver (the wall for the wall cases,
+  every pixel otherwise); negative means energy gained;
+* error: relative RMSE of the caustics over the reference's caustic mask on that receiver;
+* flicker: mean relative frame-to-frame difference of the denoised caustics, the previous frame reprojected
+  by the motion vectors, over pixels that are the same surface in both and in the caustic mask; beside it
+  the raw photon map's, and the reference's own (its noise, plus the true change in animated cases: a
+  method far below the reference's there is lagging, not stable).
+
+Writes OUT/stability.csv, OUT/stability.json (device, Warp version, preset, date) and OUT/stability.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import math
+import os
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+#: photons per light per frame; reference: per light per reference frame, in passes of ``reference_pass``
+#: (0 = the renderer's default, 1e8 on CUDA); frames per sequence, the last ``measured`` of which are measured
+PRESETS = {
+    "smoke": dict(width=48, height=36, rsm_size=64, photons=20_000, reference=400_000, reference_pass=100_000,
+                  frames=5, measured=3),
+    "small": dict(width=96, height=72, rsm_size=256, photons=100_000, reference=2_000_000,
+                  reference_pass=250_000, frames=16, measured=4),
+    "full": dict(width=1280, height=720, rsm_size=2048, photons=1_000_000, reference=0,
+                 reference_pass=4_000_000, frames=30, measured=4),
+}
+FIELDS = ["case", "method", "photons", "energy_lost", "error", "flicker", "flicker_raw", "reference_flicker",
+          "reference_noise", "stored", "lost_light_view", "lost_camera_view", "occluded", "closure", "finite"]
+
+
+def fmt(v: float, digits: int = 3) -> str:
+    return "–" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
+
+
+def markdown(rows: list[dict], methods: list[str], header: str) -> str:
+    """A compact table (one row per case: lost / error / flicker per method), then every figure."""
+    cases = list(dict.fromkeys(r["case"] for r in rows))
+    by = {(r["case"], r["method"]): r for r in rows}
+    out = [header, "", "energy lost / relative error / flicker of the denoised caustics (– : no caustic to "
+           "compare); last column: the reference's own flicker (noise + true change)", "",
+           "| case | " + " | ".join(methods) + " | reference flicker |",
+           "|---|" + "---|" * (len(methods) + 1)]
+    for c in cases:
+        cells = []
+        for m in methods:
+            r = by.get((c, m))
+            cells.append("" if r is None else f"{fmt(r['energy_lost'], 2)} / {fmt(r['error'], 2)} / {fmt(r['flicker'], 3)}")
+        ref = next(r for r in rows if r["case"] == c)
+        out.append(f"| {c} | " + " | ".join(cells) + f" | {fmt(ref['reference_flicker'], 3)} |")
+    out += ["", "| " + " | ".join(FIELDS) + " |", "|---" * len(FIELDS) + "|"]
+    for r in rows:
+        out.append("| " + " | ".join(fmt(r[k], 4) if isinstance(r[k], float) else str(r[k]) for k in FIELDS) + " |")
+    return "\n".join(out) + "\n"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", choices=sorted(PRESETS), default="small",
+                   help="small: CPU-sized (96x72); full: 1280x720 for a GPU; smoke: seconds")
+    p.add_argument("--smoke", action="store_true", help="same as --preset smoke")
+    p.add_argument("--out", default="results", help="output folder; references are cached in OUT/references")
+    p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
+    p.add_argument("--cases", default=None, help="comma-separated subset of the cases (default: all)")
+    p.add_argument("--methods", default="cisp,sspm,caustics_map", help="comma-separated methods")
+    p.add_argument("--merge", action="store_true",
+                   help="keep the rows of other cases already in OUT/stability.json (same preset and device), so "
+                   "that a long preset can run a few cases per command")
+    args = p.parse_args(argv)
+    if args.smoke:
+        args.preset = "smoke"
+    cfg = PRESETS[args.preset]
+
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
+    wp.init()
+    from tqdm import tqdm
+
+    from cisp_warp import evaluation as E
+    from cisp_warp.stability_scenes import CASES, case
+
+    device = wp.get_device(args.device)
+    dev_name = E.device_name(device)
+    cases = [case(n) for n in args.cases.split(",")] if args.cases else list(CASES)
+    methods = args.methods.split(",")
+    w, h, frames, measured = cfg["width"], cfg["height"], cfg["frames"], cfg["measured"]
+    cache = os.path.join(args.out, "references")
+    os.makedirs(args.out, exist_ok=True)
+    settings = E.reference_settings(cfg["rsm_size"], cfg["reference_pass"], cfg["reference"])
+    t_start = time.perf_counter()
+    rows, references = [], {}
+    bar = tqdm(total=len(cases) * (len(methods) + 1), unit="run", desc="stability")
+    for c in cases:
+        bar.set_postfix_str(f"{c.name}: reference")
+        reference, meta = E.case_reference(c, w, h, frames, measured, settings, device, cache)
+        references[c.name] = meta
+        bar.update()
+        for m in methods:
+            bar.set_postfix_str(f"{c.name}: {m}")
+            f = E.measure_case(c, m, reference, w, h, frames, measured, cfg["rsm_size"], cfg["photons"], device)
+            rows.append({"case": c.name, "method": m, "photons": f.photons, "energy_lost": f.energy_lost,
+                         "error": f.error, "flicker": f.flicker, "flicker_raw": f.flicker_raw,
+                         "reference_flicker": f.reference_flicker, "reference_noise": f.reference_noise,
+                         **{k: f.ledger[k] for k in ("stored", "lost_light_view", "lost_camera_view", "occluded")},
+                         "closure": f.closure, "finite": f.finite})
+            bar.update()
+    bar.close()
+    wall = time.perf_counter() - t_start
+    previous = os.path.join(args.out, "stability.json")
+    case_info = {c.name: {"summary": c.summary, "animated": c.animated, "expect": c.expect} for c in cases}
+    if args.merge and os.path.exists(previous):
+        with open(previous) as fh:
+            old = json.load(fh)
+        if (old["device"], old["preset"]) == (dev_name, args.preset):
+            done = {c.name for c in cases}
+            order = [c.name for c in CASES]
+            rows = sorted([r for r in old["rows"] if r["case"] not in done] + rows, key=lambda r: order.index(r["case"]))
+            references = {**{k: v for k, v in old["references"].items() if k not in done}, **references}
+            case_info = {**{k: v for k, v in old["cases"].items() if k not in done}, **case_info}
+            wall += old.get("wall_seconds", 0.0)
+        else:
+            print(f"note: {previous} is from another device or preset; not merged", file=sys.stderr)
+
+    header = (f"Stability, preset {args.preset}: {w}x{h}, RSM {cfg['rsm_size']}², {cfg['photons']:,} photons per "
+              f"frame, {frames} frames (the last {measured} measured); device {dev_name}, Warp {wp.config.version}")
+    with open(os.path.join(args.out, "stability.csv"), "w", newline="") as fh:
+        wr = csv.DictWriter(fh, fieldnames=FIELDS)
+        wr.writeheader()
+        wr.writerows(rows)
+    with open(os.path.join(args.out, "stability.json"), "w") as fh:
+        json.dump({"device": dev_name, "warp": wp.config.version, "source": E.source_version(), "preset": args.preset,
+                   "settings": cfg,
+                   "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                   "command": " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]), "wall_seconds": wall,
+                   "cases": case_info,
+                   "references": references, "rows": rows}, fh, indent=1)
+    md = markdown(rows, methods, header)
+    with open(os.path.join(args.out, "stability.md"), "w") as fh:
+        fh.write(md)
+    print(f"{header}; {wall:.0f} s")
+    print(f"{'case':<23}{'method':<13}{'lost':>8}{'error':>8}{'flicker':>9}{'raw':>8}{'ref':>8}")
+    for r in rows:
+        print(f"{r['case']:<23}{r['method']:<13}{fmt(r['energy_lost']):>8}{fmt(r['error']):>8}"
+              f"{fmt(r['flicker']):>9}{fmt(r['flicker_raw']):>8}{fmt(r['reference_flicker']):>8}")
+    print(f"wrote {args.out}/stability.csv, stability.json, stability.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
