@@ -182,6 +182,45 @@ def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, al
 
 
 @wp.func
+def emit_and_bounce(
+    light: ViewParams,
+    light_kind: int,
+    light_pos: wp.vec3,
+    k: int,
+    n_photons: int,
+    scramble: wp.vec2i,
+    seed: int,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    max_lum: float,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+    ledger: wp.array(dtype=wp.float64),
+):
+    """Photon k of an RSM view, emitted (:func:`emit_photon`) and scattered by the specular surface it
+    starts on (:func:`specular_bounce`), all booked. Returns (texel or -1 when none, power [W] after the
+    bounce, origin [m], surface normal, outgoing direction, rng state)."""
+    texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
+                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum,
+                                                roughness_cutoff, luminance_cutoff, ledger)
+    state = wp.rand_init(seed, k)
+    if texel < 0:
+        return texel, power, origin, n, d_in, state
+    m = triangle_material[rsm_tri[texel]]
+    d, power, refracted, state = specular_bounce(d_in, n, int(mat_opacity[m] < 1.0), rsm_ior[texel], mat_albedo[m],
+                                                 power, state, ledger)
+    book_bounce(ledger, refracted, power)
+    return texel, power, origin, n, d, state
+
+
+@wp.func
 def book_bounce(ledger: wp.array(dtype=wp.float64), refracted: int, power: wp.vec3):
     if refracted != 0:
         book(ledger, L_REFRACTED, power)

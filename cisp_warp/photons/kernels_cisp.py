@@ -10,8 +10,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, world_project
-from .common import (L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_STEPS, book, book_bounce, deposit, emit_photon, photon_index,
-                     specular_bounce)
+from .common import (L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_STEPS, book, deposit, emit_and_bounce, photon_index)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march_hiz
 
 
@@ -63,17 +62,14 @@ def trace_photons(
 ):
     k = photon_index(order, use_order, wp.tid())
     hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-    # 1.-2. texel from the scrambled R2 sequence, origin on the texel's tangent plane
-    texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
-                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum[0],
-                                                roughness_cutoff, luminance_cutoff, ledger)
+    # 1.-3. texel from the scrambled R2 sequence, origin on the texel's tangent plane, bounce by exact
+    # Fresnel as a probability (power unchanged); metals reflect with their albedo
+    texel, power, origin, n, d, state = emit_and_bounce(
+        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
+        rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
+        ledger)
     if texel < 0:
         return
-    # 3. bounce: exact Fresnel as a probability (power unchanged), metals reflect with their albedo
-    m = triangle_material[rsm_tri[texel]]
-    d, power, refracted, state = specular_bounce(d_in, n, int(mat_opacity[m] < 1.0), rsm_ior[texel], mat_albedo[m],
-                                                 power, wp.rand_init(seed, k), ledger)
-    book_bounce(ledger, refracted, power)
     # 4. march the light view's opaque depth (start a hair off the surface)
     o = origin + d * (1.0e-4 * t_max)
     status, t_end, steps = screen_march_hiz(light, rsm_opaque_depth, rsm_pyramid, rsm_levels, o, d, t_max, max_steps, thickness, thickness_rel)

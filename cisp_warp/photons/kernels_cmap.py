@@ -19,8 +19,8 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
-from .common import (FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, book, book_bounce, emit_photon,
-                     photon_index, pixel_footprint, specular_bounce)
+from .common import (FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, book, emit_and_bounce, photon_index,
+                    pixel_footprint)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
 
 SQRT2 = wp.constant(1.4142135623730951)
@@ -114,15 +114,12 @@ def trace_to_caustic_map(
     the rest are ``stored``: splatted into the caustic map in light space.
     """
     k = photon_index(order, use_order, wp.tid())
-    texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
-                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum[0],
-                                                roughness_cutoff, luminance_cutoff, ledger)
+    texel, power, origin, n, d, state = emit_and_bounce(
+        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
+        rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
+        ledger)
     if texel < 0:
         return
-    m = triangle_material[rsm_tri[texel]]
-    d, power, refracted, state = specular_bounce(d_in, n, int(mat_opacity[m] < 1.0), rsm_ior[texel], mat_albedo[m],
-                                                 power, wp.rand_init(seed, k), ledger)
-    book_bounce(ledger, refracted, power)
     o = origin + d * (1.0e-4 * t_max)  # start a hair off the specular surface, as CISP does
     status, t_end, steps = screen_march(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness, thickness_rel)
     if status == MARCH_STEPS:

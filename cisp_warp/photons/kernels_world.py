@@ -23,7 +23,7 @@ from ..raster.kernels import spot_falloff
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_SAMPLED, book, book_bounce,
-                     deposit, emit_photon, photon_index, r2_point, specular_bounce)
+                    deposit, emit_and_bounce, photon_index, r2_point, specular_bounce)
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
 WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
@@ -184,15 +184,12 @@ def trace_sspm(
 ):
     """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility."""
     k = photon_index(order, use_order, wp.tid())
-    texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
-                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum[0],
-                                                roughness_cutoff, luminance_cutoff, ledger)
+    texel, power, origin, n, d, state = emit_and_bounce(
+        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
+        rsm_ior, rsm_tri, ws.triangle_material, ws.opacity, ws.albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
+        ledger)
     if texel < 0:
         return
-    m = ws.triangle_material[rsm_tri[texel]]
-    d, power, refracted, state = specular_bounce(d_in, n, int(ws.opacity[m] < 1.0), rsm_ior[texel], ws.albedo[m],
-                                                 power, wp.rand_init(seed, k), ledger)
-    book_bounce(ledger, refracted, power)
     status, y, nr, d, power, state = world_trace(ws, origin, n, d, power, state, roughness_cutoff, t_max,
                                                  max_bounces, ledger)
     if status != WT_LANDED:
