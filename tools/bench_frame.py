@@ -34,7 +34,6 @@ def main(argv=None) -> int:
     p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"])
     p.add_argument("--sort", default="auto", choices=["auto", "on", "off"],
                    help="trace RSM photons in texel order (auto: on CUDA only)")
-    p.add_argument("--hiz", type=int, default=None, help="CISP min-depth mips for the march (default: 5 on CUDA, 0 on CPU)")
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, 2 frames")
     args = p.parse_args(argv)
@@ -57,8 +56,7 @@ def main(argv=None) -> int:
             scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
             # the reference traces two passes of n per frame here: its rate per photon is what is compared
             photons = PhotonSettings(photons=n, reference_photons=2 * n,
-                                     sort_photons={"auto": None, "on": True, "off": False}[args.sort],
-                                     hiz_levels=args.hiz)
+                                     sort_photons={"auto": None, "on": True, "off": False}[args.sort])
             settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
             r = Renderer(scene, settings, device=device)
             timer = None

@@ -40,8 +40,6 @@ class PhotonSettings:
     cmap_history: int = 4  #: caustics_map: frames in seed 004's temporal filter (1 = off)
     reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
     sort_photons: bool | None = None  #: trace RSM photons in texel (Morton) order; None = on CUDA only
-    hiz_levels: int | None = None  #: min-depth mips the screen-space march skips with; 0: pixel by pixel
-    #: (seed 000 as written); None = 5 on CUDA, 0 on the CPU (where the tile tests cost more than they save)
 
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
@@ -54,9 +52,6 @@ class PhotonSettings:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < lo:
                 raise SceneError(f"{name} must be an integer >= {lo}, got {v!r}")
-        if self.hiz_levels is not None and (not isinstance(self.hiz_levels, (int, np.integer)) or
-                                            not 0 <= self.hiz_levels <= 12):
-            raise SceneError(f"hiz_levels must be None or an integer in [0, 12], got {self.hiz_levels!r}")
         for name in ("roughness_cutoff", "luminance_cutoff", "thickness", "thickness_rel"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:

@@ -9,7 +9,6 @@ from ..raster import GBuffer, LightMaps
 from ..raster.views import View
 from ..scene import DeviceScene
 from . import kernels_cisp as K
-from .march import DepthPyramid
 from .base import Ledger, PhotonPass, PhotonSettings, camera_pixel_solid_angle, frame_random
 
 __all__ = ["CISP", "Ledger", "PhotonSettings", "camera_pixel_solid_angle", "frame_random"]
@@ -24,32 +23,22 @@ class CISP(PhotonPass):
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
         self.hits = wp.zeros(self.max_photons_per_view(), dtype=wp.vec4, device=self.device)
-        levels = settings.hiz_levels if settings.hiz_levels is not None else (5 if self.device.is_cuda else 0)
-        self.hiz_levels = levels
-        self.camera_pyramid = DepthPyramid(gbuffer.width, gbuffer.height, self.device, levels)
-        self.light_pyramids = [[DepthPyramid(r.width, r.height, self.device, levels) for r in lm.rsm] for lm in lights]
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
         s = self.settings
         self.begin()
-        levels = self.hiz_levels
-        if levels > 0:
-            self.camera_pyramid.build(gbuffer.depth)
         for li, lm in enumerate(self.lights):
             light = lm.light
             for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
                 n = self.photons_per_view(lm)
                 sx, sy, rng_seed = frame_random(s.seed, frame, li * 64 + vi)
                 sp = r.specular
-                pyramid = self.light_pyramids[li][vi]
-                if levels > 0:
-                    pyramid.build(r.opaque_depth)
                 wp.launch(K.trace_photons, dim=n, device=self.device, inputs=[
                     params, int(light.kind), wp.vec3(*np.asarray(light.position, np.float32)),
-                    r.opaque_depth, pyramid.data, levels, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                    r.opaque_depth, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                     lm.scene.triangle_material, lm.scene.opacity, lm.scene.albedo, self._max_lum_of[li],
-                    camera, gbuffer.depth, self.camera_pyramid.data, levels, gbuffer.position, gbuffer.normal, self.solid_angle,
+                    camera, gbuffer.depth, gbuffer.position, gbuffer.normal, self.solid_angle,
                     n, rng_seed, wp.vec2i(sx, sy), self.photon_order(params, n, wp.vec2i(sx, sy)), self.use_order,
                     float(s.roughness_cutoff), float(s.luminance_cutoff), int(s.max_steps),
                     float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),

@@ -11,7 +11,7 @@ import warp as wp
 
 from ..raster.views import ViewParams, world_project
 from .common import (L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_STEPS, book, deposit, emit_and_bounce, photon_index)
-from .march import MARCH_HIT, MARCH_STEPS, screen_march_hiz
+from .march import MARCH_HIT, MARCH_STEPS, screen_march
 
 
 @wp.kernel
@@ -21,8 +21,6 @@ def trace_photons(
     light_pos: wp.vec3,
     # RSM view of the light (flat H*W arrays)
     rsm_opaque_depth: wp.array(dtype=wp.float32),
-    rsm_pyramid: wp.array(dtype=wp.float32),  # min-depth mips of rsm_opaque_depth (read)
-    rsm_levels: int,  # mips in rsm_pyramid (0: march pixel by pixel)
     rsm_position: wp.array(dtype=wp.vec3),
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
@@ -36,8 +34,6 @@ def trace_photons(
     # camera G-buffer (flat H*W arrays)
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),
-    cam_pyramid: wp.array(dtype=wp.float32),  # min-depth mips of cam_depth (read)
-    cam_levels: int,
     cam_position: wp.array(dtype=wp.vec3),
     cam_normal: wp.array(dtype=wp.vec3),
     cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
@@ -72,7 +68,7 @@ def trace_photons(
         return
     # 4. march the light view's opaque depth (start a hair off the surface)
     o = origin + d * (1.0e-4 * t_max)
-    status, t_end, steps = screen_march_hiz(light, rsm_opaque_depth, rsm_pyramid, rsm_levels, o, d, t_max, max_steps, thickness, thickness_rel)
+    status, t_end, steps = screen_march(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness, thickness_rel)
     light_hit = status == MARCH_HIT
     if status == MARCH_STEPS:
         book(ledger, L_STEPS, power)
@@ -99,7 +95,7 @@ def trace_photons(
             book(ledger, L_LOST_LIGHT, power)
             return
         # floating in front of the camera's surfaces: the second chance, march on in the camera view
-        status, t2, steps2 = screen_march_hiz(camera, cam_depth, cam_pyramid, cam_levels, x_end, d, t_max, max_steps, thickness, thickness_rel)
+        status, t2, steps2 = screen_march(camera, cam_depth, x_end, d, t_max, max_steps, thickness, thickness_rel)
         if status == MARCH_STEPS:
             book(ledger, L_STEPS, power)
             return
