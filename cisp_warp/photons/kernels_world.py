@@ -22,8 +22,8 @@ from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
-from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_SAMPLED, book, book_bounce,
-                    deposit, emit_and_bounce, photon_index, r2_point, specular_bounce)
+from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_SAMPLED, book,
+                     book_bounce, deposit, emit_and_bounce, photon_index, r2_point, specular_bounce)
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
 WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
@@ -301,6 +301,18 @@ def trace_reference(
     hit = wp.mesh_query_ray(ws.opaque_mesh, offset_origin(y, nr, to_eye, eps), to_eye, dist - 2.0 * eps)
     if hit.result:
         book(ledger, L_OCCLUDED, power)
+        return
+    # the surface the pixel shows (its G-buffer sample): a photon on another surface seen in the same pixel
+    # (a silhouette, a crease) is not part of that surface's irradiance, as in every screen-space method
+    zc = cam.depth[pix]
+    if zc <= 0.0:
+        book(ledger, L_REJECTED, power)
+        return
+    pixel_size = zc / cam.view.fx
+    if cam.view.orthographic != 0:
+        pixel_size = 1.0 / cam.view.fx
+    if wp.abs(wp.dot(y - cam.position[pix], cam.normal[pix])) > 2.0 * pixel_size:
+        book(ledger, L_REJECTED, power)
         return
     deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
             photon_map, ledger)

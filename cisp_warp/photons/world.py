@@ -82,8 +82,9 @@ class Reference(_WorldPass):
 
     Photons leave the light itself (continuous samples of its views, first hit by ray casting) and are
     traced through the BVH; each is stored into the camera pixel it lands in, if the eye sees it
-    (exact BVH visibility), by the exact pixel footprint: an unbiased estimate of each pixel's mean
-    irradiance on the opaque G-buffer. ``passes`` passes of ``photons`` photons each are averaged;
+    (exact BVH visibility) and it lies on the surface the pixel shows (within two pixel widths of the
+    G-buffer sample's tangent plane: not another surface at a silhouette), by the exact pixel footprint:
+    an unbiased estimate of each pixel's mean irradiance on the opaque G-buffer. ``passes`` passes of ``photons`` photons each are averaged;
     ``caustics_stderr`` is the standard error of that mean, from the pass-to-pass variance.
 
     The final image follows ``paths_per_pixel`` camera paths per pixel through specular surfaces to the
