@@ -47,11 +47,11 @@ class PhotonSettings:
         if self.footprint not in ("exact", "paper"):
             raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
         if self.cmap_gather not in ("light", "eye"):
-            raise SceneError(f"cmap_gather must be 'light' or 'eye', got {self.cmap_gather!r}")
+            raise SceneError(f"--cmap-gather must be 'light' or 'eye', got {self.cmap_gather!r}")
         for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0)):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < lo:
-                raise SceneError(f"{name} must be an integer >= {lo}, got {v!r}")
+                raise SceneError(f"--{name.replace('_', '-')} must be an integer >= {lo}, got {v!r}")
         for name in ("roughness_cutoff", "luminance_cutoff", "thickness", "thickness_rel"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
