@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdRender, UsdValidation
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdRender, UsdShade, UsdValidation
 
 
 def author_render_settings(stage: Usd.Stage, camera: UsdGeom.Camera, resolution: tuple[int, int]) -> None:
@@ -18,6 +18,22 @@ def author_render_settings(stage: Usd.Stage, camera: UsdGeom.Camera, resolution:
     settings.CreateResolutionAttr(Gf.Vec2i(*resolution))
     settings.CreateCameraRel().SetTargets([camera.GetPath()])
     stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
+
+
+def define_material(stage: Usd.Stage, name: str, doc: str, color, roughness: float = 1.0, opacity: float = 1.0,
+                    ior: float = 1.5) -> UsdShade.Material:
+    """``/World/Looks/<name>``: a non-metallic ``UsdPreviewSurface`` (what the importer reads)."""
+    mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+    mat.GetPrim().SetDocumentation(doc)
+    shader = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/PreviewSurface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
+    shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
+    shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(float(opacity))
+    shader.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(float(ior))
+    mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return mat
 
 
 def export(layer: Sdf.Layer, out: Path) -> Usd.Stage:

@@ -48,7 +48,8 @@ ROOT_DIR = Path(__file__).resolve().parents[1]
 if str(ROOT_DIR) not in sys.path:
     sys.path.insert(0, str(ROOT_DIR))
 
-from cisp_warp.usd_check import author_render_settings, export, validation_errors  # noqa: E402, F401
+from cisp_warp.usd_check import (author_render_settings, define_material, export,  # noqa: E402, F401
+                                 validation_errors)
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "scenes_usd" / "cornell_flooded.usda"
@@ -133,20 +134,6 @@ def define_mesh(stage, path, points, normals, counts, indices, doc, material):
     mesh.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(_vec3f_array(points)))
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
     return mesh
-
-
-def define_material(stage, name, doc, color, roughness=1.0, opacity=1.0, ior=1.5):
-    mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
-    mat.GetPrim().SetDocumentation(doc)
-    shader = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/PreviewSurface")
-    shader.CreateIdAttr("UsdPreviewSurface")
-    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
-    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
-    shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
-    shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(float(opacity))
-    shader.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(float(ior))
-    mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
-    return mat
 
 
 def quad(corners, normal):

@@ -62,7 +62,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from cisp_warp.usd_check import (author_render_settings, compliance_checker_errors,  # noqa: E402, F401
-                                 export, validation_errors)
+                                 define_material, export, validation_errors)
 from sim import WaterParams  # noqa: E402  (the repository root is put on the path first)
 
 POOL_HALF = (4.0, 2.0)  #: basin interior half extents in x and z [m]
@@ -205,20 +205,6 @@ def define_mesh(stage, path, points, normals, counts, indices, doc, material=Non
 def define_quads(stage, path, quads: Quads, doc, material=None) -> UsdGeom.Mesh:
     points, normals, counts, indices, colors = quads.arrays()
     return define_mesh(stage, path, points, normals, counts, indices, doc, material, colors)
-
-
-def define_material(stage, name, doc, color, roughness=0.8, opacity=1.0, ior=1.5):
-    mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
-    mat.GetPrim().SetDocumentation(doc)
-    shader = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/PreviewSurface")
-    shader.CreateIdAttr("UsdPreviewSurface")
-    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
-    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
-    shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
-    shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(float(opacity))
-    shader.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(float(ior))
-    mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
-    return mat
 
 
 # ---------------------------------------------------------------------------------------------- geometry
