@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
+from typing import Iterator, NamedTuple
 
 import numpy as np
 import warp as wp
@@ -106,6 +107,21 @@ class Ledger:
         return "\n".join(rows)
 
 
+class RSMBatch(NamedTuple):
+    """One RSM view's photons for one frame, as every RSM-emitting method launches them."""
+
+    light_index: int
+    view_index: int
+    lights: LightMaps  #: the light's maps (``.light``, ``.scene``)
+    params: wp.struct  #: the view's ViewParams
+    rsm: object  #: the view's RSMView
+    n: int  #: photons
+    seed: int  #: seed of the photons' random streams
+    scramble: wp.vec2i  #: the R2 sequence's Cranley-Patterson rotation
+    order: wp.array  #: tracing order (read when the pass's ``use_order`` is set)
+    light_pos: wp.vec3  #: [m]
+
+
 class PhotonPass:
     """Base of every photon method: allocates the photon map, the ledger and per-light scratch once."""
 
@@ -157,6 +173,18 @@ class PhotonPass:
             wp.launch(C.photon_sort_keys, dim=n, device=self.device, inputs=[params, scramble, self._sort_keys, self._order])
             wp.utils.radix_sort_pairs(self._sort_keys, self._order, n)
         return self._order
+
+    def rsm_batches(self, frame: int) -> Iterator[RSMBatch]:
+        """Every light's RSM views for ``frame``, each with its photon count, random streams (the same for
+        every method: cisp, sspm and caustics_map trace the same photons) and tracing order."""
+        s = self.settings
+        for li, lm in enumerate(self.lights):
+            light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
+            for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
+                n = self.photons_per_view(lm)
+                sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
+                scramble = wp.vec2i(sx, sy)
+                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

@@ -46,7 +46,7 @@ from ..raster.views import View
 from ..scene import DeviceScene
 from ..scene.device import check_memory
 from . import kernels_cmap as K
-from .base import PhotonPass, PhotonSettings, frame_random
+from .base import PhotonPass, PhotonSettings
 
 #: seed 004, 3.2.2: a 7x7 neighbourhood, Gaussian weights; σ = radius / 2 so the window spans ±2σ
 GATHER_RADIUS = 3
@@ -111,35 +111,30 @@ class CausticsMap(PhotonPass):
         slot = self.frames_traced % self.history_length
         frames = min(self.frames_traced + 1, self.history_length)
         n_pixels = gbuffer.width * gbuffer.height
-        for li, lm in enumerate(self.lights):
-            light = lm.light
-            light_pos = wp.vec3(*np.asarray(light.position, np.float32))
-            sc = lm.scene
-            for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                cm = self.maps[li][vi]
-                n_texels = r.width * r.height
-                n = self.photons_per_view(lm)
-                sx, sy, rng_seed = frame_random(s.seed, frame, li * 64 + vi)  # CISP's streams: the same photons
-                sp = r.specular
-                wp.launch(K.receiver_footprints, dim=n_texels, device=self.device,
-                          inputs=[params, r.opaque_depth, r.opaque_tri, r.solid_angle, sc.points, sc.indices,
-                                  cm.receiver_normal, cm.receiver_area])
-                cm.texel_power.zero_()
-                wp.launch(K.trace_to_caustic_map, dim=n, device=self.device, inputs=[
-                    params, int(light.kind), light_pos,
-                    r.opaque_depth, r.opaque_tri, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
-                    cm.receiver_normal, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[li],
-                    n, rng_seed, wp.vec2i(sx, sy), self.photon_order(params, n, wp.vec2i(sx, sy)), self.use_order,
-                    float(s.roughness_cutoff), float(s.luminance_cutoff),
-                    int(s.max_steps), float(s.thickness), float(s.thickness_rel), self.t_max,
-                    cm.texel_power, self.ledger])
-                wp.launch(K.temporal_filter, dim=n_texels, device=self.device,
-                          inputs=[cm.texel_power, cm.receiver_area, slot, frames, cm.history, cm.irradiance])
-                if cm.gather is not None:
-                    cm.gather.apply(cm.irradiance, r.opaque_depth, cm.receiver_normal, r.opaque_tri, cm.filtered)
-                wp.launch(K.project_caustic_map, dim=n_pixels, device=self.device,
-                          inputs=[params, r.opaque_depth, cm.projected, gbuffer.depth, gbuffer.position, gbuffer.normal,
-                                  float(s.thickness), float(s.thickness_rel), self.photon_map])
+        for b in self.rsm_batches(frame):  # CISP's streams: the same photons
+            params, r, sc, light, light_pos, n = b.params, b.rsm, b.lights.scene, b.lights.light, b.light_pos, b.n
+            cm = self.maps[b.light_index][b.view_index]
+            n_texels = r.width * r.height
+            sp = r.specular
+            wp.launch(K.receiver_footprints, dim=n_texels, device=self.device,
+                      inputs=[params, r.opaque_depth, r.opaque_tri, r.solid_angle, sc.points, sc.indices,
+                              cm.receiver_normal, cm.receiver_area])
+            cm.texel_power.zero_()
+            wp.launch(K.trace_to_caustic_map, dim=n, device=self.device, inputs=[
+                params, int(light.kind), light_pos,
+                r.opaque_depth, r.opaque_tri, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                cm.receiver_normal, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
+                n, b.seed, b.scramble, b.order, self.use_order,
+                float(s.roughness_cutoff), float(s.luminance_cutoff),
+                int(s.max_steps), float(s.thickness), float(s.thickness_rel), self.t_max,
+                cm.texel_power, self.ledger])
+            wp.launch(K.temporal_filter, dim=n_texels, device=self.device,
+                      inputs=[cm.texel_power, cm.receiver_area, slot, frames, cm.history, cm.irradiance])
+            if cm.gather is not None:
+                cm.gather.apply(cm.irradiance, r.opaque_depth, cm.receiver_normal, r.opaque_tri, cm.filtered)
+            wp.launch(K.project_caustic_map, dim=n_pixels, device=self.device,
+                      inputs=[params, r.opaque_depth, cm.projected, gbuffer.depth, gbuffer.position, gbuffer.normal,
+                              float(s.thickness), float(s.thickness_rel), self.photon_map])
         self.frames_traced += 1
 
     def aovs(self, shape: tuple[int, int]) -> dict[str, np.ndarray]:

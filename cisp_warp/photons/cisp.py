@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import warp as wp
 
 from ..raster import GBuffer, LightMaps
@@ -28,18 +27,15 @@ class CISP(PhotonPass):
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
         s = self.settings
         self.begin()
-        for li, lm in enumerate(self.lights):
-            light = lm.light
-            for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                n = self.photons_per_view(lm)
-                sx, sy, rng_seed = frame_random(s.seed, frame, li * 64 + vi)
-                sp = r.specular
-                wp.launch(K.trace_photons, dim=n, device=self.device, inputs=[
-                    params, int(light.kind), wp.vec3(*np.asarray(light.position, np.float32)),
-                    r.opaque_depth, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
-                    lm.scene.triangle_material, lm.scene.opacity, lm.scene.albedo, self._max_lum_of[li],
-                    camera, gbuffer.depth, gbuffer.position, gbuffer.normal, self.solid_angle,
-                    n, rng_seed, wp.vec2i(sx, sy), self.photon_order(params, n, wp.vec2i(sx, sy)), self.use_order,
-                    float(s.roughness_cutoff), float(s.luminance_cutoff), int(s.max_steps),
-                    float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                    self.photon_map, self.ledger, self.hits])
+        for b in self.rsm_batches(frame):
+            r, sc = b.rsm, b.lights.scene
+            sp = r.specular
+            wp.launch(K.trace_photons, dim=b.n, device=self.device, inputs=[
+                b.params, int(b.lights.light.kind), b.light_pos,
+                r.opaque_depth, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
+                camera, gbuffer.depth, gbuffer.position, gbuffer.normal, self.solid_angle,
+                b.n, b.seed, b.scramble, b.order, self.use_order,
+                float(s.roughness_cutoff), float(s.luminance_cutoff), int(s.max_steps),
+                float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
+                self.photon_map, self.ledger, self.hits])

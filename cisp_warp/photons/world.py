@@ -55,19 +55,14 @@ class SSPM(_WorldPass):
         s = self.settings
         self.begin()
         self.cam.view = camera
-        for li, lm in enumerate(self.lights):
-            light = lm.light
-            for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                n = self.photons_per_view(lm)
-                sx, sy, rng_seed = frame_random(s.seed, frame, li * 64 + vi)
-                sp = r.specular
-                wp.launch(K.trace_sspm, dim=n, device=self.device, inputs=[
-                    params, int(light.kind), wp.vec3(*np.asarray(light.position, np.float32)),
-                    sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[li],
-                    self.world, self.cam, n, rng_seed, wp.vec2i(sx, sy),
-                    self.photon_order(params, n, wp.vec2i(sx, sy)), self.use_order,
-                    float(s.roughness_cutoff), float(s.luminance_cutoff), float(s.thickness), float(s.thickness_rel),
-                    self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger])
+        for b in self.rsm_batches(frame):
+            sp = b.rsm.specular
+            wp.launch(K.trace_sspm, dim=b.n, device=self.device, inputs=[
+                b.params, int(b.lights.light.kind), b.light_pos,
+                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[b.light_index],
+                self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
+                float(s.roughness_cutoff), float(s.luminance_cutoff), float(s.thickness), float(s.thickness_rel),
+                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger])
 
 
 def reference_target(settings: PhotonSettings, device) -> int:
