@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import warp as wp
 
-from .denoise import SVGF, GaussianGather, SVGFSettings
+from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .raster import GBuffer, LightMaps, Rasterizer, camera_view
@@ -30,8 +30,10 @@ class RenderSettings:
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
     method: str = "cisp"  #: photon method: "cisp", "sspm", "caustics_map", "reference", or "none" (direct only)
     photons: PhotonSettings = PhotonSettings()
-    denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
+    denoiser: str = "caustic"  #: "caustic" (accumulate the raw map, filter what noise is left), "svgf" (the
+    #: paper's), "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
+    caustic: CausticSettings = field(default_factory=CausticSettings)
 
     def validate(self) -> None:
         for name in ("width", "height"):
@@ -48,7 +50,7 @@ class RenderSettings:
 
 
 METHODS = PHOTON_METHODS + ("none",)
-DENOISERS = ("svgf", "gather", "none")
+DENOISERS = ("caustic", "svgf", "gather", "none")
 
 
 class Renderer:
@@ -83,7 +85,9 @@ class Renderer:
             cls = photon_pass_class(self.settings.method)
             self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
         self.denoiser = None
-        if self.settings.denoiser == "svgf":
+        if self.settings.denoiser == "caustic":
+            self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
+        elif self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
         elif self.settings.denoiser == "gather":
             self.denoiser = GaussianGather(cam.width, cam.height, self.device)
@@ -132,7 +136,7 @@ class Renderer:
             with stage("denoise"):
                 if not self.photons.denoise:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
-                elif isinstance(self.denoiser, SVGF):
+                elif isinstance(self.denoiser, (CausticDenoiser, SVGF)):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)

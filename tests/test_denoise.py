@@ -168,8 +168,11 @@ def test_fractional_motion_keeps_constant(device):
     assert np.all(history(svgf)[1:-1, 1:-1] == 5)
 
 
-@pytest.mark.parametrize("step,conserve", [(1, True), (2, True), (4, True), (1, False), (2, False)])
-def test_atrous_level_matches_naive_twin(device, step, conserve):
+@pytest.mark.parametrize("step,conserve,gate", [(1, True, None), (2, True, None), (4, True, None), (1, False, None),
+                                                (2, False, None), (1, True, 0.2), (2, True, 0.1)])
+def test_atrous_level_matches_naive_twin(device, step, conserve, gate):
+    """One à-trous level against the per-pixel float64 twin; ``gate``: the caustics denoiser's gated level
+    (noise target chosen so that the footprint radii straddle the step: some pixels filtered, some kept)."""
     rng = np.random.default_rng(11 + step)
     w, h = 16, 12
     g = plane(w, h)
@@ -183,14 +186,19 @@ def test_atrous_level_matches_naive_twin(device, step, conserve):
     dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
     slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
     var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
-    scratch = wp.zeros(w * h, dtype=wp.float32, device=device)
+    guide_a = wp.zeros(w * h, dtype=wp.vec4, device=device)
+    guide_b = wp.zeros(w * h, dtype=wp.vec4, device=device)
     weight_sum = wp.zeros(w * h, dtype=wp.float32, device=device)
     c_out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     v_out = wp.zeros(w * h, dtype=wp.float32, device=device)
-    launch_atrous_level(dev["irradiance"], var_in, dev["depth"], dev["normal"], slope, w, h, step, s, scratch,
-                        weight_sum, c_out, v_out)
+    launch_atrous_level(dev["irradiance"], var_in, dev["depth"], dev["normal"], slope, w, h, step, s.sigma_depth,
+                        s.sigma_normal, s.sigma_luminance, conserve, guide_a, guide_b, weight_sum, c_out, v_out,
+                        noise_target=gate)
     c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
-                                      s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve)
+                                      s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve, noise_target=gate)
+    if gate is not None:  # the gate really splits the image: some pixels kept, some filtered
+        radius = guide_b.numpy()[:, 3].reshape(h, w)[g["depth"] > 0]
+        assert np.any(2 * radius <= step) and np.any(radius >= step)
     c_warp = c_out.numpy().reshape(h, w, 3)
     np.testing.assert_allclose(c_warp, c_ref, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)

@@ -34,9 +34,14 @@ def depth_slope_naive(depth: np.ndarray) -> np.ndarray:
 
 def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarray, normal: np.ndarray,
                        step: int, sigma_depth: float, sigma_normal: float, sigma_luminance: float,
-                       conserve_energy: bool):
+                       conserve_energy: bool, noise_target: float | None = None, slope: np.ndarray | None = None):
     """One à-trous level. ``color`` (H, W, 3), ``variance`` (H, W), ``depth`` (H, W) [m] (0 = none),
-    ``normal`` (H, W, 3). Returns (color_out (H, W, 3), variance_out (H, W)) in float64.
+    ``normal`` (H, W, 3); ``slope`` (H, W) [m/pixel] defaults to :func:`depth_slope_naive`. Returns
+    (color_out (H, W, 3), variance_out (H, W)) in float64.
+
+    ``noise_target`` (the caustics denoiser's gated levels): every w_pq (q ≠ p) is multiplied by
+    clamp(2 min(R_p, R_q) / step − 1, 0, 1), where R = sqrt(g3x3(Var) / (4π τ² μ²)) is the footprint
+    [pixels] a pixel still needs, μ the same 3x3 Gaussian's mean luminance and τ = ``noise_target``.
 
     Builds the level's matrix A row by row (out_p = Σ_q A_pq c_q, Var_p = Σ_q A_pq² Var_q) from the
     symmetric weights w_pq and their sums W_p = Σ_q w_pq (centre included): for q ≠ p, A_pq = w_pq / W_p
@@ -48,14 +53,15 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
     normal = normal.astype(np.float64)
     h, w = depth.shape
     lum = color @ REC709
-    slope = depth_slope_naive(depth)
+    slope = depth_slope_naive(depth) if slope is None else slope.astype(np.float64)
     # 3x3 Gaussian of the variance over pixels with a surface
     var_blur = np.zeros((h, w))
+    radius = np.full((h, w), np.inf)
     for y in range(h):
         for x in range(w):
             if depth[y, x] <= 0:
                 continue
-            kw, kv = 0.0, 0.0
+            kw, kv, kl = 0.0, 0.0, 0.0
             for dy in (-1, 0, 1):
                 for dx in (-1, 0, 1):
                     yy, xx = y + dy, x + dx
@@ -63,7 +69,11 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
                         k = (0.5 if dx == 0 else 0.25) * (0.5 if dy == 0 else 0.25)
                         kw += k
                         kv += k * variance[yy, xx]
+                        kl += k * lum[yy, xx]
             var_blur[y, x] = kv / kw
+            if noise_target is not None:
+                denom = 4.0 * np.pi * noise_target ** 2 * (kl / kw) ** 2
+                radius[y, x] = np.sqrt(var_blur[y, x] / max(denom, 1e-30))
     def weights(y, x):
         """{(yy, xx): w_pq} over the taps q ≠ p with a surface."""
         z = depth[y, x]
@@ -78,7 +88,8 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
                                        + DEPTH_NOISE_REL * max(z, zq))
                 phi_l = sigma_luminance * np.sqrt(0.5 * (var_blur[y, x] + var_blur[yy, xx]) + VARIANCE_EPS)
                 w_n = max(float(normal[y, x] @ normal[yy, xx]), 0.0) ** sigma_normal
-                taps[yy, xx] = (B3[abs(dx)] * B3[abs(dy)] * w_n
+                gate = float(np.clip(2.0 * min(radius[y, x], radius[yy, xx]) / step - 1.0, 0.0, 1.0))
+                taps[yy, xx] = (B3[abs(dx)] * B3[abs(dy)] * w_n * gate
                                 * np.exp(-abs(z - zq) / phi_z - abs(lum[y, x] - lum[yy, xx]) / phi_l))
         return taps
 
