@@ -37,8 +37,8 @@ class CausticSettings:
 
     max_history: int = 64  #: cap on the effective history [frames] (then an exponential mean of weight 1/N)
     change_radius: int = 2  #: half width [pixels] of the window that tests the new photons against the history
-    change_ratio: float = 2.0  #: κ: mean squared deviation beyond κ× its noise counts as change
-    change_sigmas: float = 3.0  #: a window-mean deviation beyond this many standard errors counts as change
+    change_sigmas: float = 3.0  #: deviations of the new photons from the history beyond this many standard
+    #: errors count as change
     atrous_levels: int = 4  #: à-trous levels, spacings 1, 2, 4, ... pixels (0: temporal accumulation only)
     noise_target: float = 0.03  #: relative noise the spatial footprint aims at (R from Var / (4π τ² μ²))
     sigma_depth: float = 1.0  #: σ_z of the depth edge stop (in units of the depth gradient)
@@ -52,8 +52,8 @@ class CausticSettings:
             raise ValueError("max_history must be >= 2")
         if self.change_radius < 0 or self.atrous_levels < 0:
             raise ValueError("change_radius and atrous_levels must be >= 0")
-        if min(self.change_ratio, self.change_sigmas) <= 0.0:
-            raise ValueError("change_ratio and change_sigmas must be > 0")
+        if self.change_sigmas <= 0.0:
+            raise ValueError("change_sigmas must be > 0")
         if self.noise_target <= 0.0:
             raise ValueError("noise_target must be > 0")
         if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
@@ -147,7 +147,7 @@ class CausticDenoiser:
                   outputs=[self.depth, self.normal, self.prev_mean, self.stats])
         wp.launch(K.accumulate, dim=dim, device=d,
                   inputs=[irradiance_in, self.depth, self.normal, self.prev_mean, self.stats, self.parity, w, h,
-                          s.change_radius, float(s.max_history), s.change_ratio, s.change_sigmas ** 2,
+                          s.change_radius, float(s.max_history), s.change_sigmas,
                           s.depth_tolerance, s.normal_tolerance],
                   outputs=[self.hist_mean, self.hist_moments, self.hist_frames, self.integrated,
                            self.temporal_variance, self.frames, self.depth_slope])

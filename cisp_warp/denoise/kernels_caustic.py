@@ -20,10 +20,17 @@ frame holds 0 or a few photons, so a single pixel tells little):
 * σ²: the pooled temporal variance of the window's histories, Σ (m2 − m1²) n/(n − 1) / N; while the history
   is short (n < ``SPATIAL_VARIANCE_HISTORY``) at least the new frame's spatial variance over the window; at
   least D² / (n + 1) (D² below), which is what two samples of a pixel say;
-* b²: the squared deviations of the new frame from the history, D² = Σ (E_q − M_q)² / N, beyond κ times
-  what noise alone gives them, σ² (1 + mean 1/n): b² = max(D² − κ σ² (1 + 1/n), (Σ (E_q − M_q) / N)²
-  − κ_m σ² (1 + 1/n) / N, 0). The first term sees a caustic that moves (its lines leave pixels that kept
-  the same window total), the second a caustic that brightens or dims (a weak change in every pixel).
+* b²: the mean squared deviation of the new frame from the history, D² = Σ (E_q − M_q)² / N, beyond what
+  noise alone gives it, σ² (1 + mean 1/n), by more than k of its standard error without a change,
+  se(D²) = (1 + mean 1/n) sqrt(Σ_q (2 v_q² + e² v_q)) / N (v_q a pixel's per-frame variance; the e² v_q term
+  is the heavy tail of few-photon counts: for a Poisson count of photons of irradiance e, Var(d²) = 2σ⁴ +
+  e²σ², e estimated as Σ v / Σ m1); or the squared mean deviation d̄ = Σ (E_q − M_q) / N beyond k² times its
+  variance without a change, σ² (1 + mean 1/n) / N:
+
+      b² = max(D² − σ² (1 + 1/n) − k se(D²), d̄² − k² σ² (1 + 1/n) / N, 0).
+
+  The first sees a caustic that moves (its lines leave pixels while the window's total stays), the second
+  one that brightens or dims a little in every pixel.
 
 Images are flat arrays of ``height * width`` pixels, row-major; launches use ``dim=(height, width)``.
 History arrays are (2, H*W); ``parity[0]`` names the row holding the last frame and the kernels write the
@@ -147,8 +154,7 @@ def accumulate(
     height: int,
     radius: int,
     max_history: float,
-    change_ratio: float,
-    change_sigmas_sq: float,
+    change_sigmas: float,
     depth_tolerance: float,
     normal_tolerance: float,
     hist_mean: wp.array2d(dtype=wp.vec3),
@@ -165,7 +171,7 @@ def accumulate(
     ``normal`` from :func:`reproject_history`, with its ``prev_mean`` (vec3 [W/m²]) and ``stats``
     (vec4: luminance of E, m1, m2, n). ``radius``: half width of the change-detection window [pixels];
     ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
-    ``change_ratio`` (κ) and ``change_sigmas_sq`` (κ_m) the thresholds of b²; a window pixel q is the same
+    ``change_sigmas`` (k): how many of their standard errors the deviations must exceed to count as change; a window pixel q is the same
     surface when its depth is within ``depth_tolerance`` (relative) and its normal's cosine at least
     ``normal_tolerance``.
 
@@ -195,7 +201,9 @@ def accumulate(
     with_history = float(0.0)  # ... of which have a history
     sum_d = float(0.0)  # Σ (E − M)
     sum_d2 = float(0.0)  # Σ (E − M)²
-    sum_var = float(0.0)  # Σ temporal per-frame variance
+    sum_var = float(0.0)  # Σ v, v the temporal per-frame variance of a pixel
+    sum_var2 = float(0.0)  # Σ v²
+    sum_m1 = float(0.0)  # Σ m1
     sum_inv_n = float(0.0)  # Σ 1/n
     for dy in range(-radius, radius + 1):
         for dx in range(-radius, radius + 1):
@@ -216,7 +224,10 @@ def accumulate(
                         with_history += 1.0
                         sum_d += d
                         sum_d2 += d * d
-                        sum_var += wp.max(s[2] - s[1] * s[1], 0.0) * n_q / wp.max(n_q - 1.0, 1.0)
+                        v = wp.max(s[2] - s[1] * s[1], 0.0) * n_q / wp.max(n_q - 1.0, 1.0)
+                        sum_var += v
+                        sum_var2 += v * v
+                        sum_m1 += s[1]
                         sum_inv_n += 1.0 / n_q
     mean_e = sum_e / count
     var_spatial = wp.max(sum_e2 / count - mean_e * mean_e, 0.0)
@@ -234,9 +245,18 @@ def accumulate(
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):
             sigma2 = wp.max(sigma2, var_spatial)
         sigma2 = wp.max(sigma2, d2 / (n_prev + 1.0))
-        spread = sigma2 * (1.0 + sum_inv_n / with_history)  # Var(E − M) without a change
+        if sigma2 * with_history > sum_var:  # a floor above the pooled variance: a homogeneous window of it
+            sum_var = sigma2 * with_history
+            sum_var2 = sigma2 * sigma2 * with_history
+        photon = float(0.0)  # irradiance of one photon in a pixel [W/m²]: Var = e μ for Poisson counts
+        if sum_m1 > 0.0:
+            photon = sum_var / sum_m1
+        history_noise = 1.0 + sum_inv_n / with_history
+        spread = sigma2 * history_noise  # E[D²] without a change
+        se_d2 = history_noise * wp.sqrt(2.0 * sum_var2 + photon * photon * sum_var) / with_history  # its std. error
         mean_d = sum_d / with_history
-        bias2 = wp.max(wp.max(d2 - change_ratio * spread, mean_d * mean_d - change_sigmas_sq * spread / with_history), 0.0)
+        bias2 = wp.max(wp.max(d2 - spread - change_sigmas * se_d2,
+                              mean_d * mean_d - change_sigmas * change_sigmas * spread / with_history), 0.0)
         r = float(0.0)
         if sigma2 > 0.0:
             r = bias2 / sigma2

@@ -110,3 +110,128 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
             color_out[y, x] = sum(aq * color[q] for q, aq in a.items())
             variance_out[y, x] = sum(aq * aq * variance[q] for q, aq in a.items())
     return color_out, variance_out
+
+
+SPATIAL_VARIANCE_HISTORY = 4  # as kernels_svgf.SPATIAL_VARIANCE_HISTORY
+MIN_BILINEAR_WEIGHT = 0.01  # as kernels_svgf.MIN_BILINEAR_WEIGHT
+
+
+def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, history: dict, fields: tuple,
+                    depth_tolerance: float, normal_tolerance: float) -> tuple[dict, np.ndarray]:
+    """Bilinear fetch of ``history[f]`` for ``f`` in ``fields`` at each pixel's previous position (``motion``,
+    (H, W, 2) [pixels]) over the consistent taps (on screen, a surface with history n > 0, relative depth
+    difference ≤ ``depth_tolerance``, normal cosine ≥ ``normal_tolerance``), renormalised. ``history`` holds
+    ``depth``, ``normal``, ``frames`` (H, W) and the fields. Returns ({field: values}, valid (H, W) bool)."""
+    h, w = depth.shape
+    out = {f: np.zeros(history[f].shape, np.float64) for f in fields}
+    valid = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            z = depth[y, x]
+            if z <= 0:
+                continue
+            px, py = x + motion[y, x, 0], y + motion[y, x, 1]
+            x0, y0 = int(np.floor(px)), int(np.floor(py))
+            fx, fy = px - x0, py - y0
+            acc = {f: 0.0 for f in fields}
+            sw = 0.0
+            for dy in (0, 1):
+                for dx in (0, 1):
+                    tx, ty = x0 + dx, y0 + dy
+                    if not (0 <= tx < w and 0 <= ty < h):
+                        continue
+                    zq = history["depth"][ty, tx]
+                    if (history["frames"][ty, tx] > 0 and zq > 0 and abs(zq - z) <= depth_tolerance * z
+                            and float(history["normal"][ty, tx] @ normal[y, x]) >= normal_tolerance):
+                        wt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
+                        sw += wt
+                        for f in fields:
+                            acc[f] = acc[f] + wt * history[f][ty, tx]
+            if sw >= MIN_BILINEAR_WEIGHT:
+                valid[y, x] = True
+                for f in fields:
+                    out[f][y, x] = acc[f] / sw
+    return out, valid
+
+
+def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
+                           history: dict | None, settings) -> dict:
+    """The caustics denoiser's temporal stage (:mod:`cisp_warp.denoise.kernels_caustic`, equations in its
+    docstring) for one frame, in float64. ``irradiance`` (H, W, 3) [W/m²]; ``depth`` (H, W) [m] (0 = none);
+    ``normal`` (H, W, 3); ``motion`` (H, W, 2) [pixels]; ``history``: the previous call's result (None: none).
+    ``settings``: a :class:`cisp_warp.denoise.CausticSettings`. Returns dict(depth, normal, mean (H, W, 3),
+    moments (H, W, 2), frames, variance (variance of the accumulated luminance), slope) for the next call."""
+    s = settings
+    depth = depth.astype(np.float64)
+    normal = normal.astype(np.float64)
+    irradiance = irradiance.astype(np.float64)
+    h, w = depth.shape
+    lum = irradiance @ REC709
+    if history is None:
+        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 2)), "frames": np.zeros((h, w))}, \
+            np.zeros((h, w), bool)
+    else:
+        prev, valid = reproject_naive(depth, normal, motion.astype(np.float64), history, ("mean", "moments", "frames"),
+                                      s.depth_tolerance, s.normal_tolerance)
+    n_prev = np.where(valid, prev["frames"], 0.0)
+    m1, m2 = prev["moments"][..., 0], prev["moments"][..., 1]
+    res = {"depth": np.where(depth > 0, depth, 0.0), "normal": np.where(depth[..., None] > 0, normal, 0.0),
+           "mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 2)), "frames": np.zeros((h, w)),
+           "variance": np.zeros((h, w)), "slope": depth_slope_naive(depth)}
+    r = s.change_radius
+    k = s.change_sigmas
+    for y in range(h):
+        for x in range(w):
+            z = depth[y, x]
+            if z <= 0:
+                continue
+            qs = [(yy, xx) for yy in range(y - r, y + r + 1) for xx in range(x - r, x + r + 1)
+                  if 0 <= yy < h and 0 <= xx < w and depth[yy, xx] > 0 and abs(depth[yy, xx] - z) <= s.depth_tolerance * z
+                  and float(normal[yy, xx] @ normal[y, x]) >= s.normal_tolerance]
+            e = np.array([lum[q] for q in qs])
+            var_spatial = max(np.mean(e ** 2) - np.mean(e) ** 2, 0.0)
+            n = n_prev[y, x]
+            if n <= 0:
+                alpha, n_new, sigma2 = 1.0, 1.0, var_spatial
+            else:
+                hq = [q for q in qs if n_prev[q] > 0]
+                d = np.array([lum[q] - m1[q] for q in hq])
+                nq = np.array([n_prev[q] for q in hq])
+                var_t = np.array([max(m2[q] - m1[q] ** 2, 0.0) for q in hq]) * nq / np.maximum(nq - 1, 1)
+                d2 = np.mean(d ** 2)
+                sigma2 = np.mean(var_t)
+                if n < SPATIAL_VARIANCE_HISTORY:
+                    sigma2 = max(sigma2, var_spatial)
+                sigma2 = max(sigma2, d2 / (n + 1))
+                if sigma2 > np.mean(var_t):  # floored: a homogeneous window of sigma2
+                    var_t = np.full(len(hq), sigma2)
+                m1_sum = sum(m1[q] for q in hq)
+                photon = var_t.sum() / m1_sum if m1_sum > 0 else 0.0
+                history_noise = 1 + np.mean(1 / nq)
+                spread = sigma2 * history_noise
+                se_d2 = history_noise * np.sqrt(np.sum(2 * var_t ** 2 + photon ** 2 * var_t)) / len(hq)
+                bias2 = max(d2 - spread - k * se_d2, np.mean(d) ** 2 - k * k * spread / len(hq), 0.0)
+                ratio = bias2 / sigma2 if sigma2 > 0 else 0.0
+                inv_n = 1.0 / min(n, s.max_history - 1)
+                alpha = (ratio + inv_n) / (ratio + inv_n + 1)
+                n_new = 1.0 / ((1 - alpha) ** 2 * (ratio + inv_n) + alpha ** 2)
+            res["mean"][y, x] = (1 - alpha) * prev["mean"][y, x] + alpha * irradiance[y, x]
+            res["moments"][y, x] = (1 - alpha) * prev["moments"][y, x] + alpha * np.array([lum[y, x], lum[y, x] ** 2])
+            res["frames"][y, x] = n_new
+            res["variance"][y, x] = sigma2 / n_new
+    return res
+
+
+def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
+                        history: dict | None, settings) -> tuple[np.ndarray, dict]:
+    """One frame of the caustics denoiser: :func:`caustic_temporal_naive`, then ``settings.atrous_levels``
+    gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output (H, W, 3) [W/m²], the
+    history for the next call)."""
+    s = settings
+    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s)
+    color, variance = t["mean"], t["variance"]
+    for level in range(s.atrous_levels):
+        color, variance = atrous_level_naive(color, variance, t["depth"], t["normal"], 1 << level, s.sigma_depth,
+                                             s.sigma_normal, s.sigma_luminance, True, noise_target=s.noise_target,
+                                             slope=t["slope"])
+    return color, t
