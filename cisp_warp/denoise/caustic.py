@@ -37,7 +37,7 @@ class CausticSettings:
 
     max_history: int = 64  #: cap on the effective history [frames] (then an exponential mean of weight 1/N)
     change_radius: int = 2  #: half width [pixels] of the window that tests the new photons against the history
-    change_sigmas: float = 3.0  #: deviations of the new photons from the history beyond this many standard
+    change_sigmas: float = 5.0  #: deviations of the new photons from the history beyond this many standard
     #: errors count as change
     atrous_levels: int = 4  #: à-trous levels, spacings 1, 2, 4, ... pixels (0: temporal accumulation only)
     noise_target: float = 0.03  #: relative noise the spatial footprint aims at (R from Var / (4π τ² μ²))
@@ -72,7 +72,7 @@ class CausticDenoiser:
     effective frames); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface), ``prev_mean``
     (vec3 [W/m²]) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
-    estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b`` (vec4) and
+    estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
     ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
     accumulated luminance), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
     """
@@ -107,6 +107,7 @@ class CausticDenoiser:
         self.depth_slope = one(wp.float32)
         self.guide_a = one(wp.vec4)
         self.guide_b = one(wp.vec4)
+        self.color_variance = one(wp.vec4)
         self.weight_sum = one(wp.float32)
         self.filtered_color = one(wp.vec3), one(wp.vec3)
         self.filtered_variance = one(wp.float32), one(wp.float32)
@@ -159,7 +160,7 @@ class CausticDenoiser:
             color_dst = out if level == s.atrous_levels - 1 else self.filtered_color[dst]
             launch_atrous_level(color_src, variance_src, self.depth, self.normal, self.depth_slope,
                                 w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True,
-                                self.guide_a, self.guide_b, self.weight_sum, color_dst, self.filtered_variance[dst],
+                                self.guide_a, self.guide_b, self.color_variance, self.weight_sum, color_dst, self.filtered_variance[dst],
                                 noise_target=s.noise_target)
             color_src, variance_src = color_dst, self.filtered_variance[dst]
         wp.launch(flip_parity, dim=1, device=d, inputs=[self.parity])

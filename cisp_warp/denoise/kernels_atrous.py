@@ -3,9 +3,10 @@
 One level is three launches over ``dim=(height, width)``:
 
 1. :func:`atrous_prepare` reads each pixel's 3x3 neighbourhood once and packs what every tap of the
-   level needs into two ``vec4`` guides: ``guide_a = (z [m], ‖∇z‖ [m/pixel], g3x3(Var), luminance)`` and
+   level needs into ``vec4``s: ``guide_a = (z [m], ‖∇z‖ [m/pixel], g3x3(Var), luminance)``,
    ``guide_b = (n_x, n_y, n_z, R [pixels])``, R the footprint the pixel still needs (gated levels only;
-   1e30 otherwise). A tap then costs two aligned 16-byte loads instead of ten scattered ones.
+   1e30 otherwise), and ``color_variance = (c_r, c_g, c_b, Var)``. A tap of the filter then costs three
+   aligned 16-byte loads and W_q instead of fourteen scattered ones.
 2. :func:`atrous_weight_sum`: W_p = Σ_q w_pq.
 3. :func:`atrous_filter`: c'_p = c_p + Σ_{q≠p} A_pq (c_q − c_p), Var'_p = Σ_q A_pq² Var_q, with
    A_pq = w_pq / max(W_p, W_q) (energy-conserving) or w_pq / W_p (the paper's gather).
@@ -62,13 +63,14 @@ def atrous_prepare(
     noise_target: float,
     guide_a: wp.array(dtype=wp.vec4),
     guide_b: wp.array(dtype=wp.vec4),
+    color_variance: wp.array(dtype=wp.vec4),
 ):
     """Pack the level's per-pixel inputs (see the module docstring).
 
     Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (H*W float32 [(W/m²)²], luminance variance),
     ``depth`` (float32 [m], 0 = none), ``normal`` (vec3), ``slope`` (float32 [m/pixel]). Writes
-    ``guide_a`` = (z, slope, g3x3(Var), luminance) and ``guide_b`` = (normal, R) (H*W vec4; 0 without a
-    surface). g3x3 is the 3x3 Gaussian (1/4, 1/8, 1/16) renormalised over pixels with a surface (paper
+    ``guide_a`` = (z, slope, g3x3(Var), luminance), ``guide_b`` = (normal, R) and ``color_variance`` =
+    (colour, Var) (H*W vec4; 0 without a surface). g3x3 is the 3x3 Gaussian (1/4, 1/8, 1/16) renormalised over pixels with a surface (paper
     eq. 5); with ``gated`` R comes from g3x3(Var) and the same Gaussian's mean luminance
     (:func:`footprint_radius`, relative ``noise_target``), else R = ``UNGATED_RADIUS``.
     """
@@ -78,6 +80,7 @@ def atrous_prepare(
     if z <= 0.0:
         guide_a[p] = wp.vec4(0.0)
         guide_b[p] = wp.vec4(0.0)
+        color_variance[p] = wp.vec4(0.0)
         return
     sum_k = float(0.0)
     sum_v = float(0.0)
@@ -99,8 +102,10 @@ def atrous_prepare(
     if gated != 0:
         radius = footprint_radius(var_blur, sum_l / sum_k, noise_target)
     n = normal[p]
-    guide_a[p] = wp.vec4(z, slope[p], var_blur, luminance(color_in[p]))
+    c = color_in[p]
+    guide_a[p] = wp.vec4(z, slope[p], var_blur, luminance(c))
     guide_b[p] = wp.vec4(n[0], n[1], n[2], radius)
+    color_variance[p] = wp.vec4(c[0], c[1], c[2], variance_in[p])
 
 
 @wp.func
@@ -157,8 +162,7 @@ def atrous_weight_sum(
 
 @wp.kernel
 def atrous_filter(
-    color_in: wp.array(dtype=wp.vec3),
-    variance_in: wp.array(dtype=wp.float32),
+    color_variance: wp.array(dtype=wp.vec4),
     guide_a: wp.array(dtype=wp.vec4),
     guide_b: wp.array(dtype=wp.vec4),
     weight_sum: wp.array(dtype=wp.float32),
@@ -172,9 +176,9 @@ def atrous_filter(
     color_out: wp.array(dtype=wp.vec3),
     variance_out: wp.array(dtype=wp.float32),
 ):
-    """One à-trous level (module docstring): reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (H*W
-    float32), the guides and ``weight_sum``; writes ``color_out`` and ``variance_out`` (must not alias the
-    inputs; 0 without a surface).
+    """One à-trous level (module docstring): reads ``color_variance`` (H*W vec4: colour [W/m²], luminance
+    variance), the guides and ``weight_sum``; writes ``color_out`` (H*W vec3 [W/m²]) and ``variance_out``
+    (H*W float32; 0 without a surface).
 
     ``conserve_energy != 0``: A_pq = w_pq / max(W_p, W_q) is symmetric, so what p takes from q, q gives to
     p and Σ_p c'_p = Σ_p c_p exactly; Σ_{q≠p} A_pq ≤ 1 − w_pp / W_p keeps it a convex combination.
@@ -189,8 +193,9 @@ def atrous_filter(
         variance_out[p] = 0.0
         return
     gb_p = guide_b[p]
-    c_p = color_in[p]
-    v_p = variance_in[p]
+    cv_p = color_variance[p]
+    c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
+    v_p = cv_p[3]
     s = float(step)
     if 2.0 * gb_p[3] <= s:  # every gate of p is 0: A_pp = 1
         color_out[p] = c_p
@@ -213,9 +218,10 @@ def atrous_filter(
                                    sigma_luminance)
                     if w > 0.0:
                         a = w / wp.where(conserve_energy != 0, wp.max(w_p, weight_sum[q]), w_p)
+                        cv_q = color_variance[q]
                         sum_a += a
-                        sum_dc += a * (color_in[q] - c_p)
-                        sum_av += a * a * variance_in[q]
+                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                        sum_av += a * a * cv_q[3]
     a_centre = 1.0 - sum_a
     color_out[p] = c_p + sum_dc
     variance_out[p] = sum_av + a_centre * a_centre * v_p
@@ -224,15 +230,16 @@ def atrous_filter(
 def launch_atrous_level(color_in: wp.array, variance_in: wp.array, depth: wp.array, normal: wp.array,
                         slope: wp.array, width: int, height: int, step: int, sigma_depth: float,
                         sigma_normal: float, sigma_luminance: float, conserve_energy: bool,
-                        guide_a: wp.array, guide_b: wp.array, weight_sum: wp.array, color_out: wp.array,
-                        variance_out: wp.array, noise_target: float | None = None) -> None:
+                        guide_a: wp.array, guide_b: wp.array, color_variance: wp.array, weight_sum: wp.array,
+                        color_out: wp.array, variance_out: wp.array, noise_target: float | None = None) -> None:
     """One à-trous level: :func:`atrous_prepare`, :func:`atrous_weight_sum`, :func:`atrous_filter`.
 
     Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (H*W float32), ``depth`` (H*W float32 [m], 0 =
     none), ``normal`` (H*W vec3), ``slope`` (H*W float32 [m/pixel]); ``step`` is the tap spacing [pixels].
     ``noise_target`` (relative, e.g. 0.05): gate the level by the footprint the remaining variance needs;
-    None: ungated (SVGF). Writes the scratch ``guide_a``/``guide_b`` (H*W vec4) and ``weight_sum`` (H*W
-    float32), and ``color_out``/``variance_out``, which must not alias the inputs.
+    None: ungated (SVGF). Writes the scratch ``guide_a``/``guide_b``/``color_variance`` (H*W vec4) and
+    ``weight_sum`` (H*W float32), and ``color_out``/``variance_out`` (may alias the inputs: the filter reads
+    only the packed copies).
     """
     dim = (height, width)
     d = color_in.device
@@ -240,11 +247,11 @@ def launch_atrous_level(color_in: wp.array, variance_in: wp.array, depth: wp.arr
     wp.launch(atrous_prepare, dim=dim, device=d,
               inputs=[color_in, variance_in, depth, normal, slope, width, height, int(gated),
                       float(noise_target) if gated else 0.0],
-              outputs=[guide_a, guide_b])
+              outputs=[guide_a, guide_b, color_variance])
     sigmas = [float(sigma_depth), float(sigma_normal), float(sigma_luminance)]
     wp.launch(atrous_weight_sum, dim=dim, device=d, inputs=[guide_a, guide_b, width, height, int(step), *sigmas],
               outputs=[weight_sum])
     wp.launch(atrous_filter, dim=dim, device=d,
-              inputs=[color_in, variance_in, guide_a, guide_b, weight_sum, width, height, int(step), *sigmas,
+              inputs=[color_variance, guide_a, guide_b, weight_sum, width, height, int(step), *sigmas,
                       int(conserve_energy)],
               outputs=[color_out, variance_out])

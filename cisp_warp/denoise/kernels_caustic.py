@@ -17,9 +17,16 @@ a large bias resets the history to the new frame. The blend's error is σ² / n_
 σ² and b² come from a (2·radius + 1)² window of same-surface pixels (photon maps are sparse: one pixel's
 frame holds 0 or a few photons, so a single pixel tells little):
 
-* σ²: the pooled temporal variance of the window's histories, Σ (m2 − m1²) n/(n − 1) / N; while the history
-  is short (n < ``SPATIAL_VARIANCE_HISTORY``) at least the new frame's spatial variance over the window; at
-  least D² / (n + 1) (D² below), which is what two samples of a pixel say;
+* σ²: the pooled temporal variance of the window's histories, v_q = (m2 − m1²) n/(n − 1), Σ v_q / N; while
+  the history is short (n < ``SPATIAL_VARIANCE_HISTORY``) at least the new frame's spatial variance over the
+  window (it counts the caustic's own structure as noise, so the test errs towards keeping the history);
+  at least (10⁻⁵ mean m1)², the rounding of float32 running means, so a noise-free signal never reads its
+  rounding as change;
+* the variance handed to the spatial filter is σ²_est / n_new, with σ²_est the pooled temporal variance
+  (while the history is short, at least the deviations' own, (D² − b²) / (1 + mean 1/n), which unlike the
+  spatial variance does not count the caustic's structure as noise), at least the pixel's own updated v (a
+  first photon in a long-dark pixel leaves an uncertain estimate); disoccluded pixels take the new frame's
+  spatial variance;
 * b²: the mean squared deviation of the new frame from the history, D² = Σ (E_q − M_q)² / N, beyond what
   noise alone gives it, σ² (1 + mean 1/n), by more than k of its standard error without a change,
   se(D²) = (1 + mean 1/n) sqrt(Σ_q (2 v_q² + e² v_q)) / N (v_q a pixel's per-frame variance; the e² v_q term
@@ -42,6 +49,9 @@ from __future__ import annotations
 import warp as wp
 
 from .kernels_svgf import MIN_BILINEAR_WEIGHT, SPATIAL_VARIANCE_HISTORY, depth_gradient_length, luminance
+
+#: relative resolution of the float32 running means: deviations below it are rounding, never change
+FLOAT_RESOLUTION = wp.constant(1.0e-5)
 
 
 @wp.kernel
@@ -235,16 +245,19 @@ def accumulate(
     n_prev = s_p[3]
     c = irradiance[p]
     lum = s_p[0]
+    bias2 = float(0.0)
     if n_prev <= 0.0:  # disoccluded: the new frame alone, its variance from the window
         alpha = float(1.0)
         n_new = float(1.0)
-        sigma2 = var_spatial
+        sigma2_est = var_spatial
     else:
         d2 = sum_d2 / with_history
         sigma2 = sum_var / with_history
+        sigma2_est = sigma2
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):
             sigma2 = wp.max(sigma2, var_spatial)
-        sigma2 = wp.max(sigma2, d2 / (n_prev + 1.0))
+        resolution = FLOAT_RESOLUTION * sum_m1 / with_history  # float32 rounding of the running means
+        sigma2 = wp.max(sigma2, resolution * resolution)
         if sigma2 * with_history > sum_var:  # a floor above the pooled variance: a homogeneous window of it
             sum_var = sigma2 * with_history
             sum_var2 = sigma2 * sigma2 * with_history
@@ -263,13 +276,22 @@ def accumulate(
         inv_n = 1.0 / wp.min(n_prev, max_history - 1.0)
         alpha = (r + inv_n) / (r + inv_n + 1.0)
         n_new = 1.0 / ((1.0 - alpha) * (1.0 - alpha) * (r + inv_n) + alpha * alpha)
-    m_prev = wp.vec2(s_p[1], s_p[2])
+        if n_prev < float(SPATIAL_VARIANCE_HISTORY):  # for the filter: the deviations, less the change found
+            sigma2_est = wp.max(sigma2_est, wp.max(d2 - bias2, 0.0) / history_noise)
     mean = wp.lerp(prev_mean[p], c, alpha)
-    moments = wp.lerp(m_prev, wp.vec2(lum, lum * lum), alpha)
+    m1 = wp.lerp(s_p[1], lum, alpha)
+    # the pixel's own per-frame variance after the update: the spread of the blend of its history (variance
+    # v) and the new sample, (1 − α) v + α (1 − α) (l − m1)², less the change b² found (a detected change is
+    # signal, not noise). Stored as the second moment; at least this much goes to the spatial filter (the
+    # first photon in a long-dark pixel leaves an uncertain estimate, though its window saw no noise).
+    d_p = lum - s_p[1]
+    own = (1.0 - alpha) * wp.max(s_p[2] - s_p[1] * s_p[1], 0.0) + alpha * (1.0 - alpha) * wp.max(d_p * d_p - bias2, 0.0)
+    moments = wp.vec2(m1, m1 * m1 + own)
+    sigma2_est = wp.max(sigma2_est, own * n_new / wp.max(n_new - 1.0, 1.0))
     hist_mean[cur, p] = mean
     hist_moments[cur, p] = moments
     hist_frames[cur, p] = n_new
     mean_out[p] = mean
-    variance_out[p] = sigma2 / n_new
+    variance_out[p] = sigma2_est / n_new
     frames_out[p] = n_new
     slope_out[p] = depth_gradient_length(depth, x, y, width, height)

@@ -114,6 +114,7 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
 
 SPATIAL_VARIANCE_HISTORY = 4  # as kernels_svgf.SPATIAL_VARIANCE_HISTORY
 MIN_BILINEAR_WEIGHT = 0.01  # as kernels_svgf.MIN_BILINEAR_WEIGHT
+FLOAT_RESOLUTION = 1.0e-5  # as kernels_caustic.FLOAT_RESOLUTION
 
 
 def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, history: dict, fields: tuple,
@@ -191,8 +192,9 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
             e = np.array([lum[q] for q in qs])
             var_spatial = max(np.mean(e ** 2) - np.mean(e) ** 2, 0.0)
             n = n_prev[y, x]
+            bias2 = 0.0
             if n <= 0:
-                alpha, n_new, sigma2 = 1.0, 1.0, var_spatial
+                alpha, n_new, sigma2_est = 1.0, 1.0, var_spatial
             else:
                 hq = [q for q in qs if n_prev[q] > 0]
                 d = np.array([lum[q] - m1[q] for q in hq])
@@ -200,9 +202,10 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 var_t = np.array([max(m2[q] - m1[q] ** 2, 0.0) for q in hq]) * nq / np.maximum(nq - 1, 1)
                 d2 = np.mean(d ** 2)
                 sigma2 = np.mean(var_t)
+                sigma2_est = sigma2
                 if n < SPATIAL_VARIANCE_HISTORY:
                     sigma2 = max(sigma2, var_spatial)
-                sigma2 = max(sigma2, d2 / (n + 1))
+                sigma2 = max(sigma2, (FLOAT_RESOLUTION * np.mean([m1[q] for q in hq])) ** 2)
                 if sigma2 > np.mean(var_t):  # floored: a homogeneous window of sigma2
                     var_t = np.full(len(hq), sigma2)
                 m1_sum = sum(m1[q] for q in hq)
@@ -215,10 +218,17 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 inv_n = 1.0 / min(n, s.max_history - 1)
                 alpha = (ratio + inv_n) / (ratio + inv_n + 1)
                 n_new = 1.0 / ((1 - alpha) ** 2 * (ratio + inv_n) + alpha ** 2)
+                if n < SPATIAL_VARIANCE_HISTORY:
+                    sigma2_est = max(sigma2_est, max(d2 - bias2, 0.0) / history_noise)
             res["mean"][y, x] = (1 - alpha) * prev["mean"][y, x] + alpha * irradiance[y, x]
-            res["moments"][y, x] = (1 - alpha) * prev["moments"][y, x] + alpha * np.array([lum[y, x], lum[y, x] ** 2])
+            new_m1 = (1 - alpha) * m1[y, x] + alpha * lum[y, x]
+            # blend of the history (variance v) and the new sample, less the change found
+            own = ((1 - alpha) * max(m2[y, x] - m1[y, x] ** 2, 0.0)
+                   + alpha * (1 - alpha) * max((lum[y, x] - m1[y, x]) ** 2 - bias2, 0.0))
+            res["moments"][y, x] = (new_m1, new_m1 ** 2 + own)
+            sigma2_est = max(sigma2_est, own * n_new / max(n_new - 1, 1))
             res["frames"][y, x] = n_new
-            res["variance"][y, x] = sigma2 / n_new
+            res["variance"][y, x] = sigma2_est / n_new
     return res
 
 

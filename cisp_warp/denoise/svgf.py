@@ -59,7 +59,7 @@ class SVGF:
     (int32 [frames]); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (the G-buffer copy the filters read; depth 0 without a
     surface), ``integrated`` (vec3 [W/m²], temporal accumulation), ``moments`` (vec2), ``history`` (int32),
-    ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b`` (vec4, per-level packed taps) and
+    ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4, per-level packed taps) and
     ``weight_sum`` (float32), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
     """
 
@@ -91,6 +91,7 @@ class SVGF:
         self.depth_slope = one(wp.float32)
         self.guide_a = one(wp.vec4)
         self.guide_b = one(wp.vec4)
+        self.color_variance = one(wp.vec4)
         self.weight_sum = one(wp.float32)
         self.filtered_color = one(wp.vec3), one(wp.vec3)
         self.filtered_variance = one(wp.float32), one(wp.float32)
@@ -144,7 +145,7 @@ class SVGF:
             color_dst = out if level == s.atrous_levels - 1 else self.filtered_color[dst]
             launch_atrous_level(color_src, self.filtered_variance[src], self.depth, self.normal, self.depth_slope,
                                 w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance,
-                                s.conserve_energy, self.guide_a, self.guide_b, self.weight_sum, color_dst,
+                                s.conserve_energy, self.guide_a, self.guide_b, self.color_variance, self.weight_sum, color_dst,
                                 self.filtered_variance[dst])
             if level == s.feedback_level:
                 wp.launch(K.store_history, dim=w * h, device=d, inputs=[color_dst, self.parity],
