@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     from cisp_warp.photons import PhotonSettings
     from cisp_warp.render import Renderer, RenderSettings
     from cisp_warp.timing import StageTimer
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     device = wp.get_device(args.device)
     counts = [parse_count(c) for c in args.photons.split(",")]
