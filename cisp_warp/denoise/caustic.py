@@ -50,8 +50,10 @@ class CausticSettings:
     def __post_init__(self):
         if self.max_history < 2:
             raise ValueError("max_history must be >= 2")
-        if self.change_radius < 0 or self.atrous_levels < 0:
-            raise ValueError("change_radius and atrous_levels must be >= 0")
+        if not 1 <= self.change_radius <= K.MAX_CHANGE_RADIUS:
+            raise ValueError(f"change_radius must lie in [1, {K.MAX_CHANGE_RADIUS}]")
+        if self.atrous_levels < 0:
+            raise ValueError("atrous_levels must be >= 0")
         if self.change_sigmas <= 0.0:
             raise ValueError("change_sigmas must be > 0")
         if self.noise_target <= 0.0:
@@ -68,10 +70,10 @@ class CausticDenoiser:
     History (2 x H*W each; row ``parity[0]`` holds the last frame, the next frame writes the other row and
     flips ``parity`` on the device, so a captured CUDA graph replays every frame): ``hist_depth`` (float32
     [m], 0 = no surface), ``hist_normal`` (vec3), ``hist_mean`` (vec3 [W/m²], running mean of the raw photon
-    map), ``hist_moments`` (vec2: luminance mean [W/m²] and mean square), ``hist_frames`` (float32,
+    map), ``hist_moments`` (vec3: luminance mean [W/m²], mean square, neighbour-difference variance s²), ``hist_frames`` (float32,
     effective frames); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface), ``prev_mean``
-    (vec3 [W/m²]) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
+    (vec3 [W/m²]), ``prev_pairs`` (float32) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
     estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
     ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
     accumulated luminance), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
@@ -94,12 +96,13 @@ class CausticDenoiser:
         self.hist_depth = two(wp.float32)
         self.hist_normal = two(wp.vec3)
         self.hist_mean = two(wp.vec3)
-        self.hist_moments = two(wp.vec2)
+        self.hist_moments = two(wp.vec3)
         self.hist_frames = two(wp.float32)
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.depth = one(wp.float32)
         self.normal = one(wp.vec3)
         self.prev_mean = one(wp.vec3)
+        self.prev_pairs = one(wp.float32)
         self.stats = one(wp.vec4)
         self.integrated = one(wp.vec3)
         self.frames = one(wp.float32)
@@ -145,9 +148,10 @@ class CausticDenoiser:
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_depth, self.hist_normal,
                           self.hist_mean, self.hist_moments, self.hist_frames, self.parity, w, h,
                           s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.depth, self.normal, self.prev_mean, self.stats])
+                  outputs=[self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats])
         wp.launch(K.accumulate, dim=dim, device=d,
-                  inputs=[irradiance_in, self.depth, self.normal, self.prev_mean, self.stats, self.parity, w, h,
+                  inputs=[irradiance_in, self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats,
+                          self.parity, w, h,
                           s.change_radius, float(s.max_history), s.change_sigmas,
                           s.depth_tolerance, s.normal_tolerance],
                   outputs=[self.hist_mean, self.hist_moments, self.hist_frames, self.integrated,

@@ -3,7 +3,7 @@ history and its reactive accumulation. Its spatial stage is :mod:`.kernels_atrou
 
 The history is an estimate of the *raw* photon map's mean, never a filtered image: per pixel the mean
 irradiance M (vec3 [W/m²]), the luminance moments (m1, m2) of the photon map (m1 = luminance(M) since both
-are the same running mean), and the effective number of frames n behind it (float: the history's variance
+are the same running mean) and s² (below), and the effective number of frames n behind it (float: the history's variance
 is σ² / n for a per-frame variance σ²). A new frame's photon map E enters with weight α per pixel:
 
     α = (r + 1/n) / (r + 1/n + 1),        r = b² / σ²,
@@ -17,21 +17,24 @@ a large bias resets the history to the new frame. The blend's error is σ² / n_
 σ² and b² come from a (2·radius + 1)² window of same-surface pixels (photon maps are sparse: one pixel's
 frame holds 0 or a few photons, so a single pixel tells little):
 
-* σ²: the pooled temporal variance of the window's histories, v_q = (m2 − m1²) n/(n − 1), Σ v_q / N; while
-  the history is short (n < ``SPATIAL_VARIANCE_HISTORY``) at least the new frame's spatial variance over the
-  window (it counts the caustic's own structure as noise, so the test errs towards keeping the history);
-  at least (10⁻⁵ mean m1)², the rounding of float32 running means, so a noise-free signal never reads its
-  rounding as change;
-* the variance handed to the spatial filter is σ²_est / n_new, with σ²_est the pooled temporal variance
-  (while the history is short, at least the deviations' own, (D² − b²) / (1 + mean 1/n), which unlike the
-  spatial variance does not count the caustic's structure as noise), at least the pixel's own updated v (a
-  first photon in a long-dark pixel leaves an uncertain estimate); disoccluded pixels take the new frame's
-  spatial variance;
+* σ²: per-frame variance. From the frames alone: s², the running mean over frames of half the mean squared
+  difference of same-surface neighbours in the window, along rows or columns, whichever is smaller:
+  E[(E_a − E_b)²] = 2σ² + (μ_a − μ_b)², and a caustic line adds least along itself; s² never counts the
+  caustic's motion as noise. The history's pooled temporal variance, v_q = (m2 − m1²) n/(n − 1), Σ v_q / N,
+  replaces it where it is smaller and the history has ``SPATIAL_VARIANCE_HISTORY`` frames or more: it is
+  free of the caustic's structure for a still caustic, while a moving one inflates it. At least
+  (10⁻⁵ mean m1)², the rounding of float32 running means, so a noise-free signal never reads its rounding
+  as change;
+* the variance handed to the spatial filter is σ²_est / n_new, σ²_est = σ² (while the history is short, the
+  larger of the pooled temporal variance and the deviations' own, (D² − b²) / (1 + mean 1/n), free of the
+  caustic's structure), at least the pixel's own updated v (a first photon
+  in a long-dark pixel leaves an uncertain estimate); disoccluded pixels take the neighbour-difference one;
 * b²: the mean squared deviation of the new frame from the history, D² = Σ (E_q − M_q)² / N, beyond what
   noise alone gives it, σ² (1 + mean 1/n), by more than k of its standard error without a change,
   se(D²) = (1 + mean 1/n) sqrt(Σ_q (2 v_q² + e² v_q)) / N (v_q a pixel's per-frame variance; the e² v_q term
   is the heavy tail of few-photon counts: for a Poisson count of photons of irradiance e, Var(d²) = 2σ⁴ +
-  e²σ², e estimated as Σ v / Σ m1); or the squared mean deviation d̄ = Σ (E_q − M_q) / N beyond k² times its
+  e²σ²; e is the window's smallest non-zero irradiance this frame, one photon's or more, at most σ² / mean m1,
+  the Poisson quantum of the window); or the squared mean deviation d̄ = Σ (E_q − M_q) / N beyond k² times its
   variance without a change, σ² (1 + mean 1/n) / N:
 
       b² = max(D² − σ² (1 + 1/n) − k se(D²), d̄² − k² σ² (1 + 1/n) / N, 0).
@@ -50,6 +53,9 @@ import warp as wp
 
 from .kernels_svgf import MIN_BILINEAR_WEIGHT, SPATIAL_VARIANCE_HISTORY, depth_gradient_length, luminance
 
+#: largest half width of the change window [pixels]; ``window_row`` holds one row of it
+MAX_CHANGE_RADIUS = 3
+window_row = wp.types.vector(length=2 * MAX_CHANGE_RADIUS + 1, dtype=wp.float32)
 #: relative resolution of the float32 running means: deviations below it are rounding, never change
 FLOAT_RESOLUTION = wp.constant(1.0e-5)
 
@@ -64,7 +70,7 @@ def reproject_history(
     hist_depth: wp.array2d(dtype=wp.float32),
     hist_normal: wp.array2d(dtype=wp.vec3),
     hist_mean: wp.array2d(dtype=wp.vec3),
-    hist_moments: wp.array2d(dtype=wp.vec2),
+    hist_moments: wp.array2d(dtype=wp.vec3),
     hist_frames: wp.array2d(dtype=wp.float32),
     parity: wp.array(dtype=wp.int32),
     width: int,
@@ -74,6 +80,7 @@ def reproject_history(
     cur_depth: wp.array(dtype=wp.float32),
     cur_normal: wp.array(dtype=wp.vec3),
     prev_mean: wp.array(dtype=wp.vec3),
+    prev_pairs: wp.array(dtype=wp.float32),
     stats: wp.array(dtype=wp.vec4),
 ):
     """Fetch the history under each pixel through the motion vectors.
@@ -82,12 +89,12 @@ def reproject_history(
     0 = none), ``normal`` (vec3), ``motion`` (vec2 [pixels], previous position minus pixel centre),
     ``tri_id`` (int32, -1 = none), and row ``parity[0]`` of the history: ``hist_depth``/``hist_normal``
     (the G-buffer copy of the last frame; depth 0 = no surface), ``hist_mean`` (vec3 [W/m²]),
-    ``hist_moments`` (vec2 [W/m², (W/m²)²]), ``hist_frames`` (float32, effective frames n).
+    ``hist_moments`` (vec3: m1 [W/m²], m2 and s² [(W/m²)²]), ``hist_frames`` (float32, effective frames n).
 
     Writes ``cur_depth``/``cur_normal`` (this frame's G-buffer copy, depth 0 where ``tri_id < 0``; also
     into row ``1 - parity[0]`` of ``hist_depth``/``hist_normal``), ``prev_mean`` (vec3 [W/m²], the
-    reprojected history mean) and ``stats`` = (luminance of E, m1, m2, n) of the reprojected history
-    (vec4; n = 0: no history, disoccluded or no surface).
+    reprojected history mean), ``prev_pairs`` (float32, its s²) and ``stats`` = (luminance of E, m1, m2, n)
+    of the reprojected history (vec4; n = 0: no history, disoccluded or no surface).
 
     A tap of the 2x2 bilinear footprint is consistent when it is on screen, has a surface, its depth is
     within ``depth_tolerance`` (relative) of this pixel's and its normal's cosine to this one's is at least
@@ -105,6 +112,7 @@ def reproject_history(
         hist_depth[cur, p] = 0.0
         hist_normal[cur, p] = wp.vec3(0.0)
         prev_mean[p] = wp.vec3(0.0)
+        prev_pairs[p] = 0.0
         stats[p] = wp.vec4(0.0)
         return
     n = normal[p]
@@ -124,7 +132,7 @@ def reproject_history(
     y0 = int(fy0)
     sum_w = float(0.0)
     mean = wp.vec3(0.0)
-    moments = wp.vec2(0.0)
+    moments = wp.vec3(0.0)
     frames = float(0.0)
     for tap in range(4):
         dx = tap % 2
@@ -146,9 +154,11 @@ def reproject_history(
     if sum_w >= MIN_BILINEAR_WEIGHT:
         inv = 1.0 / sum_w
         prev_mean[p] = mean * inv
+        prev_pairs[p] = moments[2] * inv
         stats[p] = wp.vec4(lum, moments[0] * inv, moments[1] * inv, frames * inv)
     else:
         prev_mean[p] = wp.vec3(0.0)
+        prev_pairs[p] = 0.0
         stats[p] = wp.vec4(lum, 0.0, 0.0, 0.0)
 
 
@@ -158,6 +168,7 @@ def accumulate(
     depth: wp.array(dtype=wp.float32),
     normal: wp.array(dtype=wp.vec3),
     prev_mean: wp.array(dtype=wp.vec3),
+    prev_pairs: wp.array(dtype=wp.float32),
     stats: wp.array(dtype=wp.vec4),
     parity: wp.array(dtype=wp.int32),
     width: int,
@@ -168,7 +179,7 @@ def accumulate(
     depth_tolerance: float,
     normal_tolerance: float,
     hist_mean: wp.array2d(dtype=wp.vec3),
-    hist_moments: wp.array2d(dtype=wp.vec2),
+    hist_moments: wp.array2d(dtype=wp.vec3),
     hist_frames: wp.array2d(dtype=wp.float32),
     mean_out: wp.array(dtype=wp.vec3),
     variance_out: wp.array(dtype=wp.float32),
@@ -197,7 +208,7 @@ def accumulate(
     z = depth[p]
     if z <= 0.0:
         hist_mean[cur, p] = wp.vec3(0.0)
-        hist_moments[cur, p] = wp.vec2(0.0)
+        hist_moments[cur, p] = wp.vec3(0.0)
         hist_frames[cur, p] = 0.0
         mean_out[p] = wp.vec3(0.0)
         variance_out[p] = 0.0
@@ -207,7 +218,7 @@ def accumulate(
     n = normal[p]
     count = float(0.0)  # same-surface pixels of the window
     sum_e = float(0.0)
-    sum_e2 = float(0.0)
+    photon = float(3.0e38)  # smallest non-zero irradiance of the window: one photon's [W/m²]
     with_history = float(0.0)  # ... of which have a history
     sum_d = float(0.0)  # Σ (E − M)
     sum_d2 = float(0.0)  # Σ (E − M)²
@@ -215,19 +226,35 @@ def accumulate(
     sum_var2 = float(0.0)  # Σ v²
     sum_m1 = float(0.0)  # Σ m1
     sum_inv_n = float(0.0)  # Σ 1/n
+    sum_dh = float(0.0)  # Σ (E_q − E_left)² over horizontal pairs of the window, and their count
+    pairs_h = float(0.0)
+    sum_dv = float(0.0)  # ... vertical pairs
+    pairs_v = float(0.0)
+    above = window_row(-1.0)  # E of the row above per window column (-1: not the same surface)
     for dy in range(-radius, radius + 1):
+        left = float(-1.0)
         for dx in range(-radius, radius + 1):
             qx = x + dx
             qy = y + dy
+            col = dx + radius
+            here = float(-1.0)
             if qx >= 0 and qx < width and qy >= 0 and qy < height:
                 q = qy * width + qx
                 z_q = depth[q]
                 if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(normal[q], n) >= normal_tolerance:
                     s = stats[q]
                     e = s[0]
+                    here = e
                     count += 1.0
                     sum_e += e
-                    sum_e2 += e * e
+                    if e > 0.0:
+                        photon = wp.min(photon, e)
+                    if left >= 0.0:
+                        sum_dh += (e - left) * (e - left)
+                        pairs_h += 1.0
+                    if above[col] >= 0.0:
+                        sum_dv += (e - above[col]) * (e - above[col])
+                        pairs_v += 1.0
                     n_q = s[3]
                     if n_q > 0.0:
                         d = e - s[1]
@@ -239,31 +266,48 @@ def accumulate(
                         sum_var2 += v * v
                         sum_m1 += s[1]
                         sum_inv_n += 1.0 / n_q
+            left = here
+            above[col] = here
     mean_e = sum_e / count
-    var_spatial = wp.max(sum_e2 / count - mean_e * mean_e, 0.0)
+    if photon > 1.0e38:
+        photon = 0.0
+    # per-frame variance from this frame alone: half the mean squared difference of neighbours along the
+    # direction where it is smaller (E[(E_a − E_b)²] = 2σ² + (μ_a − μ_b)²: a caustic line adds least along itself)
+    var_pairs = float(0.0)
+    if pairs_h > 0.0 and pairs_v > 0.0:
+        var_pairs = 0.5 * wp.min(sum_dh / pairs_h, sum_dv / pairs_v)
+    elif pairs_h > 0.0:
+        var_pairs = 0.5 * sum_dh / pairs_h
+    elif pairs_v > 0.0:
+        var_pairs = 0.5 * sum_dv / pairs_v
     s_p = stats[p]
     n_prev = s_p[3]
     c = irradiance[p]
     lum = s_p[0]
     bias2 = float(0.0)
-    if n_prev <= 0.0:  # disoccluded: the new frame alone, its variance from the window
+    # s²: running mean over frames of the neighbour-difference variance (each frame's free of the caustic's
+    # motion; the mean over frames free of its noise)
+    pairs = var_pairs
+    if n_prev <= 0.0:  # disoccluded: the new frame alone, its variance from its neighbour differences
         alpha = float(1.0)
         n_new = float(1.0)
-        sigma2_est = var_spatial
+        sigma2_est = var_pairs
     else:
+        pairs = wp.lerp(prev_pairs[p], var_pairs, 1.0 / (wp.min(n_prev, max_history - 1.0) + 1.0))
         d2 = sum_d2 / with_history
+        temporal = sum_var / with_history
+        if n_prev < float(SPATIAL_VARIANCE_HISTORY) or pairs < temporal:
+            sum_var = pairs * with_history
+            sum_var2 = pairs * pairs * with_history
         sigma2 = sum_var / with_history
         sigma2_est = sigma2
-        if n_prev < float(SPATIAL_VARIANCE_HISTORY):
-            sigma2 = wp.max(sigma2, var_spatial)
         resolution = FLOAT_RESOLUTION * sum_m1 / with_history  # float32 rounding of the running means
         sigma2 = wp.max(sigma2, resolution * resolution)
         if sigma2 * with_history > sum_var:  # a floor above the pooled variance: a homogeneous window of it
             sum_var = sigma2 * with_history
             sum_var2 = sigma2 * sigma2 * with_history
-        photon = float(0.0)  # irradiance of one photon in a pixel [W/m²]: Var = e μ for Poisson counts
-        if sum_m1 > 0.0:
-            photon = sum_var / sum_m1
+        if sum_m1 > 0.0:  # one photon's irradiance: at most what Poisson counts of the window's σ² and m1 give
+            photon = wp.min(photon, sum_var / sum_m1)
         history_noise = 1.0 + sum_inv_n / with_history
         spread = sigma2 * history_noise  # E[D²] without a change
         se_d2 = history_noise * wp.sqrt(2.0 * sum_var2 + photon * photon * sum_var) / with_history  # its std. error
@@ -277,7 +321,7 @@ def accumulate(
         alpha = (r + inv_n) / (r + inv_n + 1.0)
         n_new = 1.0 / ((1.0 - alpha) * (1.0 - alpha) * (r + inv_n) + alpha * alpha)
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):  # for the filter: the deviations, less the change found
-            sigma2_est = wp.max(sigma2_est, wp.max(d2 - bias2, 0.0) / history_noise)
+            sigma2_est = wp.max(temporal, wp.max(d2 - bias2, 0.0) / history_noise)
     mean = wp.lerp(prev_mean[p], c, alpha)
     m1 = wp.lerp(s_p[1], lum, alpha)
     # the pixel's own per-frame variance after the update: the spread of the blend of its history (variance
@@ -286,7 +330,7 @@ def accumulate(
     # first photon in a long-dark pixel leaves an uncertain estimate, though its window saw no noise).
     d_p = lum - s_p[1]
     own = (1.0 - alpha) * wp.max(s_p[2] - s_p[1] * s_p[1], 0.0) + alpha * (1.0 - alpha) * wp.max(d_p * d_p - bias2, 0.0)
-    moments = wp.vec2(m1, m1 * m1 + own)
+    moments = wp.vec3(m1, m1 * m1 + own, pairs)
     sigma2_est = wp.max(sigma2_est, own * n_new / wp.max(n_new - 1.0, 1.0))
     hist_mean[cur, p] = mean
     hist_moments[cur, p] = moments

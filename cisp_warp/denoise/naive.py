@@ -161,7 +161,7 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
     docstring) for one frame, in float64. ``irradiance`` (H, W, 3) [W/m²]; ``depth`` (H, W) [m] (0 = none);
     ``normal`` (H, W, 3); ``motion`` (H, W, 2) [pixels]; ``history``: the previous call's result (None: none).
     ``settings``: a :class:`cisp_warp.denoise.CausticSettings`. Returns dict(depth, normal, mean (H, W, 3),
-    moments (H, W, 2), frames, variance (variance of the accumulated luminance), slope) for the next call."""
+    moments (H, W, 3): m1, m2, s², frames, variance (variance of the accumulated luminance), slope) for the next call."""
     s = settings
     depth = depth.astype(np.float64)
     normal = normal.astype(np.float64)
@@ -169,15 +169,15 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
     h, w = depth.shape
     lum = irradiance @ REC709
     if history is None:
-        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 2)), "frames": np.zeros((h, w))}, \
+        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 3)), "frames": np.zeros((h, w))}, \
             np.zeros((h, w), bool)
     else:
         prev, valid = reproject_naive(depth, normal, motion.astype(np.float64), history, ("mean", "moments", "frames"),
                                       s.depth_tolerance, s.normal_tolerance)
     n_prev = np.where(valid, prev["frames"], 0.0)
-    m1, m2 = prev["moments"][..., 0], prev["moments"][..., 1]
+    m1, m2, s2 = prev["moments"][..., 0], prev["moments"][..., 1], prev["moments"][..., 2]
     res = {"depth": np.where(depth > 0, depth, 0.0), "normal": np.where(depth[..., None] > 0, normal, 0.0),
-           "mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 2)), "frames": np.zeros((h, w)),
+           "mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 3)), "frames": np.zeros((h, w)),
            "variance": np.zeros((h, w)), "slope": depth_slope_naive(depth)}
     r = s.change_radius
     k = s.change_sigmas
@@ -190,26 +190,35 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                   if 0 <= yy < h and 0 <= xx < w and depth[yy, xx] > 0 and abs(depth[yy, xx] - z) <= s.depth_tolerance * z
                   and float(normal[yy, xx] @ normal[y, x]) >= s.normal_tolerance]
             e = np.array([lum[q] for q in qs])
-            var_spatial = max(np.mean(e ** 2) - np.mean(e) ** 2, 0.0)
+            qset = set(qs)
+            # half the mean squared neighbour difference, along rows or columns, whichever is smaller
+            dh = [(lum[q] - lum[q[0], q[1] - 1]) ** 2 for q in qs if (q[0], q[1] - 1) in qset]
+            dv = [(lum[q] - lum[q[0] - 1, q[1]]) ** 2 for q in qs if (q[0] - 1, q[1]) in qset]
+            var_pairs = 0.5 * min([np.mean(dd) for dd in (dh, dv) if dd], default=0.0)
+            photon = min([v for v in e if v > 0], default=0.0)
             n = n_prev[y, x]
             bias2 = 0.0
+            pairs = var_pairs  # running mean over frames of the neighbour-difference variance
             if n <= 0:
-                alpha, n_new, sigma2_est = 1.0, 1.0, var_spatial
+                alpha, n_new, sigma2_est = 1.0, 1.0, var_pairs
             else:
+                pairs = s2[y, x] + (var_pairs - s2[y, x]) / (min(n, s.max_history - 1) + 1)
                 hq = [q for q in qs if n_prev[q] > 0]
                 d = np.array([lum[q] - m1[q] for q in hq])
                 nq = np.array([n_prev[q] for q in hq])
                 var_t = np.array([max(m2[q] - m1[q] ** 2, 0.0) for q in hq]) * nq / np.maximum(nq - 1, 1)
                 d2 = np.mean(d ** 2)
+                temporal = np.mean(var_t)
+                if n < SPATIAL_VARIANCE_HISTORY or pairs < temporal:
+                    var_t = np.full(len(hq), pairs)
                 sigma2 = np.mean(var_t)
                 sigma2_est = sigma2
-                if n < SPATIAL_VARIANCE_HISTORY:
-                    sigma2 = max(sigma2, var_spatial)
                 sigma2 = max(sigma2, (FLOAT_RESOLUTION * np.mean([m1[q] for q in hq])) ** 2)
                 if sigma2 > np.mean(var_t):  # floored: a homogeneous window of sigma2
                     var_t = np.full(len(hq), sigma2)
                 m1_sum = sum(m1[q] for q in hq)
-                photon = var_t.sum() / m1_sum if m1_sum > 0 else 0.0
+                if m1_sum > 0:  # at most the window's Poisson quantum
+                    photon = min(photon, var_t.sum() / m1_sum)
                 history_noise = 1 + np.mean(1 / nq)
                 spread = sigma2 * history_noise
                 se_d2 = history_noise * np.sqrt(np.sum(2 * var_t ** 2 + photon ** 2 * var_t)) / len(hq)
@@ -219,13 +228,13 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 alpha = (ratio + inv_n) / (ratio + inv_n + 1)
                 n_new = 1.0 / ((1 - alpha) ** 2 * (ratio + inv_n) + alpha ** 2)
                 if n < SPATIAL_VARIANCE_HISTORY:
-                    sigma2_est = max(sigma2_est, max(d2 - bias2, 0.0) / history_noise)
+                    sigma2_est = max(temporal, max(d2 - bias2, 0.0) / history_noise)
             res["mean"][y, x] = (1 - alpha) * prev["mean"][y, x] + alpha * irradiance[y, x]
             new_m1 = (1 - alpha) * m1[y, x] + alpha * lum[y, x]
             # blend of the history (variance v) and the new sample, less the change found
             own = ((1 - alpha) * max(m2[y, x] - m1[y, x] ** 2, 0.0)
                    + alpha * (1 - alpha) * max((lum[y, x] - m1[y, x]) ** 2 - bias2, 0.0))
-            res["moments"][y, x] = (new_m1, new_m1 ** 2 + own)
+            res["moments"][y, x] = (new_m1, new_m1 ** 2 + own, pairs)
             sigma2_est = max(sigma2_est, own * n_new / max(n_new - 1, 1))
             res["frames"][y, x] = n_new
             res["variance"][y, x] = sigma2_est / n_new
