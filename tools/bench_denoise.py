@@ -163,6 +163,9 @@ def main(argv=None) -> int:
     p.add_argument("--warmup", type=int, default=16, help="frames before the steady-state median")
     p.add_argument("--check", action="store_true", help="also compare the device's output with the CPU's on a crop")
     p.add_argument("--smoke", action="store_true", help="a 96x64 synthetic G-buffer, 4 frames, on the CPU")
+    p.add_argument("--max-unroll", type=int, default=None,
+                   help="Warp's loop-unrolling limit for the denoise kernels (default Warp's, 16: the 5x5 taps unrolled)")
+    p.add_argument("--fast-math", action="store_true", help="compile the denoise kernels with fast math (approximate exp/log/div)")
     args = p.parse_args(argv)
     if args.pack:
         pack(*args.pack)
@@ -171,6 +174,13 @@ def main(argv=None) -> int:
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
+    from cisp_warp.denoise import kernels_atrous, kernels_caustic, kernels_svgf
+
+    for module in (kernels_atrous, kernels_caustic, kernels_svgf):
+        if args.max_unroll is not None:
+            wp.set_module_options({"max_unroll": args.max_unroll}, module=module)
+        if args.fast_math:
+            wp.set_module_options({"fast_math": True}, module=module)
     if args.smoke:
         args.device, args.frames, args.warmup = "cpu", 4, 2
     device = args.device or wp.get_device().alias
