@@ -31,6 +31,11 @@ import warp as wp
 
 from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, luminance
 
+# The 5x5 tap loops stay loops: unrolled (Warp's default, up to 16 iterations) the filter's 24 inlined taps
+# made it 3x slower on an H100 (1080p pool, 5 levels: atrous_filter 8.0 -> 2.5 ms, atrous_weight_sum
+# 2.7 -> 1.8 ms with max_unroll 1; tools/bench_denoise.py --max-unroll).
+wp.set_module_options({"max_unroll": 1})
+
 #: R of an ungated level [pixels]: larger than any step, so every gate is 1
 UNGATED_RADIUS = wp.constant(1.0e30)
 #: floor of 4π τ² μ² in R's denominator [(W/m²)²], so a pixel with no signal and no variance gets R = 0
