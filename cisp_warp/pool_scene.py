@@ -121,30 +121,35 @@ SKY_IRRADIANCE = 100.0  #: diffuse horizontal irradiance of a clear sky with the
 SKY_SIZE = (64, 128)  #: (height, width) of the sky image [texels]
 SKY_ZENITH = (0.30, 0.50, 1.00)  #: relative colour of the clear sky at the zenith (linear RGB)
 SKY_HORIZON = (0.85, 0.90, 1.00)  #: and at the horizon
-SKY_GROUND = (0.20, 0.19, 0.17)  #: below the horizon: distant ground
+GROUND_ALBEDO = (0.22, 0.24, 0.16)  #: below the horizon: distant land (dry grass and stone), lit by sun and sky
 
 
-def sky_texture(size=SKY_SIZE) -> np.ndarray:
-    """The clear-sky lat-long image (H, W, 3) float32, relative radiance (1 = the zenith's blue channel):
-    a smooth zenith-to-horizon gradient, whiter towards the horizon, and a dim ground below it. No sun
-    disc: the sun is its own DistantLight."""
+def sky_texture(opts: "PoolOptions", size=SKY_SIZE) -> tuple[np.ndarray, float]:
+    """The clear-sky lat-long image (H, W, 3) float32 and its ``inputs:intensity``.
+
+    Above the horizon a smooth zenith-to-horizon gradient, whiter towards the horizon, scaled so that an
+    open level surface receives ``opts.sky_irradiance`` [W/m²] (Rec. 709 luminance) from it; below it the
+    distant land, a Lambertian ground of ``GROUND_ALBEDO`` lit by the sun and the sky:
+    L = ρ (E_sun sin(elevation) + E_sky) / π. No sun disc: the sun is its own DistantLight.
+    """
+    from .scene.model import Sky
+    from .sky import sh_basis, sky_sh_irradiance
+
     h, w = size
     lat = 0.5 * math.pi - math.pi * (np.arange(h) + 0.5) / h
     t = np.clip(np.sin(lat), 0.0, 1.0)[:, None]
     blend = (1.0 - t) ** 3
-    sky = np.asarray(SKY_ZENITH) * (1.0 - blend) + np.asarray(SKY_HORIZON) * blend
-    rows = np.where((lat > 0.0)[:, None], sky, np.asarray(SKY_GROUND))
-    return np.repeat(rows[:, None, :], w, axis=1).astype(np.float32)
-
-
-def sky_intensity(texture: np.ndarray, horizontal_irradiance: float) -> float:
-    """``inputs:intensity`` that makes ``texture`` deliver ``horizontal_irradiance`` [W/m²] (Rec. 709
-    luminance) to an unoccluded, up-facing surface."""
-    from .scene.model import Sky
-    from .sky import sh_basis, sky_sh_irradiance
-
-    e = sh_basis(np.array([0.0, 1.0, 0.0])) @ sky_sh_irradiance(Sky("sky", (1.0, 1.0, 1.0), texture))
-    return float(horizontal_irradiance / (e @ np.array([0.2126, 0.7152, 0.0722])))
+    rows = np.asarray(SKY_ZENITH) * (1.0 - blend) + np.asarray(SKY_HORIZON) * blend
+    rows[lat < 0.0] = 0.0
+    tex = np.repeat(rows[:, None, :], w, axis=1)
+    e = sh_basis(np.array([0.0, 1.0, 0.0])) @ sky_sh_irradiance(Sky("sky", (1.0, 1.0, 1.0), tex))
+    intensity = float(opts.sky_irradiance / max(e @ np.array([0.2126, 0.7152, 0.0722]), 1e-12)) if opts.sky_irradiance else 1.0
+    e_ground = opts.sun_irradiance * math.sin(math.radians(opts.sun_elevation)) + opts.sky_irradiance
+    ground = np.asarray(GROUND_ALBEDO) * e_ground / math.pi / intensity
+    tex[lat < 0.0] = ground
+    if not opts.sky_irradiance:
+        tex[lat >= 0.0] = 0.0
+    return tex.astype(np.float32), intensity
 
 
 @dataclass(frozen=True)
@@ -498,15 +503,15 @@ def build(out: Path, opts: PoolOptions = PoolOptions()) -> Usd.Stage:
     xf.SetTranslate(Gf.Vec3d(*SPOT_POSITION))
     xf.SetRotate(_aim_rotation(np.subtract(SPOT_TARGET, SPOT_POSITION)))
 
-    texture = sky_texture()
+    texture, intensity = sky_texture(opts)
     write_exr(str(Path(out).parent / SKY_IMAGE), texture)
     dome = UsdLux.DomeLight.Define(stage, "/World/Sky")
     dome.GetPrim().SetDocumentation(
-        f"The clear sky: the lat-long image {SKY_IMAGE} (zenith blue, whiter towards the horizon, dim ground) "
+        f"The clear sky: the lat-long image {SKY_IMAGE} (zenith blue, whiter towards the horizon, sunlit land below) "
         f"times inputs:intensity is the radiance [W/(m2 sr)] from each direction; scaled so that an unoccluded "
         f"level surface receives {opts.sky_irradiance:g} W/m2 from the sky (diffuse horizontal irradiance)."
         + (" Hidden: night." if opts.night else ""))
-    dome.CreateIntensityAttr(sky_intensity(texture, opts.sky_irradiance))
+    dome.CreateIntensityAttr(intensity)
     dome.CreateExposureAttr(0.0)
     dome.CreateColorAttr(Gf.Vec3f(1.0, 1.0, 1.0))
     dome.CreateTextureFileAttr(Sdf.AssetPath(f"./{SKY_IMAGE}"))

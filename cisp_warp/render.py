@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from contextlib import nullcontext
 import re
+import sys
+import types
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -287,3 +289,16 @@ def box_filter(image: np.ndarray, s: int) -> np.ndarray:
         return image
     h, w = image.shape[:2]
     return image.reshape(h // s, s, w // s, s, *image.shape[2:]).mean(axis=(1, 3)).astype(image.dtype)
+
+
+class _CallableModule(types.ModuleType):
+    """``cisp_warp.render`` is this module (``Renderer``, ``RenderSettings``) and, called, the one-call
+    :func:`cisp_warp.api.render`: importing the module must not hide the package's ``render()``."""
+
+    def __call__(self, *args, **kwargs):
+        from .api import render
+
+        return render(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule
