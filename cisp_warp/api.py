@@ -148,7 +148,7 @@ def render(stage_or_path, *, time=None, frames=None, method: str = "cisp", photo
     dev = pick_device(device)
     path, tmp = stage_path(stage_or_path)
     if not os.path.exists(path):
-        raise SceneError(f"no such USD file: '{path}'")
+        raise SceneError("not found: no such USD file", file=path)
     try:
         renderer, animation, first = _build(path, settings, dev, time if codes is None else codes[0], camera, simulate)
     except BaseException:

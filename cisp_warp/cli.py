@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
 
         scene_path = demo(args.demo) if args.demo else args.scene
         if not os.path.exists(scene_path):
-            raise SceneError(f"no such USD file: '{scene_path}'")
+            raise SceneError("not found: no such USD file", file=scene_path)
         check_out_dir(args.out)
         try:
             device = pick_device(args.device)
