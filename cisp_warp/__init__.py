@@ -33,7 +33,7 @@ _LAZY = {
     "SettingsError": ".render",
     "PhotonSettings": ".photons",
     "SVGFSettings": ".denoise",
-    "load_usd": ".usd_import",
+    "load_usd": ".usd",
     "Animation": ".animation",
 }
 

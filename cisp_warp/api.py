@@ -171,7 +171,7 @@ def _build(path, settings, device, first, camera, simulate):
 
     from .animation import Animation
     from .render import Renderer
-    from .usd_import import load_usd
+    from .usd import load_usd
 
     wp.config.log_level = wp.LOG_WARNING
     scene = load_usd(path, time_code=first, width=settings.width, height=settings.height, camera_path=camera,

@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     from .image_io import check_out_dir
     from .photons import PhotonSettings
     from .render import Renderer, RenderSettings, SettingsError
-    from .usd_import import load_usd
+    from .usd import load_usd
 
     def say(msg):
         if not args.quiet:

@@ -100,7 +100,7 @@ def test_ctrl_c_in_a_sequence_keeps_frames_and_closes_the_video(tmp_path):
     from cisp_warp.animation import Animation
     from cisp_warp.render import Renderer, RenderSettings
     from cisp_warp.sequence import render_sequence
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     path = cisp_warp.demo("pool")
     r = Renderer(load_usd(path, width=32, height=18), RenderSettings(rsm_size=64, photons=2_000), device="cpu")
