@@ -33,14 +33,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", default=None, help="prim path of the camera (default: the first camera found)")
     p.add_argument("--rsm-size", type=int, default=1024, help="edge of each reflective shadow map view [texels]")
     p.add_argument("--method", default="cisp", choices=["cisp", "sspm", "caustics_map", "reference", "none"],
-                   help="caustics method: cisp (Cascaded Image-Space Photon Tracing, seed 000), sspm (world-space "
-                   "Screen-Space Photon Mapping, seed 003), caustics_map (light-space Caustics Mapping, seed 004), "
+                   help="caustics method: cisp (Cascaded Image-Space Photon Tracing, Meenrattanakorn & Lambers), sspm "
+                   "(world-space Screen-Space Photon Mapping, Kim 2019), caustics_map (light-space Caustics Mapping, "
+                   "Wyman & Davis 2006), "
                    "reference (converged world-space photon tracing, no denoising: the ground truth), "
                    "or none (direct light only)")
     p.add_argument("--photons", type=parse_count, default=parse_count("1M"),
                    help="photons per light per frame; accepts 500k, 1M, 2M, or a plain integer")
     p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"],
-                   help="photon-map denoiser: SVGF, the 7x7 Gaussian gather of seed 004, or none")
+                   help="photon-map denoiser: SVGF, the 7x7 Gaussian gather of Caustics Mapping, or none")
     p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
     p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
                    help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")
@@ -50,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-bounces", type=int, default=8, help="sspm, reference: specular bounces before a photon is dropped")
     p.add_argument("--cmap-gather", default="light", choices=["light", "eye"],
                    help="caustics_map: Gaussian gather in the light-space caustic map, or leave it to the eye-space denoiser")
-    p.add_argument("--cmap-history", type=int, default=4, help="caustics_map: frames averaged by seed 004's temporal filter")
+    p.add_argument("--cmap-history", type=int, default=4, help="caustics_map: frames averaged by Caustics Mapping's temporal filter")
     p.add_argument("--reference-photons", type=parse_count, default=None,
                    help="reference: photons per light to accumulate, in passes of --photons (default: 100M on CUDA, 4M on CPU)")
     p.add_argument("--frames", default=None, metavar="A:B",
