@@ -151,6 +151,9 @@ def render_sequence(renderer, animation: Animation, codes, out_dir: str, exposur
                 on_frame(code)
     except KeyboardInterrupt:
         stats.interrupted = True
+        for name in os.listdir(out_dir):  # a file interrupted while being written is never left behind
+            if name.startswith(".") and name.endswith(".partial"):
+                os.remove(os.path.join(out_dir, name))
     finally:
         if writer is not None:
             writer.close()

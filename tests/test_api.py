@@ -71,6 +71,9 @@ def test_cli_writes_three_files_with_compositor_channels(tmp_path):
     out = tmp_path / "o"
     assert main(["--demo", "pool", "--time", "24", "--out", str(out), "--quiet", *TINY]) == 0
     assert sorted(os.listdir(out)) == ["aovs.exr", "final.exr", "final.png"]
+    final = read_layers(str(out / "final.exr"))
+    beauty = np.stack([final[c].astype(np.float32) for c in "RGB"], axis=-1)
+    assert beauty.sum(-1).min() > 0.0  # nothing black: sky behind the deck, sky-lit walls in shade
     ch = read_layers(str(out / "aovs.exr"))
     for name in ("R", "G", "B", "caustics.R", "caustics.G", "caustics.B", "direct.R", "direct.G", "direct.B",
                  "sky.R", "Z", "N.X", "N.Y", "N.Z", "id"):

@@ -144,3 +144,41 @@ def test_supersampling_filters_radiometric_aovs_and_keeps_geometry(device):
     between = lambda f: (f[..., 0] > 0.51) & (f[..., 0] < 0.99)  # noqa: E731
     assert not between(a1["final"]).any()
     assert between(a2["final"]).sum() >= 8
+
+
+def test_dome_light_is_read_from_usd_with_its_texture(tmp_path):
+    from PIL import Image
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+
+    from cisp_warp.usd import load_usd
+
+    img = np.zeros((4, 8, 3), np.uint8)
+    img[:2] = 255  # upper half white (sRGB 1 = linear 1), lower half black
+    img[2:, :, 0] = 188  # sRGB 188 = linear 0.5029
+    Image.fromarray(img).save(tmp_path / "sky.png")
+    stage = Usd.Stage.CreateNew(str(tmp_path / "s.usda"))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Floor")
+    mesh.CreatePointsAttr([(-1, 0, -1), (1, 0, -1), (1, 0, 1), (-1, 0, 1)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
+    UsdGeom.Camera.Define(stage, "/World/Cam").AddTranslateOp().Set(Gf.Vec3d(0, 1, 4))
+    dome = UsdLux.DomeLight.Define(stage, "/World/Sky")
+    dome.CreateColorAttr(Gf.Vec3f(0.5, 1.0, 1.0))
+    dome.CreateIntensityAttr(3.0)
+    dome.CreateExposureAttr(1.0)
+    dome.CreateTextureFileAttr(Sdf.AssetPath("./sky.png"))
+    stage.Save()
+    scene = load_usd(tmp_path / "s.usda")  # a dome light alone is light enough
+    assert scene.lights == [] and scene.sky is not None
+    np.testing.assert_allclose(scene.sky.radiance, (3.0, 6.0, 6.0))
+    assert scene.sky.texture.shape == (4, 8, 3)
+    np.testing.assert_allclose(scene.sky.texture[0, 0], 1.0, rtol=1e-6)
+    np.testing.assert_allclose(scene.sky.texture[3, 0], (0.5029, 0.0, 0.0), atol=2e-3)
+
+    dome.CreateTextureFileAttr(Sdf.AssetPath("./missing.exr"))
+    stage.Save()
+    from cisp_warp import SceneError
+
+    with pytest.raises(SceneError, match=r"prim '/World/Sky'.*inputs:texture:file.*does not exist"):
+        load_usd(tmp_path / "s.usda")
