@@ -504,6 +504,7 @@ def build(out: Path, opts: PoolOptions = PoolOptions()) -> Usd.Stage:
     xf.SetRotate(_aim_rotation(np.subtract(SPOT_TARGET, SPOT_POSITION)))
 
     texture, intensity = sky_texture(opts)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
     write_exr(str(Path(out).parent / SKY_IMAGE), texture)
     dome = UsdLux.DomeLight.Define(stage, "/World/Sky")
     dome.GetPrim().SetDocumentation(
@@ -605,7 +606,12 @@ def parse_args(argv=None, default_out: Path = DEFAULT_OUT, prog: str = "cisp-mak
 def main(argv=None, default_out: Path = DEFAULT_OUT, prog: str = "cisp-make-pool") -> int:
     """``cisp-make-pool``: write the pool stage (and its sky image), check it, print a summary."""
     out, opts = parse_args(argv, default_out, prog)
-    stage = build(out, opts)
+    try:
+        stage = build(out, opts)
+    except (OSError, RuntimeError) as exc:  # a folder that cannot be made, a file that cannot be written
+        reason = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[-1]
+        print(f"{prog}: error: cannot write '{out}' or its sky image: {reason}", file=sys.stderr)
+        return 2
     errors = validation_errors(stage)
     checker = compliance_checker_errors(out)
     for e in errors + (checker or []):

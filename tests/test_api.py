@@ -120,3 +120,14 @@ def test_ctrl_c_in_a_sequence_keeps_frames_and_closes_the_video(tmp_path):
     assert not [f for f in files if f.endswith(".partial")]
     if stats.video:
         assert os.path.getsize(stats.video) > 0
+
+
+def test_make_pool_writes_stage_and_sky_into_a_new_folder(tmp_path, capsys):
+    from cisp_warp.pool_scene import main as make_pool
+
+    assert make_pool(["--out", str(tmp_path / "new" / "sub" / "p.usda"), "--water-spacing", "0.5"]) == 0
+    assert sorted(os.listdir(tmp_path / "new" / "sub")) == ["p.usda", "pool_sky.exr"]
+    (tmp_path / "file").write_text("x")
+    assert make_pool(["--out", str(tmp_path / "file" / "p.usda")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot write" in err and "Traceback" not in err
