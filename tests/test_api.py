@@ -131,3 +131,16 @@ def test_make_pool_writes_stage_and_sky_into_a_new_folder(tmp_path, capsys):
     assert make_pool(["--out", str(tmp_path / "file" / "p.usda")]) == 2
     err = capsys.readouterr().err
     assert "cannot write" in err and "Traceback" not in err
+
+
+def test_ctrl_c_in_a_single_frame_is_one_line(tmp_path, capsys, monkeypatch):
+    from cisp_warp.render import Renderer
+
+    def interrupted(self, timer=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Renderer, "render_frame", interrupted)
+    assert main(["--demo", "pool", "--out", str(tmp_path / "o"), *TINY]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "Traceback" not in err
+    assert os.listdir(tmp_path / "o") == []  # nothing half-written
