@@ -3,6 +3,8 @@
 >>> r = Renderer(load_usd("scenes_usd/cornell_flooded.usda"), RenderSettings(), device="cpu")
 >>> r.render_frame()
 >>> aovs = r.aovs()          # dict of numpy arrays, host copies
+
+``cisp_warp.render`` is this module and, called, :func:`cisp_warp.api.render` (the one-call API).
 """
 
 from __future__ import annotations
