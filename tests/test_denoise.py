@@ -496,3 +496,17 @@ def test_caustic_settings_validation():
                 dict(sigma_luminance=0.0), dict(normal_tolerance=1.5)):
         with pytest.raises(ValueError):
             CausticSettings(**bad)
+
+
+def test_bench_denoise_smoke():
+    """tools/bench_denoise.py runs end to end on its synthetic G-buffer and names every denoiser."""
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    res = subprocess.run([sys.executable, os.path.join(root, "tools", "bench_denoise.py"), "--smoke"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    for name in ("caustic", "svgf", "gather"):
+        assert f"  {name} " in res.stdout
