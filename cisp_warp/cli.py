@@ -60,6 +60,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exposure", type=float, default=None, help="tone-mapping exposure in stops (default: automatic)")
     p.add_argument("--no-rsm-aovs", action="store_true", help="do not write the rsm_<light>_* AOVs")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    d = p.add_argument_group("distributed rendering (with --frames; needs pip install -e '.[distributed]')")
+    d.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="spread the frames over N Dask workers of a local cluster: one per GPU, else CPU processes")
+    d.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the workers of a running Dask cluster (e.g. tcp://head:8786); paths must be shared")
+    d.add_argument("--resume", action="store_true", help="keep the frames already in --out, render the missing ones")
+    d.add_argument("--warmup", type=int, default=None, metavar="N",
+                   help="frames each chunk renders unwritten before its first frame (default: from the denoiser)")
     return p
 
 
@@ -115,6 +123,10 @@ def main(argv: list[str] | None = None) -> int:
                                   method=args.method, photons=photons, denoiser=args.denoiser)
         settings.validate()
         frames = parse_frames(args.frames) if args.frames else None
+        if args.workers is not None or args.scheduler or args.resume:
+            from .distributed import main_distributed
+
+            return main_distributed(args, settings, frames, say)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)
             first = frames.start if frames else args.time
