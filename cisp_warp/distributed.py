@@ -116,20 +116,24 @@ def plan_chunks(todo, shot_start: int, workers: int, warmup: int) -> list[Chunk]
     def warm(start: int) -> int:
         return min(warmup, start - shot_start)
 
-    def cut(limit: int) -> list[Chunk]:
+    def cut(limit: int) -> list[Chunk] | None:
+        """Greedy chunks of cost <= limit, or None where a chunk's warm-up alone reaches the limit."""
         out = []
         for a, b in spans:
             while a < b:
-                n = max(1, limit - warm(a))
+                n = limit - warm(a)
+                if n < 1:
+                    return None
                 out.append(Chunk(a, min(b, a + n)))
                 a += n
         return out
 
     pieces = max(workers, len(spans))
-    lo, hi = 1, sum(b - a + warm(a) for a, b in spans)
+    lo, hi = 1, max(b - a + warm(a) for a, b in spans)
     while lo < hi:  # smallest largest-cost with no more than `pieces` chunks
         mid = (lo + hi) // 2
-        if len(cut(mid)) <= pieces:
+        chunks = cut(mid)
+        if chunks is not None and len(chunks) <= pieces:
             hi = mid
         else:
             lo = mid + 1
@@ -148,7 +152,8 @@ class ShotJob:
     GPU (one per worker, pinned by ``CUDA_VISIBLE_DEVICES``), else ``cpu``. ``exposure``: linear scale.
     ``overwrite_before_ns``: files older than this (``st_mtime_ns``) are stale and rewritten; None (resume):
     every frame on disk is kept. ``fault``: test hook ``(code, marker_path)``: the first worker to reach
-    ``code`` while ``marker_path`` does not exist creates it and kills its own process (SIGKILL).
+    ``code`` while ``marker_path`` does not exist waits for its written frames, creates the marker and kills its
+    own process (SIGKILL).
     """
 
     scene: str
@@ -333,6 +338,7 @@ def render_chunk(job: ShotJob, chunk: Chunk) -> dict:
     try:
         for code in range(begin, last + 1):
             if job.fault is not None and code == job.fault[0] and not os.path.exists(job.fault[1]):
+                writer.close()  # the frames before `code` are on disk, as after any worker's death mid-chunk
                 with open(job.fault[1], "w") as f:
                     f.write(str(os.getpid()))
                 os.kill(os.getpid(), signal.SIGKILL)  # a worker dying mid-chunk (tests)

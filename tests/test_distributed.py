@@ -1,0 +1,203 @@
+"""Distributed shots (cisp_warp.distributed): chunks on Dask workers equal one process, faults, resume.
+
+Tiny pool (32x18, RSM 32², 1000 photons per light) on the CPU, where a seed and a frame index reproduce a
+frame bit for bit. The Dask tests share one local cluster of 2 single-threaded worker processes and skip when
+Dask.distributed is not installed (``pip install -e .[distributed]``).
+"""
+
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cisp_warp.distributed import Chunk, ShotJob, frame_name, plan_chunks, render_chunk, render_shot, warmup_frames
+from cisp_warp.animation import Animation
+from cisp_warp.denoise import SVGFSettings
+from cisp_warp.errors import SceneError
+from cisp_warp.photons import PhotonSettings
+from cisp_warp.render import Renderer, RenderSettings
+from cisp_warp.sequence import render_sequence
+from cisp_warp.usd_import import load_usd
+
+ROOT = Path(__file__).resolve().parents[1]
+POOL = str(ROOT / "scenes_usd" / "pool.usda")
+TINY = RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=3))
+GATHER = RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=3),
+                        denoiser="gather")
+EXPOSURE = 40.0  # a fixed tone-mapping scale for the in-process comparisons
+
+# Seam tolerance after a chunk's default warm-up (svgf.max_history = 32 frames), see warmup_frames(): the HDR
+# `final` within 4e-3 of the frame's peak radiance (2e-3 measured on this pool), i.e. at most one step of the
+# 8-bit PNG. Without a warm-up the first frame of a chunk is off by ~10% of the peak (the test checks that too,
+# so the tolerance is one a wrong warm-up breaks).
+SEAM_HDR = 4e-3
+SEAM_PNG = 1
+
+
+def png(folder, code):
+    return np.asarray(Image.open(os.path.join(folder, frame_name(code))), dtype=np.int16)
+
+
+def single_process(out, codes, settings=TINY, exposure=EXPOSURE, aovs=False):
+    renderer = Renderer(load_usd(POOL, time_code=codes.start, device="cpu"), settings, device="cpu")
+    render_sequence(renderer, Animation(renderer, POOL), codes, str(out), exposure, aovs=aovs, video=False)
+
+
+def job_for(out, codes, settings=TINY, warmup=None, **kw):
+    return ShotJob(scene=POOL, out=str(out), settings=settings, shot_start=codes.start, shot_stop=codes.stop,
+                   warmup=warmup_frames(settings) if warmup is None else warmup, device="cpu", exposure=EXPOSURE, **kw)
+
+
+# ---------------------------------------------------------------------------------------------- plan
+
+
+def test_warmup_follows_the_temporal_filters():
+    assert warmup_frames(TINY) == 32  # SVGF's history cap
+    assert warmup_frames(RenderSettings(svgf=SVGFSettings(max_history=8))) == 8
+    assert warmup_frames(RenderSettings(denoiser="gather")) == 0
+    assert warmup_frames(RenderSettings(method="reference")) == 0
+    light = PhotonSettings(cmap_history=5, cmap_gather="light")
+    assert warmup_frames(RenderSettings(method="caustics_map", photons=light)) == 4  # filtered in light space only
+    eye = PhotonSettings(cmap_history=5, cmap_gather="eye")
+    assert warmup_frames(RenderSettings(method="caustics_map", photons=eye)) == 32
+
+
+@pytest.mark.parametrize("todo, workers, warmup", [(range(0, 240), 2, 32), (range(10, 1210), 7, 32),
+                                                   (range(0, 5), 4, 32), (range(0, 100), 3, 0)])
+def test_plan_covers_every_frame_once_and_balances_warmup(todo, workers, warmup):
+    chunks = plan_chunks(todo, todo.start, workers, warmup)
+    codes = [c for ch in chunks for c in range(ch.start, ch.stop)]
+    assert codes == list(todo)  # contiguous, in order, every frame once
+    assert len(chunks) <= workers
+    cost = [len(ch) + min(warmup, ch.start - todo.start) for ch in chunks]
+    assert max(cost) - min(cost) <= max(2, len(todo) // 100), cost  # balanced, warm-up counted
+    if len(chunks) > 1 and warmup and len(todo) > 100:
+        assert len(chunks[0]) > len(chunks[1])  # the first chunk has no warm-up to pay
+
+
+def test_plan_for_a_resume_renders_through_short_gaps_only():
+    todo = [3, 4, 50, 51, 52, 200]
+    chunks = plan_chunks(todo, 0, 2, 8)
+    covered = {c for ch in chunks for c in range(ch.start, ch.stop)}
+    assert set(todo) <= covered and len(covered) < 20  # long gaps are not rendered
+    assert plan_chunks([5, 6, 9], 0, 1, 8) == [Chunk(5, 10)]  # a gap of 2 < warm-up: rendered through
+
+
+# ---------------------------------------------------------------------------------------------- seams, in process
+
+
+def test_chunk_after_warmup_matches_single_process_within_the_seam_tolerance(tmp_path):
+    codes = range(0, 44)
+    single_process(tmp_path / "one", codes, aovs=True)
+    errors = {}
+    for warmup in (0, 32):  # chunk 36..43 starts 36 frames into the shot: a real (partial-history) warm-up
+        out = tmp_path / f"w{warmup}"
+        out.mkdir()
+        report = render_chunk(job_for(out, codes, warmup=warmup, frame_aovs=True), Chunk(36, 44))
+        assert report["written"] == list(range(36, 44)) and report["warmup"] == warmup
+        hdr = max(np.abs(np.load(out / f"final.{c:04d}.npy") - np.load(tmp_path / "one" / f"final.{c:04d}.npy")).max()
+                  / np.load(tmp_path / "one" / f"final.{c:04d}.npy").max() for c in range(36, 44))
+        ldr = max(np.abs(png(out, c) - png(tmp_path / "one", c)).max() for c in range(36, 44))
+        errors[warmup] = (hdr, ldr)
+    print("seam errors", errors)
+    assert errors[32][0] <= SEAM_HDR and errors[32][1] <= SEAM_PNG, errors
+    assert errors[0][0] > 10 * SEAM_HDR, errors  # without warm-up the seam shows: the tolerance means something
+
+
+def test_caustics_map_history_is_rebuilt_exactly(tmp_path):
+    settings = RenderSettings(width=32, height=18, rsm_size=32, method="caustics_map",
+                              photons=PhotonSettings(photons=1000, seed=3, cmap_history=4))
+    codes = range(0, 12)
+    single_process(tmp_path / "one", codes, settings)
+    report = render_chunk(job_for(tmp_path, codes, settings), Chunk(8, 12))
+    assert report["warmup"] == 3
+    for c in range(8, 12):
+        assert np.array_equal(png(tmp_path, c), png(tmp_path / "one", c)), c
+
+
+# ---------------------------------------------------------------------------------------------- on Dask workers
+
+distributed = pytest.importorskip("distributed", reason="Dask.distributed is not installed: pip install -e .[distributed]")
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                       silence_logs=40)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def shot(client, tmp_path_factory):
+    """One 10-frame shot on the 2 workers and the same shot in one process, denoised by the Gaussian gather:
+    no history, so no warm-up (the SVGF seam is measured above), 2 chunks, and frames that must be identical."""
+    root = tmp_path_factory.mktemp("shot")
+    codes = range(0, 10)
+    stats = render_shot(POOL, codes, str(root / "multi"), GATHER, device="cpu", client=client)
+    single_process(root / "one", codes, GATHER, exposure=None)  # automatic exposure of frame 0, like the shot's
+    return root, codes, stats
+
+
+def test_two_workers_equal_one_process_and_video_has_every_frame_once(shot):
+    root, codes, stats = shot
+    assert len(stats.chunks) == 2 and len({r["pid"] for r in stats.chunks}) == 2  # both workers rendered
+    assert sorted(c for r in stats.chunks for c in r["written"]) == list(codes)
+    assert stats.warmup == 0  # the gather keeps no history
+    for c in codes:
+        assert np.array_equal(png(root / "multi", c), png(root / "one", c)), c
+    import imageio_ffmpeg
+
+    video = [np.frombuffer(f, np.uint8).reshape(18, 32, 3).astype(np.int16)
+             for f in list(imageio_ffmpeg.read_frames(str(root / "multi" / "final.mp4")))[1:]]
+    assert len(video) == len(codes)
+    frames = [png(root / "multi", c) for c in codes]
+    for i, v in enumerate(video):  # every frame once, in time-code order: each decoded frame is nearest its own PNG
+        assert int(np.argmin([np.abs(v - f).mean() for f in frames])) == i
+
+
+def test_resume_renders_only_missing_frames(shot, client, tmp_path):
+    root, codes, _ = shot
+    out = tmp_path / "resume"
+    shutil.copytree(root / "multi", out)
+    for c in (3, 7):
+        os.remove(out / frame_name(c))
+    stats = render_shot(POOL, codes, str(out), GATHER, device="cpu", resume=True, video=False, client=client)
+    assert sorted(c for r in stats.chunks for c in r["written"]) == [3, 7]
+    for c in codes:
+        assert np.array_equal(png(out, c), png(root / "multi", c)), c  # same exposure (shot.json), same pixels
+    again = render_shot(POOL, codes, str(out), GATHER, device="cpu", resume=True, video=False, client=client)
+    assert again.frames == 0 and again.rendered == 0
+    other = RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=4),
+                           denoiser="gather")
+    with pytest.raises(SceneError, match="resume"):
+        render_shot(POOL, codes, str(out), other, device="cpu", resume=True, video=False, client=client)
+
+
+def test_killed_worker_chunk_is_redone_without_rewriting_frames(client, tmp_path):
+    codes = range(0, 12)
+    marker = tmp_path / "killed"
+    stats = render_shot(POOL, codes, str(tmp_path / "out"), TINY, device="cpu", warmup=2, video=False,
+                        client=client, fault=(9, str(marker)))
+    assert marker.exists()  # a worker process died (SIGKILL) at time code 9
+    chunk = next(r for r in stats.chunks if r["chunk"][0] <= 9 < r["chunk"][1])
+    # the re-run chunk wrote only what the dead worker had not: frames from 9 on, after a 2-frame warm-up
+    assert chunk["written"] == list(range(9, chunk["chunk"][1])) and chunk["warmup"] == 2
+    assert all(os.path.exists(tmp_path / "out" / frame_name(c)) for c in codes)
+    assert not [p for p in os.listdir(tmp_path / "out") if p.endswith(".tmp")]
+
+
+def test_workers_without_dask_say_so_in_one_sentence(monkeypatch, capsys, tmp_path):
+    from cisp_warp import cli
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
+    assert cli.main([POOL, "--frames", "0:4", "--workers", "2", "--out", str(tmp_path), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "pip install" in err and "distributed" in err
+    assert not os.listdir(tmp_path)
