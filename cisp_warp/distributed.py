@@ -353,7 +353,9 @@ def render_chunk(job: ShotJob, chunk: Chunk) -> dict:
             if code < first:
                 report["warmup"] += 1
             if code in wanted and not job.done(code):
-                final = np.array(renderer.final.numpy().reshape(shape), copy=True)  # the frame's one host copy
+                final = renderer.final.numpy().reshape(shape)  # the frame's one host copy (CUDA: a new array)
+                if renderer.device.is_cpu:
+                    final = final.copy()  # on the CPU numpy() is a view of the buffer the next frame overwrites
                 aovs = {}
                 if job.frame_aovs:
                     aovs[f"final.{code:04d}"] = final

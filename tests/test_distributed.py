@@ -168,7 +168,8 @@ def test_resume_renders_only_missing_frames(shot, client, tmp_path):
     shutil.copytree(root / "multi", out)
     for c in (3, 7):
         os.remove(out / frame_name(c))
-    stats = render_shot(POOL, codes, str(out), GATHER, device="cpu", resume=True, video=False, client=client)
+    address = client.scheduler.address  # as `--scheduler ADDRESS`: the workers of a running cluster
+    stats = render_shot(POOL, codes, str(out), GATHER, device="cpu", resume=True, video=False, scheduler=address)
     assert sorted(c for r in stats.chunks for c in r["written"]) == [3, 7]
     for c in codes:
         assert np.array_equal(png(out, c), png(root / "multi", c)), c  # same exposure (shot.json), same pixels
@@ -201,3 +202,15 @@ def test_workers_without_dask_say_so_in_one_sentence(monkeypatch, capsys, tmp_pa
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "pip install" in err and "distributed" in err
     assert not os.listdir(tmp_path)
+
+
+def test_bench_smoke():
+    import subprocess
+
+    run = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_distributed.py"), "--smoke"], capture_output=True,
+                         text=True, timeout=120, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = [line.split("|") for line in run.stdout.splitlines() if "|" in line and line.split("|")[0].strip() in "12"]
+    assert [r[0].strip() for r in rows] == ["1", "2"]
+    assert int(rows[1][9]) > 0  # the second worker's chunk warmed up (not from the shot's start)
+    assert int(rows[1][-2]) <= SEAM_PNG  # its frames within the seam tolerance of the 1-worker (single-chunk) run
