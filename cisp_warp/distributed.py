@@ -490,8 +490,8 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
                 writer_threads: int | None = None, progress=None, fault=None, client=None) -> ShotStats:
     """Render time codes ``codes`` of ``scene`` into ``out`` on Dask workers (see the module docstring).
 
-    ``workers``: size of a :func:`local_cluster` (ignored with ``scheduler``, the address of a running one,
-    or ``client``, an open ``distributed.Client``); ``exposure``: linear scale, None = the shot's automatic
+    ``workers``: size of a :func:`local_cluster`, or with ``scheduler`` (the address of a running cluster) or
+    ``client`` (an open ``distributed.Client``) how many of its workers to use (None: all); ``exposure``: linear scale, None = the shot's automatic
     exposure (an earlier run's from ``out/shot.json`` when resuming); ``warmup``: frames before each chunk,
     None = :func:`warmup_frames`; ``resume``: keep every frame on disk, render the missing ones; otherwise
     frames on disk from earlier runs are rewritten; ``video``: assemble ``final.mp4``; ``writer_threads``:
@@ -559,20 +559,24 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
         client.wait_for_workers(1 if scheduler else int(workers or 1), timeout=120)
     try:
         addresses = sorted(client.scheduler_info()["workers"])
+        if workers is not None and own is None:  # --workers N of a running cluster: its first N workers
+            if len(addresses) < workers:
+                raise SceneError(f"--workers {workers}: the cluster has {len(addresses)} workers")
+            addresses = addresses[:workers]
         if writer_threads is None:
             writer_threads = max(1, min(8, (os.cpu_count() or 2) // max(1, len(addresses))))
         job = replace(job, writer_threads=int(writer_threads))
         # every worker builds its renderer now, in parallel; the exposure then costs one frame on one of them
         ready = [client.submit(prepare, job, workers=[a], allow_other_workers=False, pure=False) for a in addresses]
         if job.exposure is None:
-            job = replace(job, exposure=client.submit(shot_exposure, job, pure=False).result())
+            job = replace(job, exposure=client.submit(shot_exposure, job, workers=addresses, pure=False).result())
         stats.workers = client.gather(ready)
         stats.exposure = job.exposure
         write_manifest(out, manifest_of(job))
         chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup)
         stats.setup_seconds = time.perf_counter() - t0
         t1 = time.perf_counter()
-        futures = [client.submit(render_chunk, job, c, pure=False, retries=0) for c in chunks]
+        futures = [client.submit(render_chunk, job, c, workers=addresses, pure=False, retries=0) for c in chunks]
         bar = progress(total=len(todo)) if (progress and todo) else None
         shown = 0
         pending = set(futures)

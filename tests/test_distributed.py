@@ -204,10 +204,11 @@ def test_workers_without_dask_say_so_in_one_sentence(monkeypatch, capsys, tmp_pa
     assert not os.listdir(tmp_path)
 
 
-def test_bench_smoke():
+def test_bench_smoke(client):
     import subprocess
 
-    run = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_distributed.py"), "--smoke"], capture_output=True,
+    run = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_distributed.py"), "--smoke",
+                          "--scheduler", client.scheduler.address], capture_output=True,
                          text=True, timeout=120, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert run.returncode == 0, run.stderr[-2000:]
     rows = [line.split("|") for line in run.stdout.splitlines() if "|" in line and line.split("|")[0].strip() in "12"]

@@ -4,8 +4,8 @@
     python3 tools/bench_distributed.py --workers 1,2,4 --frames 480 --no-video
     python3 tools/bench_distributed.py --smoke               # 30 tiny frames on 1 and 2 CPU workers, ~30 s
 
-Each worker count renders the same shot (``cisp_warp.distributed.render_shot``, a fresh local cluster each time)
-into its own folder. Reported per run: the set-up (cluster start, every worker's renderer, the exposure frame),
+Each worker count renders the same shot (``cisp_warp.distributed.render_shot``, a fresh local cluster each time,
+or the first N workers of ``--scheduler``'s cluster) into its own folder. Reported per run: the set-up (cluster start, every worker's renderer, the exposure frame),
 the frames phase (first chunk submitted -> last PNG on disk), frames/s over that phase, the speed-up and
 scaling efficiency against 1 worker (frames phase, and wall-clock with the set-up), the warm-up frames rendered,
 the host time spent tone-mapping and PNG-encoding in the workers' writer threads (summed; it overlaps the
@@ -47,6 +47,8 @@ def parse_args(argv=None):
     p.add_argument("--rsm-size", type=int, default=1024)
     p.add_argument("--method", default="cisp")
     p.add_argument("--device", default=None, help="cpu for CPU workers; default: one worker per GPU when Warp sees GPUs")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the first N workers of a running Dask cluster instead of a local cluster per run")
     p.add_argument("--warmup", type=int, default=None, help="warm-up frames per chunk (default: from the denoiser)")
     p.add_argument("--writer-threads", type=int, default=None,
                    help="tone-map/PNG threads per worker (default: the cores shared by the most workers, at most 8)")
@@ -95,11 +97,11 @@ def main(argv=None) -> int:
     codes = range(args.start, args.start + args.frames)
     threads = args.writer_threads or max(1, min(8, (os.cpu_count() or 2) // max(counts)))
     root = args.out or tempfile.mkdtemp(prefix="bench_distributed_")
-    common = dict(device=args.device, warmup=args.warmup, writer_threads=threads)
+    common = dict(device=args.device, warmup=args.warmup, writer_threads=threads, scheduler=args.scheduler)
     print(f"{args.scene}: {len(codes)} frames at {args.width}x{args.height}, {args.photons} photons per light, "
           f"method {args.method}, warm-up {warmup_frames(settings) if args.warmup is None else args.warmup} frames "
           f"per chunk, {threads} writer threads per worker, {os.cpu_count()} host cores", flush=True)
-    if not args.smoke:  # Warp's kernel cache filled: no timed run compiles
+    if not args.smoke and not args.scheduler:  # Warp's kernel cache filled: no timed run compiles
         render_shot(args.scene, range(args.start, args.start + 2), os.path.join(root, "prime"), settings, workers=1,
                     video=False, **common)
     rows = []
