@@ -212,7 +212,7 @@ def worker_renderer(job: ShotJob):
     from .animation import Animation
     from .errors import SceneWarning
     from .render import Renderer
-    from .usd_import import load_usd
+    from .usd import load_usd
 
     key = job.renderer_key
     if key not in _WORKER:
@@ -633,7 +633,7 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say) 
     from tqdm import tqdm
 
     from .errors import SceneWarning
-    from .usd_import import load_usd
+    from .usd import load_usd
 
     with warnings.catch_warnings(record=True) as caught:  # the stage's warnings, said once here, not per worker
         warnings.simplefilter("always", SceneWarning)
