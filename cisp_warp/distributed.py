@@ -416,18 +416,20 @@ def local_cluster(distributed, workers: int, gpus: int):
     if gpus:
         if workers > gpus:
             raise SceneError(f"--workers {workers} asks for more GPU workers than the {gpus} GPUs Warp sees "
-                             "(one worker per GPU); use --workers {gpus} or --device cpu".replace("{gpus}", str(gpus)))
+                             f"(one worker per GPU); use --workers {gpus} or --device cpu")
+        visible = os.environ.get("CUDA_VISIBLE_DEVICES")  # GPU i of Warp is this process's i-th visible GPU
+        ids = [v.strip() for v in visible.split(",")][:workers] if visible else [str(i) for i in range(workers)]
         try:
             from dask_cuda import LocalCUDACluster
 
-            return LocalCUDACluster(CUDA_VISIBLE_DEVICES=list(range(workers)), threads_per_worker=1,
-                                    dashboard_address=None)
+            return LocalCUDACluster(CUDA_VISIBLE_DEVICES=ids, threads_per_worker=1, dashboard_address=None)
         except ImportError:
             pass
         from distributed import Nanny, Scheduler, SpecCluster
 
-        spec = {f"gpu{i}": {"cls": Nanny, "options": {"nthreads": 1, "env": {"CUDA_VISIBLE_DEVICES": str(i)}}}
-                for i in range(workers)}
+        spec = {f"gpu{gpu}": {"cls": Nanny, "options": {"nthreads": 1, "silence_logs": 40,
+                                                      "env": {"CUDA_VISIBLE_DEVICES": gpu}}}
+                for gpu in ids}
         return SpecCluster(workers=spec, scheduler={"cls": Scheduler, "options": {"dashboard_address": None}},
                            silence_logs=40)
     return distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -605,6 +607,9 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
         if own is not None:
             own[0].close()
             own[1].close()
+    for name in os.listdir(out):  # writers' temporary files left by workers that died while writing
+        if name.startswith(".final.") and name.endswith(".tmp"):
+            os.remove(os.path.join(out, name))
     missing = [c for c in codes if not os.path.exists(job.path(c))]
     if missing:
         raise SceneError(f"{len(missing)} frames are missing after every chunk finished (first: {missing[0]})", file=out)
