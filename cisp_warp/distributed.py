@@ -33,10 +33,11 @@ import json
 import math
 import os
 import signal
+import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -533,80 +534,38 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
             raise SceneError(f"--resume: the frames there were tone mapped with exposure scale {earlier['exposure']:g}, "
                              f"not {exposure:g}; drop --exposure or --resume", file=os.path.join(out, MANIFEST))
     todo = [c for c in codes if not job.done(c)]
-    stats = ShotStats()
+    stats = ShotStats(exposure=job.exposure or 1.0)
     t0 = time.perf_counter()
-    own = None
-    if client is None:
-        if scheduler:
-            try:
-                client = distributed.Client(scheduler, timeout="20s")
-            except (OSError, TimeoutError) as exc:
-                raise SceneError(f"cannot reach the Dask scheduler at {scheduler!r} ({exc})") from None
-        else:
-            import warp as wp
-
-            wp.config.log_level = wp.LOG_WARNING
-            wp.init()
-            gpus = wp.get_cuda_device_count() if (device or "cuda").startswith("cuda") else 0
-            if device is not None and device.startswith("cuda") and not gpus:
-                raise SceneError(f"--device {device}: Warp sees no GPU here; use --device cpu")
-            n = int(workers or max(1, gpus))
-            if n < 1:
-                raise SceneError(f"--workers must be >= 1, got {n}")
-            if gpus:
-                job = replace(job, device="cuda:0")  # each worker sees its one GPU as cuda:0
-            cluster = local_cluster(distributed, n, gpus)
-            client = distributed.Client(cluster)
-            own = (client, cluster)
-        client.wait_for_workers(1 if scheduler else int(workers or 1), timeout=120)
-    try:
-        addresses = sorted(client.scheduler_info()["workers"])
-        if workers is not None and own is None:  # --workers N of a running cluster: its first N workers
-            if len(addresses) < workers:
-                raise SceneError(f"--workers {workers}: the cluster has {len(addresses)} workers")
-            addresses = addresses[:workers]
-        if writer_threads is None:
-            writer_threads = max(1, min(8, (os.cpu_count() or 2) // max(1, len(addresses))))
-        job = replace(job, writer_threads=int(writer_threads))
-        # every worker builds its renderer now, in parallel; the exposure then costs one frame on one of them
-        ready = [client.submit(prepare, job, workers=[a], allow_other_workers=False, pure=False) for a in addresses]
-        if job.exposure is None:
-            job = replace(job, exposure=client.submit(shot_exposure, job, workers=addresses, pure=False).result())
-        stats.workers = client.gather(ready)
-        stats.exposure = job.exposure
-        write_manifest(out, manifest_of(job))
-        chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup)
-        stats.setup_seconds = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        futures = [client.submit(render_chunk, job, c, workers=addresses, pure=False, retries=0) for c in chunks]
-        bar = progress(total=len(todo)) if (progress and todo) else None
-        shown = 0
-        pending = set(futures)
-        while pending:
-            try:
-                distributed.wait(list(pending), timeout=0.25, return_when="FIRST_COMPLETED")
-            except (TimeoutError, asyncio.TimeoutError):
-                pass
-            finished = {f for f in pending if f.done()}
-            pending -= finished
-            for f in finished:
-                if f.status == "error":
-                    for g in futures:
-                        g.cancel()
-                    f.result()  # raises the task's error here (a SceneError prints as one sentence)
-            if bar is not None:
-                now = sum(job.done(c) for c in todo)
-                bar.update(now - shown)
-                shown = now
-        if bar is not None:
-            bar.update(sum(job.done(c) for c in todo) - shown)
-            bar.close()
-        stats.chunks = client.gather(futures)
-        stats.render_seconds = time.perf_counter() - t1
-    finally:
-        if own is not None:
-            own[0].close()
-            own[1].close()
+    if todo or job.exposure is None:
+        own = None
+        if client is None:
+            client, own, job = connect(distributed, job, workers, scheduler)
+        try:
+            addresses = sorted(client.scheduler_info()["workers"])
+            if workers is not None and own is None:  # --workers N of a running cluster: its first N workers
+                if len(addresses) < workers:
+                    raise SceneError(f"--workers {workers}: the cluster has {len(addresses)} workers")
+                addresses = addresses[:workers]
+            if writer_threads is None:
+                writer_threads = max(1, min(8, (os.cpu_count() or 2) // max(1, len(addresses))))
+            job = replace(job, writer_threads=int(writer_threads))
+            # every worker builds its renderer now, in parallel; the exposure then costs one frame on one of them
+            ready = [client.submit(prepare, job, workers=[a], allow_other_workers=False, pure=False)
+                     for a in addresses]
+            if job.exposure is None:
+                job = replace(job, exposure=client.submit(shot_exposure, job, workers=addresses, pure=False).result())
+            stats.workers = client.gather(ready)
+            stats.exposure = job.exposure
+            write_manifest(out, manifest_of(job))
+            stats.setup_seconds = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup)
+            stats.chunks = run_chunks(distributed, client, job, chunks, addresses, todo, progress)
+            stats.render_seconds = time.perf_counter() - t1
+        finally:
+            if own is not None:
+                own[0].close()
+                own[1].close()
     for name in os.listdir(out):  # writers' temporary files left by workers that died while writing
         if name.startswith(".final.") and name.endswith(".tmp"):
             os.remove(os.path.join(out, name))
@@ -618,10 +577,74 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
     stats.warmup = sum(r["warmup"] for r in stats.chunks)
     stats.write_seconds = sum(r["write_seconds"] for r in stats.chunks)
     if video:
+        from .animation import StageClock
+
         t2 = time.perf_counter()
-        stats.video = assemble_video(out, codes, stats.workers[0]["fps"])
+        stats.video = assemble_video(out, codes, StageClock(scene, camera).time_codes_per_second)
         stats.video_seconds = time.perf_counter() - t2
     return stats
+
+
+def connect(distributed, job: ShotJob, workers: int | None, scheduler: str | None):
+    """``(client, (client, cluster) or None, job)``: a client of the cluster at ``scheduler``, or of a new
+    :func:`local_cluster` (then ``job.device`` becomes each pinned GPU worker's ``cuda:0``)."""
+    if scheduler:
+        try:
+            client = distributed.Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise SceneError(f"cannot reach the Dask scheduler at {scheduler!r} ({exc})") from None
+        client.wait_for_workers(int(workers or 1), timeout=120)
+        return client, None, job
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
+    device = job.device
+    gpus = wp.get_cuda_device_count() if (device or "cuda").startswith("cuda") else 0
+    if device is not None and device.startswith("cuda") and not gpus:
+        raise SceneError(f"--device {device}: Warp sees no GPU here; use --device cpu")
+    n = int(workers or max(1, gpus))
+    if n < 1:
+        raise SceneError(f"--workers must be >= 1, got {n}")
+    if gpus:
+        job = replace(job, device="cuda:0")  # each worker sees its one GPU as cuda:0
+    cluster = local_cluster(distributed, n, gpus)
+    client = distributed.Client(cluster)
+    client.wait_for_workers(n, timeout=120)
+    return client, (client, cluster), job
+
+
+def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progress) -> list[dict]:
+    """Submit one :func:`render_chunk` task per chunk and wait, the progress bar fed by the frames on disk;
+    the first task error is raised here (the other tasks cancelled). Returns the tasks' reports."""
+    futures = [client.submit(render_chunk, job, c, workers=addresses, pure=False, retries=0) for c in chunks]
+    bar = progress(total=len(todo)) if (progress and todo) else None
+    shown = 0
+    pending = set(futures)
+    reports = None
+    try:
+        while pending:
+            try:
+                distributed.wait(list(pending), timeout=0.25, return_when="FIRST_COMPLETED")
+            except (TimeoutError, asyncio.TimeoutError):
+                pass
+            finished = {f for f in pending if f.done()}
+            pending -= finished
+            for f in finished:
+                if f.status == "error":
+                    f.result()  # raises the task's error here (a SceneError prints as one sentence)
+            if bar is not None:
+                now = sum(job.done(c) for c in todo)
+                bar.update(now - shown)
+                shown = now
+        reports = client.gather(futures)
+    finally:
+        if reports is None:  # an error or Ctrl-C: stop the other chunks
+            for f in futures:
+                f.cancel()
+        if bar is not None:
+            bar.close()
+    return reports
 
 
 def main_distributed(args, settings: RenderSettings, frames: range | None, say) -> int:
@@ -649,19 +672,25 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say) 
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
-        stats = render_shot(args.scene, frames, args.out, settings, workers=args.workers, scheduler=args.scheduler,
-                            device=args.device, camera=args.camera, simulate=not args.no_sim,
-                            exposure=None if args.exposure is None else 2.0 ** args.exposure, warmup=args.warmup,
-                            resume=args.resume, frame_aovs=args.frame_aovs,
-                            progress=partial(tqdm, desc="frames", unit="frame", disable=args.quiet))
+        try:
+            exposure = None if args.exposure is None else 2.0 ** args.exposure
+            stats = render_shot(args.scene, frames, args.out, settings, workers=args.workers, scheduler=args.scheduler,
+                                device=args.device, camera=args.camera, simulate=not args.no_sim, exposure=exposure,
+                                warmup=args.warmup, resume=args.resume, frame_aovs=args.frame_aovs,
+                                progress=partial(tqdm, desc="frames", unit="frame", disable=args.quiet))
+        except KeyboardInterrupt:  # the cluster is closed (local) or its chunks cancelled; frames on disk are whole
+            done = sum(os.path.exists(os.path.join(args.out, frame_name(c))) for c in frames)
+            print(f"cisp-render: interrupted with {done} of {len(frames)} frames in {args.out}; run the same command "
+                  "with --resume to render the rest", file=sys.stderr)
+            return 130
     for w in caught:
         say(f"warning: {w.message}")
-    devices = ", ".join(sorted({w["device"] for w in stats.workers}))
+    devices = ", ".join(sorted({w["device"] for w in stats.workers})) or "no worker (every frame was on disk)"
     say(f"rendered {args.scene} time codes {frames.start}..{frames.stop - 1} on {devices} in "
         f"{time.perf_counter() - t0:.2f} s to {args.out} (final.####.png{', final.mp4' if stats.video else ''}): "
         f"{stats.summary()}")
     return 0
 
 
-__all__ = ["main_distributed", "Chunk", "FrameWriter", "ShotJob", "ShotStats", "frame_name", "plan_chunks", "render_chunk", "render_shot",
-           "restart_history", "warmup_frames"]
+__all__ = ["Chunk", "FrameWriter", "ShotJob", "ShotStats", "frame_name", "main_distributed", "plan_chunks",
+           "render_chunk", "render_shot", "restart_history", "warmup_frames"]
