@@ -5,6 +5,7 @@ frame bit for bit. The Dask tests share one local cluster of 2 single-threaded w
 Dask.distributed is not installed (``pip install -e .[distributed]``).
 """
 
+import importlib.util
 import os
 import shutil
 import sys
@@ -121,11 +122,14 @@ def test_caustics_map_history_is_rebuilt_exactly(tmp_path):
 
 # ---------------------------------------------------------------------------------------------- on Dask workers
 
-distributed = pytest.importorskip("distributed", reason="Dask.distributed is not installed: pip install -e .[distributed]")
+HAVE_DASK = importlib.util.find_spec("distributed") is not None
+needs_dask = pytest.mark.skipif(not HAVE_DASK, reason="Dask.distributed is not installed: pip install -e .[distributed]")
 
 
 @pytest.fixture(scope="module")
 def client():
+    import distributed
+
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                                        silence_logs=40)
     c = distributed.Client(cluster)
@@ -145,6 +149,7 @@ def shot(client, tmp_path_factory):
     return root, codes, stats
 
 
+@needs_dask
 def test_two_workers_equal_one_process_and_video_has_every_frame_once(shot):
     root, codes, stats = shot
     assert len(stats.chunks) == 2 and len({r["pid"] for r in stats.chunks}) == 2  # both workers rendered
@@ -162,6 +167,7 @@ def test_two_workers_equal_one_process_and_video_has_every_frame_once(shot):
         assert int(np.argmin([np.abs(v - f).mean() for f in frames])) == i
 
 
+@needs_dask
 def test_resume_renders_only_missing_frames(shot, client, tmp_path):
     root, codes, _ = shot
     out = tmp_path / "resume"
@@ -181,6 +187,7 @@ def test_resume_renders_only_missing_frames(shot, client, tmp_path):
         render_shot(POOL, codes, str(out), other, device="cpu", resume=True, video=False, client=client)
 
 
+@needs_dask
 def test_killed_worker_chunk_is_redone_without_rewriting_frames(client, tmp_path):
     codes = range(0, 12)
     marker = tmp_path / "killed"
@@ -204,6 +211,7 @@ def test_workers_without_dask_say_so_in_one_sentence(monkeypatch, capsys, tmp_pa
     assert not os.listdir(tmp_path)
 
 
+@needs_dask
 def test_bench_smoke(client):
     import subprocess
 
