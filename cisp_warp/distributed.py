@@ -437,6 +437,18 @@ def local_cluster(distributed, workers: int, gpus: int):
                                     dashboard_address=None, silence_logs=40)
 
 
+def file_system_now_ns(out: str) -> int:
+    """The time stamp a file written now in ``out`` gets, by the file system's own clock and granularity (a
+    shared file system's server may be another host), so that frames of this run are told from older ones."""
+    probe = os.path.join(out, f".start.{os.getpid()}.tmp")
+    with open(probe, "w"):
+        pass
+    try:
+        return os.stat(probe).st_mtime_ns
+    finally:
+        os.remove(probe)
+
+
 def read_manifest(out: str) -> dict | None:
     try:
         with open(os.path.join(out, MANIFEST)) as f:
@@ -519,7 +531,7 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
         raise SceneError(f"--warmup must be >= 0, got {warmup}")
     job = ShotJob(scene=scene, out=out, settings=settings, shot_start=codes.start, shot_stop=codes.stop,
                   warmup=warmup, device=device, camera=camera, simulate=simulate, exposure=exposure,
-                  frame_aovs=frame_aovs, overwrite_before_ns=None if resume else time.time_ns(), fault=fault)
+                  frame_aovs=frame_aovs, overwrite_before_ns=None if resume else file_system_now_ns(out), fault=fault)
     earlier = read_manifest(out) if resume else None
     if earlier is not None:
         mine = manifest_of(job)
@@ -656,6 +668,8 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say) 
     if args.workers is not None and args.workers < 1:
         raise SceneError(f"--workers must be >= 1, got {args.workers}")
     import_engine()
+    if args.stats:
+        say("warning: --stats prints no ledgers with --workers or --scheduler (the frames render on the workers)")
     import warnings
 
     from tqdm import tqdm
