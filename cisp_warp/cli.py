@@ -64,10 +64,12 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--workers", type=int, default=None, metavar="N",
                    help="spread the frames over N Dask workers of a local cluster: one per GPU, else CPU processes")
     d.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="use the workers of a running Dask cluster (e.g. tcp://head:8786); paths must be shared")
+                   help="use the workers of a running Dask cluster (e.g. tcp://head:8786; with --workers N, N of "
+                   "them); the stage and --out must be at the same paths there")
     d.add_argument("--resume", action="store_true", help="keep the frames already in --out, render the missing ones")
     d.add_argument("--warmup", type=int, default=None, metavar="N",
-                   help="frames each chunk renders unwritten before its first frame (default: from the denoiser)")
+                   help="frames each chunk renders unwritten before its first frame; None: as many as the "
+                   "denoiser's temporal filter needs")
     return p
 
 
