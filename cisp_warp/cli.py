@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.workers is not None or args.scheduler or args.resume:
             from .distributed import main_distributed
 
-            return main_distributed(args, settings, frames, say)
+            return main_distributed(args, settings, frames, say, scene_path)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)
             first = frames.start if frames else args.time

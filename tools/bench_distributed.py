@@ -46,6 +46,7 @@ def parse_args(argv=None):
     p.add_argument("--photons", type=parse_count, default=parse_count("1M"), help="photons per light per frame")
     p.add_argument("--rsm-size", type=int, default=1024)
     p.add_argument("--method", default="cisp")
+    p.add_argument("--supersample", type=int, default=2, help="N x N samples per pixel (cisp-render's default: 2)")
     p.add_argument("--device", default=None, help="cpu for CPU workers; default: one worker per GPU when Warp sees GPUs")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="use the first N workers of a running Dask cluster instead of a local cluster per run")
@@ -56,11 +57,12 @@ def parse_args(argv=None):
     p.add_argument("--no-compare", action="store_true", help="skip comparing the frames with the 1-worker run")
     p.add_argument("--out", default=None, help="folder for the runs' frames (default: a temporary folder, removed)")
     p.add_argument("--smoke", action="store_true",
-                   help="tiny CPU run (32x18, 30 frames, 1000 photons: 2 workers split it after a full warm-up)")
+                   help="tiny CPU run (32x18, 1 sample per pixel, 30 frames, 1000 photons: 2 workers split it after a "
+                   "full warm-up)")
     args = p.parse_args(argv)
     if args.smoke:
         args.width, args.height, args.frames, args.photons, args.rsm_size = 32, 18, 30, 1000, 32
-        args.device, args.no_video = "cpu", True
+        args.device, args.no_video, args.supersample = "cpu", True, 1
     return args
 
 
@@ -93,13 +95,13 @@ def main(argv=None) -> int:
 
     counts = [int(n) for n in args.workers.split(",")]
     settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size, method=args.method,
-                              photons=PhotonSettings(photons=args.photons))
+                              photons=PhotonSettings(photons=args.photons), supersample=args.supersample)
     codes = range(args.start, args.start + args.frames)
     threads = args.writer_threads or max(1, min(8, (os.cpu_count() or 2) // max(counts)))
     root = args.out or tempfile.mkdtemp(prefix="bench_distributed_")
     common = dict(device=args.device, warmup=args.warmup, writer_threads=threads, scheduler=args.scheduler)
     print(f"{args.scene}: {len(codes)} frames at {args.width}x{args.height}, {args.photons} photons per light, "
-          f"method {args.method}, warm-up {warmup_frames(settings) if args.warmup is None else args.warmup} frames "
+          f"method {args.method}, {settings.supersample}x{settings.supersample} samples per pixel, warm-up {warmup_frames(settings) if args.warmup is None else args.warmup} frames "
           f"per chunk, {threads} writer threads per worker, {os.cpu_count()} host cores", flush=True)
     if not args.smoke and not args.scheduler:  # Warp's kernel cache filled: no timed run compiles
         render_shot(args.scene, range(args.start, args.start + 2), os.path.join(root, "prime"), settings, workers=1,

@@ -304,9 +304,11 @@ def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progr
     return reports
 
 
-def main_distributed(args, settings: RenderSettings, frames: range | None, say) -> int:
+def main_distributed(args, settings: RenderSettings, frames: range | None, say, scene: str | None = None) -> int:
     """``cisp-render --frames A:B --workers N | --scheduler ADDRESS [--resume]``: the command line's call."""
     from functools import partial
+
+    scene = scene or args.scene  # the stage (--demo's shipped one, or the file given)
 
     if frames is None:
         raise SceneError("--workers, --scheduler and --resume render sequences: give --frames A:B")
@@ -324,7 +326,7 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say) 
 
     with warnings.catch_warnings(record=True) as caught:  # the stage's warnings, said once here, not per worker
         warnings.simplefilter("always", SceneWarning)
-        load_usd(args.scene, time_code=frames.start, width=args.width, height=args.height, camera_path=args.camera,
+        load_usd(scene, time_code=frames.start, width=args.width, height=args.height, camera_path=args.camera,
                  device="cpu")
     for w in caught:
         say(f"warning: {w.message}")
@@ -333,7 +335,7 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say) 
         warnings.simplefilter("always", RuntimeWarning)
         try:
             exposure = None if args.exposure is None else 2.0 ** args.exposure
-            stats = render_shot(args.scene, frames, args.out, settings, workers=args.workers, scheduler=args.scheduler,
+            stats = render_shot(scene, frames, args.out, settings, workers=args.workers, scheduler=args.scheduler,
                                 device=args.device, camera=args.camera, simulate=not args.no_sim, exposure=exposure,
                                 warmup=args.warmup, resume=args.resume, frame_aovs=args.frame_aovs,
                                 progress=partial(tqdm, desc="frames", unit="frame", disable=args.quiet))
@@ -345,7 +347,7 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say) 
     for w in caught:
         say(f"warning: {w.message}")
     devices = ", ".join(sorted({w["device"] for w in stats.workers})) or "no worker (every frame was on disk)"
-    say(f"rendered {args.scene} time codes {frames.start}..{frames.stop - 1} on {devices} in "
+    say(f"rendered {scene} time codes {frames.start}..{frames.stop - 1} on {devices} in "
         f"{time.perf_counter() - t0:.2f} s to {args.out} (final.####.png{', final.mp4' if stats.video else ''}): "
         f"{stats.summary()}")
     return 0

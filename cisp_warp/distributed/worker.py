@@ -119,6 +119,16 @@ def restart_history(renderer, animation, index: int) -> None:
     animation.frames = 0
 
 
+def host_samples(renderer, image) -> np.ndarray:
+    """Host copy of a per-sample (H*W) vec3 buffer, (H, W, 3) on the (supersampled) G-buffer grid; never a view
+    of device memory (on the CPU ``numpy()`` is one, and the next frame overwrites it). The writer threads
+    filter it down (:func:`~cisp_warp.render.box_filter`, as :meth:`~cisp_warp.render.Renderer.final_image`),
+    off the render loop."""
+    g = renderer.gbuffer
+    host = image.numpy().reshape(g.height, g.width, 3)
+    return host.copy() if renderer.device.is_cpu else host
+
+
 def prepare(job: ShotJob) -> dict:
     """Build this worker's renderer (kernels loaded, buffers allocated); returns what the client shows."""
     import platform
@@ -141,21 +151,22 @@ def shot_exposure(job: ShotJob) -> float:
     restart_history(renderer, animation, 0)
     animation.set_time_code(job.shot_start)
     renderer.render_frame()
-    g = renderer.gbuffer
-    return float(auto_exposure(renderer.final.numpy().reshape(g.height, g.width, 3)))
+    return float(auto_exposure(renderer.final_image()))
 
 
 class FrameWriter:
     """Tone map and write frames on ``threads`` host threads while the device renders the next one.
 
-    ``submit(code, final)`` takes a host copy of ``final`` (H, W, 3 float32 radiance) and returns at once
+    ``submit(code, final, aovs)`` takes host copies of ``final`` (H, W, 3 float32 radiance) and of the AOVs on
+    the supersampled grid (filtered down here, by ``supersample``), and returns at once
     unless ``2 * threads`` frames are already waiting (bounded memory). Each frame is written to a hidden
     temporary name and renamed to ``final.####.png`` (atomic on one file system), AOVs first when asked for,
     so a ``final.####.png`` on disk always means a complete frame. ``seconds``: thread time spent writing.
     """
 
-    def __init__(self, job: ShotJob, threads: int):
+    def __init__(self, job: ShotJob, threads: int, supersample: int = 1):
         self.job = job
+        self.supersample = int(supersample)
         self.pool = ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="cisp-png")
         self.slots = threading.BoundedSemaphore(2 * max(1, threads))
         self.futures = []
@@ -165,12 +176,15 @@ class FrameWriter:
     def _write(self, code: int, final: np.ndarray, aovs: dict) -> None:
         from PIL import Image
 
-        from ..image_io import tonemap, write_aovs
+        from ..image_io import tonemap, write_layers
+        from ..render import box_filter
 
         try:
             t0 = time.perf_counter()
-            if aovs:
-                write_aovs(self.job.out, aovs)
+            final = box_filter(final, self.supersample)
+            if self.job.frame_aovs:  # layers of aovs.####.exr, as render_sequence writes them (itself atomic)
+                layers = {"final": final, **{k: box_filter(v, self.supersample) for k, v in aovs.items()}}
+                write_layers(os.path.join(self.job.out, f"aovs.{code:04d}.exr"), layers)
             path = self.job.path(code)
             tmp = os.path.join(self.job.out, f".{frame_name(code)}.{os.getpid()}.tmp")
             Image.fromarray(tonemap(final, self.job.exposure)).save(tmp, format="PNG")
@@ -206,13 +220,11 @@ def render_chunk(job: ShotJob, chunk: Chunk) -> dict:
     if not todo:
         return report
     renderer, animation = worker_renderer(job)
-    g = renderer.gbuffer
-    shape = (g.height, g.width, 3)
     first, last = todo[0], todo[-1]
     begin = max(job.shot_start, first - job.warmup)
     restart_history(renderer, animation, begin - job.shot_start)
     wanted = set(todo)
-    writer = FrameWriter(job, job.writer_threads)
+    writer = FrameWriter(job, job.writer_threads, renderer.settings.supersample)
     try:
         for code in range(begin, last + 1):
             if job.fault is not None and code == job.fault[0] and not os.path.exists(job.fault[1]):
@@ -226,15 +238,11 @@ def render_chunk(job: ShotJob, chunk: Chunk) -> dict:
             if code < first:
                 report["warmup"] += 1
             if code in wanted and not job.done(code):
-                final = renderer.final.numpy().reshape(shape)  # the frame's one host copy (CUDA: a new array)
-                if renderer.device.is_cpu:
-                    final = final.copy()  # on the CPU numpy() is a view of the buffer the next frame overwrites
+                final = host_samples(renderer, renderer.final)  # the frame's one host copy
                 aovs = {}
-                if job.frame_aovs:
-                    aovs[f"final.{code:04d}"] = final
-                    if renderer.photons is not None:
-                        aovs[f"photon_map.{code:04d}"] = renderer.photons.photon_map.numpy().reshape(shape).copy()
-                        aovs[f"caustics.{code:04d}"] = renderer.caustic_irradiance.numpy().reshape(shape).copy()
+                if job.frame_aovs and renderer.photons is not None:  # as render_sequence writes them
+                    aovs["caustics"] = host_samples(renderer, renderer.caustic_irradiance)
+                    aovs["photon_map"] = host_samples(renderer, renderer.photons.photon_map)
                 writer.submit(code, final, aovs)
                 report["written"].append(code)
         wp.synchronize_device(renderer.device)
