@@ -73,11 +73,11 @@ def local_cluster(distributed, workers: int, gpus: int):
             pass
         from distributed import Nanny, Scheduler, SpecCluster
 
-        spec = {f"gpu{gpu}": {"cls": Nanny, "options": {"nthreads": 1, "silence_logs": 40,
+        spec = {f"gpu{gpu}": {"cls": Nanny, "options": {"nthreads": 1, "silence_logs": 40, "host": "127.0.0.1",
                                                       "env": {"CUDA_VISIBLE_DEVICES": gpu}}}
-                for gpu in ids}
-        return SpecCluster(workers=spec, scheduler={"cls": Scheduler, "options": {"dashboard_address": None}},
-                           silence_logs=40)
+                for gpu in ids}  # on this host only, as LocalCluster
+        scheduler = {"cls": Scheduler, "options": {"dashboard_address": None, "host": "127.0.0.1"}}
+        return SpecCluster(workers=spec, scheduler=scheduler, silence_logs=40)
     return distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                     dashboard_address=None, silence_logs=40)
 
