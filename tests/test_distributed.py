@@ -230,3 +230,23 @@ def test_bench_smoke(client):
     assert [r[0].strip() for r in rows] == ["1", "2"]
     assert int(rows[1][9]) > 0  # the second worker's chunk warmed up (not from the shot's start)
     assert int(rows[1][-2]) <= SEAM_PNG  # its frames within the seam tolerance of the 1-worker (single-chunk) run
+
+
+@needs_dask
+@pytest.mark.skipif(importlib.util.find_spec("dask_cuda") is not None, reason="dask-cuda pins GPUs itself")
+def test_gpu_workers_are_pinned_one_per_visible_gpu(monkeypatch):
+    import distributed
+
+    from cisp_warp.distributed.client import local_cluster
+
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "3,5")  # this process may use GPUs 3 and 5: one worker each
+    cluster = local_cluster(distributed, 2, gpus=2)  # the cluster alone: its workers need no GPU for this
+    try:
+        with distributed.Client(cluster) as c:
+            c.wait_for_workers(2, timeout=60)
+            seen = c.run(lambda: os.environ.get("CUDA_VISIBLE_DEVICES"))
+    finally:
+        cluster.close()
+    assert sorted(seen.values()) == ["3", "5"]
+    with pytest.raises(SceneError, match="more GPU workers"):
+        local_cluster(distributed, 3, gpus=2)
