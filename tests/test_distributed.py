@@ -250,3 +250,11 @@ def test_gpu_workers_are_pinned_one_per_visible_gpu(monkeypatch):
     assert sorted(seen.values()) == ["3", "5"]
     with pytest.raises(SceneError, match="more GPU workers"):
         local_cluster(distributed, 3, gpus=2)
+
+
+@needs_dask
+def test_a_workers_scene_error_reaches_the_client_as_one_sentence(client, tmp_path):
+    with pytest.raises(SceneError, match="/NoSuchCamera") as info:
+        render_shot(POOL, range(0, 4), str(tmp_path), GATHER, device="cpu", camera="/NoSuchCamera", client=client)
+    assert "\n" not in str(info.value)
+    assert not [p for p in os.listdir(tmp_path) if p.startswith("final.")]

@@ -207,8 +207,8 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
                 writer_threads = max(1, min(8, (os.cpu_count() or 2) // max(1, len(addresses))))
             job = replace(job, writer_threads=int(writer_threads))
             # every worker builds its renderer now, in parallel; the exposure then costs one frame on one of them
-            ready = [client.submit(prepare, job, workers=[a], allow_other_workers=False, pure=False)
-                     for a in addresses]
+            ready = [client.submit(prepare, job, workers=[a], allow_other_workers=True, pure=False)
+                     for a in addresses]  # loose: a worker lost now must not leave its task waiting for it
             if job.exposure is None:
                 job = replace(job, exposure=client.submit(shot_exposure, job, workers=addresses, pure=False).result())
             stats.workers = client.gather(ready)
@@ -289,7 +289,15 @@ def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progr
             pending -= finished
             for f in finished:
                 if f.status == "error":
-                    f.result()  # raises the task's error here (a SceneError prints as one sentence)
+                    chunk = chunks[futures.index(f)]
+                    try:
+                        f.result()
+                    except SceneError:
+                        raise  # bad input, said in one sentence
+                    except Exception as exc:  # e.g. KilledWorker: the chunk killed allowed-failures workers
+                        raise SceneError(f"time codes {chunk.start}..{chunk.stop - 1} failed on the workers "
+                                         f"({type(exc).__name__}: {exc}); the frames written are kept, "
+                                         "--resume renders the rest") from exc
             if bar is not None:
                 now = sum(job.done(c) for c in todo)
                 bar.update(now - shown)
