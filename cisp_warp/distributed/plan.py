@@ -24,7 +24,7 @@ def warmup_frames(settings: RenderSettings) -> int:
       for given weights: energy-conserving, row sums <= 1; its variance-guided weights depend on the history
       too, which the model leaves out and the measurement below includes). It starts no larger than the
       caustic's own range, so ``W = ln(1/255) / ln(1 - alpha)`` frames (25 at the default alpha = 0.2) bring
-      it below one step of the 8-bit output, relative to the frame's peak. Measured on the pool (``tests/test_distributed.py``, 32x18 and 64x36): 0.04% to 0.13% of
+      it below one step of the 8-bit output, relative to the frame's peak. Measured on the pool (32x18 in ``tests/test_distributed.py``, 64x36 by hand): 0.04% to 0.13% of
       the peak radiance of ``final`` after 25 frames, 1.7% after 8, and float32 resolution only after ~100:
       a chunk after a warm-up is close to one process, not bit-identical; a chunk whose warm-up reaches the
       shot's first frame starts there and is identical.
