@@ -76,7 +76,7 @@ def local_cluster(distributed, workers: int, gpus: int):
         spec = {f"gpu{gpu}": {"cls": Nanny, "options": {"nthreads": 1, "silence_logs": 40, "host": "127.0.0.1",
                                                       "env": {"CUDA_VISIBLE_DEVICES": gpu}}}
                 for gpu in ids}  # on this host only, as LocalCluster
-        scheduler = {"cls": Scheduler, "options": {"dashboard_address": None, "host": "127.0.0.1"}}
+        scheduler = {"cls": Scheduler, "options": {"dashboard": False, "dashboard_address": ":0", "host": "127.0.0.1"}}
         return SpecCluster(workers=spec, scheduler=scheduler, silence_logs=40)
     return distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                     dashboard_address=None, silence_logs=40)
@@ -194,12 +194,12 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
     stats = ShotStats(exposure=job.exposure or 1.0)
     t0 = time.perf_counter()
     if todo or job.exposure is None:
-        own = None
+        opened = []  # what this call opened and closes: a client, and a local cluster
         if client is None:
-            client, own, job = connect(distributed, job, workers, scheduler)
+            client, opened, job = connect(distributed, job, workers, scheduler)
         try:
             addresses = sorted(client.scheduler_info()["workers"])
-            if workers is not None and own is None:  # --workers N of a running cluster: its first N workers
+            if workers is not None and len(opened) != 2:  # --workers N of a running cluster: N of its workers
                 if len(addresses) < workers:
                     raise SceneError(f"--workers {workers}: the cluster has {len(addresses)} workers")
                 addresses = addresses[:workers]
@@ -220,9 +220,8 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
             stats.chunks = run_chunks(distributed, client, job, chunks, addresses, todo, progress)
             stats.render_seconds = time.perf_counter() - t1
         finally:
-            if own is not None:
-                own[0].close()
-                own[1].close()
+            for thing in opened:
+                thing.close()
     for name in os.listdir(out):  # writers' temporary files left by workers that died while writing
         if name.startswith(".final.") and name.endswith(".tmp"):
             os.remove(os.path.join(out, name))
@@ -243,15 +242,14 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
 
 
 def connect(distributed, job: ShotJob, workers: int | None, scheduler: str | None):
-    """``(client, (client, cluster) or None, job)``: a client of the cluster at ``scheduler``, or of a new
+    """``(client, [what to close], job)``: a client of the cluster at ``scheduler``, or of a new
     :func:`local_cluster` (then ``job.device`` becomes each pinned GPU worker's ``cuda:0``)."""
     if scheduler:
         try:
             client = distributed.Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as exc:
             raise SceneError(f"cannot reach the Dask scheduler at {scheduler!r} ({exc})") from None
-        client.wait_for_workers(int(workers or 1), timeout=120)
-        return client, None, job
+        return client, wait_for(client, [client], int(workers or 1), scheduler), job
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
@@ -266,9 +264,25 @@ def connect(distributed, job: ShotJob, workers: int | None, scheduler: str | Non
     if gpus:
         job = replace(job, device="cuda:0")  # each worker sees its one GPU as cuda:0
     cluster = local_cluster(distributed, n, gpus)
-    client = distributed.Client(cluster)
-    client.wait_for_workers(n, timeout=120)
-    return client, (client, cluster), job
+    try:
+        client = distributed.Client(cluster)
+    except BaseException:
+        cluster.close()
+        raise
+    return client, wait_for(client, [client, cluster], n, "the local cluster"), job
+
+
+def wait_for(client, opened: list, n: int, where: str, seconds: float = 120.0) -> list:
+    """Wait until ``n`` workers have joined; else close what was opened and say so in one sentence."""
+    try:
+        client.wait_for_workers(n, timeout=seconds)
+    except BaseException as exc:
+        for thing in opened:
+            thing.close()
+        if isinstance(exc, (TimeoutError, asyncio.TimeoutError)):
+            raise SceneError(f"fewer than {n} Dask workers joined {where} within {seconds:.0f} s") from None
+        raise
+    return opened
 
 
 def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progress) -> list[dict]:
