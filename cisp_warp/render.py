@@ -45,6 +45,8 @@ class RenderSettings:
         if self.denoiser not in DENOISERS:
             raise SceneError(f"--denoiser must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
         self.photons.validate()
+        if self.photons.splat != "point" and self.method not in ("cisp", "sspm"):
+            raise SceneError(f"--splat {self.photons.splat} works with --method cisp or sspm, not {self.method}")
 
 
 METHODS = PHOTON_METHODS + ("none",)

@@ -1,0 +1,560 @@
+"""Warp kernels of wavefront splatting: photons on a regular grid of the RSM, traced by CISP's cascade
+(or SSPM's world-space tracer), and each grid cell's power spread over the area its corner photons land on.
+
+A water caustic is a smooth map of the surface onto the receivers: light leaving a small patch of the
+water arrives on a patch of the floor, and the irradiance there is the patch's power over the area it
+lands on (Ernst, Akenine-Möller & Jensen 2005; WebGL Water). Here:
+
+* **Grid.** The RSM view is cut into cells of ``cell`` × ``cell`` texels; a photon starts at every cell
+  corner (a texel corner), on the specular surface interpolated from the four texels around it.
+* **Sheets.** Fresnel is not a coin flip here (that would break neighbour coherence): every corner is
+  traced twice, refracted and reflected, and each texel's flux splits deterministically into
+  ``flux·(1 − F)`` (refracted sheet) and ``flux·F`` (reflected sheet), F of the texel's own incidence.
+* **Triangles.** Each cell is split along its diagonal into two triangles; a triangle's power is the flux of
+  its texels (diagonal texels half to each). The map from the light's image plane to the receiver is
+  affine over a triangle, so its power spreads uniformly over the landing triangle. A triangle that turns
+  over (a fold) is simply another sheet: its power spreads over its own area and the sheets add up.
+* **Splat.** A triangle whose three corners land on the same receiver (every corner on a camera surface,
+  normals within ``NORMAL_COS``, the three points on one tangent plane, every arrival validated) is
+  projected into the camera; each pixel receives power × (area of pixel ∩ triangle) / (triangle area),
+  areas measured in screen space (exact for an orthographic camera; for a perspective one to second order
+  in the triangle's size, a few pixels), and stores it as irradiance over the pixel's exact footprint.
+  Focus lines stay finite because the power is integrated per pixel. Parts of the triangle on pixels that
+  show another surface are booked ``occluded``; parts off the screen ``lost_camera_view``.
+* **Fallback.** A triangle whose corners diverge (a silhouette, an occluder, a lost corner, a span over
+  ``max_span`` pixels) gives a third of its power to each corner photon, deposited as a point (validated
+  and booked as every point photon is) or booked where that photon ended.
+
+Every watt of the grid's texels ends in exactly one ledger entry, as with point photons.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..denoise.kernels_svgf import luminance
+from ..optics import fresnel_dielectric, reflect, refract
+from ..raster.views import ViewParams, pixel_ray_world, world_project
+from .common import (FOOTPRINT_PAPER, L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT,
+                     L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED, book, deposit, pixel_footprint)
+from .kernels_cisp import march_cascade
+from .kernels_world import WT_LANDED, CameraBuffers, WorldScene, camera_receiver, world_trace
+
+wp.set_module_options({"enable_backward": False})
+
+SHEET_REFRACTED = wp.constant(0)
+SHEET_REFLECTED = wp.constant(1)
+NO_PHOTON = wp.constant(-1)  #: record entry of a corner with no specular surface around it
+
+TRI_EMPTY = wp.constant(0)  #: the triangle carries no power
+TRI_SPLAT = wp.constant(1)  #: splatted over its landing area
+TRI_FALLBACK = wp.constant(2)  #: corners diverged: point deposits at the corners
+
+NORMAL_COS = wp.constant(0.9)  #: corners (and covered pixels) on one receiver: normals within ~26°
+
+vec8 = wp.types.vector(length=8, dtype=wp.float32)
+
+
+@wp.struct
+class Grid:
+    """The photon grid over one RSM view."""
+
+    width: int  #: RSM texels
+    height: int
+    cell: int  #: texels per cell edge
+    cells_x: int  #: ceil(width / cell)
+    cells_y: int  #: ceil(height / cell)
+
+
+@wp.struct
+class Records:
+    """Where each grid photon ended, (2 · corners,) per array: sheet-major, then corner (row-major)."""
+
+    entry: wp.array(dtype=wp.int32)  #: ledger entry it ended in; L_STORED = on a camera surface; NO_PHOTON
+    pos: wp.array(dtype=wp.vec3)  #: end point [m]
+    pix: wp.array(dtype=wp.int32)  #: camera pixel of the end point (-1 none)
+    dir: wp.array(dtype=wp.vec3)  #: arrival direction (unit)
+    throughput: wp.array(dtype=wp.vec3)  #: power kept along the way (metal albedo after the first bounce)
+
+
+@wp.func
+def grid_corners(grid: Grid) -> int:
+    return (grid.cells_x + 1) * (grid.cells_y + 1)
+
+
+@wp.kernel
+def grid_cells(
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
+    grid: Grid,
+    rsm_position: wp.array(dtype=wp.vec3),  # (H*W,) specular layer [m] (read)
+    rsm_normal: wp.array(dtype=wp.vec3),  # (H*W,) authored unit normal (read)
+    rsm_flux: wp.array(dtype=wp.vec3),  # (H*W,) [W] (read)
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),  # -1 = no specular surface
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2 triangles,) [W] (write)
+    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+):
+    """One thread per cell: its texels' flux, culled as point photons are, split by exact Fresnel into the
+    refracted and reflected sheets and by the cell's diagonal into its two triangles; booked once per cell."""
+    c = wp.tid()
+    cells = grid.cells_x * grid.cells_y
+    cx = c % grid.cells_x
+    cy = c // grid.cells_x
+    x0 = cx * grid.cell
+    y0 = cy * grid.cell
+    x1 = wp.min(x0 + grid.cell, grid.width)
+    y1 = wp.min(y0 + grid.cell, grid.height)
+    zero = wp.vec3(0.0)
+    sampled = zero
+    rough = zero
+    dim = zero
+    absorbed = zero
+    refr0 = zero  # refracted sheet, triangle 0 (u >= v) and 1 (v >= u)
+    refr1 = zero
+    refl0 = zero
+    refl1 = zero
+    for j in range(y0, y1):
+        for i in range(x0, x1):
+            t = j * grid.width + i
+            tri = rsm_tri[t]
+            if tri < 0:
+                continue
+            flux = rsm_flux[t]
+            sampled += flux
+            if rsm_roughness[t] > roughness_cutoff:
+                rough += flux
+                continue
+            if luminance(flux) < luminance_cutoff * max_lum[0]:
+                dim += flux
+                continue
+            lo, ld = pixel_ray_world(light, float(i) + 0.5, float(j) + 0.5)
+            d_in = wp.normalize(ld)
+            if light_kind != 0:
+                d_in = wp.normalize(rsm_position[t] - light_pos)
+            n = rsm_normal[t]
+            m = triangle_material[tri]
+            refl = zero
+            refr = zero
+            if mat_opacity[m] < 1.0:
+                nn = n
+                eta = rsm_ior[t]
+                if wp.dot(d_in, n) > 0.0:
+                    nn = -n
+                    eta = 1.0 / eta
+                f = fresnel_dielectric(-wp.dot(d_in, nn), eta)
+                refl = flux * f
+                refr = flux - refl
+            else:
+                refl = wp.cw_mul(flux, mat_albedo[m])
+                absorbed += flux - refl
+            # which triangle of the cell: texel centre above or below the diagonal (on it: half each)
+            u = (float(i) + 0.5 - float(x0)) / float(x1 - x0)
+            v = (float(j) + 0.5 - float(y0)) / float(y1 - y0)
+            w0 = float(0.5)
+            if u > v:
+                w0 = 1.0
+            elif u < v:
+                w0 = 0.0
+            refr0 += refr * w0
+            refr1 += refr * (1.0 - w0)
+            refl0 += refl * w0
+            refl1 += refl * (1.0 - w0)
+    tri_power[(SHEET_REFRACTED * cells + c) * 2 + 0] = refr0
+    tri_power[(SHEET_REFRACTED * cells + c) * 2 + 1] = refr1
+    tri_power[(SHEET_REFLECTED * cells + c) * 2 + 0] = refl0
+    tri_power[(SHEET_REFLECTED * cells + c) * 2 + 1] = refl1
+    if wp.length_sq(sampled) > 0.0:
+        book(ledger, L_SAMPLED, sampled)
+        if wp.length_sq(rough) > 0.0:
+            book(ledger, L_CULLED_ROUGH, rough)
+        if wp.length_sq(dim) > 0.0:
+            book(ledger, L_CULLED_LUM, dim)
+        if wp.length_sq(absorbed) > 0.0:
+            book(ledger, L_ABSORBED, absorbed)
+        book(ledger, L_REFRACTED, refr0 + refr1)
+        book(ledger, L_REFLECTED, refl0 + refl1)
+
+
+@wp.func
+def grid_photon(
+    light: ViewParams,
+    light_kind: int,
+    light_pos: wp.vec3,
+    grid: Grid,
+    p: int,  # photon index: sheet · corners + corner
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+):
+    """Grid photon ``p``: the light ray through its cell corner, cut with the specular surface there
+    (position and normal interpolated from the four texels around the corner), reflected or refracted by
+    its sheet. Returns (1 or 0 when there is none, origin [m], surface normal, direction)."""
+    q = grid_corners(grid)
+    sheet = p / q
+    corner = p - sheet * q
+    i = corner % (grid.cells_x + 1)
+    j = corner / (grid.cells_x + 1)
+    sx = wp.min(i * grid.cell, grid.width)
+    sy = wp.min(j * grid.cell, grid.height)
+    zero = wp.vec3(0.0)
+    pos = zero
+    nrm = zero
+    count = int(0)
+    first = int(-1)
+    for dj in range(2):
+        for di in range(2):
+            ti = sx - 1 + di
+            tj = sy - 1 + dj
+            if ti >= 0 and tj >= 0 and ti < grid.width and tj < grid.height:
+                t = tj * grid.width + ti
+                if rsm_tri[t] >= 0:
+                    pos += rsm_position[t]
+                    nrm += rsm_normal[t]
+                    count += 1
+                    if first < 0:
+                        first = t
+    if count == 0 or wp.length_sq(nrm) < 1.0e-12:
+        return int(0), zero, zero, zero
+    x0 = pos / float(count)
+    n = wp.normalize(nrm)
+    lo, ld = pixel_ray_world(light, float(sx), float(sy))
+    origin = x0
+    denom = wp.dot(ld, n)
+    if wp.abs(denom) > 1.0e-8:
+        origin = lo + ld * (wp.dot(x0 - lo, n) / denom)
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(origin - light_pos)
+    nn = n
+    eta = rsm_ior[first]
+    if wp.dot(d_in, n) > 0.0:
+        nn = -n
+        eta = 1.0 / eta
+    if sheet == SHEET_REFLECTED:
+        return int(1), origin, n, reflect(d_in, nn)
+    if mat_opacity[triangle_material[rsm_tri[first]]] >= 1.0:
+        return int(0), zero, zero, zero  # a metal has no refracted sheet
+    d = refract(d_in, nn, eta)
+    if wp.length_sq(d) == 0.0:
+        return int(0), zero, zero, zero  # total internal reflection: F = 1, the sheet carries nothing
+    return int(1), origin, n, d
+
+
+@wp.func
+def clear_record(rec: Records, p: int):
+    rec.entry[p] = NO_PHOTON
+    rec.pix[p] = -1
+    rec.throughput[p] = wp.vec3(1.0)
+
+
+@wp.kernel
+def trace_grid_cisp(
+    light: ViewParams,
+    light_kind: int,
+    light_pos: wp.vec3,
+    grid: Grid,
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) [m] (read)
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    t_max: float,
+    use_cascade: int,
+    rec: Records,  # (2 · corners,) (write)
+):
+    """One thread per grid photon: CISP's light-view march and cascade (:func:`march_cascade`), recorded."""
+    p = wp.tid()
+    clear_record(rec, p)
+    ok, origin, n, d = grid_photon(light, light_kind, light_pos, grid, p, rsm_position, rsm_normal, rsm_ior, rsm_tri,
+                                   triangle_material, mat_opacity)
+    if ok == 0:
+        return
+    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, cam_depth, origin, d, t_max, max_steps,
+                                      thickness, thickness_rel, use_cascade)
+    rec.entry[p] = entry
+    rec.pos[p] = x_end
+    rec.pix[p] = pix
+    rec.dir[p] = d
+
+
+@wp.kernel
+def trace_grid_world(
+    light: ViewParams,
+    light_kind: int,
+    light_pos: wp.vec3,
+    grid: Grid,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    ws: WorldScene,
+    cam: CameraBuffers,
+    seed: int,  # random streams of later Fresnel bounces (after the first, deterministic one)
+    roughness_cutoff: float,
+    thickness: float,
+    thickness_rel: float,
+    t_max: float,
+    max_bounces: int,
+    rec: Records,  # (2 · corners,) (write)
+    scratch_ledger: wp.array(dtype=wp.float64),  # world_trace books here; the splat books the cells' power
+):
+    """One thread per grid photon: SSPM's world-space trace (:func:`world_trace`) and depth-visibility test
+    (:func:`camera_receiver`), recorded with unit power: the record's throughput is what it kept."""
+    p = wp.tid()
+    clear_record(rec, p)
+    ok, origin, n, d = grid_photon(light, light_kind, light_pos, grid, p, rsm_position, rsm_normal, rsm_ior, rsm_tri,
+                                   ws.triangle_material, ws.opacity)
+    if ok == 0:
+        return
+    status, y, nr, d2, kept, state = world_trace(ws, origin, n, d, wp.vec3(1.0), wp.rand_init(seed, p),
+                                                 roughness_cutoff, t_max, max_bounces, scratch_ledger)
+    entry = status
+    pix = int(-1)
+    if status == WT_LANDED:
+        entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
+    rec.entry[p] = entry
+    rec.pos[p] = y
+    rec.pix[p] = pix
+    rec.dir[p] = d2
+    rec.throughput[p] = kept
+
+
+@wp.func
+def clip_axis(xs: vec8, ys: vec8, n: int, axis: int, bound: float, keep_above: int):
+    """Sutherland-Hodgman: the polygon (xs, ys)[:n] cut to coordinate ``axis`` >= bound (or <= bound)."""
+    ox = vec8()
+    oy = vec8()
+    m = int(0)
+    for i in range(n):
+        j = (i + 1) % n
+        ci = xs[i]
+        cj = xs[j]
+        if axis == 1:
+            ci = ys[i]
+            cj = ys[j]
+        di = ci - bound
+        dj = cj - bound
+        if keep_above == 0:
+            di = -di
+            dj = -dj
+        if di >= 0.0:
+            ox[m] = xs[i]
+            oy[m] = ys[i]
+            m += 1
+        if (di >= 0.0 and dj < 0.0) or (di < 0.0 and dj >= 0.0):
+            t = di / (di - dj)
+            ox[m] = xs[i] + t * (xs[j] - xs[i])
+            oy[m] = ys[i] + t * (ys[j] - ys[i])
+            m += 1
+    return ox, oy, m
+
+
+@wp.func
+def triangle_pixel_overlap(a: wp.vec2, b: wp.vec2, c: wp.vec2, px: float, py: float) -> float:
+    """Area [pixel²] of triangle abc ∩ the pixel square [px, px+1] × [py, py+1] (either orientation)."""
+    xs = vec8()
+    ys = vec8()
+    xs[0] = a[0]
+    ys[0] = a[1]
+    xs[1] = b[0]
+    ys[1] = b[1]
+    xs[2] = c[0]
+    ys[2] = c[1]
+    n = int(3)
+    xs, ys, n = clip_axis(xs, ys, n, 0, px, 1)
+    xs, ys, n = clip_axis(xs, ys, n, 0, px + 1.0, 0)
+    xs, ys, n = clip_axis(xs, ys, n, 1, py, 1)
+    xs, ys, n = clip_axis(xs, ys, n, 1, py + 1.0, 0)
+    area2 = float(0.0)
+    for i in range(n):
+        j = (i + 1) % n
+        area2 += (xs[i] - px) * (ys[j] - py) - (xs[j] - px) * (ys[i] - py)
+    return 0.5 * wp.abs(area2)
+
+
+@wp.func
+def on_receiver(cam: CameraBuffers, pix: int, x0: wp.vec3, n0: wp.vec3, thickness: float, thickness_rel: float) -> int:
+    """1 when camera pixel ``pix`` shows the receiver through ``x0`` with normal ``n0`` (its tangent plane)."""
+    z = cam.depth[pix]
+    if z <= 0.0:
+        return 0
+    if wp.dot(cam.normal[pix], n0) < NORMAL_COS:
+        return 0
+    if wp.abs(wp.dot(cam.position[pix] - x0, n0)) > thickness + thickness_rel * z:
+        return 0
+    return 1
+
+
+@wp.func
+def splat_pixel(cam: CameraBuffers, pix: int, power: wp.vec3, d: wp.vec3, footprint_mode: int,
+                photon_map: wp.array(dtype=wp.vec3)):
+    """Add ``power`` [W] to camera pixel ``pix`` as irradiance over its exact footprint."""
+    nr = cam.normal[pix]
+    area = pixel_footprint(cam.view, cam.solid_angle[pix], cam.position[pix], nr, footprint_mode)
+    e = power / area
+    if footprint_mode == FOOTPRINT_PAPER:
+        e = e * wp.max(wp.dot(-d, nr), 0.0)
+    wp.atomic_add(photon_map, pix, e)
+
+
+@wp.kernel
+def splat_triangles(
+    grid: Grid,
+    rec: Records,  # (2 · corners,) (read)
+    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2,) [W] (read)
+    cam: CameraBuffers,
+    thickness: float,  # [m] receiver tolerance, absolute
+    thickness_rel: float,  # relative (× depth)
+    max_span: int,  # [pixels] a landing triangle wider or taller than this falls back
+    footprint_mode: int,
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    tri_state: wp.array(dtype=wp.int32),  # (2 sheets · cells · 2,) TRI_* (write)
+    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+):
+    """One thread per grid triangle and sheet: splat its power over its landing triangle, or fall back."""
+    t = wp.tid()
+    power = tri_power[t]
+    if wp.length_sq(power) == 0.0:
+        tri_state[t] = TRI_EMPTY
+        return
+    cells = grid.cells_x * grid.cells_y
+    half = t % 2
+    c = (t / 2) % cells
+    sheet = t / (2 * cells)
+    row = grid.cells_x + 1
+    base = sheet * grid_corners(grid) + (c / grid.cells_x) * row + c % grid.cells_x
+    ia = base  # corner (0, 0) of the cell
+    ib = base + 1  # (1, 0)
+    ic = base + row + 1  # (1, 1)
+    if half == 1:
+        ib = base + row + 1
+        ic = base + row  # (0, 1)
+    ea = rec.entry[ia]
+    eb = rec.entry[ib]
+    ec = rec.entry[ic]
+    v = cam.view
+    coherent = int(0)
+    if ea == L_STORED and eb == L_STORED and ec == L_STORED:
+        coherent = 1
+        pa = rec.pix[ia]
+        xa = rec.pos[ia]
+        xb = rec.pos[ib]
+        xc = rec.pos[ic]
+        na = cam.normal[pa]
+        nb = cam.normal[rec.pix[ib]]
+        nc = cam.normal[rec.pix[ic]]
+        tol = thickness + thickness_rel * cam.depth[pa]
+        if wp.dot(na, nb) < NORMAL_COS or wp.dot(na, nc) < NORMAL_COS:
+            coherent = 0
+        if wp.abs(wp.dot(xb - xa, na)) > tol or wp.abs(wp.dot(xc - xa, na)) > tol:
+            coherent = 0
+        if wp.dot(-rec.dir[ia], na) < 0.0 or wp.dot(-rec.dir[ib], nb) < 0.0 or wp.dot(-rec.dir[ic], nc) < 0.0:
+            coherent = 0
+    if coherent != 0:
+        qa = world_project(v, rec.pos[ia])
+        qb = world_project(v, rec.pos[ib])
+        qc = world_project(v, rec.pos[ic])
+        a = wp.vec2(qa[0], qa[1])
+        b = wp.vec2(qb[0], qb[1])
+        cc = wp.vec2(qc[0], qc[1])
+        lo = wp.min(wp.min(a, b), cc)
+        hi = wp.max(wp.max(a, b), cc)
+        if hi[0] - lo[0] > float(max_span) or hi[1] - lo[1] > float(max_span):
+            coherent = 0
+        else:
+            kept = (rec.throughput[ia] + rec.throughput[ib] + rec.throughput[ic]) / 3.0
+            p_eff = wp.cw_mul(power, kept)
+            d = wp.normalize(rec.dir[ia] + rec.dir[ib] + rec.dir[ic])
+            x0 = rec.pos[ia]
+            n0 = cam.normal[rec.pix[ia]]
+            area = 0.5 * wp.abs((b[0] - a[0]) * (cc[1] - a[1]) - (cc[0] - a[0]) * (b[1] - a[1]))  # [pixel²]
+            stored = wp.vec3(0.0)
+            occluded = wp.vec3(0.0)
+            i0 = int(wp.floor(lo[0]))
+            i1 = int(wp.floor(hi[0]))
+            j0 = int(wp.floor(lo[1]))
+            j1 = int(wp.floor(hi[1]))
+            if area < 1.0e-6 or (i0 == i1 and j0 == j1):
+                # within one pixel (a focus point, or a small triangle): all of it lands there
+                g = (a + b + cc) / 3.0
+                gi = wp.clamp(int(wp.floor(g[0])), 0, v.width - 1)
+                gj = wp.clamp(int(wp.floor(g[1])), 0, v.height - 1)
+                pix = gj * v.width + gi
+                if on_receiver(cam, pix, x0, n0, thickness, thickness_rel) != 0:
+                    splat_pixel(cam, pix, p_eff, d, footprint_mode, photon_map)
+                    stored = p_eff
+                else:
+                    occluded = p_eff
+            else:
+                inv_area = 1.0 / area
+                for j in range(wp.max(j0, 0), wp.min(j1, v.height - 1) + 1):
+                    for i in range(wp.max(i0, 0), wp.min(i1, v.width - 1) + 1):
+                        o = triangle_pixel_overlap(a, b, cc, float(i), float(j))
+                        if o <= 0.0:
+                            continue
+                        share = p_eff * (o * inv_area)
+                        pix = j * v.width + i
+                        if on_receiver(cam, pix, x0, n0, thickness, thickness_rel) != 0:
+                            splat_pixel(cam, pix, share, d, footprint_mode, photon_map)
+                            stored += share
+                        else:
+                            occluded += share
+            tri_state[t] = TRI_SPLAT
+            book(ledger, L_STORED, stored)
+            if wp.length_sq(occluded) > 0.0:
+                book(ledger, L_OCCLUDED, occluded)
+            lost = p_eff - stored - occluded  # off the screen (and float rounding, ~1e-7 of the power)
+            if wp.length_sq(lost) > 0.0:
+                book(ledger, L_LOST_CAMERA, lost)
+            if wp.length_sq(power - p_eff) > 0.0:
+                book(ledger, L_ABSORBED, power - p_eff)
+            return
+    # fallback: a third of the power to each corner photon, as a point (or booked where it ended)
+    tri_state[t] = TRI_FALLBACK
+    valid = int(0)
+    if ea >= 0:
+        valid += 1
+    if eb >= 0:
+        valid += 1
+    if ec >= 0:
+        valid += 1
+    if valid == 0:
+        book(ledger, L_LOST_LIGHT, power)  # no corner reached a specular surface: no path for this power
+        return
+    share = power / float(valid)
+    for k in range(3):
+        ik = ia
+        if k == 1:
+            ik = ib
+        elif k == 2:
+            ik = ic
+        e = rec.entry[ik]
+        if e < 0:
+            continue
+        kept = wp.cw_mul(share, rec.throughput[ik])
+        if wp.length_sq(share - kept) > 0.0:
+            book(ledger, L_ABSORBED, share - kept)
+        if e == L_STORED:
+            deposit(v, rec.pix[ik], rec.dir[ik], kept, cam.depth, cam.position, cam.normal, cam.solid_angle,
+                    footprint_mode, photon_map, ledger)
+        else:
+            book(ledger, e, kept)
