@@ -46,15 +46,21 @@ class Config:
     method: str
     photons: int
     denoise: bool
+    splat: str = "point"  #: cisp, sspm: "point" or "wavefront" (``photons`` then counts grid cells per light)
+
+    @property
+    def curve(self) -> str:
+        """The method as a chart names it: ``cisp``, or ``cisp wavefront``."""
+        return self.method if self.splat == "point" else f"{self.method} {self.splat}"
 
     @property
     def label(self) -> str:
-        return f"{self.method} {self.photons:,} {'denoised' if self.denoise else 'raw'}"
+        return f"{self.curve} {self.photons:,} {'denoised' if self.denoise else 'raw'}"
 
 
 def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSettings()) -> RenderSettings:
     """The renderer's settings for ``cfg`` (see the module table for what "denoise" means per method)."""
-    photons = replace(base, photons=int(cfg.photons))
+    photons = replace(base, photons=int(cfg.photons), splat=cfg.splat)
     if cfg.method == "caustics_map":
         photons = replace(photons, cmap_gather="light" if cfg.denoise else "eye",
                           cmap_history=4 if cfg.denoise else 1)

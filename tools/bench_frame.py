@@ -34,6 +34,8 @@ def main(argv=None) -> int:
     p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"])
     p.add_argument("--sort", default="auto", choices=["auto", "on", "off"],
                    help="trace RSM photons in texel order (auto: on CUDA only)")
+    p.add_argument("--splat", default="point", choices=["point", "wavefront"],
+                   help="cisp, sspm: point deposits or wavefront splatting (photons = grid cells per light)")
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, 2 frames")
     args = p.parse_args(argv)
@@ -56,7 +58,8 @@ def main(argv=None) -> int:
             scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
             # the reference traces two passes of n per frame here: its rate per photon is what is compared
             photons = PhotonSettings(photons=n, reference_photons=2 * n,
-                                     sort_photons={"auto": None, "on": True, "off": False}[args.sort])
+                                     sort_photons={"auto": None, "on": True, "off": False}[args.sort],
+                                     splat=args.splat if method in ("cisp", "sspm") else "point")
             settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
             r = Renderer(scene, settings, device=device)
             timer = None
@@ -65,11 +68,14 @@ def main(argv=None) -> int:
                     timer = StageTimer(device)
                 r.render_frame(timer)
             traced = n * getattr(r.photons, "passes", 1) * len(scene.lights)
+            if getattr(r.photons, "wavefront", None) is not None:
+                traced = r.photons.wavefront.photons_traced()  # two sheets through every grid corner
             rows.append((n, timer.medians(), traced))
         results[method] = rows
         stages = list(rows[0][1])
+        splat = f", splat {args.splat}" if method in ("cisp", "sspm") else ""
         print(f"{method}: device {device.alias} ({device.name}); {args.width}x{args.height}, RSM {args.rsm_size}², "
-              f"denoiser {args.denoiser}; median ms over {args.frames} frames")
+              f"denoiser {args.denoiser}{splat}; median ms over {args.frames} frames")
         print(f"{'stage':<14}" + "".join(f"{n:>14,}" for n, _, _ in rows))
         for s in stages:
             print(f"{s:<14}" + "".join(f"{m[s]:14.3f}" for _, m, _ in rows))

@@ -6,7 +6,10 @@ water arrives on a patch of the floor, and the irradiance there is the patch's p
 lands on (Ernst, Akenine-Möller & Jensen 2005; WebGL Water). Here:
 
 * **Grid.** The RSM view is cut into cells of ``cell`` × ``cell`` texels; a photon starts at every cell
-  corner (a texel corner), on the specular surface interpolated from the four texels around it.
+  corner (a texel corner), where the light's ray through it meets the specular surface, with the surface's
+  interpolated vertex normal: CISP finds it from the triangles of the four texels around the corner (or
+  interpolates their texels), SSPM by its BVH. A texel's one normal would put a lattice into the
+  caustic, texel centres would shift it by half a texel.
 * **Sheets.** Fresnel is not a coin flip here (that would break neighbour coherence): every corner is
   traced twice, refracted and reflected, and each texel's flux splits deterministically into
   ``flux·(1 − F)`` (refracted sheet) and ``flux·F`` (reflected sheet), F of the texel's own incidence.
@@ -38,7 +41,8 @@ from ..raster.views import ViewParams, pixel_ray_world, world_project
 from .common import (FOOTPRINT_PAPER, L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT,
                      L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED, book, deposit, pixel_footprint)
 from .kernels_cisp import march_cascade
-from .kernels_world import WT_LANDED, CameraBuffers, WorldScene, camera_receiver, world_trace
+from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
+                            world_trace)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -185,71 +189,117 @@ def grid_cells(
 
 
 @wp.func
-def grid_photon(
-    light: ViewParams,
-    light_kind: int,
-    light_pos: wp.vec3,
-    grid: Grid,
-    p: int,  # photon index: sheet · corners + corner
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
-    rsm_ior: wp.array(dtype=wp.float32),
-    rsm_tri: wp.array(dtype=wp.int32),
-    triangle_material: wp.array(dtype=wp.int32),
-    mat_opacity: wp.array(dtype=wp.float32),
-):
-    """Grid photon ``p``: the light ray through its cell corner, cut with the specular surface there
-    (position and normal interpolated from the four texels around the corner), reflected or refracted by
-    its sheet. Returns (1 or 0 when there is none, origin [m], surface normal, direction)."""
+def corner_on_triangle(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+                       indices: wp.array(dtype=wp.int32), tri: int, lo: wp.vec3, ld: wp.vec3):
+    """The ray ``lo + ld·t`` cut with triangle ``tri``'s plane. Returns (smallest barycentric coordinate,
+    negative outside the triangle; point [m]; vertex normal interpolated at the nearest point of the
+    triangle; geometric normal on its side)."""
+    a = points[indices[3 * tri]]
+    b = points[indices[3 * tri + 1]]
+    c = points[indices[3 * tri + 2]]
+    ng = wp.cross(b - a, c - a)
+    area2 = wp.length(ng)
+    denom = wp.dot(ld, ng)
+    if area2 < 1.0e-20 or wp.abs(denom) < 1.0e-12 * area2 * wp.length(ld):
+        return float(-1.0e30), a, ng, ng
+    x = lo + ld * (wp.dot(a - lo, ng) / denom)
+    ng = ng / area2
+    w1 = wp.dot(wp.cross(c - a, x - a), -ng) / area2  # barycentric of b (sign from the orientation)
+    w2 = wp.dot(wp.cross(b - a, x - a), ng) / area2  # barycentric of c
+    w0 = 1.0 - w1 - w2
+    # normal at the nearest point of the triangle (the point itself when inside; a neighbour's plane outside)
+    v0 = wp.max(w0, 0.0)
+    v1 = wp.max(w1, 0.0)
+    v2 = wp.max(w2, 0.0)
+    vs = v0 + v1 + v2
+    n = (normals[indices[3 * tri]] * v0 + normals[indices[3 * tri + 1]] * v1 + normals[indices[3 * tri + 2]] * v2) / vs
+    if wp.length_sq(n) < 1.0e-20:
+        n = ng
+    n = wp.normalize(n)
+    if wp.dot(n, ng) < 0.0:
+        ng = -ng
+    return wp.min(w0, wp.min(w1, w2)), x, n, ng
+
+
+@wp.func
+def grid_corner(grid: Grid, p: int):
+    """Photon ``p``'s sheet and its cell corner in the light view's continuous pixel coordinates."""
     q = grid_corners(grid)
     sheet = p / q
     corner = p - sheet * q
     i = corner % (grid.cells_x + 1)
     j = corner / (grid.cells_x + 1)
-    sx = wp.min(i * grid.cell, grid.width)
-    sy = wp.min(j * grid.cell, grid.height)
+    return sheet, wp.min(i * grid.cell, grid.width), wp.min(j * grid.cell, grid.height)
+
+
+@wp.func
+def corner_surface_rsm(
+    sx: int,
+    sy: int,
+    lo: wp.vec3,  # the light's ray through the corner: origin [m]
+    ld: wp.vec3,  # and direction
+    grid: Grid,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_tri: wp.array(dtype=wp.int32),
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+):
+    """The specular surface at a cell corner, from the four RSM texels around it (CISP: no BVH). Where the
+    light's ray meets the triangle of one of them, that point and the triangle's interpolated vertex normal;
+    where it meets none of their triangles (triangles smaller than texels), the texels' surface interpolated
+    bilinearly at the corner (their mean position and normal). Returns (texel or -1, point [m], normal,
+    geometric normal on the normal's side)."""
     zero = wp.vec3(0.0)
     pos = zero
     nrm = zero
     count = int(0)
-    first = int(-1)
+    texel = int(-1)
     for dj in range(2):
         for di in range(2):
             ti = sx - 1 + di
             tj = sy - 1 + dj
             if ti >= 0 and tj >= 0 and ti < grid.width and tj < grid.height:
                 t = tj * grid.width + ti
-                if rsm_tri[t] >= 0:
+                tri = rsm_tri[t]
+                if tri >= 0:
+                    inside, x, nt, gt = corner_on_triangle(points, normals, indices, tri, lo, ld)
+                    if inside >= -1.0e-5:
+                        return t, x, nt, gt
                     pos += rsm_position[t]
                     nrm += rsm_normal[t]
                     count += 1
-                    if first < 0:
-                        first = t
+                    if texel < 0:
+                        texel = t
     if count == 0 or wp.length_sq(nrm) < 1.0e-12:
-        return int(0), zero, zero, zero
+        return int(-1), zero, zero, zero
     x0 = pos / float(count)
     n = wp.normalize(nrm)
-    lo, ld = pixel_ray_world(light, float(sx), float(sy))
     origin = x0
     denom = wp.dot(ld, n)
     if wp.abs(denom) > 1.0e-8:
         origin = lo + ld * (wp.dot(x0 - lo, n) / denom)
-    d_in = wp.normalize(ld)
-    if light_kind != 0:
-        d_in = wp.normalize(origin - light_pos)
+    return texel, origin, n, n
+
+
+@wp.func
+def grid_bounce(sheet: int, d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float):
+    """The direction of a corner's photon in its sheet. Returns (1, direction), or (0, ·) when the sheet
+    carries nothing here (a metal's refracted sheet; total internal reflection, where F = 1)."""
     nn = n
-    eta = rsm_ior[first]
+    eta = ior
     if wp.dot(d_in, n) > 0.0:
         nn = -n
         eta = 1.0 / eta
     if sheet == SHEET_REFLECTED:
-        return int(1), origin, n, reflect(d_in, nn)
-    if mat_opacity[triangle_material[rsm_tri[first]]] >= 1.0:
-        return int(0), zero, zero, zero  # a metal has no refracted sheet
+        return int(1), reflect(d_in, nn)
+    if transmissive == 0:
+        return int(0), wp.vec3(0.0)
     d = refract(d_in, nn, eta)
     if wp.length_sq(d) == 0.0:
-        return int(0), zero, zero, zero  # total internal reflection: F = 1, the sheet carries nothing
-    return int(1), origin, n, d
+        return int(0), d
+    return int(1), d
 
 
 @wp.func
@@ -266,10 +316,13 @@ def trace_grid_cisp(
     light_pos: wp.vec3,
     grid: Grid,
     rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) [m] (read)
-    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_position: wp.array(dtype=wp.vec3),  # (H_l*W_l,) specular layer [m] (read)
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    points: wp.array(dtype=wp.vec3),  # (V,) scene vertices [m] (read)
+    normals: wp.array(dtype=wp.vec3),  # (V,) unit vertex normals (read)
+    indices: wp.array(dtype=wp.int32),  # (3T,) (read)
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     camera: ViewParams,
@@ -281,11 +334,20 @@ def trace_grid_cisp(
     use_cascade: int,
     rec: Records,  # (2 · corners,) (write)
 ):
-    """One thread per grid photon: CISP's light-view march and cascade (:func:`march_cascade`), recorded."""
+    """One thread per grid photon: its corner's surface from the RSM, its sheet's bounce, CISP's light-view
+    march and cascade (:func:`march_cascade`), recorded."""
     p = wp.tid()
     clear_record(rec, p)
-    ok, origin, n, d = grid_photon(light, light_kind, light_pos, grid, p, rsm_position, rsm_normal, rsm_ior, rsm_tri,
-                                   triangle_material, mat_opacity)
+    sheet, sx, sy = grid_corner(grid, p)
+    lo, ld = pixel_ray_world(light, float(sx), float(sy))
+    texel, origin, n, ng = corner_surface_rsm(sx, sy, lo, ld, grid, rsm_position, rsm_normal, rsm_tri, points, normals,
+                                              indices)
+    if texel < 0:
+        return
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(origin - light_pos)
+    ok, d = grid_bounce(sheet, d_in, n, int(mat_opacity[triangle_material[rsm_tri[texel]]] < 1.0), rsm_ior[texel])
     if ok == 0:
         return
     entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, cam_depth, origin, d, t_max, max_steps,
@@ -302,10 +364,6 @@ def trace_grid_world(
     light_kind: int,
     light_pos: wp.vec3,
     grid: Grid,
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
-    rsm_ior: wp.array(dtype=wp.float32),
-    rsm_tri: wp.array(dtype=wp.int32),
     ws: WorldScene,
     cam: CameraBuffers,
     seed: int,  # random streams of later Fresnel bounces (after the first, deterministic one)
@@ -317,15 +375,27 @@ def trace_grid_world(
     rec: Records,  # (2 · corners,) (write)
     scratch_ledger: wp.array(dtype=wp.float64),  # world_trace books here; the splat books the cells' power
 ):
-    """One thread per grid photon: SSPM's world-space trace (:func:`world_trace`) and depth-visibility test
+    """One thread per grid photon: its corner's surface where the light's ray first meets the scene (BVH),
+    its sheet's bounce, SSPM's world-space trace (:func:`world_trace`) and depth-visibility test
     (:func:`camera_receiver`), recorded with unit power: the record's throughput is what it kept."""
     p = wp.tid()
     clear_record(rec, p)
-    ok, origin, n, d = grid_photon(light, light_kind, light_pos, grid, p, rsm_position, rsm_normal, rsm_ior, rsm_tri,
-                                   ws.triangle_material, ws.opacity)
+    sheet, sx, sy = grid_corner(grid, p)
+    lo, ld = pixel_ray_world(light, float(sx), float(sy))
+    d_in = wp.normalize(ld)
+    t0 = float(0.0)
+    if light.orthographic != 0:
+        t0 = light.near
+    tri, x, n, ng = world_hit(ws, lo + d_in * t0, d_in, t_max)
+    if tri < 0 or is_smooth_specular(ws, tri, roughness_cutoff) == 0:
+        return  # the corner's ray meets no smooth specular surface first: its cells fall back
+    if light_kind != 0:
+        d_in = wp.normalize(x - light_pos)
+    m = ws.triangle_material[tri]
+    ok, d = grid_bounce(sheet, d_in, n, int(ws.opacity[m] < 1.0), ws.ior[m])
     if ok == 0:
         return
-    status, y, nr, d2, kept, state = world_trace(ws, origin, n, d, wp.vec3(1.0), wp.rand_init(seed, p),
+    status, y, nr, d2, kept, state = world_trace(ws, x, ng, d, wp.vec3(1.0), wp.rand_init(seed, p),
                                                  roughness_cutoff, t_max, max_bounces, scratch_ledger)
     entry = status
     pix = int(-1)

@@ -86,12 +86,12 @@ class WavefrontSplat:
                 if tracer == "cisp":
                     wp.launch(K.trace_grid_cisp, dim=2 * corners, device=dev, inputs=[
                         params, kind, light_pos, g, r.opaque_depth, sp.position, sp.normal, sp.ior, sp.tri_id,
-                        sc.triangle_material, sc.opacity, self.cam.view, self.cam.depth, int(s.max_steps),
+                        sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, self.cam.view, self.cam.depth, int(s.max_steps),
                         float(s.thickness), float(s.thickness_rel), p.t_max, int(s.cascade), self.rec])
                 else:
                     _, _, seed = frame_random(s.seed, frame, li * 64 + vi)
                     wp.launch(K.trace_grid_world, dim=2 * corners, device=dev, inputs=[
-                        params, kind, light_pos, g, sp.position, sp.normal, sp.ior, sp.tri_id, world, self.cam,
+                        params, kind, light_pos, g, world, self.cam,
                         seed, float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel), p.t_max,
                         int(s.max_bounces), self.rec, self.scratch_ledger])
                 wp.launch(K.splat_triangles, dim=4 * cells, device=dev, inputs=[
