@@ -17,8 +17,9 @@ lands on (Ernst, Akenine-Möller & Jensen 2005; WebGL Water). Here:
   its texels (diagonal texels half to each). The map from the light's image plane to the receiver is
   affine over a triangle, so its power spreads uniformly over the landing triangle. A triangle that turns
   over (a fold) is simply another sheet: its power spreads over its own area and the sheets add up.
-* **Splat.** A triangle whose three corners land on the same receiver (every corner on a camera surface,
-  normals within ``NORMAL_COS``, the three points on one tangent plane, every arrival validated) is
+* **Splat.** A triangle whose three corners land on the same receiver (at least one on a camera surface,
+  the others on one too or off the screen; normals within ``NORMAL_COS``, the three points on one tangent
+  plane, every arrival on a camera surface validated) is
   projected into the camera; each pixel receives power × (area of pixel ∩ triangle) / (triangle area),
   areas measured in screen space (exact for an orthographic camera; for a perspective one to second order
   in the triangle's size, a few pixels), and stores it as irradiance over the pixel's exact footprint.
@@ -462,6 +463,14 @@ def triangle_pixel_overlap(a: wp.vec2, b: wp.vec2, c: wp.vec2, px: float, py: fl
 
 
 @wp.func
+def landed(entry: int) -> int:
+    """1 for a photon that landed on a camera surface, or on a surface off the screen."""
+    if entry == L_STORED or entry == L_LOST_CAMERA:
+        return 1
+    return 0
+
+
+@wp.func
 def on_receiver(cam: CameraBuffers, pix: int, x0: wp.vec3, n0: wp.vec3, thickness: float, thickness_rel: float) -> int:
     """1 when camera pixel ``pix`` shows the receiver through ``x0`` with normal ``n0`` (its tangent plane)."""
     z = cam.depth[pix]
@@ -522,23 +531,34 @@ def splat_triangles(
     eb = rec.entry[ib]
     ec = rec.entry[ic]
     v = cam.view
+    # one receiver: every corner on a camera surface, or landed off the screen; the first on a surface is the
+    # reference (its tangent plane and normal); corners on surfaces face it and were validated; all lie on its
+    # plane and in front of the camera
+    ref = int(-1)
+    if ea == L_STORED:
+        ref = ia
+    elif eb == L_STORED:
+        ref = ib
+    elif ec == L_STORED:
+        ref = ic
     coherent = int(0)
-    if ea == L_STORED and eb == L_STORED and ec == L_STORED:
+    if ref >= 0 and landed(ea) != 0 and landed(eb) != 0 and landed(ec) != 0:
         coherent = 1
-        pa = rec.pix[ia]
-        xa = rec.pos[ia]
-        xb = rec.pos[ib]
-        xc = rec.pos[ic]
-        na = cam.normal[pa]
-        nb = cam.normal[rec.pix[ib]]
-        nc = cam.normal[rec.pix[ic]]
-        tol = thickness + thickness_rel * cam.depth[pa]
-        if wp.dot(na, nb) < NORMAL_COS or wp.dot(na, nc) < NORMAL_COS:
-            coherent = 0
-        if wp.abs(wp.dot(xb - xa, na)) > tol or wp.abs(wp.dot(xc - xa, na)) > tol:
-            coherent = 0
-        if wp.dot(-rec.dir[ia], na) < 0.0 or wp.dot(-rec.dir[ib], nb) < 0.0 or wp.dot(-rec.dir[ic], nc) < 0.0:
-            coherent = 0
+        x0 = rec.pos[ref]
+        n0 = cam.normal[rec.pix[ref]]
+        tol = thickness + thickness_rel * cam.depth[rec.pix[ref]]
+        for k in range(3):
+            ik = ia
+            if k == 1:
+                ik = ib
+            elif k == 2:
+                ik = ic
+            if wp.abs(wp.dot(rec.pos[ik] - x0, n0)) > tol or world_project(v, rec.pos[ik])[2] <= v.near:
+                coherent = 0
+            if rec.entry[ik] == L_STORED:
+                nk = cam.normal[rec.pix[ik]]
+                if wp.dot(nk, n0) < NORMAL_COS or wp.dot(-rec.dir[ik], nk) < 0.0:
+                    coherent = 0
     if coherent != 0:
         qa = world_project(v, rec.pos[ia])
         qb = world_project(v, rec.pos[ib])
@@ -554,8 +574,8 @@ def splat_triangles(
             kept = (rec.throughput[ia] + rec.throughput[ib] + rec.throughput[ic]) / 3.0
             p_eff = wp.cw_mul(power, kept)
             d = wp.normalize(rec.dir[ia] + rec.dir[ib] + rec.dir[ic])
-            x0 = rec.pos[ia]
-            n0 = cam.normal[rec.pix[ia]]
+            x0 = rec.pos[ref]
+            n0 = cam.normal[rec.pix[ref]]
             area = 0.5 * wp.abs((b[0] - a[0]) * (cc[1] - a[1]) - (cc[0] - a[0]) * (b[1] - a[1]))  # [pixel²]
             stored = wp.vec3(0.0)
             occluded = wp.vec3(0.0)
@@ -566,14 +586,15 @@ def splat_triangles(
             if area < 1.0e-6 or (i0 == i1 and j0 == j1):
                 # within one pixel (a focus point, or a small triangle): all of it lands there
                 g = (a + b + cc) / 3.0
-                gi = wp.clamp(int(wp.floor(g[0])), 0, v.width - 1)
-                gj = wp.clamp(int(wp.floor(g[1])), 0, v.height - 1)
-                pix = gj * v.width + gi
-                if on_receiver(cam, pix, x0, n0, thickness, thickness_rel) != 0:
-                    splat_pixel(cam, pix, p_eff, d, footprint_mode, photon_map)
-                    stored = p_eff
-                else:
-                    occluded = p_eff
+                gi = int(wp.floor(g[0]))
+                gj = int(wp.floor(g[1]))
+                if gi >= 0 and gj >= 0 and gi < v.width and gj < v.height:  # else off the screen: lost
+                    pix = gj * v.width + gi
+                    if on_receiver(cam, pix, x0, n0, thickness, thickness_rel) != 0:
+                        splat_pixel(cam, pix, p_eff, d, footprint_mode, photon_map)
+                        stored = p_eff
+                    else:
+                        occluded = p_eff
             else:
                 inv_area = 1.0 / area
                 for j in range(wp.max(j0, 0), wp.min(j1, v.height - 1) + 1):

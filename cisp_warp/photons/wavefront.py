@@ -145,7 +145,8 @@ def pixel_triangle_overlap_np(tri: np.ndarray, px: int, py: int) -> float:
 
 
 def splat_numpy(state: dict, project, depth: np.ndarray, position: np.ndarray, normal: np.ndarray,
-                footprint: np.ndarray, thickness: float, thickness_rel: float, max_span: int = MAX_SPAN) -> dict:
+                footprint: np.ndarray, thickness: float, thickness_rel: float, near: float,
+                max_span: int = MAX_SPAN) -> dict:
     """Naive twin of ``splat_triangles`` (exact footprint mode) for one view's ``state``
     (:meth:`WavefrontSplat.last_view_state`): loops in Python over triangles and the pixels of their bounds.
 
@@ -183,27 +184,31 @@ def splat_numpy(state: dict, project, depth: np.ndarray, position: np.ndarray, n
         base = sheet * corners + (c // cx) * row + c % cx
         ids = (base, base + 1, base + row + 1) if half == 0 else (base, base + row + 1, base + row)
         e = [int(entry[i]) for i in ids]
-        ok = all(v == stored_id for v in e)
+        lost_camera_id = C.LEDGER_NAMES.index("lost_camera_view")
+        on_surface = [i for i, v in zip(ids, e) if v == stored_id]
+        ok = bool(on_surface) and all(v in (stored_id, lost_camera_id) for v in e)
+        x = [pos[i] for i in ids]
         if ok:
-            n = [normal[pix[i]].astype(np.float64) for i in ids]
-            x = [pos[i] for i in ids]
-            tol = thickness + thickness_rel * depth[pix[ids[0]]]
-            ok = (n[0] @ n[1] >= 0.9 and n[0] @ n[2] >= 0.9 and abs((x[1] - x[0]) @ n[0]) <= tol
-                  and abs((x[2] - x[0]) @ n[0]) <= tol and all(-dirs[i] @ nn >= 0 for i, nn in zip(ids, n)))
+            r = on_surface[0]
+            n0 = normal[pix[r]].astype(np.float64)
+            tol = thickness + thickness_rel * depth[pix[r]]
+            ok = all(abs((xi - pos[r]) @ n0) <= tol for xi in x) and (project(np.array(x))[:, 2] > near).all()
+            ok = ok and all(normal[pix[i]] @ n0 >= 0.9 and -dirs[i] @ normal[pix[i]] >= 0 for i in on_surface)
         if ok:
             s = project(np.array(x))[:, :2]
             lo, hi = s.min(0), s.max(0)
             ok = (hi - lo <= max_span).all()
         if ok:
             states[t] = 1
+            x0, nref = pos[on_surface[0]], normal[pix[on_surface[0]]].astype(np.float64)
             p_eff = power * np.mean([thr[i] for i in ids], axis=0)
             area = 0.5 * abs((s[1, 0] - s[0, 0]) * (s[2, 1] - s[0, 1]) - (s[2, 0] - s[0, 0]) * (s[1, 1] - s[0, 1]))
             i0, j0 = np.floor(lo).astype(int)
             i1, j1 = np.floor(hi).astype(int)
             shares = []
             if area < 1e-6 or (i0 == i1 and j0 == j1):
-                g = s.mean(0)
-                shares = [(min(max(int(np.floor(g[0])), 0), W - 1), min(max(int(np.floor(g[1])), 0), H - 1), 1.0)]
+                g = np.floor(s.mean(0)).astype(int)
+                shares = [(g[0], g[1], 1.0)] if 0 <= g[0] < W and 0 <= g[1] < H else []
             else:
                 for j in range(max(j0, 0), min(j1, H - 1) + 1):
                     for i in range(max(i0, 0), min(i1, W - 1) + 1):
@@ -213,7 +218,7 @@ def splat_numpy(state: dict, project, depth: np.ndarray, position: np.ndarray, n
             got = np.zeros(3)
             for i, j, f in shares:
                 p = j * W + i
-                if receiver(p, x[0], n[0]):
+                if receiver(p, x0, nref):
                     emap[p] += p_eff * f / footprint[p]
                     add("stored", p_eff * f)
                 else:
