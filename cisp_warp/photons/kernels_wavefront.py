@@ -40,7 +40,8 @@ from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world, world_project
 from .common import (FOOTPRINT_PAPER, L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT,
-                     L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED, book, deposit, pixel_footprint)
+                     L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_REJECTED, L_SAMPLED, L_STORED, LEDGER_ENTRIES,
+                     pixel_footprint)
 from .kernels_cisp import march_cascade
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
@@ -58,6 +59,33 @@ TRI_FALLBACK = wp.constant(2)  #: corners diverged: point deposits at the corner
 NORMAL_COS = wp.constant(0.9)  #: corners (and covered pixels) on one receiver: normals within ~26°
 
 vec8 = wp.types.vector(length=8, dtype=wp.float32)
+LedgerRows = wp.types.matrix(shape=(LEDGER_ENTRIES, 3), dtype=wp.float64)  #: one thread's share of the ledger [W]
+
+LEDGER_BLOCK = 128  #: threads per block on CUDA: the ledger is reduced per block and added once per entry
+
+
+@wp.func
+def tally(rows: LedgerRows, entry: int, power: wp.vec3) -> LedgerRows:
+    """``rows`` with ``power`` [W] added under ``entry`` (registers; the ledger is written by ledger_flush)."""
+    out = rows
+    for c in range(3):
+        out[entry, c] = out[entry, c] + wp.float64(power[c])
+    return out
+
+
+@wp.func
+def ledger_flush(ledger: wp.array(dtype=wp.float64), rows: LedgerRows, lane: int):
+    """Sum every thread's rows over the block (Warp tiles) and add each non-zero entry to the ledger once,
+    from lane 0. Every thread of the block must call it (no early return before it)."""
+    for e in range(LEDGER_ENTRIES):
+        v = wp.vec3d(rows[e, 0], rows[e, 1], rows[e, 2])
+        total = wp.tile_sum(wp.tile(v, preserve_type=True))
+        if lane == 0:
+            s = total[0]
+            if s[0] != wp.float64(0.0) or s[1] != wp.float64(0.0) or s[2] != wp.float64(0.0):
+                wp.atomic_add(ledger, 3 * e + 0, s[0])
+                wp.atomic_add(ledger, 3 * e + 1, s[1])
+                wp.atomic_add(ledger, 3 * e + 2, s[2])
 
 
 @wp.struct
@@ -87,8 +115,9 @@ def grid_corners(grid: Grid) -> int:
     return (grid.cells_x + 1) * (grid.cells_y + 1)
 
 
-@wp.kernel
-def grid_cells(
+@wp.func
+def grid_cell(
+    c: int,  # cell
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
@@ -106,11 +135,9 @@ def grid_cells(
     roughness_cutoff: float,
     luminance_cutoff: float,
     tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2 triangles,) [W] (write)
-    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
 ):
-    """One thread per cell: its texels' flux, culled as point photons are, split by exact Fresnel into the
-    refracted and reflected sheets and by the cell's diagonal into its two triangles; booked once per cell."""
-    c = wp.tid()
+    """Cell ``c``: its texels' flux, culled as point photons are, split by exact Fresnel into the refracted
+    and reflected sheets and by the cell's diagonal into its two triangles. Returns its ledger rows."""
     cells = grid.cells_x * grid.cells_y
     cx = c % grid.cells_x
     cy = c // grid.cells_x
@@ -177,16 +204,46 @@ def grid_cells(
     tri_power[(SHEET_REFRACTED * cells + c) * 2 + 1] = refr1
     tri_power[(SHEET_REFLECTED * cells + c) * 2 + 0] = refl0
     tri_power[(SHEET_REFLECTED * cells + c) * 2 + 1] = refl1
-    if wp.length_sq(sampled) > 0.0:
-        book(ledger, L_SAMPLED, sampled)
-        if wp.length_sq(rough) > 0.0:
-            book(ledger, L_CULLED_ROUGH, rough)
-        if wp.length_sq(dim) > 0.0:
-            book(ledger, L_CULLED_LUM, dim)
-        if wp.length_sq(absorbed) > 0.0:
-            book(ledger, L_ABSORBED, absorbed)
-        book(ledger, L_REFRACTED, refr0 + refr1)
-        book(ledger, L_REFLECTED, refl0 + refl1)
+    rows = LedgerRows()
+    rows = tally(rows, L_SAMPLED, sampled)
+    rows = tally(rows, L_CULLED_ROUGH, rough)
+    rows = tally(rows, L_CULLED_LUM, dim)
+    rows = tally(rows, L_ABSORBED, absorbed)
+    rows = tally(rows, L_REFRACTED, refr0 + refr1)
+    rows = tally(rows, L_REFLECTED, refl0 + refl1)
+    return rows
+
+
+@wp.kernel
+def grid_cells(
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
+    grid: Grid,
+    rsm_position: wp.array(dtype=wp.vec3),  # (H*W,) specular layer [m] (read)
+    rsm_normal: wp.array(dtype=wp.vec3),  # (H*W,) authored unit normal (read)
+    rsm_flux: wp.array(dtype=wp.vec3),  # (H*W,) [W] (read)
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),  # -1 = no specular surface
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2 triangles,) [W] (write)
+    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate, once per block and entry)
+):
+    """One thread per cell (:func:`grid_cell`), launched tiled: the block's ledger rows added once."""
+    block, lane = wp.tid()
+    c = block * wp.block_dim() + lane
+    rows = LedgerRows()
+    if c < grid.cells_x * grid.cells_y:
+        rows = grid_cell(c, light, light_kind, light_pos, grid, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
+                         rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum, roughness_cutoff,
+                         luminance_cutoff, tri_power)
+    ledger_flush(ledger, rows, lane)
 
 
 @wp.func
@@ -495,8 +552,9 @@ def splat_pixel(cam: CameraBuffers, pix: int, power: wp.vec3, d: wp.vec3, footpr
     wp.atomic_add(photon_map, pix, e)
 
 
-@wp.kernel
-def splat_triangles(
+@wp.func
+def splat_triangle(
+    t: int,  # triangle: (sheet · cells + cell) · 2 + half
     grid: Grid,
     rec: Records,  # (2 · corners,) (read)
     tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2,) [W] (read)
@@ -507,14 +565,14 @@ def splat_triangles(
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     tri_state: wp.array(dtype=wp.int32),  # (2 sheets · cells · 2,) TRI_* (write)
-    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
 ):
-    """One thread per grid triangle and sheet: splat its power over its landing triangle, or fall back."""
-    t = wp.tid()
+    """Grid triangle ``t`` of its sheet: splat its power over its landing triangle, or fall back. Returns its
+    ledger rows."""
+    rows = LedgerRows()
     power = tri_power[t]
     if wp.length_sq(power) == 0.0:
         tri_state[t] = TRI_EMPTY
-        return
+        return rows
     cells = grid.cells_x * grid.cells_y
     half = t % 2
     c = (t / 2) % cells
@@ -610,15 +668,11 @@ def splat_triangles(
                         else:
                             occluded += share
             tri_state[t] = TRI_SPLAT
-            book(ledger, L_STORED, stored)
-            if wp.length_sq(occluded) > 0.0:
-                book(ledger, L_OCCLUDED, occluded)
-            lost = p_eff - stored - occluded  # off the screen (and float rounding, ~1e-7 of the power)
-            if wp.length_sq(lost) > 0.0:
-                book(ledger, L_LOST_CAMERA, lost)
-            if wp.length_sq(power - p_eff) > 0.0:
-                book(ledger, L_ABSORBED, power - p_eff)
-            return
+            rows = tally(rows, L_STORED, stored)
+            rows = tally(rows, L_OCCLUDED, occluded)
+            rows = tally(rows, L_LOST_CAMERA, p_eff - stored - occluded)  # off the screen (and ~1e-7 rounding)
+            rows = tally(rows, L_ABSORBED, power - p_eff)
+            return rows
     # fallback: a third of the power to each corner photon, as a point (or booked where it ended)
     tri_state[t] = TRI_FALLBACK
     valid = int(0)
@@ -629,8 +683,7 @@ def splat_triangles(
     if ec >= 0:
         valid += 1
     if valid == 0:
-        book(ledger, L_LOST_LIGHT, power)  # no corner reached a specular surface: no path for this power
-        return
+        return tally(rows, L_LOST_LIGHT, power)  # no corner reached a specular surface: no path for this power
     share = power / float(valid)
     for k in range(3):
         ik = ia
@@ -642,10 +695,38 @@ def splat_triangles(
         if e < 0:
             continue
         kept = wp.cw_mul(share, rec.throughput[ik])
-        if wp.length_sq(share - kept) > 0.0:
-            book(ledger, L_ABSORBED, share - kept)
+        rows = tally(rows, L_ABSORBED, share - kept)
         if e == L_STORED:
-            deposit(v, rec.pix[ik], rec.dir[ik], kept, cam.depth, cam.position, cam.normal, cam.solid_angle,
-                    footprint_mode, photon_map, ledger)
-        else:
-            book(ledger, e, kept)
+            # a point photon: validated against the receiver's normal (as common.deposit), stored at its pixel
+            pk = rec.pix[ik]
+            if wp.dot(-rec.dir[ik], cam.normal[pk]) < 0.0 or cam.depth[pk] <= 0.0:
+                e = L_REJECTED
+            else:
+                splat_pixel(cam, pk, kept, rec.dir[ik], footprint_mode, photon_map)
+        rows = tally(rows, e, kept)
+    return rows
+
+
+@wp.kernel
+def splat_triangles(
+    grid: Grid,
+    rec: Records,  # (2 · corners,) (read)
+    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2,) [W] (read)
+    cam: CameraBuffers,
+    thickness: float,  # [m] receiver tolerance, absolute
+    thickness_rel: float,  # relative (× depth)
+    max_span: int,  # [pixels] a landing triangle wider or taller than this falls back
+    footprint_mode: int,
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    tri_state: wp.array(dtype=wp.int32),  # (2 sheets · cells · 2,) TRI_* (write)
+    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate, once per block and entry)
+):
+    """One thread per grid triangle and sheet (:func:`splat_triangle`), launched tiled: the block's ledger
+    rows added once."""
+    block, lane = wp.tid()
+    t = block * wp.block_dim() + lane
+    rows = LedgerRows()
+    if t < 4 * grid.cells_x * grid.cells_y:
+        rows = splat_triangle(t, grid, rec, tri_power, cam, thickness, thickness_rel, max_span, footprint_mode,
+                              photon_map, tri_state)
+    ledger_flush(ledger, rows, lane)
