@@ -367,6 +367,45 @@ def clear_record(rec: Records, p: int):
     rec.throughput[p] = wp.vec3(1.0)
 
 
+@wp.func
+def refine_landing(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),
+    cam_position: wp.array(dtype=wp.vec3),
+    cam_normal: wp.array(dtype=wp.vec3),
+    origin: wp.vec3,  # [m] where the photon left the specular surface
+    d: wp.vec3,  # its direction
+    x_end: wp.vec3,  # [m] where the march put it
+    pix: int,  # camera pixel of x_end
+    thickness: float,
+    thickness_rel: float,
+):
+    """The photon's ray cut with the tangent plane of the surface camera pixel ``pix`` shows (its G-buffer
+    position and normal). A march lands within a depth texel of the surface (nearest-texel depth, linear
+    between two steps): points that scatter by that much scatter a wavefront's triangle areas, where a point
+    photon's noise hides it. Kept only where the cut stays on the same surface within the thickness;
+    returns (landing point [m], its camera pixel)."""
+    n = cam_normal[pix]
+    den = wp.dot(d, n)
+    if den >= -1.0e-6:
+        return x_end, pix
+    t = wp.dot(cam_position[pix] - origin, n) / den
+    x = origin + d * t
+    tol = thickness + thickness_rel * cam_depth[pix]
+    if t <= 0.0 or wp.length(x - x_end) > tol:
+        return x_end, pix
+    q = world_project(camera, x)
+    if q[2] <= camera.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(camera.width) or q[1] >= float(camera.height):
+        return x_end, pix
+    pix2 = int(q[1]) * camera.width + int(q[0])
+    z2 = cam_depth[pix2]
+    if z2 <= 0.0 or wp.dot(cam_normal[pix2], n) < NORMAL_COS:
+        return x_end, pix
+    if wp.abs(wp.dot(x - cam_position[pix2], cam_normal[pix2])) > thickness + thickness_rel * z2:
+        return x_end, pix
+    return x, pix2
+
+
 @wp.kernel
 def trace_grid_cisp(
     light: ViewParams,
@@ -385,6 +424,8 @@ def trace_grid_cisp(
     mat_opacity: wp.array(dtype=wp.float32),
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    cam_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+    cam_normal: wp.array(dtype=wp.vec3),  # (H*W,) unit (read)
     max_steps: int,
     thickness: float,
     thickness_rel: float,
@@ -410,6 +451,9 @@ def trace_grid_cisp(
         return
     entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, cam_depth, origin, d, t_max, max_steps,
                                       thickness, thickness_rel, use_cascade)
+    if entry == L_STORED:
+        x_end, pix = refine_landing(camera, cam_depth, cam_position, cam_normal, origin, d, x_end, pix, thickness,
+                                    thickness_rel)
     rec.entry[p] = entry
     rec.pos[p] = x_end
     rec.pix[p] = pix

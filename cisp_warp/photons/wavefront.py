@@ -90,7 +90,8 @@ class WavefrontSplat:
                 if tracer == "cisp":
                     wp.launch(K.trace_grid_cisp, dim=2 * corners, device=dev, inputs=[
                         params, kind, light_pos, g, r.opaque_depth, sp.position, sp.normal, sp.ior, sp.tri_id,
-                        sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, self.cam.view, self.cam.depth, int(s.max_steps),
+                        sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, self.cam.view,
+                        self.cam.depth, self.cam.position, self.cam.normal, int(s.max_steps),
                         float(s.thickness), float(s.thickness_rel), p.t_max, int(s.cascade), self.rec])
                 else:
                     _, _, seed = frame_random(s.seed, frame, li * 64 + vi)
