@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     from .image_io import write_aovs, write_png
     from .photons import PhotonSettings
     from .render import Renderer, RenderSettings
-    from .usd_import import load_usd
+    from .usd import load_usd
 
     def say(msg):
         if not args.quiet:

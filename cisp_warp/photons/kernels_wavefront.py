@@ -41,7 +41,7 @@ from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world, world_project
 from .common import (FOOTPRINT_PAPER, L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT,
                      L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_REJECTED, L_SAMPLED, L_STORED, LEDGER_ENTRIES,
-                     pixel_footprint)
+                     pixel_footprint, tally_new)
 from .kernels_cisp import march_cascade
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
@@ -61,11 +61,9 @@ NORMAL_COS = wp.constant(0.9)  #: corners (and covered pixels) on one receiver: 
 vec8 = wp.types.vector(length=8, dtype=wp.float32)
 LedgerRows = wp.types.matrix(shape=(LEDGER_ENTRIES, 3), dtype=wp.float64)  #: one thread's share of the ledger [W]
 
-LEDGER_BLOCK = 128  #: threads per block on CUDA: the ledger is reduced per block and added once per entry
-
 
 @wp.func
-def tally(rows: LedgerRows, entry: int, power: wp.vec3) -> LedgerRows:
+def rows_add(rows: LedgerRows, entry: int, power: wp.vec3) -> LedgerRows:
     """``rows`` with ``power`` [W] added under ``entry`` (registers; the ledger is written by ledger_flush)."""
     out = rows
     for c in range(3):
@@ -205,12 +203,12 @@ def grid_cell(
     tri_power[(SHEET_REFLECTED * cells + c) * 2 + 0] = refl0
     tri_power[(SHEET_REFLECTED * cells + c) * 2 + 1] = refl1
     rows = LedgerRows()
-    rows = tally(rows, L_SAMPLED, sampled)
-    rows = tally(rows, L_CULLED_ROUGH, rough)
-    rows = tally(rows, L_CULLED_LUM, dim)
-    rows = tally(rows, L_ABSORBED, absorbed)
-    rows = tally(rows, L_REFRACTED, refr0 + refr1)
-    rows = tally(rows, L_REFLECTED, refl0 + refl1)
+    rows = rows_add(rows, L_SAMPLED, sampled)
+    rows = rows_add(rows, L_CULLED_ROUGH, rough)
+    rows = rows_add(rows, L_CULLED_LUM, dim)
+    rows = rows_add(rows, L_ABSORBED, absorbed)
+    rows = rows_add(rows, L_REFRACTED, refr0 + refr1)
+    rows = rows_add(rows, L_REFLECTED, refl0 + refl1)
     return rows
 
 
@@ -475,7 +473,6 @@ def trace_grid_world(
     t_max: float,
     max_bounces: int,
     rec: Records,  # (2 · corners,) (write)
-    scratch_ledger: wp.array(dtype=wp.float64),  # world_trace books here; the splat books the cells' power
 ):
     """One thread per grid photon: its corner's surface where the light's ray first meets the scene (BVH),
     its sheet's bounce, SSPM's world-space trace (:func:`world_trace`) and depth-visibility test
@@ -497,8 +494,9 @@ def trace_grid_world(
     ok, d = grid_bounce(sheet, d_in, n, int(ws.opacity[m] < 1.0), ws.ior[m])
     if ok == 0:
         return
+    discard = tally_new()  # world_trace books the unit photon's ending here; the splat books the cells' power
     status, y, nr, d2, kept, state = world_trace(ws, x, ng, d, wp.vec3(1.0), wp.rand_init(seed, p),
-                                                 roughness_cutoff, t_max, max_bounces, scratch_ledger)
+                                                 roughness_cutoff, t_max, max_bounces, discard)
     entry = status
     pix = int(-1)
     if status == WT_LANDED:
@@ -712,10 +710,10 @@ def splat_triangle(
                         else:
                             occluded += share
             tri_state[t] = TRI_SPLAT
-            rows = tally(rows, L_STORED, stored)
-            rows = tally(rows, L_OCCLUDED, occluded)
-            rows = tally(rows, L_LOST_CAMERA, p_eff - stored - occluded)  # off the screen (and ~1e-7 rounding)
-            rows = tally(rows, L_ABSORBED, power - p_eff)
+            rows = rows_add(rows, L_STORED, stored)
+            rows = rows_add(rows, L_OCCLUDED, occluded)
+            rows = rows_add(rows, L_LOST_CAMERA, p_eff - stored - occluded)  # off the screen (and ~1e-7 rounding)
+            rows = rows_add(rows, L_ABSORBED, power - p_eff)
             return rows
     # fallback: a third of the power to each corner photon, as a point (or booked where it ended)
     tri_state[t] = TRI_FALLBACK
@@ -727,7 +725,7 @@ def splat_triangle(
     if ec >= 0:
         valid += 1
     if valid == 0:
-        return tally(rows, L_LOST_LIGHT, power)  # no corner reached a specular surface: no path for this power
+        return rows_add(rows, L_LOST_LIGHT, power)  # no corner reached a specular surface: no path for this power
     share = power / float(valid)
     for k in range(3):
         ik = ia
@@ -739,7 +737,7 @@ def splat_triangle(
         if e < 0:
             continue
         kept = wp.cw_mul(share, rec.throughput[ik])
-        rows = tally(rows, L_ABSORBED, share - kept)
+        rows = rows_add(rows, L_ABSORBED, share - kept)
         if e == L_STORED:
             # a point photon: validated against the receiver's normal (as common.deposit), stored at its pixel
             pk = rec.pix[ik]
@@ -747,7 +745,7 @@ def splat_triangle(
                 e = L_REJECTED
             else:
                 splat_pixel(cam, pk, kept, rec.dir[ik], footprint_mode, photon_map)
-        rows = tally(rows, e, kept)
+        rows = rows_add(rows, e, kept)
     return rows
 
 

@@ -61,11 +61,6 @@ class WavefrontSplat:
         self.rec.throughput = wp.zeros(2 * corners, dtype=wp.vec3, device=d)
         self.tri_power = wp.zeros(tris, dtype=wp.vec3, device=d)
         self.tri_state = wp.zeros(tris, dtype=wp.int32, device=d)
-        self.scratch_ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=d)
-        self.block = K.LEDGER_BLOCK if d.is_cuda else 1  #: threads per block of the tiled (ledger-reducing) kernels
-
-    def blocks(self, n: int) -> int:
-        return -(-n // self.block)
 
     def photons_traced(self) -> int:
         """Photons traced per frame over every light and view (two sheets per cell corner)."""
@@ -83,7 +78,7 @@ class WavefrontSplat:
                 sp = r.specular
                 cells = g.cells_x * g.cells_y
                 corners = (g.cells_x + 1) * (g.cells_y + 1)
-                wp.launch_tiled(K.grid_cells, dim=self.blocks(cells), block_dim=self.block, device=dev, inputs=[
+                p.launch_photons(K.grid_cells, cells, inputs=[
                     params, kind, light_pos, g, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                     sc.triangle_material, sc.opacity, sc.albedo, p._max_lum_of[li], float(s.roughness_cutoff),
                     float(s.luminance_cutoff), self.tri_power, p.ledger])
@@ -98,8 +93,8 @@ class WavefrontSplat:
                     wp.launch(K.trace_grid_world, dim=2 * corners, device=dev, inputs=[
                         params, kind, light_pos, g, world, self.cam,
                         seed, float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel), p.t_max,
-                        int(s.max_bounces), self.rec, self.scratch_ledger])
-                wp.launch_tiled(K.splat_triangles, dim=self.blocks(4 * cells), block_dim=self.block, device=dev, inputs=[
+                        int(s.max_bounces), self.rec])
+                p.launch_photons(K.splat_triangles, 4 * cells, inputs=[
                     g, self.rec, self.tri_power, self.cam, float(s.thickness), float(s.thickness_rel), MAX_SPAN,
                     p.footprint_mode, p.photon_map, self.tri_state, p.ledger])
 
