@@ -186,13 +186,15 @@ def grid_cell(
             else:
                 refl = wp.cw_mul(flux, mat_albedo[m])
                 absorbed += flux - refl
-            # which triangle of the cell: texel centre above or below the diagonal (on it: half each)
-            u = (float(i) + 0.5 - float(x0)) / float(x1 - x0)
-            v = (float(j) + 0.5 - float(y0)) / float(y1 - y0)
+            # which triangle of the cell: texel centre (u, v) in cell units above or below the diagonal u = v (on
+            # it: half each); compared in integers, (2(i - x0) + 1) / (2 (x1 - x0)) against the same in j: exact
+            # on every device (float division under CUDA's fast math tipped diagonal texels either way)
+            su = (2 * (i - x0) + 1) * (y1 - y0)
+            sv = (2 * (j - y0) + 1) * (x1 - x0)
             w0 = float(0.5)
-            if u > v:
+            if su > sv:
                 w0 = 1.0
-            elif u < v:
+            elif su < sv:
                 w0 = 0.0
             refr0 += refr * w0
             refr1 += refr * (1.0 - w0)
