@@ -1,8 +1,6 @@
 """Wavefront splatting (--splat wavefront): analytic irradiance from a few photons, the focus lines of the
 sinusoid, the ledger, the fallback at silhouettes, and the splat against its naive numpy twin."""
 
-import math
-
 import numpy as np
 import pytest
 import warp as wp
@@ -10,7 +8,7 @@ import warp as wp
 from cisp_warp import analytic
 from cisp_warp.errors import SceneError
 from cisp_warp.photons import PhotonSettings
-from cisp_warp.photons import kernels_wavefront as K
+from cisp_warp.photons import kernels_splat as K
 from cisp_warp.photons.common import LEDGER_NAMES
 from cisp_warp.photons.wavefront import pixel_triangle_overlap_np, splat_numpy
 from cisp_warp.render import Renderer, RenderSettings
@@ -49,7 +47,8 @@ def test_flat_water_is_analytic_everywhere_from_a_64_grid(device, method, theta_
     cells = state["cells_x"] * state["cells_y"]
     refracted = state["tri_state"][: 2 * cells]
     assert (refracted == K.TRI_SPLAT).mean() > 0.4
-    np.testing.assert_allclose(ledger["refracted"].sum() + ledger["reflected"].sum(), ledger["sampled"].sum(), rtol=1e-6)
+    traced = ledger["refracted"].sum() + ledger["reflected"].sum()
+    np.testing.assert_allclose(traced, ledger["sampled"].sum(), rtol=1e-6)
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -151,7 +150,8 @@ def test_splat_matches_its_naive_twin(device):
 @wp.kernel
 def _overlaps(tris: wp.array(dtype=wp.vec2), px: int, py: int, out: wp.array(dtype=float)):
     t, j, i = wp.tid()
-    out[(t * py + j) * px + i] = K.triangle_pixel_overlap(tris[3 * t], tris[3 * t + 1], tris[3 * t + 2], float(i), float(j))
+    a, b, c = tris[3 * t], tris[3 * t + 1], tris[3 * t + 2]
+    out[(t * py + j) * px + i] = K.triangle_pixel_overlap(a, b, c, float(i), float(j))
 
 
 def test_pixel_triangle_overlap_against_numpy(device, rng):

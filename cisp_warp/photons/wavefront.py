@@ -1,6 +1,7 @@
 """Wavefront splatting (``--splat wavefront``): photons on a regular grid of each RSM view, traced by the
 method's own tracer (CISP's cascade or SSPM's BVH), each grid triangle's power splatted over the area its
-corner photons land on. No noise, sharp focus lines, the ledger exact; see :mod:`.kernels_wavefront`.
+corner photons land on. No noise, sharp focus lines, the ledger exact; see :mod:`.kernels_wavefront` (grid)
+and :mod:`.kernels_splat` (splat).
 
 >>> r = Renderer(scene, RenderSettings(method="cisp", photons=PhotonSettings(photons=512 ** 2, splat="wavefront")))
 
@@ -20,6 +21,7 @@ import numpy as np
 import warp as wp
 
 from . import common as C
+from . import kernels_splat as S
 from . import kernels_wavefront as K
 from .base import PhotonPass, frame_random
 
@@ -94,7 +96,7 @@ class WavefrontSplat:
                         params, kind, light_pos, g, world, self.cam,
                         seed, float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel), p.t_max,
                         int(s.max_bounces), self.rec])
-                p.launch_photons(K.splat_triangles, 4 * cells, inputs=[
+                p.launch_photons(S.splat_triangles, 4 * cells, inputs=[
                     g, self.rec, self.tri_power, self.cam, float(s.thickness), float(s.thickness_rel), MAX_SPAN,
                     p.footprint_mode, p.photon_map, self.tri_state, p.ledger])
 
