@@ -252,12 +252,13 @@ def play_case(case, settings: RenderSettings, width: int, height: int, frames: i
 
 
 def measure_case(case, method: str, reference: list[dict], width: int, height: int, frames: int, measured: int,
-                 rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings()) -> CaseFigures:
-    """Play ``case`` with ``method`` denoised (:func:`render_settings`) and measure it against ``reference``
-    (:func:`case_reference` of the same frames)."""
+                 rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings(),
+                 splat: str = "point") -> CaseFigures:
+    """Play ``case`` with ``method`` denoised (:func:`render_settings`; ``splat`` for cisp and sspm) and measure it
+    against ``reference`` (:func:`case_reference` of the same frames)."""
     from . import metrics as M
 
-    settings = render_settings(Config(method, photons, True), rsm_size, base)
+    settings = render_settings(Config(method, photons, True, splat), rsm_size, base)
     r, shots = play_case(case, settings, width, height, frames, measured, device)
     ref_frames = case_frames(case, frames, measured)
     ref_at = dict(zip(ref_frames, reference))
