@@ -150,7 +150,7 @@ class PhotonPass:
         self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
         sort = settings.sort_photons if settings.sort_photons is not None else self.device.is_cuda
         self.use_order = 1 if sort else 0
-        n_sort = 2 * self.max_photons_per_view() if sort else 1
+        n_sort = 2 * self.max_photons_per_view() if sort and settings.splat == "point" else 1  # a grid needs no order
         self._sort_keys = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU

@@ -21,7 +21,8 @@ class CISP(PhotonPass):
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
-        self.hits = wp.zeros(self.max_photons_per_view(), dtype=wp.vec4, device=self.device)
+        n_hits = self.max_photons_per_view() if settings.splat == "point" else 1  # the grid keeps its own records
+        self.hits = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
         self.wavefront = None
         if settings.splat == "wavefront":
             from .kernels_world import CameraBuffers
