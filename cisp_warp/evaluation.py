@@ -57,6 +57,7 @@ class Config:
     method: str
     photons: int
     denoiser: str
+    splat: str = "point"  #: cisp, sspm: "point" or "wavefront" (``photons`` then counts grid cells per light)
 
     @property
     def denoise(self) -> bool:
@@ -64,8 +65,13 @@ class Config:
         return self.denoiser != "none"
 
     @property
+    def curve(self) -> str:
+        """The method as a chart names it: ``cisp``, or ``cisp wavefront``."""
+        return self.method if self.splat == "point" else f"{self.method} {self.splat}"
+
+    @property
     def label(self) -> str:
-        return f"{self.method} {self.photons:,} {self.denoiser}"
+        return f"{self.curve} {self.photons:,} {self.denoiser}"
 
 
 def applicable(method: str, denoiser: str) -> bool:
@@ -77,7 +83,7 @@ def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSet
     """The renderer's settings for ``cfg`` (see the module table)."""
     if not applicable(cfg.method, cfg.denoiser):
         raise ValueError(f"denoiser {cfg.denoiser!r} does not apply to method {cfg.method!r}")
-    photons = replace(base, photons=int(cfg.photons))
+    photons = replace(base, photons=int(cfg.photons), splat=cfg.splat)
     if cfg.method == "caustics_map":
         own = cfg.denoiser == "own"
         photons = replace(photons, cmap_gather="light" if own else "eye", cmap_history=4 if own else 1)
@@ -361,13 +367,13 @@ def default_denoiser(method: str) -> str:
 
 def measure_case(case, method: str, reference: list[dict], width: int, height: int, frames: int, measured: int,
                  rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings(),
-                 denoiser: str | None = None) -> CaseFigures:
-    """Play ``case`` with ``method`` and ``denoiser`` (:func:`render_settings`; None: the default) and measure
-    it against ``reference`` (:func:`case_reference` of the same frames)."""
+                 denoiser: str | None = None, splat: str = "point") -> CaseFigures:
+    """Play ``case`` with ``method`` and ``denoiser`` (:func:`render_settings`; None: the default; ``splat`` for
+    cisp and sspm) and measure it against ``reference`` (:func:`case_reference` of the same frames)."""
     from . import metrics as M
 
     denoiser = denoiser or default_denoiser(method)
-    settings = render_settings(Config(method, photons, denoiser), rsm_size, base)
+    settings = render_settings(Config(method, photons, denoiser, splat), rsm_size, base)
     r, shots = play_case(case, settings, width, height, frames, measured, device)
     ref_frames = case_frames(case, frames, measured)
     ref_at = dict(zip(ref_frames, reference))

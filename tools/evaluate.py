@@ -7,6 +7,8 @@ converged reference, charted as a Pareto plot.
     python tools/evaluate.py --preset full --device cuda:0 --out results_cuda/ --references-only  # references
     python tools/evaluate.py --preset full --device cuda:0 --out results_cuda/ --reference-seconds 0
     python tools/evaluate.py --smoke --out /tmp/eval                # seconds: what the tests run
+    python tools/evaluate.py --scenes sinusoid,pool --methods cisp --splats point,wavefront --denoisers none
+                                                                    # point photons against wavefront splatting
 
 Denoisers (``--denoisers``): ``caustic`` (the renderer's default), ``svgf`` (the paper's), ``none`` (raw), and
 for caustics_map ``own`` (seed 004's filters); cisp_warp/evaluation.py says what each means per method. The
@@ -112,6 +114,18 @@ def scene_specs(names: list[str]) -> list[SceneSpec]:
     return specs
 
 
+def analytic_sinusoid_reference(ref: dict, width: int, height: int) -> dict:
+    """The sinusoid's exact floor irradiance (the analytic refraction ray map, binned per pixel column) in place
+    of the photon reference's map, its standard error zero: errors are then measured against the truth, not
+    against a reference whose own noise (19% at 1920x1080 from 1e8 photons) would hide them."""
+    from cisp_warp import analytic
+
+    profile = analytic.sinusoidal_answer(width, height, samples=max(2_000_001, 4000 * width + 1))
+    e = np.where(ref["depth"][..., None] > 0, profile[None, :, None], 0.0).astype(np.float32)
+    return {**ref, "photon_map": np.broadcast_to(e, ref["photon_map"].shape).copy(),
+            "caustics_stderr": np.zeros_like(ref["caustics_stderr"])}
+
+
 def measure(shots: list[dict], ref: dict, mask: np.ndarray, footprint: np.ndarray, flip: bool) -> dict:
     """Figures of the measured frames against the reference, each the mean over the frames; FLIP (when
     ``flip``) of the last frame."""
@@ -140,9 +154,10 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
     import matplotlib.pyplot as plt
 
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    methods = list(dict.fromkeys(curve_name(r) for r in rows))
     denoisers = list(dict.fromkeys(r["denoiser"] for r in rows))
-    colours = {m: c for m, c in zip(methods, ("tab:blue", "tab:orange", "tab:green", "tab:red"))}
+    colours = {m: c for m, c in zip(methods, ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
+                                              "tab:brown", "tab:pink"))}
     have_flip = any(np.isfinite(r["flip"]) for r in rows)
     metrics = [("rel_rmse", "relative RMSE of caustic irradiance")] + ([("flip", "LDR-FLIP of final image")]
                                                                           if have_flip else [])
@@ -154,7 +169,7 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
             for m in methods:
                 for den in denoisers:
                     pts = sorted((r["photons"], r["frame_ms"], r[key]) for r in rows if r["scene"] == scene
-                                 and r["method"] == m and r["denoiser"] == den and np.isfinite(r[key]))
+                                 and curve_name(r) == m and r["denoiser"] == den and np.isfinite(r[key]))
                     if not pts:
                         continue
                     _, x, y = zip(*pts)  # joined in photon order
@@ -162,7 +177,7 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
                             label=f"{m} {den}")
             floor_key = {"rel_rmse": "reference_noise", "flip": "reference_flip"}[key]
             floor = [r[floor_key] for r in rows if r["scene"] == scene]
-            if floor and np.isfinite(floor[0]):
+            if floor and np.isfinite(floor[0]) and floor[0] > 0:
                 ax.axhline(floor[0], color="grey", lw=0.8, ls=":", label="reference's own noise")
             ax.set_xscale("log")
             ax.set_yscale("log")
@@ -183,6 +198,12 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
     plt.close(fig)
 
 
+def curve_name(row: dict) -> str:
+    """A run's curve: its method, and its splat when not points (rows from before splats count as points)."""
+    splat = row.get("splat", "point")
+    return row["method"] if splat == "point" else f"{row['method']} {splat}"
+
+
 def chart_title(meta: dict) -> str:
     counts = sorted({r["photons"] for r in meta["runs"]})
     c = meta["settings"]
@@ -190,16 +211,16 @@ def chart_title(meta: dict) -> str:
             f"{meta['preset']} · {counts[0]:,} to {counts[-1]:,} photons per frame along each curve")
 
 
-FIELDS = ["scene", "method", "photons", "denoiser", "width", "height", "frame_ms", "raster_ms", "direct_ms",
+FIELDS = ["scene", "method", "splat", "photons", "denoiser", "width", "height", "frame_ms", "raster_ms", "direct_ms",
           "trace_ms", "denoise_ms", "shade_ms", "rel_rmse", "rel_rmse_raw", "energy_ratio", "energy_ratio_raw",
           "flip", "reference_noise", "reference_flip", "mask_pixels", "stored_share", "ledger_closure", "finite"]
 
 
 def print_table(rows: list[dict]) -> None:
-    print(f"{'scene':<9}{'method':<13}{'photons':>10} {'denoiser':<9}{'ms':>9}{'relRMSE':>9}{'raw':>8}"
+    print(f"{'scene':<9}{'method':<18}{'photons':>10} {'denoiser':<9}{'ms':>9}{'relRMSE':>9}{'raw':>8}"
           f"{'energy':>8}{'FLIP':>8}")
     for r in rows:
-        print(f"{r['scene']:<9}{r['method']:<13}{r['photons']:>10,} {r['denoiser']:<9}"
+        print(f"{r['scene']:<9}{curve_name(r):<18}{r['photons']:>10,} {r['denoiser']:<9}"
               f"{r['frame_ms']:9.1f}{r['rel_rmse']:9.3f}{r['rel_rmse_raw']:8.3f}{r['energy_ratio']:8.3f}"
               f"{r['flip']:8.3f}")
 
@@ -213,6 +234,9 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
     p.add_argument("--scenes", default=None, help="comma-separated subset of cornell,pool,sinusoid")
     p.add_argument("--methods", default="cisp,sspm,caustics_map", help="comma-separated methods")
+    p.add_argument("--splats", default="point",
+                   help="comma-separated photon stores for cisp and sspm: point, wavefront (photons on an RSM grid, "
+                   "--photons then counts grid cells per light); one curve per method and splat")
     p.add_argument("--denoisers", default="caustic,svgf,none,own",
                    help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
     p.add_argument("--reference-noise", type=float, default=None,
@@ -224,6 +248,9 @@ def main(argv=None) -> int:
     p.add_argument("--photons", default=None, help="comma-separated photon counts (500k, 1M, ...) instead of the preset's")
     p.add_argument("--width", type=int, default=None, help="override the preset's image width [pixels]")
     p.add_argument("--height", type=int, default=None, help="override the preset's image height [pixels]")
+    p.add_argument("--analytic-sinusoid", action="store_true",
+                   help="measure the sinusoid's caustic against its analytic ray map (exact) instead of the photon "
+                   "reference (FLIP still compares with the reference's final image)")
     p.add_argument("--no-flip", action="store_true", help="skip FLIP (it is the slowest figure at full size)")
     p.add_argument("--merge", action="store_true",
                    help="keep the rows of other scenes already in OUT/results.json (same preset, device and size), "
@@ -273,7 +300,12 @@ def main(argv=None) -> int:
     for d in denoisers:
         if d not in E.DENOISERS:
             raise SystemExit(f"unknown denoiser {d!r}: {', '.join(E.DENOISERS)}")
-    configs = [E.Config(m, n, d) for m in methods for d in denoisers if E.applicable(m, d) for n in cfg["photons"]]
+    splats = args.splats.split(",")
+    for sp in splats:
+        if sp not in ("point", "wavefront"):
+            raise SystemExit(f"unknown splat {sp!r}: point, wavefront")
+    configs = [E.Config(m, n, d, sp) for m in methods for sp in (splats if m in ("cisp", "sspm") else ["point"])
+               for d in denoisers if E.applicable(m, d) for n in cfg["photons"]]
     noise_target = args.reference_noise if args.reference_noise is not None else cfg["reference_noise"]
     ref_seconds = args.reference_seconds if args.reference_seconds is not None else cfg["reference_seconds"]
     flip_counts = cfg["flip_photons"]
@@ -295,8 +327,12 @@ def main(argv=None) -> int:
         flip_floor = math.nan
         if flip and "final_halves" in ref:  # FLIP between the even and the odd chunks: what FLIP sees of its noise
             flip_floor = M.flip_ldr(ref["final_halves"][0], ref["final_halves"][1])
+        if args.analytic_sinusoid and spec.name == "sinusoid":
+            ref = analytic_sinusoid_reference(ref, w, h)
+            meta["analytic"] = True
         mask = M.caustic_mask(ref)
-        meta.update(mask_pixels=int(mask.sum()), reference_flip=flip_floor)
+        meta.update(mask_pixels=int(mask.sum()), reference_noise=M.reference_noise(ref, mask),
+                    reference_flip=flip_floor)
         references[spec.name] = meta
         took = "cached" if meta["cached"] else f"{meta['seconds']:.1f} s"
         tqdm.write(f"{spec.name}: reference {meta['photons']:,} photons per light in {meta['chunks']} chunks ({took}), "
@@ -315,7 +351,7 @@ def main(argv=None) -> int:
             fig = measure(shots, ref, mask, footprint, flip and (flip_counts is None or cfg_run.photons in flip_counts))
             ledger = r.photons.read_ledger()
             s = timing.stages
-            rows.append({"scene": spec.name, "method": cfg_run.method, "photons": cfg_run.photons,
+            rows.append({"scene": spec.name, "method": cfg_run.method, "splat": cfg_run.splat, "photons": cfg_run.photons,
                          "denoiser": cfg_run.denoiser, "width": w, "height": h, "frame_ms": timing.frame,
                          "raster_ms": s.get("raster", 0.0), "direct_ms": s.get("direct", 0.0),
                          "trace_ms": s.get("trace+store", 0.0), "denoise_ms": s.get("denoise", 0.0),
@@ -336,7 +372,7 @@ def main(argv=None) -> int:
         if (old["device"], old["preset"]) == (dev_name, args.preset):
             done = {spec.name for spec in specs}
             kept = [r for r in old["runs"] if r["scene"] not in done and (r["width"], r["height"]) == (w, h)]
-            rows = kept + rows
+            rows = [{"splat": "point", **r} for r in kept] + rows
             references = {**{k: v for k, v in old["references"].items() if k not in done}, **references}
             wall += old.get("wall_seconds", 0.0)
         else:
@@ -363,7 +399,8 @@ def main(argv=None) -> int:
                     "by cisp_warp.image_io.tonemap with the reference's automatic exposure",
             "frame_ms": "median over timed frames of the sum of the stages raster, direct, trace+store, denoise, "
                         "shade (after warm-up; synchronised)",
-            "reference_noise": "the reference's own relative standard error over the mask",
+            "reference_noise": "the reference's own relative standard error over the mask (0 for the sinusoid with "
+                               "--analytic-sinusoid: its reference is then the analytic ray map's irradiance)",
             "reference_flip": "LDR-FLIP between the reference's even and odd chunks (each half of its photons): "
                               "above FLIP's noise floor of the whole reference",
             "denoiser": "caustic (default: reactive accumulation of the raw photon map + variance-sized "

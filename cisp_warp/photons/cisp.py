@@ -21,12 +21,27 @@ class CISP(PhotonPass):
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
-        self.hits = wp.zeros(self.max_photons_per_view(), dtype=wp.vec4, device=self.device)
+        n_hits = self.max_photons_per_view() if settings.splat == "point" else 1  # the grid keeps its own records
+        self.hits = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
+        self.wavefront = None
+        if settings.splat == "wavefront":
+            from .kernels_world import CameraBuffers
+            from .wavefront import WavefrontSplat
+
+            cam = CameraBuffers()
+            cam.view = camera_view.params()
+            cam.depth, cam.position, cam.normal = gbuffer.depth, gbuffer.position, gbuffer.normal
+            cam.solid_angle = self.solid_angle
+            self.wavefront = WavefrontSplat(self, cam)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
         s = self.settings
         self.begin()
+        if self.wavefront is not None:
+            self.wavefront.cam.view = camera
+            self.wavefront.trace(frame, "cisp")
+            return
         for b in self.rsm_batches(frame):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
