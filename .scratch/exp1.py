@@ -33,7 +33,7 @@ def make(mod, name, patch=None, **opts):
     for k, v in (patch or {}).items():
         saved[k] = getattr(mod, k)
         setattr(mod, k, v)
-    k = wp.kernel(getattr(mod, name).func, module="unique", **opts)
+    k = wp.kernel(getattr(mod, name).func, module="unique", enable_backward=False, **opts)
     return k, saved
 
 results = {}
@@ -47,10 +47,7 @@ for scene_name in ("cornell_flooded", "pool"):
         variants = [("current", {}, {})]
         variants.append(("ledger_off", {"ledger_add": ledger_noop}, {}))
         if method == "cisp":
-            variants += [("lb128x4", {}, {"launch_bounds": (128, 4)}), ("lb128x5", {}, {"launch_bounds": (128, 5)}),
-                         ("lb128x6", {}, {"launch_bounds": (128, 6)}),
-                         ("naive_march", {"screen_march": M.screen_march_naive}, {}),
-                         ("naive_march_ledger_off", {"screen_march": M.screen_march_naive, "ledger_add": ledger_noop}, {})]
+            variants += [("lb128x5", {}, {"launch_bounds": (128, 5)}), ("lb128x6", {}, {"launch_bounds": (128, 6)})]
         for vname, patch, opts in variants:
             if vname == "current":
                 k, saved = orig, {}
@@ -72,4 +69,10 @@ for scene_name in ("cornell_flooded", "pool"):
             print(f"{scene_name:16s} {method:5s} {vname:24s} {ms:8.3f} ms  stored {led['stored'].sum():.6g} "
                   f"closure {led.closure():.1e} map {pm.sum():.6g}", flush=True)
             setattr(mod, kname, orig)
+        for bd in (64, 256):
+            r.photons.ledger_block = bd
+            r.photons.trace(r.gbuffer, r.view_params, 99)
+            ms = kernel_ms(r, 10, kname)
+            print(f"{scene_name:16s} {method:5s} {'block' + str(bd):24s} {ms:8.3f} ms", flush=True)
+            r.photons.ledger_block = C.LEDGER_BLOCK
 json.dump(results, open(f"{OUT}/exp1.json", "w"), indent=1)

@@ -14,6 +14,16 @@ from .base import Ledger, PhotonPass, PhotonSettings, camera_pixel_solid_angle, 
 __all__ = ["CISP", "Ledger", "PhotonSettings", "camera_pixel_solid_angle", "frame_random"]
 
 
+def build_bounds(depth: wp.array, width: int, height: int, thickness: float, thickness_rel: float, bounds: wp.array,
+                 device) -> None:
+    """Fill ``bounds`` (``march.bounds_size``) with the fine and coarse depth bounds of ``depth``."""
+    fx, fy = M.bounds_shape(width, height, M.BOUNDS_CELL)
+    cx, cy = M.bounds_shape(width, height, M.BOUNDS_COARSE)
+    wp.launch(M.depth_bounds, dim=fx * fy, device=device,
+              inputs=[depth, width, height, float(thickness), float(thickness_rel), bounds])
+    wp.launch(M.coarsen_bounds, dim=cx * cy, device=device, inputs=[width, height, bounds])
+
+
 class CISP(PhotonPass):
     """The photon pass of seed 000: allocates once, ``trace`` fills ``photon_map`` each frame."""
 
@@ -29,13 +39,10 @@ class CISP(PhotonPass):
         self.rsm_bounds = [[self._bounds_for(r.width, r.height) for r in lm.rsm] for lm in lights]
 
     def _bounds_for(self, width: int, height: int) -> wp.array:
-        cx, cy = M.bounds_shape(width, height)
-        return wp.zeros(cx * cy, dtype=wp.vec2, device=self.device)
+        return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
 
     def _build_bounds(self, depth: wp.array, width: int, height: int, bounds: wp.array) -> None:
-        s = self.settings
-        wp.launch(M.depth_bounds, dim=bounds.shape[0], device=self.device,
-                  inputs=[depth, width, height, float(s.thickness), float(s.thickness_rel), bounds])
+        build_bounds(depth, width, height, self.settings.thickness, self.settings.thickness_rel, bounds, self.device)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, world_project
-from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED, Tally, book,
+from .common import (PHOTON_LAUNCH_BOUNDS, EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED, Tally, book,
                      deposit, emit_and_bounce, entry_mask, ledger_add, photon_index, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march_bounded
 
@@ -94,7 +94,7 @@ def trace_photon(
         hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
 def trace_photons(
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot

@@ -22,7 +22,7 @@ from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
-from .common import (ALL_ENTRIES, EMISSION_ENTRIES, FINAL_ENTRIES, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
+from .common import (PHOTON_LAUNCH_BOUNDS, ALL_ENTRIES, EMISSION_ENTRIES, FINAL_ENTRIES, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
                      L_OCCLUDED, L_REJECTED, L_SAMPLED, Tally, book, book_bounce, deposit, emit_and_bounce, ledger_add,
                      photon_index, r2_point, specular_bounce, tally_new)
 
@@ -188,7 +188,7 @@ def trace_sspm_photon(
             photon_map, tally)
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
 def trace_sspm(
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot

@@ -311,12 +311,20 @@ def screen_march(
     return status, _segment_t(ortho, k0, k1, t1, s_prev), n
 
 
-BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the cells of :func:`depth_bounds`
+BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of :func:`depth_bounds`
+BOUNDS_COARSE = wp.constant(32)  #: edge [texels] of its coarse cells (4x4 fine cells)
 
 
-def bounds_shape(width: int, height: int) -> tuple[int, int]:
-    """(cells across, cells down) of a depth buffer's bounds."""
-    return (width + BOUNDS_CELL - 1) // BOUNDS_CELL, (height + BOUNDS_CELL - 1) // BOUNDS_CELL
+def bounds_shape(width: int, height: int, cell: int = 8) -> tuple[int, int]:
+    """(cells across, cells down) of a depth buffer's bounds with cells of ``cell`` texels."""
+    return (width + cell - 1) // cell, (height + cell - 1) // cell
+
+
+def bounds_size(width: int, height: int) -> int:
+    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells."""
+    fx, fy = bounds_shape(width, height, BOUNDS_CELL)
+    cx, cy = bounds_shape(width, height, BOUNDS_COARSE)
+    return fx * fy + cx * cy
 
 
 @wp.kernel
@@ -326,12 +334,13 @@ def depth_bounds(
     height: int,
     thickness: float,  # [m] absolute part of the surface thickness
     thickness_rel: float,  # relative part (× sample depth)
-    bounds: wp.array(dtype=wp.vec2),  # (cells,) per BOUNDS_CELL² cell: (min z_s, max z_s + thickness) [m] (write)
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) fine cells first: (min z_s, max z_s + thickness) [m] (write)
 ):
-    """Per cell of BOUNDS_CELL² texels: the nearest surface depth and the farthest back face of a surface
+    """Per fine cell of BOUNDS_CELL² texels: the nearest surface depth and the farthest back face of a surface
     (z_s + thickness + thickness_rel·z_s, computed as :func:`screen_march` does), holes counting as BIG_DEPTH. A
     ray whose depth over a stretch of steps stays in front of the first or behind the second cannot hit in
-    that cell, so :func:`screen_march_bounded` skips those steps."""
+    that cell, so :func:`screen_march_bounded` skips those steps. :func:`coarsen_bounds` then fills the
+    coarse cells."""
     c = wp.tid()
     cw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
     i0 = (c % cw) * BOUNDS_CELL
@@ -354,6 +363,29 @@ def depth_bounds(
     bounds[c] = wp.vec2(z_min * 0.999999, z_max * 1.000001)
 
 
+@wp.kernel
+def coarsen_bounds(
+    width: int,
+    height: int,
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) fine cells (read), then coarse cells (write)
+):
+    """Coarse cell = min and max over its (BOUNDS_COARSE / BOUNDS_CELL)² fine cells."""
+    c = wp.tid()
+    fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    r = BOUNDS_COARSE / BOUNDS_CELL
+    i0 = (c % cw) * r
+    j0 = (c / cw) * r
+    b = wp.vec2(BIG_DEPTH, 0.0)
+    for dj in range(r):
+        for di in range(r):
+            if i0 + di < fw and j0 + dj < fh:
+                f = bounds[(j0 + dj) * fw + i0 + di]
+                b = wp.vec2(wp.min(b[0], f[0]), wp.max(b[1], f[1]))
+    bounds[fw * fh + c] = b
+
+
 @wp.func
 def _texel(view: ViewParams, s0: wp.vec2, ds: wp.vec2, s: float) -> wp.vec2i:
     """The texel (i, j) the march samples at screen-segment parameter ``s`` (as :func:`_buffer_depth` reads it)."""
@@ -362,20 +394,37 @@ def _texel(view: ViewParams, s0: wp.vec2, ds: wp.vec2, s: float) -> wp.vec2i:
 
 
 @wp.func
-def _cell_exit(ci: int, s0: float, ds: float, ds_step: float) -> float:
+def _cell_exit(ci: int, cell: int, s0: float, ds: float, ds_step: float) -> float:
     """Step index (as a float) past which the samples leave cell ``ci`` along one screen axis; 1e9 if never."""
     if ds > 0.0:
-        return (float((ci + 1) * BOUNDS_CELL) - s0) / ds / ds_step
+        return (float((ci + 1) * cell) - s0) / ds / ds_step
     if ds < 0.0:
-        return (float(ci * BOUNDS_CELL) - s0) / ds / ds_step
+        return (float(ci * cell) - s0) / ds / ds_step
     return 1.0e9
+
+
+@wp.func
+def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, i: int, n: int, tx: wp.vec2i, cell: int):
+    """The cell (ci, cj) of ``cell`` texels that step i's sample (texel ``tx``) lies in, and the last step <= n
+    whose sample still does: all samples between lie in it too (texel coordinates are monotonic in the step)."""
+    ci = tx[0] / cell
+    cj = tx[1] / cell
+    last_f = wp.min(_cell_exit(ci, cell, s0[0], ds[0], ds_step), _cell_exit(cj, cell, s0[1], ds[1], ds_step))
+    last = n
+    if last_f < float(n):
+        last = wp.max(int(wp.ceil(last_f)) - 1, i)
+    tl = _texel(view, s0, ds, ds_step * float(last))
+    while last > i and (tl[0] / cell != ci or tl[1] / cell != cj):  # rounding: step back into the cell
+        last -= 1
+        tl = _texel(view, s0, ds, ds_step * float(last))
+    return last, ci, cj
 
 
 @wp.func
 def screen_march_bounded(
     view: ViewParams,
     depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
-    bounds: wp.array(dtype=wp.vec2),  # (cells,) :func:`depth_bounds` of ``depth`` with these thicknesses (read)
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) :func:`depth_bounds` of ``depth`` with these thicknesses (read)
     o: wp.vec3,  # world origin [m]
     d: wp.vec3,  # world direction
     t_max: float,
@@ -383,12 +432,13 @@ def screen_march_bounded(
     thickness: float,  # [m] absolute part of the surface thickness
     thickness_rel: float,  # relative part (× sample depth)
 ):
-    """:func:`screen_march_naive`, skipping the steps a cell's depth bounds prove hitless. Returns (status, t_end,
-    steps taken), the same as the naive march: a step tests the ray's depth range over it against the surface
-    at its sample; while the ray's depth over all the steps whose samples lie in one BOUNDS_CELL² cell stays in
-    front of the cell's nearest surface or behind its farthest back face, none of them can hit, and the march
-    jumps to the first step past the cell (the ray's depth is monotonic along the segment, so its range over
-    those steps is that of their two ends). Otherwise it tests the cell's steps one by one."""
+    """:func:`screen_march_naive`, skipping the steps depth bounds prove hitless. Returns (status, t_end, steps
+    taken), the same as the naive march: a step tests the ray's depth range over it against the surface at its
+    sample; while the ray's depth over all the steps whose samples lie in one cell stays in front of the cell's
+    nearest surface or behind its farthest back face, none of them can hit, and the march jumps to the first
+    step past the cell (the ray's depth is monotonic along the segment, so its range over those steps is that
+    of their two ends). It tries the coarse cell first, then the fine one, else tests the fine cell's steps one
+    by one."""
     p0 = wp.transform_point(view.world_to_view, o)
     dv = wp.transform_vector(view.world_to_view, d)
     z0 = -p0[2]
@@ -441,32 +491,30 @@ def screen_march_bounded(
     if pixels > float(max_steps):
         ds_step = s_end / pixels
     ortho = view.orthographic
-    cells_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
+    coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
     s_prev = float(0.0)
     zr_prev = z0
     diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
     i = int(1)
     while i <= n:
-        # the cell of step i's sample, and the last step whose sample is still in it
         tx = _texel(view, s0, ds, ds_step * float(i))
-        ci = tx[0] / BOUNDS_CELL
-        cj = tx[1] / BOUNDS_CELL
-        last_f = wp.min(_cell_exit(ci, s0[0], ds[0], ds_step), _cell_exit(cj, s0[1], ds[1], ds_step))
-        last = n
-        if last_f < float(n):
-            last = wp.max(int(wp.ceil(last_f)) - 1, i)
-        tl = _texel(view, s0, ds, ds_step * float(last))
-        while last > i and (tl[0] / BOUNDS_CELL != ci or tl[1] / BOUNDS_CELL != cj):  # rounding: step back in
-            last -= 1
-            tl = _texel(view, s0, ds, ds_step * float(last))
-        b = bounds[cj * cells_x + ci]
-        s_last = ds_step * float(last)
-        zr_last = _ray_depth(ortho, z0, z1, k0, k1, s_last)
-        if wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]:
+        # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
+        last, ci, cj = _cell_span(view, s0, ds, ds_step, i, n, tx, BOUNDS_COARSE)
+        b = bounds[coarse_0 + cj * coarse_x + ci]
+        zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+        skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+        if not skip:
+            last, ci, cj = _cell_span(view, s0, ds, ds_step, i, last, tx, BOUNDS_CELL)
+            b = bounds[cj * fine_x + ci]
+            zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+            skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+        if skip:
             # no step i..last can hit: continue after them, as the naive march would
-            s_prev = s_last
+            s_prev = ds_step * float(last)
+            sp_last = s0 + ds * s_prev
             zr_prev = zr_last
-            sp_last = s0 + ds * s_last
             diff_prev = zr_last - _buffer_depth(view, depth, sp_last[0], sp_last[1])
             i = last + 1
             continue
