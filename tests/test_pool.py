@@ -16,7 +16,7 @@ from cisp_warp.photons import PhotonSettings
 from cisp_warp.render import Renderer, RenderSettings
 from cisp_warp.scene import DeviceScene, LightKind
 from cisp_warp.sequence import VideoWriter, render_sequence
-from cisp_warp.usd_import import load_usd
+from cisp_warp.usd import load_usd
 
 ROOT = Path(__file__).resolve().parents[1]
 POOL = ROOT / "scenes_usd" / "pool.usda"
@@ -25,11 +25,9 @@ TINY = RenderSettings(width=64, height=36, rsm_size=64, photons=PhotonSettings(p
 
 @pytest.fixture(scope="module")
 def gen():
-    spec = importlib.util.spec_from_file_location("make_pool_scene", ROOT / "tools" / "make_pool_scene.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses resolve their annotations through sys.modules
-    spec.loader.exec_module(module)
-    return module
+    import cisp_warp.pool_scene  # the generator behind cisp-make-pool and tools/make_pool_scene.py
+
+    return cisp_warp.pool_scene
 
 
 @pytest.fixture(scope="module")

@@ -43,7 +43,7 @@ def run_config(scene_path, method, n, args, device):
     from cisp_warp.photons import PhotonSettings
     from cisp_warp.render import Renderer, RenderSettings
     from cisp_warp.timing import StageTimer
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     scene = load_usd(scene_path, width=args.width, height=args.height, device=device)
     # the reference traces two passes of n per frame here: its rate per photon is what is compared
