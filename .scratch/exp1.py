@@ -6,7 +6,7 @@ wp.config.log_level = wp.LOG_WARNING
 wp.init()
 from cisp_warp.photons import PhotonSettings
 from cisp_warp.render import Renderer, RenderSettings
-from cisp_warp.usd_import import load_usd
+from cisp_warp.usd import load_usd
 import cisp_warp.photons.kernels_cisp as KC
 import cisp_warp.photons.kernels_world as KW
 import cisp_warp.photons.common as C

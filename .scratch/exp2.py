@@ -5,7 +5,7 @@ wp.config.log_level = wp.LOG_WARNING
 wp.init()
 from cisp_warp.photons import PhotonSettings
 from cisp_warp.render import Renderer, RenderSettings
-from cisp_warp.usd_import import load_usd
+from cisp_warp.usd import load_usd
 dev = wp.get_device("cuda:0")
 for scene_name in ("cornell_flooded", "pool"):
     scene = load_usd(f"scenes_usd/{scene_name}.usda", width=1920, height=1080, device=dev)

@@ -4,7 +4,7 @@ wp.config.log_level = wp.LOG_WARNING
 wp.init()
 from cisp_warp.photons import PhotonSettings
 from cisp_warp.render import Renderer, RenderSettings
-from cisp_warp.usd_import import load_usd
+from cisp_warp.usd import load_usd
 from cisp_warp.photons import common as C
 from cisp_warp.photons.march import screen_march, MARCH_HIT
 from cisp_warp.raster.views import ViewParams, world_project

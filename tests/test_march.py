@@ -60,7 +60,8 @@ def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps
     depth = wp.array(random_depth(rng, w, h), device=device)
     bounds = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
     build_bounds(depth, w, h, 0.02, 0.02, bounds, device)
-    wp.launch(march_both, dim=n, device=device, inputs=[view.params(), depth, *args, max_steps, bounds, fast, bounded, naive])
+    wp.launch(march_both, dim=n, device=device,
+              inputs=[view.params(), depth, *args, max_steps, bounds, fast, bounded, naive])
     v = naive.numpy()
     for f in (fast.numpy(), bounded.numpy()):
         compare(f, v, device, max_steps)

@@ -131,7 +131,8 @@ def main(argv=None) -> int:
         print(f"{sname}: trace+store rate [million photons per second], device {dev}")
         print(f"{'method':<14}" + "".join(f"{n:>14,}" for n in counts))
         for method, rows in results.items():
-            print(f"{method:<14}" + "".join(f"{row['traced'] / row['stages']['trace+store'] / 1e3:14.2f}" for row in rows))
+            rates = [row["traced"] / row["stages"]["trace+store"] / 1e3 for row in rows]
+            print(f"{method:<14}" + "".join(f"{r:14.2f}" for r in rates))
         print()
     if args.json:
         with open(args.json, "w") as f:

@@ -49,9 +49,10 @@ FOOTPRINT_PAPER = wp.constant(1)
 
 
 LEDGER_BLOCK = 128  #: threads per block of the photon kernels on CUDA: each block adds to the ledger once per entry
-#: CUDA launch bounds of the photon kernels: blocks of at most LEDGER_BLOCK threads, 6 resident per SM (<= 80
-#: registers a thread). Measured on an H100 (Cornell box, 2M photons): the CISP trace 3.03 ms at the 128 registers
-#: nvcc picks by itself, 2.51 ms at 80 (a few spilled to L1), 2.76 ms at 96.
+#: CUDA launch bounds of CISP's trace kernel: blocks of at most LEDGER_BLOCK threads, 6 resident per SM (<= 80
+#: registers a thread). Measured on an H100 (Cornell box, 2M photons): 3.03 ms at the 128 registers nvcc picks by
+#: itself, 2.51 ms at 80 (a few spilled to L1), 2.76 ms at 96. Not yet measured on sspm / caustics_map, which keep
+#: nvcc's choice.
 PHOTON_LAUNCH_BOUNDS = (LEDGER_BLOCK, 6)
 
 

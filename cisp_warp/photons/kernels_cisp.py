@@ -10,8 +10,9 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, world_project
-from .common import (PHOTON_LAUNCH_BOUNDS, EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED, Tally, book,
-                     deposit, emit_and_bounce, entry_mask, ledger_add, photon_index, tally_new)
+from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
+                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add,
+                     photon_index, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march_bounded
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
@@ -163,7 +164,7 @@ def trace_photons(
     ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
-        trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth, cam_depth_bounds,
-                     cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel, t_max, footprint_mode, use_cascade, photon_map,
-                     tally, hits)
+        trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
+                     cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
+                     t_max, footprint_mode, use_cascade, photon_map, tally, hits)
     ledger_add(ledger, tally, lane, CISP_FINAL_ENTRIES)

@@ -19,8 +19,9 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
-from .common import (PHOTON_LAUNCH_BOUNDS, EMISSION_ENTRIES, FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, Tally, book,
-                     emit_and_bounce, entry_mask, ledger_add, photon_index, pixel_footprint, tally_new)
+from .common import (EMISSION_ENTRIES, FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED,
+                     Tally, book, emit_and_bounce, entry_mask, ledger_add, photon_index,
+                     pixel_footprint, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
@@ -120,7 +121,7 @@ def trace_to_caustic_map_photon(
     book(tally, L_STORED, power)
 
 
-@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
+@wp.kernel
 def trace_to_caustic_map(
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot

@@ -22,9 +22,13 @@ from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
-from .common import (PHOTON_LAUNCH_BOUNDS, ALL_ENTRIES, EMISSION_ENTRIES, FINAL_ENTRIES, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
-                     L_OCCLUDED, L_REJECTED, L_SAMPLED, Tally, book, book_bounce, deposit, emit_and_bounce, ledger_add,
-                     photon_index, r2_point, specular_bounce, tally_new)
+from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
+                     L_OCCLUDED, L_REJECTED, L_SAMPLED, L_STORED, Tally, book, book_bounce, deposit, emit_and_bounce,
+                     entry_mask, ledger_add, photon_index, r2_point, specular_bounce, tally_new)
+
+#: the ways an SSPM photon ends after its first bounce (world_trace, trace_sspm_photon and deposit book nothing else)
+SSPM_FINAL_ENTRIES = wp.constant(entry_mask(L_ABSORBED, L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED,
+                                            L_REJECTED, L_STORED))
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
 WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
@@ -188,7 +192,7 @@ def trace_sspm_photon(
             photon_map, tally)
 
 
-@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
+@wp.kernel
 def trace_sspm(
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot
@@ -241,7 +245,7 @@ def trace_sspm(
     if texel >= 0:
         trace_sspm_photon(origin, n, d, power, state, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max,
                           max_bounces, footprint_mode, photon_map, tally)
-    ledger_add(ledger, tally, lane, FINAL_ENTRIES)
+    ledger_add(ledger, tally, lane, SSPM_FINAL_ENTRIES)
 
 
 @wp.func

@@ -390,7 +390,8 @@ def coarsen_bounds(
 def _texel(view: ViewParams, s0: wp.vec2, ds: wp.vec2, s: float) -> wp.vec2i:
     """The texel (i, j) the march samples at screen-segment parameter ``s`` (as :func:`_buffer_depth` reads it)."""
     sp = s0 + ds * s
-    return wp.vec2i(wp.clamp(int(wp.floor(sp[0])), 0, view.width - 1), wp.clamp(int(wp.floor(sp[1])), 0, view.height - 1))
+    return wp.vec2i(wp.clamp(int(wp.floor(sp[0])), 0, view.width - 1),
+                    wp.clamp(int(wp.floor(sp[1])), 0, view.height - 1))
 
 
 @wp.func
