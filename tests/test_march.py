@@ -42,7 +42,7 @@ def random_depth(rng, w, h):
 def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps):
     """The batched march and the march that skips cells by their depth bounds end every ray where the naive
     march ends it: same status, end point and step count."""
-    w, h, n = 150, 100, 4000  # not multiples of the cells
+    w, h, n = 150, 100, 2000  # not multiples of the cells
     view = View(np.eye(4), w, h, near=0.1, far=100.0, fx=20.0 if orthographic else 80.0,
                 fy=20.0 if orthographic else 80.0, orthographic=orthographic)
     # origins in front of the surfaces, inside the view; directions mostly away from the eye (-z), some towards it
@@ -69,7 +69,7 @@ def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps
 
 def compare(f, v, device, max_steps):
     for status in range(3):  # hit, exit and (with 7 steps) out-of-steps all occur
-        assert (v[:, 0] == status).sum() > (20 if status != 2 or max_steps == 7 else -1)
+        assert (v[:, 0] == status).sum() > (10 if status != 2 or max_steps == 7 else -1)
     if wp.get_device(device).is_cpu:
         np.testing.assert_array_equal(f, v)
     else:  # CUDA may contract the two code shapes' multiply-adds differently: a crossing can move by a rounding
