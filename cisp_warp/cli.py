@@ -48,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--roughness-cutoff", type=float, default=0.3, help="RSM texels rougher than this emit no photons")
     p.add_argument("--luminance-cutoff", type=float, default=0.01,
                    help="RSM texels dimmer than this fraction of the brightest emit no photons")
+    p.add_argument("--splat", default="point", choices=["point", "wavefront"],
+                   help="cisp, sspm: store photons as points, or as a wavefront: photons on a grid of the RSM "
+                   "(--photons cells per light), each cell's power spread over the area its corners land on")
     p.add_argument("--max-bounces", type=int, default=8, help="sspm, reference: specular bounces before a photon is dropped")
     p.add_argument("--cmap-gather", default="light", choices=["light", "eye"],
                    help="caustics_map: Gaussian gather in the light-space caustic map, or leave it to the eye-space denoiser")
@@ -182,7 +185,8 @@ def main(argv: list[str] | None = None) -> int:
             photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
                                      roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff,
                                      max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
-                                     cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0)
+                                     cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0,
+                                     splat=args.splat)
             settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                       method=args.method, photons=photons, denoiser=args.denoiser,
                                       supersample=args.supersample)

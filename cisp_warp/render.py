@@ -97,6 +97,9 @@ class RenderSettings:
                 words = re.match(r"([a-z_]+) (.*)", exc.reason)
                 name, rest = (words.group(1), words.group(2)) if words else ("photons", exc.reason)
             raise SettingsError(name, rest, owner="PhotonSettings") from None
+        if self.photons.splat != "point" and self.method not in ("cisp", "sspm"):
+            raise SettingsError("splat", f"{self.photons.splat} works with method cisp or sspm, not {self.method}",
+                                owner="PhotonSettings")
 
 
 class SettingsError(SceneError):

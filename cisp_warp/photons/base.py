@@ -41,12 +41,15 @@ class PhotonSettings:
     cmap_history: int = 4  #: caustics_map: frames in seed 004's temporal filter (1 = off)
     reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
     sort_photons: bool | None = None  #: trace RSM photons in texel (Morton) order; None = on CUDA only
+    splat: str = "point"  #: cisp, sspm: "point" deposits, or "wavefront" (photons on an RSM grid, cells splatted)
 
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
             raise SceneError(f"--photons must be an integer in [1, 2^28], got {self.photons!r}")
         if self.footprint not in ("exact", "paper"):
             raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
+        if self.splat not in ("point", "wavefront"):
+            raise SceneError(f"--splat must be 'point' or 'wavefront', got {self.splat!r}")
         if self.cmap_gather not in ("light", "eye"):
             raise SceneError(f"--cmap-gather must be 'light' or 'eye', got {self.cmap_gather!r}")
         for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0)):
@@ -149,7 +152,7 @@ class PhotonPass:
         self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
         sort = settings.sort_photons if settings.sort_photons is not None else self.device.is_cuda
         self.use_order = 1 if sort else 0
-        n_sort = 2 * self.max_photons_per_view() if sort else 1
+        n_sort = 2 * self.max_photons_per_view() if sort and settings.splat == "point" else 1  # a grid needs no order
         self._sort_keys = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU

@@ -32,7 +32,18 @@ class CISP(PhotonPass):
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
-        self.hits = wp.zeros(self.max_photons_per_view(), dtype=wp.vec4, device=self.device)
+        n_hits = self.max_photons_per_view() if settings.splat == "point" else 1  # the grid keeps its own records
+        self.hits = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
+        self.wavefront = None
+        if settings.splat == "wavefront":
+            from .kernels_world import CameraBuffers
+            from .wavefront import WavefrontSplat
+
+            cam = CameraBuffers()
+            cam.view = camera_view.params()
+            cam.depth, cam.position, cam.normal = gbuffer.depth, gbuffer.position, gbuffer.normal
+            cam.solid_angle = self.solid_angle
+            self.wavefront = WavefrontSplat(self, cam)
         # depth bounds per 8x8 cell of every light view's opaque depth and of the camera's, rebuilt each frame:
         # the march skips the steps they prove hitless
         self.cam_bounds = self._bounds_for(gbuffer.width, gbuffer.height)
@@ -49,6 +60,10 @@ class CISP(PhotonPass):
         s = self.settings
         self.begin()
         self._build_bounds(gbuffer.depth, gbuffer.width, gbuffer.height, self.cam_bounds)
+        if self.wavefront is not None:
+            self.wavefront.cam.view = camera
+            self.wavefront.trace(frame, "cisp")
+            return
         for b in self.rsm_batches(frame):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular

@@ -22,6 +22,63 @@ CISP_FINAL_ENTRIES = wp.constant(entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLU
 
 
 @wp.func
+def march_cascade(
+    light: ViewParams,
+    camera: ViewParams,
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) the light view's opaque depth [m] (read)
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) the camera's opaque depth [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    origin: wp.vec3,  # [m] where the photon leaves the specular surface
+    d: wp.vec3,  # unit direction after the bounce
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    use_cascade: int,  # 0: light view only (no camera march)
+):
+    """Steps 4-5 of seed 000 for one photon: march the light view, reproject the end point into the camera
+    view, march on there. Returns (ledger entry where the photon ends, end point [m], camera pixel): the
+    entry is ``L_STORED`` when the photon reached the surface camera pixel ``pix`` shows (validation and the
+    store are the caller's), else where it was lost (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``)."""
+    # 4. march the light view's opaque depth (start a hair off the surface)
+    o = origin + d * (1.0e-4 * t_max)
+    status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
+                                                 thickness, thickness_rel)
+    light_hit = status == MARCH_HIT
+    x_end = o + d * t_end
+    if status == MARCH_STEPS:
+        return L_STEPS, x_end, int(-1)
+    # 5. cascade: reproject into the camera view (Fig. 7)
+    q = world_project(camera, x_end)
+    inside = q[2] > camera.near and q[0] >= 0.0 and q[1] >= 0.0 and q[0] < float(camera.width) and q[1] < float(camera.height)
+    if not inside:
+        if light_hit:
+            return L_LOST_CAMERA, x_end, int(-1)
+        return L_LOST_LIGHT, x_end, int(-1)
+    pix = int(q[1]) * camera.width + int(q[0])
+    zc = cam_depth[pix]
+    tol = thickness + thickness_rel * zc
+    if zc > 0.0 and q[2] > zc + tol:
+        return L_OCCLUDED, x_end, pix
+    on_surface = zc > 0.0 and q[2] >= zc - tol
+    if not on_surface:
+        if use_cascade == 0:
+            return L_LOST_LIGHT, x_end, int(-1)
+        # floating in front of the camera's surfaces: the second chance, march on in the camera view
+        status, t2, steps2 = screen_march_bounded(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
+                                                  thickness, thickness_rel)
+        if status == MARCH_STEPS:
+            return L_STEPS, x_end, int(-1)
+        if status != MARCH_HIT:
+            return L_LOST_CAMERA, x_end, int(-1)
+        x_end = x_end + d * t2
+        q = world_project(camera, x_end)
+        pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
+    return L_STORED, x_end, pix
+
+
+@wp.func
 def trace_photon(
     k: int,  # photon index
     origin: wp.vec3,  # [m] on the specular surface
@@ -46,49 +103,13 @@ def trace_photon(
     tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored)
 ):
-    """Steps 4-7 of one emitted photon: march the light view, cascade into the camera view, validate, store;
-    its final entry booked."""
-    # 4. march the light view's opaque depth (start a hair off the surface)
-    o = origin + d * (1.0e-4 * t_max)
-    status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
-                                                 thickness, thickness_rel)
-    light_hit = status == MARCH_HIT
-    if status == MARCH_STEPS:
-        book(tally, L_STEPS, power)
+    """Steps 4-7 of one emitted photon: march the light view, cascade into the camera view (:func:`march_cascade`),
+    validate, store; its final entry booked."""
+    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
+                                      origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
+    if entry != L_STORED:
+        book(tally, entry, power)
         return
-    x_end = o + d * t_end
-    # 5. cascade: reproject into the camera view (Fig. 7)
-    q = world_project(camera, x_end)
-    inside = q[2] > camera.near and q[0] >= 0.0 and q[1] >= 0.0 and q[0] < float(camera.width) and q[1] < float(camera.height)
-    if not inside:
-        if light_hit:
-            book(tally, L_LOST_CAMERA, power)
-        else:
-            book(tally, L_LOST_LIGHT, power)
-        return
-    pix = int(q[1]) * camera.width + int(q[0])
-    zc = cam_depth[pix]
-    tol = thickness + thickness_rel * zc
-    if zc > 0.0 and q[2] > zc + tol:
-        book(tally, L_OCCLUDED, power)
-        return
-    on_surface = zc > 0.0 and q[2] >= zc - tol
-    if not on_surface:
-        if use_cascade == 0:
-            book(tally, L_LOST_LIGHT, power)
-            return
-        # floating in front of the camera's surfaces: the second chance, march on in the camera view
-        status, t2, steps2 = screen_march_bounded(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
-                                                  thickness, thickness_rel)
-        if status == MARCH_STEPS:
-            book(tally, L_STEPS, power)
-            return
-        if status != MARCH_HIT:
-            book(tally, L_LOST_CAMERA, power)
-            return
-        x_end = x_end + d * t2
-        q = world_project(camera, x_end)
-        pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(camera, pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, tally) != 0:

@@ -30,8 +30,7 @@ from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CUL
 SSPM_FINAL_ENTRIES = wp.constant(entry_mask(L_ABSORBED, L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED,
                                             L_REJECTED, L_STORED))
 
-WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
-WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
+WT_LANDED = wp.constant(0)  #: reached a diffuse receiver; any other status is the ledger entry it was booked as
 
 INV_PI = wp.constant(1.0 / math.pi)
 wp.set_module_options({"enable_backward": False})  # forward only: no adjoints to compile
@@ -118,8 +117,9 @@ def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.v
                 roughness_cutoff: float, t_max: float, max_bounces: int, tally: wp.ref[Tally]):
     """Follow a photon leaving the surface point ``x`` along ``d`` through further specular bounces.
 
-    Returns (WT_LANDED or WT_DONE, landing point, receiver shading normal, arriving direction, power, rng).
-    The ways of ending other than landing are booked here (escaped, culled, bounce limit, absorbed).
+    Returns (WT_LANDED or the ledger entry it ended in, landing point, receiver shading normal, arriving
+    direction, power, rng). The ways of ending other than landing are booked here (escaped, culled, bounce
+    limit, absorbed).
     """
     eps = 1.0e-5 * t_max
     o = offset_origin(x, ng, d, eps)
@@ -128,11 +128,11 @@ def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.v
         tri, y, n, g = world_hit(ws, o, d, t_max)
         if tri < 0:
             book(tally, L_ESCAPED, power)
-            return WT_DONE, y, n, d, power, state
+            return L_ESCAPED, y, n, d, power, state
         if is_smooth_specular(ws, tri, roughness_cutoff) != 0:
             if bounce == max_bounces:
                 book(tally, L_BOUNCES, power)
-                return WT_DONE, y, n, d, power, state
+                return L_BOUNCES, y, n, d, power, state
             m = ws.triangle_material[tri]
             d, power, refracted, state = specular_bounce(d, n, int(ws.opacity[m] < 1.0), ws.ior[m], ws.albedo[m],
                                                          power, state, tally)
@@ -141,10 +141,10 @@ def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.v
             continue
         if (ws.triangle_layers[tri] & LAYER_OPAQUE_C) == 0:  # a rough transmissive surface: not modelled
             book(tally, L_CULLED_ROUGH, power)
-            return WT_DONE, y, n, d, power, state
+            return L_CULLED_ROUGH, y, n, d, power, state
         return WT_LANDED, y, n, d, power, state
     book(tally, L_BOUNCES, power)
-    return WT_DONE, o, ng, d, power, state
+    return L_BOUNCES, o, ng, d, power, state
 
 
 @wp.func
@@ -155,6 +155,19 @@ def camera_pixel(cam: CameraBuffers, y: wp.vec3):
     if q[2] <= v.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(v.width) or q[1] >= float(v.height):
         return int(-1), q
     return int(q[1]) * v.width + int(q[0]), q
+
+
+@wp.func
+def camera_receiver(cam: CameraBuffers, y: wp.vec3, thickness: float, thickness_rel: float):
+    """Seed 003's depth-visibility test of a landing point ``y``. Returns (``L_STORED`` when the camera sees
+    it, validation and store pending, else ``L_LOST_CAMERA`` or ``L_OCCLUDED``; camera pixel or -1)."""
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        return L_LOST_CAMERA, pix
+    zc = cam.depth[pix]
+    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
+        return L_OCCLUDED, pix
+    return L_STORED, pix
 
 
 @wp.func
@@ -180,13 +193,9 @@ def trace_sspm_photon(
                                                  max_bounces, tally)
     if status != WT_LANDED:
         return
-    pix, q = camera_pixel(cam, y)
-    if pix < 0:
-        book(tally, L_LOST_CAMERA, power)
-        return
-    zc = cam.depth[pix]
-    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
-        book(tally, L_OCCLUDED, power)
+    entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
+    if entry != L_STORED:
+        book(tally, entry, power)
         return
     deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
             photon_map, tally)

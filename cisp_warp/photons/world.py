@@ -51,10 +51,22 @@ class SSPM(_WorldPass):
 
     name = "sspm"
 
+    def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
+                 settings: PhotonSettings, device, t_max: float):
+        super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
+        self.wavefront = None
+        if settings.splat == "wavefront":
+            from .wavefront import WavefrontSplat
+
+            self.wavefront = WavefrontSplat(self, self.cam)
+
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         s = self.settings
         self.begin()
         self.cam.view = camera
+        if self.wavefront is not None:
+            self.wavefront.trace(frame, "sspm", self.world)
+            return
         for b in self.rsm_batches(frame):
             sp = b.rsm.specular
             self.launch_photons(K.trace_sspm, b.n, inputs=[
