@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 
 import warp as wp
@@ -32,7 +33,7 @@ def kernel_table(results, frames: int) -> dict[str, tuple[float, float]]:
     for r in results:
         name = r.name
         if name.startswith("forward kernel "):
-            name = name[len("forward kernel "):]
+            name = re.sub(r"_[0-9a-f]{8}$", "", name[len("forward kernel "):])  # the module hash Warp appends
         a = acc.setdefault(name, [0.0, 0])
         a[0] += r.elapsed
         a[1] += 1
