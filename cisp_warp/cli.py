@@ -77,6 +77,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="anti-aliasing: N x N samples per pixel (1 = off)")
     p.add_argument("--no-rsm-aovs", action="store_true", help=argparse.SUPPRESS)  # the default now
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    d = p.add_argument_group("distributed rendering (with --frames; needs pip install -e '.[distributed]')")
+    d.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="spread the frames over N Dask workers of a local cluster: one per GPU, else CPU processes")
+    d.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the workers of a running Dask cluster (e.g. tcp://head:8786; with --workers N, N of "
+                   "them); the stage and --out must be at the same paths there")
+    d.add_argument("--resume", action="store_true", help="keep the frames already in --out, render the missing ones")
+    d.add_argument("--warmup", type=int, default=None, metavar="N",
+                   help="frames each chunk renders unwritten before its first frame; None: as many as the "
+                   "denoiser's temporal filter needs")
     return p
 
 
@@ -194,6 +204,10 @@ def main(argv: list[str] | None = None) -> int:
             raise SceneError(flag_of(e)) from None
         extra = parse_aov_list(args.aovs)
         frames = parse_frames(args.frames) if args.frames else None
+        if args.workers is not None or args.scheduler or args.resume:
+            from .distributed import main_distributed
+
+            return main_distributed(args, settings, frames, say, scene_path)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)
             first = frames.start if frames else args.time
