@@ -21,6 +21,8 @@ import warp as wp
 from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
+from .photons.cisp import build_bounds
+from .photons.march import bounds_size
 from .raster import GBuffer, LightMaps, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
@@ -171,6 +173,7 @@ class Renderer:
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        self.depth_bounds = wp.zeros(bounds_size(cam.width, cam.height), dtype=wp.vec2, device=self.device)
         self.view = camera_view(cam)
         self.view_params = self.view.params()
         self.prev_view_params = self.view_params
@@ -248,9 +251,10 @@ class Renderer:
                       inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.sky_irradiance,
                               self.surface_radiance])
             ps = self.settings.photons
+            build_bounds(g.depth, g.width, g.height, ps.thickness, 0.02, self.depth_bounds, self.device)
             wp.launch(composite, dim=n, device=self.device,
-                      inputs=[self.view_params, g.depth, self.surface_radiance, w.depth, w.position, w.normal, w.ior,
-                              self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
+                      inputs=[self.view_params, g.depth, self.depth_bounds, self.surface_radiance, w.depth, w.position,
+                              w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
         self.prev_view_params = self.view_params

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 
 import warp as wp
@@ -32,7 +33,7 @@ def kernel_table(results, frames: int) -> dict[str, tuple[float, float]]:
     for r in results:
         name = r.name
         if name.startswith("forward kernel "):
-            name = name[len("forward kernel "):]
+            name = re.sub(r"_[0-9a-f]{8}$", "", name[len("forward kernel "):])  # the module hash Warp appends
         a = acc.setdefault(name, [0.0, 0])
         a[0] += r.elapsed
         a[1] += 1
@@ -138,7 +139,8 @@ def main(argv=None) -> int:
         print(f"{sname}: trace+store rate [million photons per second], device {dev}")
         print(f"{'method':<14}" + "".join(f"{n:>14,}" for n in counts))
         for method, rows in results.items():
-            print(f"{method:<14}" + "".join(f"{row['traced'] / row['stages']['trace+store'] / 1e3:14.2f}" for row in rows))
+            rates = [row["traced"] / row["stages"]["trace+store"] / 1e3 for row in rows]
+            print(f"{method:<14}" + "".join(f"{r:14.2f}" for r in rates))
         print()
     if args.json:
         with open(args.json, "w") as f:

@@ -143,6 +143,8 @@ class PhotonPass:
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
+        #: (LEDGER_ENTRIES,) vec3d alias of ``ledger`` (one row per entry) that the photon kernels add to
+        self.ledger_rows = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,), device=self.device)
         self.max_lum = wp.zeros(len(lights), dtype=wp.float32, device=self.device)
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)

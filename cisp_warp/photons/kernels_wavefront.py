@@ -398,6 +398,7 @@ def trace_grid_cisp(
     light_pos: wp.vec3,
     grid: Grid,
     rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) [m] (read)
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
     rsm_position: wp.array(dtype=wp.vec3),  # (H_l*W_l,) specular layer [m] (read)
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -409,6 +410,7 @@ def trace_grid_cisp(
     mat_opacity: wp.array(dtype=wp.float32),
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
     cam_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
     cam_normal: wp.array(dtype=wp.vec3),  # (H*W,) unit (read)
     max_steps: int,
@@ -434,8 +436,8 @@ def trace_grid_cisp(
     ok, d = grid_bounce(sheet, d_in, n, int(mat_opacity[triangle_material[rsm_tri[texel]]] < 1.0), rsm_ior[texel])
     if ok == 0:
         return
-    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, cam_depth, origin, d, t_max, max_steps,
-                                      thickness, thickness_rel, use_cascade)
+    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
+                                      origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
     if entry == L_STORED:
         x_end, pix = refine_landing(camera, cam_depth, cam_position, cam_normal, origin, d, x_end, pix, thickness,
                                     thickness_rel)

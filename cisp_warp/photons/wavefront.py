@@ -84,11 +84,13 @@ class WavefrontSplat:
                     params, kind, light_pos, g, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                     sc.triangle_material, sc.opacity, sc.albedo, p._max_lum_of[li], float(s.roughness_cutoff),
                     float(s.luminance_cutoff), self.tri_power, p.ledger])
-                if tracer == "cisp":
+                if tracer == "cisp":  # p is the CISP pass: its depth bounds let the march skip hitless cells
+                    rsm_bounds = p.rsm_bounds[li][vi]
+                    p._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
                     wp.launch(K.trace_grid_cisp, dim=2 * corners, device=dev, inputs=[
-                        params, kind, light_pos, g, r.opaque_depth, sp.position, sp.normal, sp.ior, sp.tri_id,
-                        sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, self.cam.view,
-                        self.cam.depth, self.cam.position, self.cam.normal, int(s.max_steps),
+                        params, kind, light_pos, g, r.opaque_depth, rsm_bounds, sp.position, sp.normal, sp.ior,
+                        sp.tri_id, sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, self.cam.view,
+                        self.cam.depth, p.cam_bounds, self.cam.position, self.cam.normal, int(s.max_steps),
                         float(s.thickness), float(s.thickness_rel), p.t_max, int(s.cascade), self.rec])
                 else:
                     _, _, seed = frame_random(s.seed, frame, li * 64 + vi)

@@ -74,7 +74,7 @@ class SSPM(_WorldPass):
                 sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[b.light_index],
                 self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
                 float(s.roughness_cutoff), float(s.luminance_cutoff), float(s.thickness), float(s.thickness_rel),
-                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger])
+                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows])
 
 
 def reference_target(settings: PhotonSettings, device) -> int:
@@ -171,7 +171,7 @@ class Reference(_WorldPass):
                         float(light.cone_angle), float(light.cone_softness),
                         self.world, self.cam, n, rng_seed, wp.vec2i(sx, sy), float(s.roughness_cutoff), self.t_max,
                         int(s.max_bounces), self.footprint_mode, self.offsets[li][vi], self.pass_map,
-                        self.landing_pos, self.landing_normal, self.landing_power, self.ledger])
+                        self.landing_pos, self.landing_normal, self.landing_power, self.ledger_rows])
             wp.launch(K.accumulate_pass, dim=self.pass_map.shape[0], device=d,
                       inputs=[self.pass_map, self.total, self.total_sq])
             self.grid.build(self.landing_pos, self.gather_radius)
