@@ -6,10 +6,12 @@ still caustic is blurred again every frame and converges to a blur; and its lumi
 by the per-frame variance, which does not shrink as frames accumulate. Here
 
 1. temporal (:mod:`.kernels_caustic`): the history is the running mean of the raw irradiance, reprojected
-   through the motion vectors with SVGF's depth/normal consistency tests; a static caustic converges to the
-   photon map's long-run mean. Where the new photons disagree with the history by more than its noise
-   explains (moving water, a moving light), the history is cut back in proportion (the weight that
-   minimises the blend's error for the measured bias), so an animated caustic follows within a few frames;
+   through the motion vectors with SVGF's depth/normal consistency tests (Catmull-Rom where the 4x4
+   footprint is one surface, so a camera pan does not blur it); a static caustic converges to the photon
+   map's long-run mean. Where the new photons disagree with the history by more than its noise explains
+   (moving water, a moving light) over the window or at the pixel alone, the history is cut back in
+   proportion (the weight that minimises the blend's error for the measured bias), so an animated caustic
+   follows within a few frames;
 2. spatial (:mod:`.kernels_atrous`, gated levels): the variance of the *mean* (σ²/n, shrinking as frames
    accumulate) sets both the luminance edge stop and, per pixel, the footprint R still needed to bring the
    relative noise down to ``noise_target``; a level of spacing s acts only where R ≥ s/2, so the filter
@@ -39,11 +41,13 @@ class CausticSettings:
     change_radius: int = 2  #: half width [pixels] of the window that tests the new photons against the history
     change_sigmas: float = 5.0  #: deviations of the new photons from the history beyond this many standard
     #: errors count as change
+    pixel_sigmas: float = 3.0  #: a pixel's own deviation beyond this many of its standard deviations (plus
+    #: a photon's worth) counts as change there, however little of the window changed
     atrous_levels: int = 4  #: à-trous levels, spacings 1, 2, 4, ... pixels (0: temporal accumulation only)
-    noise_target: float = 0.03  #: relative noise the spatial footprint aims at (R from Var / (4π τ² μ²))
+    noise_target: float = 0.05  #: relative noise the spatial footprint aims at (R from Var / (4π τ² μ²))
     sigma_depth: float = 1.0  #: σ_z of the depth edge stop (in units of the depth gradient)
     sigma_normal: float = 128.0  #: σ_n, exponent of the normal edge stop
-    sigma_luminance: float = 4.0  #: σ_l, luminance edge stop in standard deviations of the mean
+    sigma_luminance: float = 2.0  #: σ_l, luminance edge stop in standard deviations of the mean
     depth_tolerance: float = 0.1  #: reprojection and change window: largest relative depth difference
     normal_tolerance: float = 0.9  #: reprojection and change window: smallest cosine between normals
 
@@ -54,8 +58,8 @@ class CausticSettings:
             raise ValueError(f"change_radius must lie in [1, {K.MAX_CHANGE_RADIUS}]")
         if self.atrous_levels < 0:
             raise ValueError("atrous_levels must be >= 0")
-        if self.change_sigmas <= 0.0:
-            raise ValueError("change_sigmas must be > 0")
+        if self.change_sigmas <= 0.0 or self.pixel_sigmas <= 0.0:
+            raise ValueError("change_sigmas and pixel_sigmas must be > 0")
         if self.noise_target <= 0.0:
             raise ValueError("noise_target must be > 0")
         if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
@@ -152,7 +156,7 @@ class CausticDenoiser:
         wp.launch(K.accumulate, dim=dim, device=d,
                   inputs=[irradiance_in, self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats,
                           self.parity, w, h,
-                          s.change_radius, float(s.max_history), s.change_sigmas,
+                          s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas,
                           s.depth_tolerance, s.normal_tolerance],
                   outputs=[self.hist_mean, self.hist_moments, self.hist_frames, self.integrated,
                            self.temporal_variance, self.frames, self.depth_slope])

@@ -117,15 +117,33 @@ MIN_BILINEAR_WEIGHT = 0.01  # as kernels_svgf.MIN_BILINEAR_WEIGHT
 FLOAT_RESOLUTION = 1.0e-5  # as kernels_caustic.FLOAT_RESOLUTION
 
 
+def catmull_rom_naive(t: float) -> np.ndarray:
+    """Catmull-Rom weights of the taps at offsets -1, 0, 1, 2 for a position t in [0, 1) past tap 0."""
+    return np.array([((-t + 2) * t - 1) * t / 2, ((3 * t - 5) * t * t + 2) / 2, ((-3 * t + 4) * t + 1) * t / 2,
+                     (t - 1) * t * t / 2])
+
+
 def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, history: dict, fields: tuple,
-                    depth_tolerance: float, normal_tolerance: float) -> tuple[dict, np.ndarray]:
-    """Bilinear fetch of ``history[f]`` for ``f`` in ``fields`` at each pixel's previous position (``motion``,
-    (H, W, 2) [pixels]) over the consistent taps (on screen, a surface with history n > 0, relative depth
-    difference ≤ ``depth_tolerance``, normal cosine ≥ ``normal_tolerance``), renormalised. ``history`` holds
-    ``depth``, ``normal``, ``frames`` (H, W) and the fields. Returns ({field: values}, valid (H, W) bool)."""
+                    depth_tolerance: float, normal_tolerance: float, cubic: dict | None = None) -> tuple[dict, np.ndarray]:
+    """Fetch ``history[f]`` for ``f`` in ``fields`` at each pixel's previous position (``motion``, (H, W, 2)
+    [pixels]). A history texel is consistent when on screen, a surface with history n > 0, relative depth
+    difference ≤ ``depth_tolerance``, normal cosine ≥ ``normal_tolerance``. Bilinear over the consistent
+    taps, renormalised; where the position is fractional and all 16 texels of the 4x4 footprint are
+    consistent, the channels ``cubic[f]`` (a list of channel indices, () for a scalar field) instead take the
+    Catmull-Rom value, clamped to the range of the 2x2 taps. ``history`` holds ``depth``, ``normal``,
+    ``frames`` (H, W) and the fields. Returns ({field: values}, valid (H, W) bool)."""
+    cubic = cubic or {}
     h, w = depth.shape
     out = {f: np.zeros(history[f].shape, np.float64) for f in fields}
     valid = np.zeros((h, w), bool)
+
+    def ok(ty, tx, z, n):
+        if not (0 <= tx < w and 0 <= ty < h):
+            return False
+        zq = history["depth"][ty, tx]
+        return bool(history["frames"][ty, tx] > 0 and zq > 0 and abs(zq - z) <= depth_tolerance * z
+                    and float(history["normal"][ty, tx] @ n) >= normal_tolerance)
+
     for y in range(h):
         for x in range(w):
             z = depth[y, x]
@@ -136,22 +154,34 @@ def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, h
             fx, fy = px - x0, py - y0
             acc = {f: 0.0 for f in fields}
             sw = 0.0
+            taps = []
             for dy in (0, 1):
                 for dx in (0, 1):
                     tx, ty = x0 + dx, y0 + dy
-                    if not (0 <= tx < w and 0 <= ty < h):
-                        continue
-                    zq = history["depth"][ty, tx]
-                    if (history["frames"][ty, tx] > 0 and zq > 0 and abs(zq - z) <= depth_tolerance * z
-                            and float(history["normal"][ty, tx] @ normal[y, x]) >= normal_tolerance):
+                    if ok(ty, tx, z, normal[y, x]):
+                        taps.append((ty, tx))
                         wt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
                         sw += wt
                         for f in fields:
                             acc[f] = acc[f] + wt * history[f][ty, tx]
-            if sw >= MIN_BILINEAR_WEIGHT:
-                valid[y, x] = True
-                for f in fields:
-                    out[f][y, x] = acc[f] / sw
+            if sw < MIN_BILINEAR_WEIGHT:
+                continue
+            valid[y, x] = True
+            for f in fields:
+                out[f][y, x] = acc[f] / sw
+            if (fx > 0 or fy > 0) and len(taps) == 4 and all(
+                    ok(y0 + j, x0 + i, z, normal[y, x]) for j in range(-1, 3) for i in range(-1, 3)):
+                wx, wy = catmull_rom_naive(fx), catmull_rom_naive(fy)
+                for f, channels in cubic.items():
+                    value = sum(wy[j + 1] * wx[i + 1] * np.asarray(history[f][y0 + j, x0 + i], np.float64)
+                                for j in range(-1, 3) for i in range(-1, 3))
+                    lo = np.min([history[f][t] for t in taps], axis=0)
+                    hi = np.max([history[f][t] for t in taps], axis=0)
+                    clamped = np.clip(value, lo, hi)
+                    if channels == ():
+                        out[f][y, x] = clamped
+                    else:
+                        out[f][y, x, list(channels)] = clamped[list(channels)]
     return out, valid
 
 
@@ -173,7 +203,7 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
             np.zeros((h, w), bool)
     else:
         prev, valid = reproject_naive(depth, normal, motion.astype(np.float64), history, ("mean", "moments", "frames"),
-                                      s.depth_tolerance, s.normal_tolerance)
+                                      s.depth_tolerance, s.normal_tolerance, cubic={"mean": (0, 1, 2), "moments": (0, 1)})
     n_prev = np.where(valid, prev["frames"], 0.0)
     m1, m2, s2 = prev["moments"][..., 0], prev["moments"][..., 1], prev["moments"][..., 2]
     res = {"depth": np.where(depth > 0, depth, 0.0), "normal": np.where(depth[..., None] > 0, normal, 0.0),
@@ -191,10 +221,13 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                   and float(normal[yy, xx] @ normal[y, x]) >= s.normal_tolerance]
             e = np.array([lum[q] for q in qs])
             qset = set(qs)
-            # half the mean squared neighbour difference, along rows or columns, whichever is smaller
-            dh = [(lum[q] - lum[q[0], q[1] - 1]) ** 2 for q in qs if (q[0], q[1] - 1) in qset]
-            dv = [(lum[q] - lum[q[0] - 1, q[1]]) ** 2 for q in qs if (q[0] - 1, q[1]) in qset]
-            var_pairs = 0.5 * min([np.mean(dd) for dd in (dh, dv) if dd], default=0.0)
+            # a sixth of the mean squared second difference of three neighbours in a row, along rows or columns,
+            # whichever is smaller
+            dh = [(lum[q] - 2 * lum[q[0], q[1] - 1] + lum[q[0], q[1] - 2]) ** 2 for q in qs
+                  if (q[0], q[1] - 1) in qset and (q[0], q[1] - 2) in qset]
+            dv = [(lum[q] - 2 * lum[q[0] - 1, q[1]] + lum[q[0] - 2, q[1]]) ** 2 for q in qs
+                  if (q[0] - 1, q[1]) in qset and (q[0] - 2, q[1]) in qset]
+            var_pairs = min([np.mean(dd) for dd in (dh, dv) if dd], default=0.0) / 6
             photon = min([v for v in e if v > 0], default=0.0)
             n = n_prev[y, x]
             bias2 = 0.0
@@ -209,8 +242,10 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 var_t = np.array([max(m2[q] - m1[q] ** 2, 0.0) for q in hq]) * nq / np.maximum(nq - 1, 1)
                 d2 = np.mean(d ** 2)
                 temporal = np.mean(var_t)
-                if n < SPATIAL_VARIANCE_HISTORY or pairs < temporal:
+                if n < SPATIAL_VARIANCE_HISTORY:
                     var_t = np.full(len(hq), pairs)
+                elif pairs < temporal:  # scaled down to the spatial estimate, their spread kept
+                    var_t = var_t * (pairs / temporal)
                 sigma2 = np.mean(var_t)
                 sigma2_est = sigma2
                 sigma2 = max(sigma2, (FLOAT_RESOLUTION * np.mean([m1[q] for q in hq])) ** 2)
@@ -224,11 +259,18 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 se_d2 = history_noise * np.sqrt(np.sum(2 * var_t ** 2 + photon ** 2 * var_t)) / len(hq)
                 bias2 = max(d2 - spread - k * se_d2, np.mean(d) ** 2 - k * k * spread / len(hq), 0.0)
                 ratio = bias2 / sigma2 if sigma2 > 0 else 0.0
+                if n < SPATIAL_VARIANCE_HISTORY:
+                    sigma2_est = min(pairs, max(temporal, max(d2 - bias2, 0.0) / history_noise))
+                if m1_sum > 0:  # the pixel alone, against its share of the window's variance (∝ its mean)
+                    kp = s.pixel_sigmas
+                    var_p = sigma2 * max(m1[y, x], lum[y, x]) * len(hq) / m1_sum * (1 + 1 / n)
+                    bias2_p = max((lum[y, x] - m1[y, x]) ** 2 - kp * kp * var_p - kp * photon * np.sqrt(var_p), 0.0)
+                    if bias2_p > 0:
+                        ratio = max(ratio, bias2_p * (1 + 1 / n) / var_p)
+                        bias2 = max(bias2, bias2_p)
                 inv_n = 1.0 / min(n, s.max_history - 1)
                 alpha = (ratio + inv_n) / (ratio + inv_n + 1)
                 n_new = 1.0 / ((1 - alpha) ** 2 * (ratio + inv_n) + alpha ** 2)
-                if n < SPATIAL_VARIANCE_HISTORY:
-                    sigma2_est = max(temporal, max(d2 - bias2, 0.0) / history_noise)
             res["mean"][y, x] = (1 - alpha) * prev["mean"][y, x] + alpha * irradiance[y, x]
             new_m1 = (1 - alpha) * m1[y, x] + alpha * lum[y, x]
             # blend of the history (variance v) and the new sample, less the change found
