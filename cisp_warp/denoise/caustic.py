@@ -39,8 +39,8 @@ class CausticSettings:
 
     max_history: int = 64  #: cap on the effective history [frames] (then an exponential mean of weight 1/N)
     change_radius: int = 2  #: half width [pixels] of the window that tests the new photons against the history
-    change_sigmas: float = 5.0  #: deviations of the new photons from the history beyond this many standard
-    #: errors count as change
+    change_sigmas: float = 5.0  #: deviations of the window's new photons from the history beyond this many
+    #: standard errors count as change (for a history of n < 16 frames, (n/16)^¼ of it: half after a reset)
     pixel_sigmas: float = 3.0  #: a pixel's own deviation beyond this many of its standard deviations (plus
     #: a photon's worth) counts as change there, however little of the window changed
     atrous_levels: int = 4  #: à-trous levels, spacings 1, 2, 4, ... pixels (0: temporal accumulation only)

@@ -40,7 +40,11 @@ frame holds 0 or a few photons, so a single pixel tells little):
   the Poisson quantum of the window); or the squared mean deviation d̄ = Σ (E_q − M_q) / N beyond k² times its
   variance without a change, σ² (1 + mean 1/n) / N:
 
-      b² = max(D² − σ² (1 + 1/n) − k se(D²), d̄² − k² σ² (1 + 1/n) / N, 0).
+      b² = max(D² − σ² (1 + 1/n) − k_n se(D²), d̄² − k_n² σ² (1 + 1/n) / N, 0),   k_n = k min((n/16)^¼, 1):
+
+  the threshold rises with the pixel's history, from k/2 at one frame to k from 16 frames on: a false alarm
+  costs a long history much (each frame is another chance for one), while a short one has just been cut
+  back because the caustic was moving and will most likely have to follow it again.
 
   The first sees a caustic that moves (its lines leave pixels while the window's total stays), the second
   one that brightens or dims a little in every pixel;
@@ -397,8 +401,11 @@ def accumulate(
         spread = sigma2 * history_noise  # E[D²] without a change
         se_d2 = history_noise * wp.sqrt(2.0 * sum_var2 + photon * photon * sum_var) / with_history  # its std. error
         mean_d = sum_d / with_history
-        bias2 = wp.max(wp.max(d2 - spread - change_sigmas * se_d2,
-                              mean_d * mean_d - change_sigmas * change_sigmas * spread / with_history), 0.0)
+        # the threshold rises with the history: a false alarm costs a long history more, while a short one
+        # (just reset: the caustic was moving) more often has the next change to follow
+        k = change_sigmas * wp.min(wp.pow(n_prev / 16.0, 0.25), 1.0)
+        bias2 = wp.max(wp.max(d2 - spread - k * se_d2,
+                              mean_d * mean_d - k * k * spread / with_history), 0.0)
         r = float(0.0)
         if sigma2 > 0.0:
             r = bias2 / sigma2

@@ -257,7 +257,8 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 history_noise = 1 + np.mean(1 / nq)
                 spread = sigma2 * history_noise
                 se_d2 = history_noise * np.sqrt(np.sum(2 * var_t ** 2 + photon ** 2 * var_t)) / len(hq)
-                bias2 = max(d2 - spread - k * se_d2, np.mean(d) ** 2 - k * k * spread / len(hq), 0.0)
+                kn = k * min((n / 16) ** 0.25, 1.0)  # the threshold rises with the history's length
+                bias2 = max(d2 - spread - kn * se_d2, np.mean(d) ** 2 - kn * kn * spread / len(hq), 0.0)
                 ratio = bias2 / sigma2 if sigma2 > 0 else 0.0
                 if n < SPATIAL_VARIANCE_HISTORY:
                     sigma2_est = min(pairs, max(temporal, max(d2 - bias2, 0.0) / history_noise))
