@@ -184,6 +184,13 @@ class PhotonPass:
         blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
         wp.launch_tiled(kernel, dim=blocks, block_dim=self.ledger_block, device=self.device, inputs=inputs)
 
+    def add_outcomes(self, outcome: wp.array, n: int, entries: int) -> None:
+        """Add the final entries of ``n`` photons' outcome records (written by the trace kernel with
+        ``record_outcome``) to the ledger, once per block and entry (:func:`~.common.ledger_add_outcomes`)."""
+        blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
+        wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=self.ledger_block, device=self.device,
+                        inputs=[outcome, n, entries, self.ledger_rows])
+
     def photon_order(self, params: wp.struct, n: int, scramble: wp.vec2i) -> wp.array:
         """The order in which to trace the ``n`` photons of one RSM view (kernels take it with ``use_order``)."""
         if self.use_order:

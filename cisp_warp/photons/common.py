@@ -141,6 +141,34 @@ def ledger_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, lane: int, entrie
             wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(v, preserve_type=True)), offset=e)
 
 
+@wp.func
+def record_outcome(outcome: wp.array(dtype=wp.vec4), t: int, tally: Tally):
+    """Write thread ``t``'s final entry to its outcome record (power [W] RGB, entry code; -1: none), for
+    :func:`ledger_add_outcomes` to add per block after the trace: the trace kernel then holds no block reductions
+    of its final entries, whose registers cost it warps (SSPM: 115 registers with them in the kernel)."""
+    outcome[t] = wp.vec4(tally.power[0], tally.power[1], tally.power[2], float(tally.entry))
+
+
+@wp.kernel
+def ledger_add_outcomes(
+    outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
+    count: int,  # photons
+    entries: int,  # bit mask of the entries the records may hold (entry_mask)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+):
+    """The final entries of ``count`` outcome records, summed per block (:func:`ledger_add`) and added once per
+    block and entry. Launched tiled with the trace's block size: on the CPU one record per block, in photon order,
+    so every entry is summed in the same order as when the trace kernel added it itself."""
+    block, lane = wp.tid()
+    t = block * wp.block_dim() + lane
+    tally = tally_new()
+    if t < count:
+        o = outcome[t]
+        tally.entry = int(o[3])
+        tally.power = wp.vec3(o[0], o[1], o[2])
+    ledger_add(ledger, tally, lane, entries)
+
+
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
 
 

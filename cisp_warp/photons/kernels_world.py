@@ -24,11 +24,12 @@ from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_pr
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
                      L_OCCLUDED, L_REJECTED, L_SAMPLED, L_STORED, Tally, book, book_bounce, deposit, emit_and_bounce,
-                     entry_mask, ledger_add, photon_index, r2_point, specular_bounce, tally_new)
+                     entry_mask, ledger_add, photon_index, r2_point, record_outcome, specular_bounce, tally_new)
 
-#: the ways an SSPM photon ends after its first bounce (world_trace, trace_sspm_photon and deposit book nothing else)
-SSPM_FINAL_ENTRIES = wp.constant(entry_mask(L_ABSORBED, L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED,
-                                            L_REJECTED, L_STORED))
+#: the final entries an SSPM photon may end in after its first bounce (world_trace, trace_sspm_photon and deposit
+#: book nothing else but absorption at further metallic bounces): written to its outcome record, added afterwards
+SSPM_FINAL_ENTRIES = entry_mask(L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STORED)
+ABSORBED_ONLY = wp.constant(entry_mask(L_ABSORBED))
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver; any other status is the ledger entry it was booked as
 
@@ -230,10 +231,13 @@ def trace_sspm(
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+    outcome: wp.array(dtype=wp.vec4),  # (>= n_photons,) per thread: final power [W] and entry (write)
 ):
     """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility. One
     thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`); the ledger is
-    added per block after the first bounce and at the end (no float64 sum of emission held through the trace)."""
+    added per block after the first bounce (no float64 sum of emission held through the trace) and for the
+    absorption of further bounces at the end; each photon's final entry goes to its outcome record, added per
+    block by ``ledger_add_outcomes`` after this kernel (eight block reductions here cost 21 registers: 115)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     texel = int(-1)
@@ -254,7 +258,10 @@ def trace_sspm(
     if texel >= 0:
         trace_sspm_photon(origin, n, d, power, state, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max,
                           max_bounces, footprint_mode, photon_map, tally)
-    ledger_add(ledger, tally, lane, SSPM_FINAL_ENTRIES)
+    if t < n_photons:
+        record_outcome(outcome, t, tally)
+    tally.entry = -1  # recorded: only the absorption is added here
+    ledger_add(ledger, tally, lane, ABSORBED_ONLY)
 
 
 @wp.func
