@@ -11,14 +11,15 @@ import warp as wp
 
 from ..raster.views import ViewParams, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
-                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add,
+                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march_bounded
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
-#: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else)
-CISP_FINAL_ENTRIES = wp.constant(entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED))
+#: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else): written to its outcome
+#: record by trace_photons, added to the ledger by ledger_add_outcomes
+CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED)
 
 
 @wp.func
@@ -159,10 +160,12 @@ def trace_photons(
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (-1 none), for tests and stats
+    outcome: wp.array(dtype=wp.vec4),  # (>= n_photons,) per thread: final power [W] and entry (write)
 ):
     """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
-    ledger is added per block in two steps, so that no float64 sum is held in registers through the march:
-    after emission and bounce (sampled, culled, absorbed, reflected/refracted), then the final entries."""
+    ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
+    no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
+    added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     k = int(0)
@@ -188,4 +191,5 @@ def trace_photons(
         trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
                      cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
                      t_max, footprint_mode, use_cascade, photon_map, tally, hits)
-    ledger_add(ledger, tally, lane, CISP_FINAL_ENTRIES)
+    if t < n_photons:
+        record_outcome(outcome, t, tally)
