@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 import warp as wp
 
-from .denoise import SVGF, GaussianGather, SVGFSettings
+from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .photons.cisp import build_bounds
@@ -44,8 +44,10 @@ class RenderSettings:
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
     method: str = "cisp"  #: photon method: "cisp", "sspm", "caustics_map", "reference", or "none" (direct only)
     photons: PhotonSettings = PhotonSettings()
-    denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
+    denoiser: str = "caustic"  #: "caustic" (accumulate the raw map, filter what noise is left), "svgf" (the
+    #: paper's), "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
+    caustic: CausticSettings = field(default_factory=CausticSettings)
     supersample: int = 1  #: anti-aliasing: s × s samples per pixel (every pass runs at s·width × s·height,
     #: the AOVs are box-filtered down); 1 = one sample per pixel. ``cisp_warp.render`` and the CLI use 2.
     sky_maps: int = 32  #: occlusion maps of the sky term (directions over the sphere)
@@ -68,6 +70,13 @@ class RenderSettings:
             raise SettingsError("svgf", f"must be an SVGFSettings or a dict of its fields, got {svgf!r}",
                                 owner="RenderSettings")
         object.__setattr__(self, "svgf", svgf)
+        caustic = self.caustic
+        if isinstance(caustic, dict):
+            caustic = _from_dict(CausticSettings, caustic, "CausticSettings")
+        elif not isinstance(caustic, CausticSettings):
+            raise SettingsError("caustic", f"must be a CausticSettings or a dict of its fields, got {caustic!r}",
+                                owner="RenderSettings")
+        object.__setattr__(self, "caustic", caustic)
         self.validate()
 
     def validate(self) -> None:
@@ -129,7 +138,7 @@ def _from_dict(cls, values: dict, owner: str):
 
 
 METHODS = PHOTON_METHODS + ("none",)
-DENOISERS = ("svgf", "gather", "none")
+DENOISERS = ("caustic", "svgf", "gather", "none")
 
 
 class Renderer:
@@ -175,7 +184,9 @@ class Renderer:
             cls = photon_pass_class(self.settings.method)
             self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
         self.denoiser = None
-        if self.settings.denoiser == "svgf":
+        if self.settings.denoiser == "caustic":
+            self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
+        elif self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
         elif self.settings.denoiser == "gather":
             self.denoiser = GaussianGather(cam.width, cam.height, self.device)
@@ -227,7 +238,7 @@ class Renderer:
             with stage("denoise"):
                 if not self.photons.denoise:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
-                elif isinstance(self.denoiser, SVGF):
+                elif isinstance(self.denoiser, (CausticDenoiser, SVGF)):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)
