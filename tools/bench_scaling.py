@@ -188,7 +188,7 @@ def main(argv=None) -> int:
     p.add_argument("--water", default="16k,1M,4M", help="scene sweep: water triangles (about; the grid rounds)")
     p.add_argument("--scene-photons", type=parse_count, default=parse_count("2M"),
                    help="photons per light of the scene sweep")
-    p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"])
+    p.add_argument("--denoiser", default="caustic", choices=["caustic", "svgf", "gather", "none"])
     p.add_argument("--sky-maps", type=int, default=32, help="occlusion maps of the pool's sky term")
     p.add_argument("--frames", type=int, default=10, help="timed frames per configuration")
     p.add_argument("--warmup", type=int, default=3, help="frames before the timed ones")

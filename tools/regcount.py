@@ -72,6 +72,16 @@ def resource_usage(cubin: Path) -> dict[str, dict[str, int]]:
     return usage
 
 
+def kernel_usage(cubin: Path) -> dict[str, dict[str, int]]:
+    """{kernel name (Warp's hash and suffix removed): usage} of the forward kernels in ``cubin``."""
+    out = {}
+    for symbol, u in resource_usage(cubin).items():
+        kernel = re.sub(r"_[0-9a-f]{8}_cuda_kernel_forward$", "", symbol)
+        if kernel != symbol:
+            out[kernel] = u
+    return out
+
+
 def compile_module(module_name: str, block_dim: int, arch: int, out_dir: Path) -> Path:
     import warp as wp
 
@@ -100,10 +110,9 @@ def main(argv=None) -> int:
         for name in [m for m in args.modules.split(",") if m]:
             block = block_of.get(name, 128)
             cubin = compile_module(name, block, args.arch, Path(tmp) / name)
-            for symbol, u in sorted(resource_usage(cubin).items()):
-                kernel = re.sub(r"_[0-9a-f]{8}_cuda_kernel_forward$", "", symbol)
-                if kernel == symbol or (words and not any(w in kernel for w in words)):
-                    continue  # not a forward kernel entry (backward passes are disabled), or not asked for
+            for kernel, u in sorted(kernel_usage(cubin).items()):
+                if words and not any(w in kernel for w in words):
+                    continue
                 print(f"{name.rsplit('.', 1)[-1]:>18} {kernel:<32} {u.get('registers', 0):4d} regs "
                       f"{u.get('frame_bytes', 0):5d} B frame  (block {block})")
     return 0
