@@ -120,6 +120,8 @@ class RSMBatch(NamedTuple):
     scramble: wp.vec2i  #: the R2 sequence's Cranley-Patterson rotation
     order: wp.array  #: tracing order (read when the pass's ``use_order`` is set)
     light_pos: wp.vec3  #: [m]
+    skip_window: wp.vec4  #: this view's pixels a finer cascade samples (x0, y0, x1, y1); empty when x1 <= x0
+    luminance_cutoff: float  #: the luminance cutoff against the light's brightest texel, scaled to this view's texels
 
 
 class PhotonPass:
@@ -184,7 +186,8 @@ class PhotonPass:
                 n = self.photons_per_view(lm)
                 sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
                 scramble = wp.vec2i(sx, sy)
-                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos)
+                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos,
+                               wp.vec4(0.0), float(s.luminance_cutoff))
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

@@ -19,6 +19,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
+from ..scene.device import SurfaceGeometry
 from .common import (FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, book, emit_and_bounce, photon_index,
                     pixel_footprint)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
@@ -87,6 +88,8 @@ def trace_to_caustic_map(
     rsm_tri: wp.array(dtype=wp.int32),  # specular layer triangle, -1 = none
     receiver_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) from receiver_footprints, facing the light
     # scene materials (read)
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     triangle_material: wp.array(dtype=wp.int32),  # (T,)
     mat_opacity: wp.array(dtype=wp.float32),  # (M,)
     mat_albedo: wp.array(dtype=wp.vec3),  # (M,)
@@ -116,7 +119,7 @@ def trace_to_caustic_map(
     k = photon_index(order, use_order, wp.tid())
     texel, power, origin, n, d, state = emit_and_bounce(
         light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-        rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
+        rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
         ledger)
     if texel < 0:
         return
