@@ -27,6 +27,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time", type=float, default=None, help="USD time code to render (default: the stage's start time code)")
     p.add_argument("--camera", default=None, help="prim path of the camera (default: the first camera found)")
     p.add_argument("--rsm-size", type=int, default=1024, help="edge of each reflective shadow map view [texels]")
+    p.add_argument("--light-views", default="camera", choices=["camera", "scene"],
+                   help="cisp, sspm: RSM views fitted to what the camera sees, as cascades (camera), "
+                   "or one view over all the specular geometry (scene, for comparison)")
+    p.add_argument("--light-cascades", type=int, default=2, help="with --light-views camera: fitted views per light view")
     p.add_argument("--method", default="cisp", choices=["cisp", "sspm", "caustics_map", "reference", "none"],
                    help="caustics method: cisp (Cascaded Image-Space Photon Tracing, seed 000), sspm (world-space "
                    "Screen-Space Photon Mapping, seed 003), caustics_map (light-space Caustics Mapping, seed 004), "
@@ -93,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     from .image_io import write_aovs, write_png
     from .photons import PhotonSettings
+    from .raster import LightViewSettings
     from .render import Renderer, RenderSettings
     from .usd_import import load_usd
 
@@ -112,7 +117,8 @@ def main(argv: list[str] | None = None) -> int:
                                  max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
                                  cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0)
         settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
-                                  method=args.method, photons=photons, denoiser=args.denoiser)
+                                  method=args.method, photons=photons, denoiser=args.denoiser,
+                                  light_views=LightViewSettings(fit=args.light_views, cascades=args.light_cascades))
         settings.validate()
         frames = parse_frames(args.frames) if args.frames else None
         with warnings.catch_warnings(record=True) as caught:

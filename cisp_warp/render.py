@@ -16,7 +16,8 @@ import warp as wp
 from .denoise import SVGF, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
-from .raster import GBuffer, LightMaps, Rasterizer, camera_view
+from .photons.fit import LightViewFitter
+from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
 
@@ -30,6 +31,7 @@ class RenderSettings:
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
     method: str = "cisp"  #: photon method: "cisp", "sspm", "caustics_map", "reference", or "none" (direct only)
     photons: PhotonSettings = PhotonSettings()
+    light_views: LightViewSettings = LightViewSettings()  #: RSM views fitted to the camera (cisp, sspm)
     denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
 
@@ -45,9 +47,13 @@ class RenderSettings:
         if self.denoiser not in DENOISERS:
             raise SceneError(f"--denoiser must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
         self.photons.validate()
+        self.light_views.validate()
 
 
 METHODS = PHOTON_METHODS + ("none",)
+#: methods whose RSM views are fitted to the camera; caustics_map keeps whole views: its caustic maps and their
+#: temporal history live in light space, which a window that follows the camera would move under them
+FITTED_METHODS = ("cisp", "sspm")
 DENOISERS = ("svgf", "gather", "none")
 
 
@@ -67,7 +73,8 @@ class Renderer:
         self.gpu = DeviceScene(scene, self.device)
         self.raster = Rasterizer(self.gpu)
         self.gbuffer = GBuffer.allocate(cam.width, cam.height, self.device)
-        self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size) for light in scene.lights]
+        views = self.settings.light_views if self.settings.method in FITTED_METHODS else LightViewSettings(fit="scene")
+        self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size, views) for light in scene.lights]
         self.direct = DirectLighting(self.gbuffer, self.device)
         n = cam.width * cam.height
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
@@ -82,6 +89,9 @@ class Renderer:
         if self.settings.method != "none":
             cls = photon_pass_class(self.settings.method)
             self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
+        ps = self.settings.photons
+        self.fitter = LightViewFitter(self.gpu, self.gbuffer, self.lights, ps.roughness_cutoff, ps.thickness,
+                                      ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed)
         self.denoiser = None
         if self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
@@ -121,9 +131,10 @@ class Renderer:
         stage = timer.stage if timer is not None else (lambda name: nullcontext())
         g = self.gbuffer
         with stage("raster"):
+            g.render(self.raster, self.view_params, self.prev_view_params)
+            self.fitter.fit(self.raster, self.view_params, self.frame)  # light views fitted to what the camera sees
             for lm in self.lights:
                 lm.render(self.raster)
-            g.render(self.raster, self.view_params, self.prev_view_params)
         with stage("direct"):
             self.direct.render(g, self.lights)
         if self.photons is not None:

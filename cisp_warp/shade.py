@@ -15,7 +15,7 @@ import warp as wp
 from .optics import fresnel_dielectric, reflect, refract
 from .photons.march import MARCH_HIT, screen_march
 from .raster.views import ViewParams, view_eye_world, world_project
-from .raster.rasterizer import GBuffer, LightMaps
+from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
 

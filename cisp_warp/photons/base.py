@@ -154,20 +154,27 @@ class PhotonPass:
         self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
 
     def photons_per_view(self, lm: LightMaps) -> int:
-        return max(1, self.settings.photons // len(lm.rsm))
+        """A light's photons split evenly over its RSM views that emit this frame (every view, unless
+        they are fitted to the camera: then the active cascades)."""
+        return max(1, self.settings.photons // max(1, sum(lm.active)))
 
     def max_photons_per_view(self) -> int:
-        return max((self.photons_per_view(lm) for lm in self.lights), default=1)
+        """The most photons one view can get (all of its light's, when one cascade alone is active)."""
+        return max((self.settings.photons if lm.fitted else self.photons_per_view(lm) for lm in self.lights), default=1)
 
     def begin(self) -> None:
-        """Zero the photon map and the ledger, and find each light's brightest RSM texel (luminance cutoff)."""
+        """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
+        luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
         self.ledger.zero_()
         self.max_lum.zero_()
         for li, lm in enumerate(self.lights):
-            for r in lm.rsm:
+            for r in lm.whole_rsm:
                 wp.launch(C.max_luminance, dim=r.width * r.height, inputs=[r.flux, self._max_lum_of[li]],
                           device=self.device)
+            for r, window in zip(lm.pilot, lm.outside_windows):
+                wp.launch(C.book_outside_window, dim=r.width * r.height, device=self.device,
+                          inputs=[r.flux, r.width, wp.vec4(*window), self.ledger])
 
     def photon_order(self, params: wp.struct, n: int, scramble: wp.vec2i) -> wp.array:
         """The order in which to trace the ``n`` photons of one RSM view (kernels take it with ``use_order``)."""
@@ -182,12 +189,14 @@ class PhotonPass:
         s = self.settings
         for li, lm in enumerate(self.lights):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
+            n = self.photons_per_view(lm)
             for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                n = self.photons_per_view(lm)
+                if not lm.active[vi]:
+                    continue
                 sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
                 scramble = wp.vec2i(sx, sy)
                 yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos,
-                               wp.vec4(0.0), float(s.luminance_cutoff))
+                               wp.vec4(*lm.skip_windows[vi]), float(s.luminance_cutoff * lm.texel_scale[vi]))
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

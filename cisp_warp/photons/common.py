@@ -34,11 +34,12 @@ L_REFLECTED = wp.constant(10)  #: of the traced power, reflected (informative, n
 L_REFRACTED = wp.constant(11)  #: of the traced power, refracted (informative, not part of the sum)
 L_ESCAPED = wp.constant(12)  #: world-space methods: left the scene without hitting anything
 L_BOUNCES = wp.constant(13)  #: world-space methods: still specular after the bounce limit
-LEDGER_ENTRIES = 14
+L_OUTSIDE = wp.constant(14)  #: on specular texels outside every light view fitted to the camera: not traced
+LEDGER_ENTRIES = 15
 
 LEDGER_NAMES = ("sampled", "culled_roughness", "culled_luminance", "absorbed", "lost_light_view",
                 "lost_camera_view", "occluded", "rejected", "out_of_steps", "stored", "reflected", "refracted",
-                "escaped", "bounce_limit")
+                "escaped", "bounce_limit", "outside_fitted_view")
 INFORMATIVE = ("sampled", "reflected", "refracted")  #: entries that are not parts of the whole
 
 R2_A1 = wp.constant(wp.uint32(3242174889))  # round(2^32 / phi_2), phi_2 = 1.32471795724... (Roberts' R2)
@@ -246,6 +247,29 @@ def emit_photon(
     if light_kind != 0:
         d_in = wp.normalize(origin - light_pos)
     return texel, power, origin, d_in, n
+
+
+@wp.kernel
+def book_outside_window(
+    rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) a pilot view's flux per texel [W] (read)
+    width: int,
+    window: wp.vec4,  # (x0, y0, x1, y1) pilot pixels sampled by the cascades; empty when x1 <= x0
+    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+):
+    """Book the power of each pilot texel's area outside ``window`` as sampled and ``outside_fitted_view``."""
+    p = wp.tid()
+    f = rsm_flux[p]
+    if f[0] + f[1] + f[2] <= 0.0:
+        return
+    i = float(p % width)
+    j = float(p / width)
+    ox = wp.max(wp.min(i + 1.0, window[2]) - wp.max(i, window[0]), 0.0)
+    oy = wp.max(wp.min(j + 1.0, window[3]) - wp.max(j, window[1]), 0.0)
+    outside = 1.0 - ox * oy
+    if outside <= 0.0:
+        return
+    book(ledger, L_SAMPLED, f * outside)
+    book(ledger, L_OUTSIDE, f * outside)
 
 
 @wp.func

@@ -103,14 +103,15 @@ class View:
     fy: float
     orthographic: bool = False
     name: str = "camera"
+    principal: tuple[float, float] | None = None  #: principal point [pixels]; None = the image centre
 
     @property
     def cx(self) -> float:
-        return 0.5 * self.width
+        return 0.5 * self.width if self.principal is None else float(self.principal[0])
 
     @property
     def cy(self) -> float:
-        return 0.5 * self.height
+        return 0.5 * self.height if self.principal is None else float(self.principal[1])
 
     def params(self) -> ViewParams:
         v = ViewParams()
@@ -236,3 +237,95 @@ def shadow_view(scene: Scene, light: Light, size: int) -> View | None:
         return None
     lo, hi = scene.bounds()
     return _ortho_fit(np.asarray(light.direction, dtype=np.float64), lo, hi, lo, hi, size, f"shadow_{light.safe_name}")
+
+
+# --------------------------------------------------------------------------------------------------------
+# Light views fitted to the camera (cascaded shadow maps for photons)
+
+
+@dataclass(frozen=True)
+class LightViewSettings:
+    """How a light's RSM views are placed; every field reaches the fit.
+
+    ``fit="scene"`` keeps one view per light (per cube face) over all the specular geometry, as before.
+    ``fit="camera"`` fits ``cascades`` views of each such view to the part of the specular surfaces whose
+    light reaches what the camera sees: a pilot of one photon per texel of a ``pilot_size``² whole view,
+    traced in world space, marks the texels whose light lands on a visible pixel; the finest cascade
+    covers those whose receiver is nearest the camera, each coarser one those further out as well.
+    """
+
+    fit: str = "camera"  #: "camera" (fitted cascades) or "scene" (one whole view, for comparison)
+    cascades: int = 2  #: fitted views per whole view, finest (nearest the camera) first
+    pilot_size: int = 128  #: edge of the whole pilot view [texels]
+    margin: float = 2.0  #: pilot texels added around each fitted window (plus 2% of its size)
+
+    def validate(self) -> None:
+        if self.fit not in ("camera", "scene"):
+            raise SceneError(f"--light-views must be 'camera' or 'scene', got {self.fit!r}")
+        if not isinstance(self.cascades, (int, np.integer)) or not 1 <= self.cascades <= 4:
+            raise SceneError(f"--light-cascades must be an integer in [1, 4], got {self.cascades!r}")
+        if not isinstance(self.pilot_size, (int, np.integer)) or not 8 <= self.pilot_size <= 4096:
+            raise SceneError(f"light-view pilot size must be an integer in [8, 4096], got {self.pilot_size!r}")
+        if not np.isfinite(self.margin) or self.margin < 0:
+            raise SceneError(f"light-view margin must be a finite number >= 0, got {self.margin!r}")
+
+
+def resized_view(view: View, size: int, name: str | None = None) -> View:
+    """The same view (pose, frustum) drawn with ``size``² pixels."""
+    return View(view.to_world, size, size, view.near, view.far, view.fx * size / view.width,
+                view.fy * size / view.height, view.orthographic, name or view.name,
+                None if view.principal is None else (view.cx * size / view.width, view.cy * size / view.height))
+
+
+def window_view(view: View, window, size: int, name: str) -> View:
+    """A ``size``² view of the pixel rectangle ``window = (x0, y0, x1, y1)`` of ``view``: same pose and
+    image plane, pixels scaled by size/(x1 − x0) across and size/(y1 − y0) down, principal point moved.
+    Pixel (px, py) of ``view`` is pixel ((px − x0)·sx, (py − y0)·sy) of the window view, perspective or
+    orthographic alike (texels need not be square)."""
+    x0, y0, x1, y1 = (float(v) for v in window)
+    sx, sy = size / (x1 - x0), size / (y1 - y0)
+    return View(view.to_world, size, size, view.near, view.far, view.fx * sx, view.fy * sy, view.orthographic, name,
+                ((view.cx - x0) * sx, (view.cy - y0) * sy))
+
+
+def cascade_splits(z_near: float, z_far: float, cascades: int, blend: float = 0.5) -> np.ndarray:
+    """Receiver depths [m] that end each cascade (the last is ``z_far``): the practical split scheme of
+    parallel-split shadow maps, ``blend`` between logarithmic and uniform splits."""
+    i = np.arange(1, cascades + 1) / cascades
+    z_near = max(z_near, 1e-6)
+    log = z_near * (z_far / z_near) ** i
+    uni = z_near + (z_far - z_near) * i
+    return blend * log + (1.0 - blend) * uni
+
+
+def fit_windows(receiver_depth: np.ndarray, cascades: int, margin: float) -> list[tuple[float, float, float, float]]:
+    """Windows (x0, y0, x1, y1) in pilot pixels, finest first and nested, from a pilot view's
+    ``receiver_depth`` (H, W): the camera depth [m] where each texel's light lands on a visible pixel,
+    0 where it lands on none. Cascade c covers the texels whose receiver is nearer than its split
+    (:func:`cascade_splits`), each window grown by ``margin`` texels plus 2% and clipped to the view.
+    A cascade whose window would cover more than half the next coarser one is merged into it. Empty
+    when no texel's light is seen."""
+    h, w = receiver_depth.shape
+    useful = receiver_depth > 0
+    if not useful.any():
+        return []
+    z = receiver_depth[useful]
+    splits = cascade_splits(float(z.min()), float(z.max()), cascades)
+    splits[-1] = np.inf
+    jj, ii = np.nonzero(useful)
+    windows = []
+    for zs in splits:
+        m = z <= zs
+        if not m.any():
+            continue
+        x0, x1, y0, y1 = ii[m].min(), ii[m].max() + 1.0, jj[m].min(), jj[m].max() + 1.0
+        gx, gy = margin + 0.02 * (x1 - x0), margin + 0.02 * (y1 - y0)
+        win = (max(x0 - gx, 0.0), max(y0 - gy, 0.0), min(x1 + gx, float(w)), min(y1 + gy, float(h)))
+        windows.append(win)
+    area = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in windows]
+    kept = [windows[c] for c in range(len(windows) - 1) if area[c] <= 0.5 * area[c + 1]] + [windows[-1]]
+    out = []
+    for win in kept:  # drop repeats (a cascade with the same texels as the next)
+        if not out or win != out[-1]:
+            out.append(win)
+    return out
