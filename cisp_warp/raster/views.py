@@ -298,12 +298,18 @@ def cascade_splits(z_near: float, z_far: float, cascades: int, blend: float = 0.
     return blend * log + (1.0 - blend) * uni
 
 
+#: a finer cascade is kept only where its window covers at most this share of the next coarser one: the
+#: coarser cascade's samples inside it are left to the finer one (spent, not traced), so a share f costs
+#: f/2 of two cascades' photons for a texel (and photon) density 1/f times higher near the camera
+MERGE_AREA = 0.25
+
+
 def fit_windows(receiver_depth: np.ndarray, cascades: int, margin: float) -> list[tuple[float, float, float, float]]:
     """Windows (x0, y0, x1, y1) in pilot pixels, finest first and nested, from a pilot view's
     ``receiver_depth`` (H, W): the camera depth [m] where each texel's light lands on a visible pixel,
     0 where it lands on none. Cascade c covers the texels whose receiver is nearer than its split
     (:func:`cascade_splits`), each window grown by ``margin`` texels plus 2% and clipped to the view.
-    A cascade whose window would cover more than half the next coarser one is merged into it. Empty
+    A cascade whose window would cover more than ``MERGE_AREA`` of the next coarser one is merged into it. Empty
     when no texel's light is seen."""
     h, w = receiver_depth.shape
     useful = receiver_depth > 0
@@ -323,7 +329,7 @@ def fit_windows(receiver_depth: np.ndarray, cascades: int, margin: float) -> lis
         win = (max(x0 - gx, 0.0), max(y0 - gy, 0.0), min(x1 + gx, float(w)), min(y1 + gy, float(h)))
         windows.append(win)
     area = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in windows]
-    kept = [windows[c] for c in range(len(windows) - 1) if area[c] <= 0.5 * area[c + 1]] + [windows[-1]]
+    kept = [windows[c] for c in range(len(windows) - 1) if area[c] <= MERGE_AREA * area[c + 1]] + [windows[-1]]
     out = []
     for win in kept:  # drop repeats (a cascade with the same texels as the next)
         if not out or win != out[-1]:
