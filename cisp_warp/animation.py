@@ -46,7 +46,7 @@ from sim import FFTWater, SimParameterError, WaterMesh, WaterParams
 from .errors import SceneError
 from .scene.device import DeviceScene
 from .scene.model import Camera, Scene
-from .scene.usd_stage import StageContext, finite_float, open_stage, tf_reason
+from .usd.stage import StageContext, finite_float, open_stage, tf_reason
 
 GRID_TOLERANCE = 1e-3  #: rest points may miss their grid position by this fraction of the grid spacing
 
@@ -141,9 +141,9 @@ class WaterSimulation:
 class StageClock:
     """A USD stage kept open for per-frame reads: time codes -> seconds, the camera, rest points.
 
-    The camera is chosen as :func:`cisp_warp.usd_import.load_usd` chooses it (``camera_path``, else the
+    The camera is chosen as :func:`cisp_warp.usd.load_usd` chooses it (``camera_path``, else the
     render settings' camera, else the first camera) and read with the importer's own
-    :func:`~cisp_warp.usd_import.read_camera`, so a frame's camera equals the imported one at that code.
+    :func:`~cisp_warp.usd.read_camera`, so a frame's camera equals the imported one at that code.
     """
 
     def __init__(self, path, camera_path=None):
@@ -160,7 +160,7 @@ class StageClock:
             raise SceneError(f"USD error: {tf_reason(exc)}", file=self.path) from None
 
     def _camera(self, camera_path):
-        from .usd_import import _pick_camera, _render_settings  # the importer's own choice, not a copy of it
+        from .usd.load import _pick_camera, _render_settings  # the importer's own choice, not a copy of it
 
         settings = [p for p in self.stage.Traverse() if p.IsA(UsdRender.Settings)]
         rs = _render_settings(self.stage, settings)
@@ -181,7 +181,7 @@ class StageClock:
 
     def camera(self, code: float, width: int, height: int) -> Camera:
         """The camera at time ``code`` for a ``width`` × ``height`` image."""
-        from .usd_import import read_camera
+        from .usd import read_camera
 
         try:
             return read_camera(self.context(code), self.camera_prim, width, height, self.policy)
@@ -234,7 +234,7 @@ class Animation:
         r = self.renderer
         g = r.gbuffer
         if self.baked:
-            from .usd_import import load_usd
+            from .usd import load_usd
 
             r.update_scene(load_usd(self.clock.path, time_code=code, width=g.width, height=g.height,
                                     camera_path=self.camera_path, device=r.device))

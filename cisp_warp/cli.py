@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     from .photons import PhotonSettings
     from .raster import LightViewSettings
     from .render import Renderer, RenderSettings
-    from .usd_import import load_usd
+    from .usd import load_usd
 
     def say(msg):
         if not args.quiet:

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from cisp_warp.errors import SceneError, SceneWarning
-from cisp_warp.usd_import import load_usd
+from cisp_warp.usd import load_usd
 
 CORPUS = Path(__file__).resolve().parent / "malformed"
 EXPECTED = json.loads((CORPUS / "expected.json").read_text())

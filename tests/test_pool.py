@@ -16,7 +16,7 @@ from cisp_warp.photons import PhotonSettings
 from cisp_warp.render import Renderer, RenderSettings
 from cisp_warp.scene import DeviceScene, LightKind
 from cisp_warp.sequence import VideoWriter, render_sequence
-from cisp_warp.usd_import import load_usd
+from cisp_warp.usd import load_usd
 
 ROOT = Path(__file__).resolve().parents[1]
 POOL = ROOT / "scenes_usd" / "pool.usda"

@@ -14,7 +14,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
 
 from cisp_warp.errors import SceneError, SceneWarning
 from cisp_warp.scene.model import LightKind
-from cisp_warp.usd_import import load_usd
+from cisp_warp.usd import load_usd
 
 
 # ---------------------------------------------------------------------------------------------- helpers

@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     from cisp_warp.image_io import auto_exposure, tonemap
     from cisp_warp.photons import PhotonSettings
     from cisp_warp.render import Renderer, RenderSettings
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     device = wp.get_device(args.device)
     try:

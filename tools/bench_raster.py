@@ -32,7 +32,7 @@ def main(argv=None) -> int:
     from cisp_warp.raster import GBuffer, LightMaps, Rasterizer, camera_view
     from cisp_warp.scene import DeviceScene
     from cisp_warp.timing import StageTimer
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     device = wp.get_device(args.device)
     scene = load_usd(args.scene, width=args.width, height=args.height, device=device)

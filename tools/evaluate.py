@@ -76,7 +76,7 @@ def file_digest(path: str) -> str:
 
 def scene_specs(names: list[str]) -> list[SceneSpec]:
     from cisp_warp import analytic
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     specs = []
     for name in names:

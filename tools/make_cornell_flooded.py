@@ -31,7 +31,7 @@ Camera: at (0, 0.55, 2.2) looking at the box centre (0, 0.5, 0); focal length 35
 
 Usage: ``python tools/make_cornell_flooded.py [--out PATH] [--ior 2.4] [--water-resolution 96] [--seed 0]``.
 The written stage is checked with every registered ``UsdValidation`` validator (usd-core 26 replaced
-``UsdUtils.ComplianceChecker`` by that framework) and must load through :func:`cisp_warp.usd_import.load_usd`.
+``UsdUtils.ComplianceChecker`` by that framework) and must load through :func:`cisp_warp.usd.load_usd`.
 """
 
 from __future__ import annotations
@@ -263,7 +263,7 @@ def main(argv=None) -> int:
     for e in errors:
         print(f"validation error: {e}", file=sys.stderr)
 
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     scene = load_usd(args.out)
     print(f"wrote {args.out}: {scene.triangle_count} triangles, {len(scene.materials)} materials, "

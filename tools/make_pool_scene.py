@@ -20,7 +20,7 @@ Geometry (Y up, metres, ``metersPerUnit`` 1; the still water surface is the plan
   know ``cisp:`` (the renderer still simulates; it reads the rest grid from the default value).
   UsdPreviewSurface: opacity 0, roughness 0, ior 1.333.
 
-Lights (``inputs:intensity`` in cisp_warp's SI convention, see :mod:`cisp_warp.usd_import`):
+Lights (``inputs:intensity`` in cisp_warp's SI convention, see :mod:`cisp_warp.usd`):
 
 * ``/World/Sun``: a DistantLight, elevation ``--sun-elevation`` (60 degrees), azimuth 20 degrees from +z
   towards +x (behind the camera). ``inputs:intensity`` = ``--sun-irradiance`` (900 W/m²), the clear-sky
@@ -41,7 +41,7 @@ Usage: ``python tools/make_pool_scene.py [--out PATH] [--bake N] [--night] [--se
 The written stage is checked with every registered ``UsdValidation`` validator (usd-core 26 replaced
 ``UsdUtils.ComplianceChecker``, what ``usdchecker`` ran, by that framework) and with
 ``UsdUtils.ComplianceChecker`` too where the installed usd-core still has it; it must load through
-:func:`cisp_warp.usd_import.load_usd`. Exit status 0 when it passes, 1 with validation errors, 2 for bad
+:func:`cisp_warp.usd.load_usd`. Exit status 0 when it passes, 1 with validation errors, 2 for bad
 flags.
 """
 
@@ -552,7 +552,7 @@ def main(argv=None) -> int:
     for e in errors + (checker or []):
         print(f"validation error: {e}", file=sys.stderr)
 
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     scene = load_usd(out)
     checked = "UsdValidation" + (" and UsdUtils.ComplianceChecker" if checker is not None else

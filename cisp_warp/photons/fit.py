@@ -28,9 +28,11 @@ from ..raster import GBuffer, LightMaps, Rasterizer
 from ..raster.views import ViewParams, fit_windows, pixel_ray_world
 from ..scene import DeviceScene
 from ..scene.device import SurfaceGeometry
-from .common import LEDGER_ENTRIES, surface_at_sample
+from .common import surface_at_sample, tally_new
 from .kernels_world import WT_LANDED, CameraBuffers, WorldScene, camera_pixel, world_trace
 from .world import world_scene
+
+wp.set_module_options({"enable_backward": False})  # forward only (world_trace books into a tally by reference)
 
 
 @wp.kernel
@@ -53,7 +55,6 @@ def pilot_receivers(
     t_max: float,  # [m]
     max_bounces: int,
     seed: int,
-    scratch_ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) bookings of the pilot, discarded
     receiver_depth: wp.array(dtype=wp.float32),  # (P*P,) nearest camera depth [m] a texel's light is seen at, 0 = none (write)
 ):
     p = wp.tid()
@@ -73,6 +74,7 @@ def pilot_receivers(
         eta = 1.0 / eta
     transmissive = int(ws.opacity[ws.triangle_material[tri]] < 1.0)
     nearest = float(0.0)
+    tally = tally_new()  # the pilot's bookings: discarded
     for branch in range(2):
         d = reflect(d_in, nn)
         if branch == 1:
@@ -83,7 +85,7 @@ def pilot_receivers(
                 continue
         state = wp.rand_init(seed, 2 * p + branch)
         status, y, nr, d_end, power, state = world_trace(ws, x, n, d, wp.vec3(1.0), state, roughness_cutoff, t_max,
-                                                         max_bounces, scratch_ledger)
+                                                         max_bounces, tally)
         if status != WT_LANDED:
             continue
         pix, q = camera_pixel(cam, y)
@@ -111,7 +113,6 @@ class LightViewFitter:
         self.cam.solid_angle = wp.zeros(1, dtype=wp.float32, device=self.device)  # not read by the pilot
         self.receiver_depth = [[wp.zeros(r.width * r.height, dtype=wp.float32, device=self.device) for r in lm.pilot]
                                for lm in self.lights]
-        self.scratch_ledger = wp.zeros(3 * LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
         self.roughness_cutoff, self.thickness, self.thickness_rel = roughness_cutoff, thickness, thickness_rel
         self.max_bounces, self.t_max, self.seed = max_bounces, t_max, seed
         self.last_depth: list[list[np.ndarray]] = []  #: the pilots' receiver depths of the last fit (host)
@@ -131,7 +132,7 @@ class LightViewFitter:
                     r.view.params(), int(lm.light.kind), light_pos, sp.position, sp.normal, r.flux, sp.roughness,
                     sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, float(self.roughness_cutoff),
                     float(self.thickness), float(self.thickness_rel), float(self.t_max), int(self.max_bounces),
-                    int(self.seed * 7919 + frame * 131 + vi), self.scratch_ledger, depth])
+                    int(self.seed * 7919 + frame * 131 + vi), depth])
         self.last_depth = []
         for lm, depths in zip(self.lights, self.receiver_depth):
             vs = lm.view_settings

@@ -7,7 +7,7 @@
   ``cone_angle`` = that half angle [rad] off its -Z, ``cone_softness`` = ``inputs:shaping:cone:softness``.
 * ``Light.intensity`` = ``inputs:intensity`` × 2^``inputs:exposure``, ``Light.color`` = ``inputs:color``,
   interpreted in the model's SI units (W/m² for distant, W/sr for point and spot): see
-  :mod:`cisp_warp.usd_import`.
+  :mod:`cisp_warp.usd`.
 * Any other light type (Rect, Disk, Dome, Cylinder, Geometry, Portal, plugin) -> one warning, ignored.
 """
 
@@ -19,8 +19,8 @@ import numpy as np
 from pxr import UsdLux
 
 from ..errors import SceneError
-from .model import Light, LightKind
-from .usd_stage import StageContext, finite_float, finite_vec3
+from ..scene.model import Light, LightKind
+from .stage import StageContext, finite_float, finite_vec3
 
 POINT_RADIUS_M = 0.01  #: a SphereLight no larger than this [m] is a point light without a warning
 

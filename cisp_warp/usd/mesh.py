@@ -32,8 +32,8 @@ import numpy as np
 from pxr import UsdGeom
 
 from ..errors import SceneError
-from .usd_material import MaterialTable, face_materials
-from .usd_stage import StageContext, python_value
+from .material import MaterialTable, face_materials
+from .stage import StageContext, python_value
 
 CREASE_ANGLE_DEG = 45.0  #: computed normals: triangles meeting at more than this form a hard edge
 DEGENERATE_AREA = 1e-12  #: a triangle with |cross| <= this × (mesh bounding diagonal)² has zero area

@@ -21,8 +21,8 @@ import numpy as np
 from pxr import UsdShade
 
 from ..errors import SceneError
-from .model import Material
-from .usd_stage import StageContext, finite_float, finite_vec3
+from ..scene.model import Material
+from .stage import StageContext, finite_float, finite_vec3
 
 PREVIEW_SURFACE_DEFAULTS = {
     "diffuseColor": (0.18, 0.18, 0.18),

@@ -1,7 +1,7 @@
 """Opening a USD stage safely and bringing its prims to the model's world frame (Y up, metres).
 
-Shared by the importer's parts (:mod:`cisp_warp.usd_import`, ``usd_mesh``, ``usd_material``,
-``usd_lights``). Everything here raises :class:`SceneError`; nothing lets a ``pxr`` exception out.
+Shared by the reader's parts (``load``, ``mesh``, ``material``,
+``lights``). Everything here raises :class:`SceneError`; nothing lets a ``pxr`` exception out.
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ Frame and time
     ``Scene.time`` = time code / ``timeCodesPerSecond`` [s].
 
 What is imported
-    ``UsdGeom.Mesh`` prims (see :mod:`cisp_warp.scene.usd_mesh`) with materials
-    (:mod:`cisp_warp.scene.usd_material`), UsdLux lights (:mod:`cisp_warp.scene.usd_lights`), one
+    ``UsdGeom.Mesh`` prims (see :mod:`cisp_warp.usd.mesh`) with materials
+    (:mod:`cisp_warp.usd.material`), UsdLux lights (:mod:`cisp_warp.usd.lights`), one
     ``UsdGeom.Camera`` and a ``UsdRender.Settings`` resolution. Prims that are invisible
     (``ComputeVisibility``) or of purpose ``guide`` / ``proxy`` are skipped (``default`` and ``render``
     are drawn); instance proxies are traversed. Other gprims (Sphere, Cube, Points, curves) and point
@@ -53,13 +53,13 @@ import os
 import numpy as np
 from pxr import Tf, Usd, UsdGeom, UsdLux, UsdRender
 
-from .errors import SceneError
-from .scene.device import check_memory
-from .scene.model import Camera, MeshRange, Scene
-from .scene.usd_lights import read_light
-from .scene.usd_material import MaterialTable
-from .scene.usd_mesh import MeshPart, read_mesh
-from .scene.usd_stage import StageContext, finite_float, open_stage, tf_reason
+from ..errors import SceneError
+from ..scene.device import check_memory
+from ..scene.model import Camera, MeshRange, Scene
+from .lights import read_light
+from .material import MaterialTable
+from .mesh import MeshPart, read_mesh
+from .stage import StageContext, finite_float, open_stage, tf_reason
 
 DEFAULT_RESOLUTION = (640, 360)
 GBUFFER_BYTES_PER_PIXEL = 64  #: G-buffer + photon map + denoiser history, an upper estimate per camera pixel
