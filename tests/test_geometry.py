@@ -245,3 +245,19 @@ def test_cascades_leave_their_finer_window_to_the_finer_view(device):
     _, one = render(device, "sspm", 128, 4_000_000, seed=5)
     assert rel_rmse(two, one) < 0.1
     np.testing.assert_allclose(two.mean(), one.mean(), rtol=0.02)
+
+
+def test_light_view_figures_smoke(tmp_path):
+    """tools/light_view_figures.py runs end to end at smoke size and writes its table and crops."""
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "PYTHONPATH": root}
+    res = subprocess.run([sys.executable, os.path.join(root, "tools", "light_view_figures.py"), "store", "--smoke",
+                          "--out", str(tmp_path)], capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    table = (tmp_path / "store.md").read_text()
+    assert "wavy_closeup | camera" in table and "pool_floor_closeup | scene" in table
+    assert (tmp_path / "wavy_closeup_photon_map_camera.png").exists()

@@ -47,7 +47,7 @@ def scenes(width: int, height: int):
     """(name, scene, water time [s] or None) of the shipped scenes and the close-ups."""
     from cisp_warp import analytic
     from cisp_warp.scene import Camera
-    from cisp_warp.usd_import import load_usd
+    from cisp_warp.usd import load_usd
 
     cornell = load_usd(os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda"), width=width, height=height)
     pool = load_usd(os.path.join(ROOT, "scenes_usd", "pool.usda"), width=width, height=height)
