@@ -178,9 +178,10 @@ class PhotonPass:
                 blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
                 wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
                                 inputs=[r.flux, n, self._max_lum_of[li]])
-            for r, window in zip(lm.pilot, lm.outside_windows):
+            for r, window, angle in zip(lm.pilot, lm.outside_windows, lm.outside_angles):
                 self.launch_photons(C.book_outside_window, r.width * r.height,
-                                    [r.flux, r.width, r.width * r.height, wp.vec4(*window), self.ledger])
+                                    [r.flux, r.width, r.width * r.height, wp.vec4(*window), float(angle),
+                                     wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger])
 
     def launch_photons(self, kernel, n: int, inputs: list) -> None:
         """Launch a photon kernel over ``n`` photons as ``wp.launch_tiled`` blocks of ``ledger_block`` threads

@@ -335,16 +335,23 @@ def emit_photon(
     return texel, power, origin, d_in, n
 
 
+OUTSIDE_SUBSAMPLES = wp.constant(4)  #: per axis: a pilot texel's area inside a turned window, from 4×4 points
+
+
 @wp.kernel(enable_backward=False)  # books into a tally by reference
 def book_outside_window(
     rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) a pilot view's flux per texel [W] (read)
     width: int,
     count: int,  # texels
-    window: wp.vec4,  # (x0, y0, x1, y1) pilot pixels sampled by the cascades; empty when x1 <= x0
+    window: wp.vec4,  # (x0, y0, x1, y1) sampled by the cascades, in the pilot's pixels turned by ``angle``; empty when x1 <= x0
+    angle: float,  # [rad] (views.rotate_pixels)
+    centre: wp.vec2,  # the pilot view's principal point [pixels]
+    aspect: float,  # the pilot view's fx / fy
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
 ):
     """Book the power of each pilot texel's area outside ``window`` as sampled and ``outside_fitted_view``
-    (one thread per texel, tallied and added once per block, as the photon kernels do)."""
+    (one thread per texel, tallied and added once per block, as the photon kernels do). Unturned windows
+    cut texels exactly; a turned one is measured on 4×4 points per texel."""
     block, lane = wp.tid()
     p = block * wp.block_dim() + lane
     tally = tally_new()
@@ -352,9 +359,23 @@ def book_outside_window(
         f = rsm_flux[p]
         i = float(p % width)
         j = float(p / width)
-        ox = wp.max(wp.min(i + 1.0, window[2]) - wp.max(i, window[0]), 0.0)
-        oy = wp.max(wp.min(j + 1.0, window[3]) - wp.max(j, window[1]), 0.0)
-        outside = 1.0 - ox * oy
+        inside = float(0.0)
+        if angle == 0.0:
+            ox = wp.max(wp.min(i + 1.0, window[2]) - wp.max(i, window[0]), 0.0)
+            oy = wp.max(wp.min(j + 1.0, window[3]) - wp.max(j, window[1]), 0.0)
+            inside = ox * oy
+        else:
+            c = wp.cos(angle)
+            s = wp.sin(angle)
+            for a in range(OUTSIDE_SUBSAMPLES):
+                for b in range(OUTSIDE_SUBSAMPLES):
+                    dx = i + (float(a) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[0]
+                    dy = j + (float(b) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[1]
+                    u = centre[0] + c * dx - s * aspect * dy
+                    v = centre[1] + s * dx / aspect + c * dy
+                    if u >= window[0] and u < window[2] and v >= window[1] and v < window[3]:
+                        inside += 1.0 / float(OUTSIDE_SUBSAMPLES * OUTSIDE_SUBSAMPLES)
+        outside = 1.0 - inside
         if outside > 0.0 and f[0] + f[1] + f[2] > 0.0:
             book(tally, L_SAMPLED, f * outside)
             book(tally, L_OUTSIDE, f * outside)

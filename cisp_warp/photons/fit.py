@@ -8,8 +8,9 @@ Per frame, after the camera's G-buffer and before the lights' RSM views are draw
    (further specular bounces by Fresnel probability) and keeps the camera depth [m] where it lands on
    a surface the camera sees (the depth-visibility test of the photon stores), 0 where neither lands;
 3. the host reads those depths back (the one device->host copy of the frame, ``pilot_size``² floats
-   per whole view: a view's pose and scale are launch arguments, so the host must know them) and fits
-   nested windows to them (``views.fit_windows``): one near the camera, coarser ones further out;
+   per whole view: a view's pose and scale are launch arguments, so the host must know them), turns each
+   whole view about its axis to fit them tightest (``views.fit_angle``) and fits nested windows to them
+   (``views.fit_windows``): one near the camera, coarser ones further out;
 4. ``LightMaps.set_windows`` moves the cascades; their RSMs are then drawn at full size.
 
 Photons are then emitted from the cascades (``PhotonPass.rsm_batches``): each active cascade gets an
@@ -25,7 +26,7 @@ import warp as wp
 
 from ..optics import reflect, refract
 from ..raster import GBuffer, LightMaps, Rasterizer
-from ..raster.views import ViewParams, fit_windows, pixel_ray_world
+from ..raster.views import ViewParams, fit_angle, fit_windows, pixel_ray_world
 from ..scene import DeviceScene
 from ..scene.device import SurfaceGeometry
 from .common import surface_at_sample, tally_new
@@ -138,4 +139,7 @@ class LightViewFitter:
             vs = lm.view_settings
             host = [d.numpy().reshape(r.height, r.width) for d, r in zip(depths, lm.pilot)]  # the frame's one sync
             self.last_depth.append(host)
-            lm.set_windows([fit_windows(h, vs.cascades, vs.margin) for h in host])
+            aspects = [r.view.fx / r.view.fy for r in lm.pilot]
+            angles = [fit_angle(h, k) for h, k in zip(host, aspects)]
+            lm.set_windows([fit_windows(h, vs.cascades, vs.margin, a, k) for h, a, k in zip(host, angles, aspects)],
+                           angles)

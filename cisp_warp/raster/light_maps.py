@@ -12,7 +12,8 @@ list          views                   what reads them
 ``rsm``       fitted cascades, or     photon emission (``rsm_batches``); an inactive cascade emits nothing
               the whole views
 ``pilot``     whole views, small      the fit's pilot photons; the brightest texel (luminance cutoff); the
-                                      power outside every window (booked ``outside_fitted_view``)
+                                      power outside every window (booked ``outside_fitted_view``); each
+                                      view's cascades are windows of it turned about its axis
 shadows       whole views             direct light: a sun's scene-wide view, and a spot or point light's
                                       whole views when its RSM views are fitted
 ============  ======================  =====================================================================
@@ -30,7 +31,8 @@ from ..scene.device import DeviceScene
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR, Light, LightKind
 from . import kernels as K
 from .rasterizer import Rasterizer, RSMView
-from .views import LightViewSettings, View, ViewParams, light_views, resized_view, shadow_view, window_view
+from .views import (LightViewSettings, View, ViewParams, light_views, resized_view, rotated_view, shadow_view,
+                    window_view)
 
 EMPTY_WINDOW = (0.0, 0.0, 0.0, 0.0)
 
@@ -64,6 +66,10 @@ def texel_solid_angles(view: ViewParams, out: wp.array(dtype=wp.float32)):
 @wp.func
 def _corner(x: wp.float64, y: wp.float64) -> wp.float64:
     return wp.atan(x * y / wp.sqrt(wp.float64(1.0) + x * x + y * y))
+
+
+def _view_key(v: View) -> tuple:
+    return (np.asarray(v.to_world, np.float64).tobytes(), v.fx, v.fy, v.cx, v.cy, v.width, v.height)
 
 
 class _ShadowView:
@@ -114,6 +120,7 @@ class LightMaps:
         self.texel_scale = [1.0] * len(self.rsm)
         #: per pilot view: its coarsest window, outside which nothing is sampled (pilot pixels)
         self.outside_windows = [EMPTY_WINDOW] * len(self.pilot)
+        self.outside_angles = [0.0] * len(self.pilot)  #: the turn [rad] of those windows' frame
         self._shadows: list[_ShadowView] = []
         self._make_shadows(whole)
 
@@ -163,18 +170,21 @@ class LightMaps:
                 wp.launch(texel_solid_angles, dim=r.width * r.height, device=self.scene.device,
                           inputs=[r.view.params(), r.solid_angle])
 
-    def set_windows(self, windows: list[list[tuple[float, float, float, float]]]) -> None:
-        """Fit the cascades for this frame: ``windows[b]`` are pilot view b's windows (x0, y0, x1, y1) in
-        its pixels, finest first and nested (``views.fit_windows``); fewer than ``cascades`` leaves the
-        finest cascades inactive, none leaves them all inactive (nothing of b is seen). Views and texel
-        solid angles are updated on the device; nothing is allocated."""
+    def set_windows(self, windows: list[list[tuple[float, float, float, float]]], angles: list[float] | None = None) -> None:
+        """Fit the cascades for this frame: ``windows[b]`` are pilot view b's windows (x0, y0, x1, y1) in the
+        pixels of that view turned by ``angles[b]`` [rad] about its axis (``views.rotated_view``; 0 when
+        None), finest first and nested (``views.fit_windows``); fewer than ``cascades`` leaves the finest
+        cascades inactive, none leaves them all inactive (nothing of b is seen). Views and texel solid
+        angles are updated on the device; nothing is allocated."""
         if not self.fitted:
             raise ValueError("set_windows needs LightViewSettings(fit='camera')")
+        angles = [0.0] * len(self.pilot) if angles is None else [float(a) for a in angles]
         changed = []
         for b, (pilot, wins) in enumerate(zip(self.pilot, windows)):
-            base = pilot.view
+            base = rotated_view(pilot.view, angles[b])
             c_empty = self.cascades - len(wins)
             self.outside_windows[b] = tuple(wins[-1]) if wins else EMPTY_WINDOW
+            self.outside_angles[b] = angles[b]
             for c in range(self.cascades):
                 k = b * self.cascades + c
                 r = self.rsm[k]
@@ -190,7 +200,7 @@ class LightMaps:
                 self.texel_scale[k] = 1.0 / (sx * sy)  # pilot texels per cascade texel
                 self.skip_windows[k] = EMPTY_WINDOW if finer is None else (
                     (finer[0] - win[0]) * sx, (finer[1] - win[1]) * sy, (finer[2] - win[0]) * sx, (finer[3] - win[1]) * sy)
-                if view != r.view:
+                if _view_key(view) != _view_key(r.view):
                     r.view = view
                     changed.append(r)
         self._refresh_solid_angles(changed)
