@@ -260,14 +260,15 @@ class LightViewSettings:
     margin: float = 2.0  #: pilot texels added around each fitted window (plus 2% of its size)
 
     def validate(self) -> None:
+        """Raise :class:`SceneError` naming the first field (``fit must be ...``) whose value cannot be used."""
         if self.fit not in ("camera", "scene"):
-            raise SceneError(f"--light-views must be 'camera' or 'scene', got {self.fit!r}")
-        if not isinstance(self.cascades, (int, np.integer)) or not 1 <= self.cascades <= 4:
-            raise SceneError(f"--light-cascades must be an integer in [1, 4], got {self.cascades!r}")
+            raise SceneError(f"fit must be 'camera' or 'scene', got {self.fit!r}")
+        if not isinstance(self.cascades, (int, np.integer)) or isinstance(self.cascades, bool) or not 1 <= self.cascades <= 4:
+            raise SceneError(f"cascades must be an integer in [1, 4], got {self.cascades!r}")
         if not isinstance(self.pilot_size, (int, np.integer)) or not 8 <= self.pilot_size <= 4096:
-            raise SceneError(f"light-view pilot size must be an integer in [8, 4096], got {self.pilot_size!r}")
+            raise SceneError(f"pilot_size must be an integer in [8, 4096], got {self.pilot_size!r}")
         if not np.isfinite(self.margin) or self.margin < 0:
-            raise SceneError(f"light-view margin must be a finite number >= 0, got {self.margin!r}")
+            raise SceneError(f"margin must be a finite number >= 0, got {self.margin!r}")
 
 
 def resized_view(view: View, size: int, name: str | None = None) -> View:
