@@ -52,6 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--roughness-cutoff", type=float, default=0.3, help="RSM texels rougher than this emit no photons")
     p.add_argument("--luminance-cutoff", type=float, default=0.01,
                    help="RSM texels dimmer than this fraction of the brightest emit no photons")
+    p.add_argument("--splat", default="point", choices=["point", "wavefront"],
+                   help="cisp, sspm: store photons as points, or as a wavefront: photons on a grid of the RSM "
+                   "(--photons cells per light), each cell's power spread over the area its corners land on")
     p.add_argument("--max-bounces", type=int, default=8, help="sspm, reference: specular bounces before a photon is dropped")
     p.add_argument("--cmap-gather", default="light", choices=["light", "eye"],
                    help="caustics_map: Gaussian gather in the light-space caustic map, or leave it to the eye-space denoiser")
@@ -78,6 +81,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="anti-aliasing: N x N samples per pixel (1 = off)")
     p.add_argument("--no-rsm-aovs", action="store_true", help=argparse.SUPPRESS)  # the default now
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    d = p.add_argument_group("distributed rendering (with --frames; needs pip install -e '.[distributed]')")
+    d.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="spread the frames over N Dask workers of a local cluster: one per GPU, else CPU processes")
+    d.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the workers of a running Dask cluster (e.g. tcp://head:8786; with --workers N, N of "
+                   "them); the stage and --out must be at the same paths there")
+    d.add_argument("--resume", action="store_true", help="keep the frames already in --out, render the missing ones")
+    d.add_argument("--warmup", type=int, default=None, metavar="N",
+                   help="frames each chunk renders unwritten before its first frame; None: as many as the "
+                   "denoiser's temporal filter needs")
     return p
 
 
@@ -188,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
             photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
                                      roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff,
                                      max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
-                                     cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0)
+                                     cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0,
+                                     splat=args.splat)
             settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                       method=args.method, photons=photons, denoiser=args.denoiser,
                                       supersample=args.supersample,
@@ -197,6 +211,10 @@ def main(argv: list[str] | None = None) -> int:
             raise SceneError(flag_of(e)) from None
         extra = parse_aov_list(args.aovs)
         frames = parse_frames(args.frames) if args.frames else None
+        if args.workers is not None or args.scheduler or args.resume:
+            from .distributed import main_distributed
+
+            return main_distributed(args, settings, frames, say, scene_path)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)
             first = frames.start if frames else args.time

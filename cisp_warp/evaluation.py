@@ -46,15 +46,21 @@ class Config:
     method: str
     photons: int
     denoise: bool
+    splat: str = "point"  #: cisp, sspm: "point" or "wavefront" (``photons`` then counts grid cells per light)
+
+    @property
+    def curve(self) -> str:
+        """The method as a chart names it: ``cisp``, or ``cisp wavefront``."""
+        return self.method if self.splat == "point" else f"{self.method} {self.splat}"
 
     @property
     def label(self) -> str:
-        return f"{self.method} {self.photons:,} {'denoised' if self.denoise else 'raw'}"
+        return f"{self.curve} {self.photons:,} {'denoised' if self.denoise else 'raw'}"
 
 
 def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSettings()) -> RenderSettings:
     """The renderer's settings for ``cfg`` (see the module table for what "denoise" means per method)."""
-    photons = replace(base, photons=int(cfg.photons))
+    photons = replace(base, photons=int(cfg.photons), splat=cfg.splat)
     if cfg.method == "caustics_map":
         photons = replace(photons, cmap_gather="light" if cfg.denoise else "eye",
                           cmap_history=4 if cfg.denoise else 1)
@@ -246,12 +252,13 @@ def play_case(case, settings: RenderSettings, width: int, height: int, frames: i
 
 
 def measure_case(case, method: str, reference: list[dict], width: int, height: int, frames: int, measured: int,
-                 rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings()) -> CaseFigures:
-    """Play ``case`` with ``method`` denoised (:func:`render_settings`) and measure it against ``reference``
-    (:func:`case_reference` of the same frames)."""
+                 rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings(),
+                 splat: str = "point") -> CaseFigures:
+    """Play ``case`` with ``method`` denoised (:func:`render_settings`; ``splat`` for cisp and sspm) and measure it
+    against ``reference`` (:func:`case_reference` of the same frames)."""
     from . import metrics as M
 
-    settings = render_settings(Config(method, photons, True), rsm_size, base)
+    settings = render_settings(Config(method, photons, True, splat), rsm_size, base)
     r, shots = play_case(case, settings, width, height, frames, measured, device)
     ref_frames = case_frames(case, frames, measured)
     ref_at = dict(zip(ref_frames, reference))

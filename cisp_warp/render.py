@@ -21,7 +21,9 @@ import warp as wp
 from .denoise import SVGF, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
+from .photons.cisp import build_bounds
 from .photons.fit import LightViewFitter
+from .photons.march import bounds_size
 from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
@@ -112,6 +114,9 @@ class RenderSettings:
             words = re.match(r"([a-z_]+) (.*)", exc.reason)
             name, rest = (words.group(1), words.group(2)) if words else ("fit", exc.reason)
             raise SettingsError(name, rest, owner="LightViewSettings") from None
+        if self.photons.splat != "point" and self.method not in ("cisp", "sspm"):
+            raise SettingsError("splat", f"{self.photons.splat} works with method cisp or sspm, not {self.method}",
+                                owner="PhotonSettings")
 
 
 class SettingsError(SceneError):
@@ -167,7 +172,9 @@ class Renderer:
         self.gpu = DeviceScene(scene, self.device)
         self.raster = Rasterizer(self.gpu)
         self.gbuffer = GBuffer.allocate(cam.width, cam.height, self.device)
-        views = self.settings.light_views if self.settings.method in FITTED_METHODS else LightViewSettings(fit="scene")
+        # wavefront splatting lays its grid over each whole RSM view (cascades would overlap and miss the skip)
+        fitted = self.settings.method in FITTED_METHODS and self.settings.photons.splat == "point"
+        views = self.settings.light_views if fitted else LightViewSettings(fit="scene")
         self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size, views) for light in scene.lights]
         self.direct = DirectLighting(self.gbuffer, self.device)
         n = cam.width * cam.height
@@ -180,6 +187,7 @@ class Renderer:
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        self.depth_bounds = wp.zeros(bounds_size(cam.width, cam.height), dtype=wp.vec2, device=self.device)
         self.view = camera_view(cam)
         self.view_params = self.view.params()
         self.prev_view_params = self.view_params
@@ -259,9 +267,10 @@ class Renderer:
                       inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.sky_irradiance,
                               self.surface_radiance])
             ps = self.settings.photons
+            build_bounds(g.depth, g.width, g.height, ps.thickness, 0.02, self.depth_bounds, self.device)
             wp.launch(composite, dim=n, device=self.device,
-                      inputs=[self.view_params, g.depth, self.surface_radiance, w.depth, w.position, w.normal, w.ior,
-                              self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
+                      inputs=[self.view_params, g.depth, self.depth_bounds, self.surface_radiance, w.depth, w.position,
+                              w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
         self.prev_view_params = self.view_params

@@ -81,7 +81,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="results", help="output folder; references are cached in OUT/references")
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
     p.add_argument("--cases", default=None, help="comma-separated subset of the cases (default: all)")
-    p.add_argument("--methods", default="cisp,sspm,caustics_map", help="comma-separated methods")
+    p.add_argument("--methods", default="cisp,sspm,caustics_map",
+                   help="comma-separated methods; cisp:wavefront, sspm:wavefront for wavefront splatting (the preset's "
+                   "photons then count grid cells per light)")
     p.add_argument("--merge", action="store_true",
                    help="keep the rows of other cases already in OUT/stability.json (same preset and device), so "
                    "that a long preset can run a few cases per command")
@@ -117,7 +119,9 @@ def main(argv=None) -> int:
         bar.update()
         for m in methods:
             bar.set_postfix_str(f"{c.name}: {m}")
-            f = E.measure_case(c, m, reference, w, h, frames, measured, cfg["rsm_size"], cfg["photons"], device)
+            method, _, splat = m.partition(":")
+            f = E.measure_case(c, method, reference, w, h, frames, measured, cfg["rsm_size"], cfg["photons"], device,
+                               splat=splat or "point")
             rows.append({"case": c.name, "method": m, "photons": f.photons, "energy_lost": f.energy_lost,
                          "error": f.error, "flicker": f.flicker, "flicker_raw": f.flicker_raw,
                          "reference_flicker": f.reference_flicker, "reference_noise": f.reference_noise,
@@ -158,9 +162,9 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, "stability.md"), "w") as fh:
         fh.write(md)
     print(f"{header}; {wall:.0f} s")
-    print(f"{'case':<23}{'method':<13}{'lost':>8}{'error':>8}{'flicker':>9}{'raw':>8}{'ref':>8}")
+    print(f"{'case':<23}{'method':<16}{'lost':>8}{'error':>8}{'flicker':>9}{'raw':>8}{'ref':>8}")
     for r in rows:
-        print(f"{r['case']:<23}{r['method']:<13}{fmt(r['energy_lost']):>8}{fmt(r['error']):>8}"
+        print(f"{r['case']:<23}{r['method']:<16}{fmt(r['energy_lost']):>8}{fmt(r['error']):>8}"
               f"{fmt(r['flicker']):>9}{fmt(r['flicker_raw']):>8}{fmt(r['reference_flicker']):>8}")
     print(f"wrote {args.out}/stability.csv, stability.json, stability.md")
     return 0

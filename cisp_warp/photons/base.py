@@ -41,12 +41,15 @@ class PhotonSettings:
     cmap_history: int = 4  #: caustics_map: frames in seed 004's temporal filter (1 = off)
     reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
     sort_photons: bool | None = None  #: trace RSM photons in texel (Morton) order; None = on CUDA only
+    splat: str = "point"  #: cisp, sspm: "point" deposits, or "wavefront" (photons on an RSM grid, cells splatted)
 
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
             raise SceneError(f"--photons must be an integer in [1, 2^28], got {self.photons!r}")
         if self.footprint not in ("exact", "paper"):
             raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
+        if self.splat not in ("point", "wavefront"):
+            raise SceneError(f"--splat must be 'point' or 'wavefront', got {self.splat!r}")
         if self.cmap_gather not in ("light", "eye"):
             raise SceneError(f"--cmap-gather must be 'light' or 'eye', got {self.cmap_gather!r}")
         for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0)):
@@ -142,6 +145,8 @@ class PhotonPass:
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
+        #: (LEDGER_ENTRIES,) vec3d alias of ``ledger`` (one row per entry) that the photon kernels add to
+        self.ledger_rows = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,), device=self.device)
         self.max_lum = wp.zeros(len(lights), dtype=wp.float32, device=self.device)
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -149,7 +154,7 @@ class PhotonPass:
         self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
         sort = settings.sort_photons if settings.sort_photons is not None else self.device.is_cuda
         self.use_order = 1 if sort else 0
-        n_sort = 2 * self.max_photons_per_view() if sort else 1
+        n_sort = 2 * self.max_photons_per_view() if sort and settings.splat == "point" else 1  # a grid needs no order
         self._sort_keys = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU
@@ -181,7 +186,7 @@ class PhotonPass:
             for r, window, angle in zip(lm.pilot, lm.outside_windows, lm.outside_angles):
                 self.launch_photons(C.book_outside_window, r.width * r.height,
                                     [r.flux, r.width, r.width * r.height, wp.vec4(*window), float(angle),
-                                     wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger])
+                                     wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger_rows])
 
     def launch_photons(self, kernel, n: int, inputs: list) -> None:
         """Launch a photon kernel over ``n`` photons as ``wp.launch_tiled`` blocks of ``ledger_block`` threads

@@ -128,7 +128,7 @@ class CausticsMap(PhotonPass):
                 n, b.seed, b.scramble, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff,
                 int(s.max_steps), float(s.thickness), float(s.thickness_rel), self.t_max,
-                cm.texel_power, self.ledger])
+                cm.texel_power, self.ledger_rows])
             wp.launch(K.temporal_filter, dim=n_texels, device=self.device,
                       inputs=[cm.texel_power, cm.receiver_area, slot, frames, cm.history, cm.irradiance])
             if cm.gather is not None:

@@ -51,6 +51,11 @@ FOOTPRINT_PAPER = wp.constant(1)
 
 
 LEDGER_BLOCK = 128  #: threads per block of the photon kernels on CUDA: each block adds to the ledger once per entry
+#: CUDA launch bounds of CISP's trace kernel: blocks of at most LEDGER_BLOCK threads, 6 resident per SM (<= 80
+#: registers a thread). Measured on an H100 (Cornell box, 2M photons): 3.03 ms at the 128 registers nvcc picks by
+#: itself, 2.51 ms at 80 (a few spilled to L1), 2.76 ms at 96. Not yet measured on sspm / caustics_map, which keep
+#: nvcc's choice.
+PHOTON_LAUNCH_BOUNDS = (LEDGER_BLOCK, 6)
 
 
 @wp.struct
@@ -100,30 +105,42 @@ def book(tally: wp.ref[Tally], entry: int, power: wp.vec3):
         tally.power = power
 
 
+def entry_mask(*entries: int) -> int:
+    """Bit mask of ledger entries, for :func:`ledger_add`."""
+    m = 0
+    for e in entries:
+        m |= 1 << int(e)
+    return m
+
+
+#: what emission and the first bounce book (emit_and_bounce, and the reference's first hit)
+EMISSION_ENTRIES = wp.constant(entry_mask(0, 1, 2, 3, 10, 11))
+#: what may end a photon after its first bounce (absorbed: further metallic bounces of the world methods)
+FINAL_ENTRIES = wp.constant(entry_mask(1, 3, 4, 5, 6, 7, 8, 9, 12, 13))
+ALL_ENTRIES = wp.constant((1 << LEDGER_ENTRIES) - 1)
+
+
 @wp.func
-def ledger_add(ledger: wp.array(dtype=wp.float64), tally: Tally, lane: int):
-    """Sum every thread's tally over the block (Warp tiles) and add each non-zero entry to the ledger once,
-    from lane 0. Every thread of the block must call this (no early return before it). On the CPU a block
-    is one thread, so entries are added in photon order, as single atomics would."""
+def ledger_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, lane: int, entries: int):
+    """Sum every thread's tally over the block (Warp tiles) and add each entry in the bit mask ``entries`` to
+    ``ledger`` (the (LEDGER_ENTRIES,) vec3d view of the ledger) once per block. Every thread of the block must
+    call this with the same ``entries`` (no early return before it); an entry booked but left out of the mask
+    is lost, and the ledger then does not close (the tests check closure). On the CPU a block is one thread, so
+    entries are added in photon order, as single atomics would."""
     for e in range(LEDGER_ENTRIES):
-        v = wp.vec3d()
-        if e == L_SAMPLED:
-            v = tally.sampled
-        elif e == L_ABSORBED:
-            v = tally.absorbed
-        elif e == L_REFLECTED:
-            v = tally.reflected
-        elif e == L_REFRACTED:
-            v = tally.refracted
-        elif tally.entry == e:
-            v = wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
-        total = wp.tile_sum(wp.tile(v, preserve_type=True))
-        if lane == 0:
-            s = total[0]
-            if s[0] != wp.float64(0.0) or s[1] != wp.float64(0.0) or s[2] != wp.float64(0.0):
-                wp.atomic_add(ledger, 3 * e + 0, s[0])
-                wp.atomic_add(ledger, 3 * e + 1, s[1])
-                wp.atomic_add(ledger, 3 * e + 2, s[2])
+        if (entries >> e) & 1 != 0:
+            v = wp.vec3d()
+            if e == L_SAMPLED:
+                v = tally.sampled
+            elif e == L_ABSORBED:
+                v = tally.absorbed
+            elif e == L_REFLECTED:
+                v = tally.reflected
+            elif e == L_REFRACTED:
+                v = tally.refracted
+            if tally.entry == e:
+                v = v + wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
+            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(v, preserve_type=True)), offset=e)
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
@@ -335,6 +352,7 @@ def emit_photon(
     return texel, power, origin, d_in, n
 
 
+OUTSIDE_ENTRIES = wp.constant(entry_mask(L_SAMPLED, L_OUTSIDE))  #: what book_outside_window books
 OUTSIDE_SUBSAMPLES = wp.constant(4)  #: per axis: a pilot texel's area inside a turned window, from 4×4 points
 
 
@@ -347,7 +365,7 @@ def book_outside_window(
     angle: float,  # [rad] (views.rotate_pixels)
     centre: wp.vec2,  # the pilot view's principal point [pixels]
     aspect: float,  # the pilot view's fx / fy
-    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
 ):
     """Book the power of each pilot texel's area outside ``window`` as sampled and ``outside_fitted_view``
     (one thread per texel, tallied and added once per block, as the photon kernels do). Unturned windows
@@ -379,7 +397,7 @@ def book_outside_window(
         if outside > 0.0 and f[0] + f[1] + f[2] > 0.0:
             book(tally, L_SAMPLED, f * outside)
             book(tally, L_OUTSIDE, f * outside)
-    ledger_add(ledger, tally, lane)
+    ledger_add(ledger, tally, lane, OUTSIDE_ENTRIES)
 
 
 @wp.func
