@@ -44,8 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "or none (direct light only)")
     p.add_argument("--photons", type=parse_count, default=parse_count("1M"),
                    help="photons per light per frame; accepts 500k, 1M, 2M, or a plain integer")
-    p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"],
-                   help="photon-map denoiser: SVGF, the 7x7 Gaussian gather of Caustics Mapping, or none")
+    p.add_argument("--denoiser", default="caustic", choices=["caustic", "svgf", "gather", "none"],
+                   help="photon-map denoiser: caustic (accumulates the raw photon map over frames, reacting where "
+                   "the caustic changes, and filters the noise left), SVGF (the paper's), the 7x7 Gaussian gather "
+                   "of Caustics Mapping, or none")
     p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
     p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
                    help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 import warp as wp
 
-from .denoise import SVGF, GaussianGather, SVGFSettings
+from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .photons.cisp import build_bounds
@@ -46,8 +46,10 @@ class RenderSettings:
     method: str = "cisp"  #: photon method: "cisp", "sspm", "caustics_map", "reference", or "none" (direct only)
     photons: PhotonSettings = PhotonSettings()
     light_views: LightViewSettings = LightViewSettings()  #: RSM views fitted to the camera (cisp, sspm); or "scene"
-    denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
+    denoiser: str = "caustic"  #: "caustic" (accumulate the raw map, filter what noise is left), "svgf" (the
+    #: paper's), "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
+    caustic: CausticSettings = field(default_factory=CausticSettings)
     supersample: int = 1  #: anti-aliasing: s × s samples per pixel (every pass runs at s·width × s·height,
     #: the AOVs are box-filtered down); 1 = one sample per pixel. ``cisp_warp.render`` and the CLI use 2.
     sky_maps: int = 32  #: occlusion maps of the sky term (directions over the sphere)
@@ -79,6 +81,13 @@ class RenderSettings:
             raise SettingsError("light_views", f"must be 'camera', 'scene', a LightViewSettings or a dict of its "
                                 f"fields, got {views!r}", owner="RenderSettings")
         object.__setattr__(self, "light_views", views)
+        caustic = self.caustic
+        if isinstance(caustic, dict):
+            caustic = _from_dict(CausticSettings, caustic, "CausticSettings")
+        elif not isinstance(caustic, CausticSettings):
+            raise SettingsError("caustic", f"must be a CausticSettings or a dict of its fields, got {caustic!r}",
+                                owner="RenderSettings")
+        object.__setattr__(self, "caustic", caustic)
         self.validate()
 
     def validate(self) -> None:
@@ -149,7 +158,7 @@ METHODS = PHOTON_METHODS + ("none",)
 #: methods whose RSM views are fitted to the camera; caustics_map keeps whole views: its caustic maps and their
 #: temporal history live in light space, which a window that follows the camera would move under them
 FITTED_METHODS = ("cisp", "sspm")
-DENOISERS = ("svgf", "gather", "none")
+DENOISERS = ("caustic", "svgf", "gather", "none")
 
 
 class Renderer:
@@ -201,7 +210,9 @@ class Renderer:
         self.fitter = LightViewFitter(self.gpu, self.gbuffer, self.lights, ps.roughness_cutoff, ps.thickness,
                                       ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed)
         self.denoiser = None
-        if self.settings.denoiser == "svgf":
+        if self.settings.denoiser == "caustic":
+            self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
+        elif self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
         elif self.settings.denoiser == "gather":
             self.denoiser = GaussianGather(cam.width, cam.height, self.device)
@@ -254,7 +265,7 @@ class Renderer:
             with stage("denoise"):
                 if not self.photons.denoise:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
-                elif isinstance(self.denoiser, SVGF):
+                elif isinstance(self.denoiser, (CausticDenoiser, SVGF)):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)

@@ -28,7 +28,8 @@ from cisp_warp.usd import load_usd
 
 ROOT = Path(__file__).resolve().parents[1]
 POOL = str(ROOT / "scenes_usd" / "pool.usda")
-TINY = RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=3))
+TINY = RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=3),
+                      denoiser="svgf")  # SVGF: a 25-frame warm-up (the default denoiser's is 415 frames)
 GATHER = RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=3),
                         denoiser="gather", supersample=2)  # 2x2 samples: the writers' box filter is checked too
 EXPOSURE = 2.0e-3  # tone-mapping scale for the in-process comparisons: near the pool's automatic one (the
@@ -67,14 +68,15 @@ def job_for(out, codes, settings=TINY, warmup=None, **kw):
 
 def test_warmup_follows_the_temporal_filters():
     assert warmup_frames(TINY) == 25  # SVGF's EMA: 0.8^25 < 1/255
-    assert warmup_frames(RenderSettings(svgf=SVGFSettings(alpha_color=0.5, alpha_moments=0.5))) == 8  # 0.5^8 < 1/255 < 0.5^7
-    assert warmup_frames(RenderSettings(svgf=SVGFSettings(alpha_color=1.0, alpha_moments=1.0))) == 0
+    assert warmup_frames(RenderSettings(denoiser="svgf", svgf=SVGFSettings(alpha_color=0.5, alpha_moments=0.5))) == 8  # 0.5^8 < 1/255 < 0.5^7
+    assert warmup_frames(RenderSettings(denoiser="svgf", svgf=SVGFSettings(alpha_color=1.0, alpha_moments=1.0))) == 0
+    assert warmup_frames(RenderSettings()) == 63 + 352  # caustic: running mean to 64 frames, then (63/64)^352 < 1/255
     assert warmup_frames(RenderSettings(denoiser="gather")) == 0
     assert warmup_frames(RenderSettings(method="reference")) == 0
     light = PhotonSettings(cmap_history=5, cmap_gather="light")
     assert warmup_frames(RenderSettings(method="caustics_map", photons=light)) == 4  # filtered in light space only
     eye = PhotonSettings(cmap_history=5, cmap_gather="eye")
-    assert warmup_frames(RenderSettings(method="caustics_map", photons=eye)) == 25
+    assert warmup_frames(RenderSettings(method="caustics_map", photons=eye, denoiser="svgf")) == 25
 
 
 @pytest.mark.parametrize("todo, workers, warmup", [(range(0, 240), 2, 32), (range(10, 1210), 7, 32),

@@ -187,9 +187,9 @@ def test_evaluation_runs_a_wavefront_curve():
 
     from cisp_warp import evaluation as E
 
-    s = E.render_settings(E.Config("cisp", 4096, False, "wavefront"), 64)
+    s = E.render_settings(E.Config("cisp", 4096, "none", "wavefront"), 64)
     assert s.photons.splat == "wavefront" and s.denoiser == "none" and s.photons.photons == 4096
-    assert E.Config("sspm", 10, True, "wavefront").label == "sspm wavefront 10 denoised"
+    assert E.Config("sspm", 10, "caustic", "wavefront").label == "sspm wavefront 10 caustic"
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools"))
     from evaluate import analytic_sinusoid_reference
 

@@ -28,6 +28,11 @@ def warmup_frames(settings: RenderSettings) -> int:
       the peak radiance of ``final`` after 25 frames, 1.7% after 8, and float32 resolution only after ~100:
       a chunk after a warm-up is close to one process, not bit-identical; a chunk whose warm-up reaches the
       shot's first frame starts there and is identical.
+    * The caustics denoiser (the default) keeps a running mean of the raw photon map, capped at
+      ``max_history`` = N frames and then an exponential mean of weight 1/N: a fresh chunk's weights equal a
+      single process's after N - 1 frames, and the difference then shrinks by 1 - 1/N per frame, so
+      ``N - 1 + ln(1/255) / ln(1 - 1/N)`` frames (415 at N = 64; fewer where the caustic moves and the history
+      is cut back, which this bound leaves out).
     * The Gaussian gather, the reference and raw maps keep no history: 0.
     """
     w = 0
@@ -38,6 +43,9 @@ def warmup_frames(settings: RenderSettings) -> int:
     alpha = min(settings.svgf.alpha_color, settings.svgf.alpha_moments)
     if denoised and settings.denoiser == "svgf" and alpha < 1.0:
         w = max(w, math.ceil(1.0 / alpha), math.ceil(math.log(OUTPUT_STEP) / math.log1p(-alpha)))
+    if denoised and settings.denoiser == "caustic":
+        n = settings.caustic.max_history
+        w = max(w, n - 1 + math.ceil(math.log(OUTPUT_STEP) / math.log1p(-1.0 / n)))
     return w
 
 
