@@ -98,8 +98,6 @@ class CausticsMap(PhotonPass):
         self.maps = [[CausticMapBuffers.allocate(r, self.history_length, light_gather, self.device) for r in lm.rsm]
                      for lm in lights]
         self.frames_traced = 0  #: frames since construction or :meth:`reset_history`; picks the ring slot
-        #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_to_caustic_map)
-        self.outcome = wp.zeros(self.max_photons_per_view(), dtype=wp.vec4, device=self.device)
 
     def reset_history(self) -> None:
         """Forget the temporal filter's past frames (a camera cut, a new scene state)."""
@@ -130,8 +128,7 @@ class CausticsMap(PhotonPass):
                 n, b.seed, b.scramble, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff,
                 int(s.max_steps), float(s.thickness), float(s.thickness_rel), self.t_max,
-                cm.texel_power, self.ledger_rows, self.outcome])
-            self.add_outcomes(self.outcome, n, K.CMAP_FINAL_ENTRIES)
+                cm.texel_power, self.ledger_rows])
             wp.launch(K.temporal_filter, dim=n_texels, device=self.device,
                       inputs=[cm.texel_power, cm.receiver_area, slot, frames, cm.history, cm.irradiance])
             if cm.gather is not None:

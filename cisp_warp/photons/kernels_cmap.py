@@ -21,14 +21,14 @@ import warp as wp
 from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from .common import (EMISSION_ENTRIES, FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED,
-                     Tally, book, emit_and_bounce, entry_mask, ledger_add, photon_index, record_outcome,
+                     Tally, book, emit_and_bounce, entry_mask, ledger_add, photon_index,
                      pixel_footprint, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
 #: the ways a caustics-map photon ends after its bounce
-CMAP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED)
+CMAP_FINAL_ENTRIES = wp.constant(entry_mask(L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED))
 
 SQRT2 = wp.constant(1.4142135623730951)
 #: steepest receiver slope (tan θ between its normal and the light ray) the depth test allows for; steeper
@@ -159,11 +159,10 @@ def trace_to_caustic_map(
     # outputs
     texel_power: wp.array(dtype=wp.vec3),  # (Hl*Wl,) power landed per light texel this frame [W] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
-    outcome: wp.array(dtype=wp.vec4),  # (>= n_photons,) per thread: final power [W] and entry (write)
 ):
     """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`): same
     emission and bounce as CISP, then the light view's opaque depth only. The ledger is added per block after
-    the bounce; each photon's final entry goes to its outcome record (``ledger_add_outcomes`` after this kernel)."""
+    the bounce and at the end."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     texel = int(-1)
@@ -184,8 +183,7 @@ def trace_to_caustic_map(
     if texel >= 0:
         trace_to_caustic_map_photon(origin, d, power, light, rsm_opaque_depth, rsm_opaque_tri, receiver_normal,
                                     max_steps, thickness, thickness_rel, t_max, texel_power, tally)
-    if t < n_photons:
-        record_outcome(outcome, t, tally)
+    ledger_add(ledger, tally, lane, CMAP_FINAL_ENTRIES)
 
 
 @wp.kernel
