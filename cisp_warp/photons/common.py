@@ -63,10 +63,12 @@ class Tally:
     """One photon's (one thread's) share of the ledger, kept in registers while it is traced and added to
     the ledger once per block by :func:`ledger_add`: no atomics onto the ledger's 42 shared addresses per
     photon. Power [W] per RGB channel; the entries a photon may book more than once (bounces of the world
-    methods) accumulate in float64, as the ledger does."""
+    methods) accumulate in float64, as the ledger does, except ``absorbed``: a photon's absorption over its
+    metallic bounces sums in float32 (exact for one bounce; SSPM carries it through the BVH traversal, where each
+    register counts), and the ledger sums the photons' shares in float64."""
 
     sampled: wp.vec3d  #: L_SAMPLED
-    absorbed: wp.vec3d  #: L_ABSORBED (once per metallic bounce)
+    absorbed: wp.vec3  #: L_ABSORBED (once per metallic bounce; float32, see above)
     reflected: wp.vec3d  #: L_REFLECTED (once per dielectric or metallic reflection)
     refracted: wp.vec3d  #: L_REFRACTED
     entry: wp.int32  #: the photon's one final entry (culled, lost, occluded, rejected, stored ...); -1 = none yet
@@ -78,7 +80,7 @@ def tally_new() -> Tally:
     """An empty tally (nothing booked)."""
     t = Tally()
     t.sampled = wp.vec3d()
-    t.absorbed = wp.vec3d()
+    t.absorbed = wp.vec3(0.0)
     t.reflected = wp.vec3d()
     t.refracted = wp.vec3d()
     t.entry = -1
@@ -95,7 +97,7 @@ def book(tally: wp.ref[Tally], entry: int, power: wp.vec3):
     if entry == L_SAMPLED:
         tally.sampled = tally.sampled + p
     elif entry == L_ABSORBED:
-        tally.absorbed = tally.absorbed + p
+        tally.absorbed = tally.absorbed + power
     elif entry == L_REFLECTED:
         tally.reflected = tally.reflected + p
     elif entry == L_REFRACTED:
@@ -133,7 +135,7 @@ def ledger_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, lane: int, entrie
             if e == L_SAMPLED:
                 v = tally.sampled
             elif e == L_ABSORBED:
-                v = tally.absorbed
+                v = wp.vec3d(wp.float64(tally.absorbed[0]), wp.float64(tally.absorbed[1]), wp.float64(tally.absorbed[2]))
             elif e == L_REFLECTED:
                 v = tally.reflected
             elif e == L_REFRACTED:
@@ -149,6 +151,14 @@ def record_outcome(outcome: wp.array(dtype=wp.vec4), t: int, tally: Tally):
     :func:`ledger_add_outcomes` to add per block after the trace: the trace kernel then holds no block reductions
     of its final entries, whose registers cost it warps (SSPM: 115 registers with them in the kernel)."""
     outcome[t] = wp.vec4(tally.power[0], tally.power[1], tally.power[2], float(tally.entry))
+
+
+@wp.func
+def record_absorbed(outcome: wp.array(dtype=wp.vec4), slot: int, tally: Tally):
+    """Write the thread's absorption at further metallic bounces (SSPM) as an ``L_ABSORBED`` outcome record at ``slot``
+    (its own slot in a second run of records after the final entries)."""
+    a = tally.absorbed
+    outcome[slot] = wp.vec4(a[0], a[1], a[2], float(L_ABSORBED))
 
 
 @wp.kernel

@@ -25,12 +25,13 @@ from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_pr
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
                      L_OCCLUDED, L_REJECTED, L_SAMPLED, L_STORED, Tally, book, book_bounce, deposit, emit_and_bounce,
-                     entry_mask, ledger_add, photon_index, r2_point, record_outcome, specular_bounce, tally_new)
+                     entry_mask, ledger_add, photon_index, r2_point, record_absorbed, record_outcome, specular_bounce,
+                     tally_new)
 
-#: the final entries an SSPM photon may end in after its first bounce (world_trace, trace_sspm_photon and deposit
-#: book nothing else but absorption at further metallic bounces): written to its outcome record, added afterwards
-SSPM_FINAL_ENTRIES = entry_mask(L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STORED)
-ABSORBED_ONLY = wp.constant(entry_mask(L_ABSORBED))
+#: what an SSPM photon books after its first bounce (world_trace, trace_sspm_photon and deposit book nothing else):
+#: its final entry and its absorption at further metallic bounces, written to two outcome records, added afterwards
+SSPM_FINAL_ENTRIES = entry_mask(L_ABSORBED, L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED,
+                                L_STORED)
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver; any other status is the ledger entry it was booked as
 
@@ -234,13 +235,15 @@ def trace_sspm(
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
-    outcome: wp.array(dtype=wp.vec4),  # (>= n_photons,) per thread: final power [W] and entry (write)
+    outcome: wp.array(dtype=wp.vec4),  # (>= 2 n_photons,) per thread t: final power [W] and entry at t, absorbed
+    # power at n_photons + t (write)
 ):
     """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility. One
     thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`); the ledger is
-    added per block after the first bounce (no float64 sum of emission held through the trace) and for the
-    absorption of further bounces at the end; each photon's final entry goes to its outcome record, added per
-    block by ``ledger_add_outcomes`` after this kernel (eight block reductions here cost 21 registers: 115)."""
+    added per block after the first bounce (no float64 sum of emission held through the trace); each photon's final
+    entry and its absorption at further bounces go to its outcome records, added per block by
+    ``ledger_add_outcomes`` after this kernel (block reductions here cost registers: 104 with the absorption's, 96
+    without)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     texel = int(-1)
@@ -263,8 +266,7 @@ def trace_sspm(
                           max_bounces, footprint_mode, photon_map, tally)
     if t < n_photons:
         record_outcome(outcome, t, tally)
-    tally.entry = -1  # recorded: only the absorption is added here
-    ledger_add(ledger, tally, lane, ABSORBED_ONLY)
+        record_absorbed(outcome, n_photons + t, tally)
 
 
 @wp.func

@@ -59,8 +59,9 @@ class SSPM(_WorldPass):
             from .wavefront import WavefrontSplat
 
             self.wavefront = WavefrontSplat(self, self.cam)
-        #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_sspm)
-        n_out = self.max_photons_per_view() if self.wavefront is None else 1
+        #: (2N,) each photon's final entry and power, then its absorption at further bounces, added to the ledger
+        #: after the trace (K.trace_sspm)
+        n_out = 2 * self.max_photons_per_view() if self.wavefront is None else 1
         self.outcome = wp.zeros(n_out, dtype=wp.vec4, device=self.device)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
@@ -78,7 +79,7 @@ class SSPM(_WorldPass):
                 self._max_lum_of[b.light_index], self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),
                 self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows, self.outcome])
-            self.add_outcomes(self.outcome, b.n, K.SSPM_FINAL_ENTRIES)
+            self.add_outcomes(self.outcome, 2 * b.n, K.SSPM_FINAL_ENTRIES)
 
 
 def reference_target(settings: PhotonSettings, device) -> int:
