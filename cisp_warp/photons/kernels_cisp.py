@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add,
@@ -130,6 +131,8 @@ def trace_photons(
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     mat_albedo: wp.array(dtype=wp.vec3),
@@ -176,12 +179,12 @@ def trace_photons(
     if t < n_photons:
         k = photon_index(order, use_order, t)
         hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-        # 1.-3. texel from the scrambled R2 sequence, origin on the texel's tangent plane, bounce by exact
+        # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
         # Fresnel as a probability (power unchanged); metals reflect with their albedo
         texel, power, origin, n, d, state = emit_and_bounce(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
-            rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff,
-            luminance_cutoff, emitted)
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
     ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:

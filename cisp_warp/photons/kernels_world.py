@@ -20,6 +20,7 @@ import warp as wp
 
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
+from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
@@ -213,6 +214,8 @@ def trace_sspm(
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     ws: WorldScene,
     cam: CameraBuffers,
@@ -247,8 +250,8 @@ def trace_sspm(
         k = photon_index(order, use_order, t)
         texel, power, origin, n, d, state = emit_and_bounce(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
-            rsm_roughness, rsm_ior, rsm_tri, ws.triangle_material, ws.opacity, ws.albedo, max_lum[0], roughness_cutoff,
-            luminance_cutoff, emitted)
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
     ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:

@@ -71,9 +71,9 @@ class SSPM(_WorldPass):
             sp = b.rsm.specular
             self.launch_photons(K.trace_sspm, b.n, inputs=[
                 b.params, int(b.lights.light.kind), b.light_pos,
-                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[b.light_index],
-                self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
-                float(s.roughness_cutoff), float(s.luminance_cutoff), float(s.thickness), float(s.thickness_rel),
+                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry, b.skip_window,
+                self._max_lum_of[b.light_index], self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
+                float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),
                 self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows])
 
 
