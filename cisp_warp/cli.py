@@ -32,6 +32,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time", type=float, default=None, help="USD time code to render (default: the stage's start time code)")
     p.add_argument("--camera", default=None, help="prim path of the camera (default: the first camera found)")
     p.add_argument("--rsm-size", type=int, default=1024, help="edge of each reflective shadow map view [texels]")
+    p.add_argument("--light-views", default="camera", choices=["camera", "scene"],
+                   help="cisp, sspm: RSM views fitted to what the camera sees, as cascades (camera), "
+                   "or one view over all the specular geometry (scene, for comparison)")
+    p.add_argument("--light-cascades", type=int, default=2, help="with --light-views camera: fitted views per light view")
     p.add_argument("--method", default="cisp", choices=["cisp", "sspm", "caustics_map", "reference", "none"],
                    help="caustics method: cisp (Cascaded Image-Space Photon Tracing, Meenrattanakorn & Lambers), sspm "
                    "(world-space Screen-Space Photon Mapping, Kim 2019), caustics_map (light-space Caustics Mapping, "
@@ -99,7 +103,8 @@ def _version() -> str:
 
 
 #: RenderSettings / PhotonSettings fields whose cisp-render flag is not --field-name
-FLAGS = {"reference_photons": "--reference-photons", "supersample": "--supersample"}
+FLAGS = {"reference_photons": "--reference-photons", "supersample": "--supersample", "fit": "--light-views",
+         "cascades": "--light-cascades"}
 
 
 def flag_of(exc) -> str:
@@ -172,6 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     from .image_io import check_out_dir
     from .photons import PhotonSettings
+    from .raster import LightViewSettings
     from .render import Renderer, RenderSettings, SettingsError
     from .usd import load_usd
 
@@ -201,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
                                      splat=args.splat)
             settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                       method=args.method, photons=photons, denoiser=args.denoiser,
-                                      supersample=args.supersample)
+                                      supersample=args.supersample,
+                                      light_views=LightViewSettings(fit=args.light_views, cascades=args.light_cascades))
         except SettingsError as e:
             raise SceneError(flag_of(e)) from None
         extra = parse_aov_list(args.aovs)

@@ -22,8 +22,9 @@ from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVG
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .photons.cisp import build_bounds
+from .photons.fit import LightViewFitter
 from .photons.march import bounds_size
-from .raster import GBuffer, LightMaps, Rasterizer, camera_view
+from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
 from .sky import SkyLighting, sky_map
@@ -44,6 +45,7 @@ class RenderSettings:
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
     method: str = "cisp"  #: photon method: "cisp", "sspm", "caustics_map", "reference", or "none" (direct only)
     photons: PhotonSettings = PhotonSettings()
+    light_views: LightViewSettings = LightViewSettings()  #: RSM views fitted to the camera (cisp, sspm); or "scene"
     denoiser: str = "caustic"  #: "caustic" (accumulate the raw map, filter what noise is left), "svgf" (the
     #: paper's), "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
@@ -70,6 +72,15 @@ class RenderSettings:
             raise SettingsError("svgf", f"must be an SVGFSettings or a dict of its fields, got {svgf!r}",
                                 owner="RenderSettings")
         object.__setattr__(self, "svgf", svgf)
+        views = self.light_views
+        if isinstance(views, str):
+            views = LightViewSettings(fit=views)
+        elif isinstance(views, dict):
+            views = _from_dict(LightViewSettings, views, "LightViewSettings")
+        elif not isinstance(views, LightViewSettings):
+            raise SettingsError("light_views", f"must be 'camera', 'scene', a LightViewSettings or a dict of its "
+                                f"fields, got {views!r}", owner="RenderSettings")
+        object.__setattr__(self, "light_views", views)
         caustic = self.caustic
         if isinstance(caustic, dict):
             caustic = _from_dict(CausticSettings, caustic, "CausticSettings")
@@ -106,6 +117,12 @@ class RenderSettings:
                 words = re.match(r"([a-z_]+) (.*)", exc.reason)
                 name, rest = (words.group(1), words.group(2)) if words else ("photons", exc.reason)
             raise SettingsError(name, rest, owner="PhotonSettings") from None
+        try:
+            self.light_views.validate()
+        except SceneError as exc:  # "fit must be ...": the field first
+            words = re.match(r"([a-z_]+) (.*)", exc.reason)
+            name, rest = (words.group(1), words.group(2)) if words else ("fit", exc.reason)
+            raise SettingsError(name, rest, owner="LightViewSettings") from None
         if self.photons.splat != "point" and self.method not in ("cisp", "sspm"):
             raise SettingsError("splat", f"{self.photons.splat} works with method cisp or sspm, not {self.method}",
                                 owner="PhotonSettings")
@@ -138,6 +155,9 @@ def _from_dict(cls, values: dict, owner: str):
 
 
 METHODS = PHOTON_METHODS + ("none",)
+#: methods whose RSM views are fitted to the camera; caustics_map keeps whole views: its caustic maps and their
+#: temporal history live in light space, which a window that follows the camera would move under them
+FITTED_METHODS = ("cisp", "sspm")
 DENOISERS = ("caustic", "svgf", "gather", "none")
 
 
@@ -161,7 +181,10 @@ class Renderer:
         self.gpu = DeviceScene(scene, self.device)
         self.raster = Rasterizer(self.gpu)
         self.gbuffer = GBuffer.allocate(cam.width, cam.height, self.device)
-        self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size) for light in scene.lights]
+        # wavefront splatting lays its grid over each whole RSM view (cascades would overlap and miss the skip)
+        fitted = self.settings.method in FITTED_METHODS and self.settings.photons.splat == "point"
+        views = self.settings.light_views if fitted else LightViewSettings(fit="scene")
+        self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size, views) for light in scene.lights]
         self.direct = DirectLighting(self.gbuffer, self.device)
         n = cam.width * cam.height
         self.sky = None
@@ -183,6 +206,9 @@ class Renderer:
         if self.settings.method != "none":
             cls = photon_pass_class(self.settings.method)
             self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
+        ps = self.settings.photons
+        self.fitter = LightViewFitter(self.gpu, self.gbuffer, self.lights, ps.roughness_cutoff, ps.thickness,
+                                      ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed)
         self.denoiser = None
         if self.settings.denoiser == "caustic":
             self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
@@ -224,9 +250,10 @@ class Renderer:
         stage = timer.stage if timer is not None else (lambda name: nullcontext())
         g = self.gbuffer
         with stage("raster"):
+            g.render(self.raster, self.view_params, self.prev_view_params)
+            self.fitter.fit(self.raster, self.view_params, self.frame)  # light views fitted to what the camera sees
             for lm in self.lights:
                 lm.render(self.raster)
-            g.render(self.raster, self.view_params, self.prev_view_params)
         with stage("direct"):
             self.direct.render(g, self.lights)
         if self.sky is not None:

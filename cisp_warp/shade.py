@@ -15,7 +15,7 @@ import warp as wp
 from .optics import fresnel_dielectric, reflect, refract
 from .photons.march import MARCH_HIT, screen_march_bounded
 from .raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
-from .raster.rasterizer import GBuffer, LightMaps
+from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
 from .sky import SkyMap, sky_radiance

@@ -81,7 +81,8 @@ def main(argv=None) -> int:
     p.add_argument("--rsm-size", type=int, default=2048)
     p.add_argument("--photons", default="500k,1M,2M", help="comma-separated photon counts (per light)")
     p.add_argument("--methods", default="cisp", help="comma-separated: cisp, sspm, caustics_map, reference")
-    p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"])
+    p.add_argument("--denoiser", default="caustic", choices=["caustic", "svgf", "gather", "none"],
+                   help="caustic (the renderer's default), svgf (the paper's), gather, none")
     p.add_argument("--sort", default="auto", choices=["auto", "on", "off"],
                    help="trace RSM photons in texel order (auto: on CUDA only)")
     p.add_argument("--splat", default="point", choices=["point", "wavefront"],

@@ -31,8 +31,8 @@ progress, manifest, video, the command line's call).
 """
 
 from .client import ShotStats, main_distributed, render_shot
-from .plan import Chunk, plan_chunks, warmup_frames
+from .plan import Chunk, caustic_seam_factor, plan_chunks, warmup_frames
 from .worker import FrameWriter, ShotJob, frame_name, render_chunk, restart_history
 
-__all__ = ["Chunk", "FrameWriter", "ShotJob", "ShotStats", "frame_name", "main_distributed", "plan_chunks",
+__all__ = ["Chunk", "FrameWriter", "caustic_seam_factor", "ShotJob", "ShotStats", "frame_name", "main_distributed", "plan_chunks",
            "render_chunk", "render_shot", "restart_history", "warmup_frames"]

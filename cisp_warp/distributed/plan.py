@@ -29,10 +29,22 @@ def warmup_frames(settings: RenderSettings) -> int:
       a chunk after a warm-up is close to one process, not bit-identical; a chunk whose warm-up reaches the
       shot's first frame starts there and is identical.
     * The caustics denoiser (the default) keeps a running mean of the raw photon map, capped at
-      ``max_history`` = N frames and then an exponential mean of weight 1/N: a fresh chunk's weights equal a
-      single process's after N - 1 frames, and the difference then shrinks by 1 - 1/N per frame, so
-      ``N - 1 + ln(1/255) / ln(1 - 1/N)`` frames (415 at N = 64; fewer where the caustic moves and the history
-      is cut back, which this bound leaves out).
+      ``max_history`` = N frames and then an exponential mean of weight 1/N; its reactive change test cuts
+      the history back where the caustic changes. A chunk warmed up for ``N - 1`` frames starts its first
+      written frame with a full-length history (n = N, the weight 1/N from then on, as one process). Where the
+      caustic is still, that history is an unbiased estimate of the same mean as one process's: the two differ
+      by the photon noise of the frames each weights differently (the chunk's equal weights over its first N
+      frames against one process's 1/N (1 - 1/N)^k over all), not by a bias; where it moves, the change test
+      shortens both histories and they meet. So ``W = N - 1`` (63 at the default N = 64). What is left is
+      noise, not bias, and :func:`caustic_seam_factor` bounds it: the seam in units of one process's own
+      frame-to-frame change, 0.48 sqrt(N) for W = N - 1 (1.9 at N = 16, 3.9 at N = 64), scaled down by the
+      old-tail weight (1 - 1/N)^(W - N + 1) for longer warm-ups (``--warmup`` 105 or 149: 2 or 1 at N = 64).
+      Measured on the 32x18 pool (1000 photons, ``tests/test_distributed.py``) as the mean absolute difference
+      of the denoised caustic irradiance over one process's mean absolute change from the frame before, on a
+      chunk's first 4 frames: still pool at N = 16, 1.7 / 1.7 / 0.9 / 0.8 (the test, bound 1.9); default
+      settings (N = 64): still pool 1.2 / 1.5 / 1.1 / 0.9, animated pool 3.2 / 1.7 / 1.5 / 1.9; without a
+      warm-up 4 to 23. The earlier bound, ``N - 1 + ln(1/255) / ln(1 - 1/N)`` = 415 frames, treated that
+      difference as a bias as large as the caustic's range, which a full-length unbiased history does not carry.
     * The Gaussian gather, the reference and raw maps keep no history: 0.
     """
     w = 0
@@ -44,9 +56,26 @@ def warmup_frames(settings: RenderSettings) -> int:
     if denoised and settings.denoiser == "svgf" and alpha < 1.0:
         w = max(w, math.ceil(1.0 / alpha), math.ceil(math.log(OUTPUT_STEP) / math.log1p(-alpha)))
     if denoised and settings.denoiser == "caustic":
-        n = settings.caustic.max_history
-        w = max(w, n - 1 + math.ceil(math.log(OUTPUT_STEP) / math.log1p(-1.0 / n)))
+        w = max(w, int(settings.caustic.max_history) - 1)
     return w
+
+
+def caustic_seam_factor(max_history: int, warmup: int) -> float:
+    """Expected seam of the caustics denoiser after ``warmup >= max_history - 1`` frames, in units of one
+    process's own frame-to-frame change: the noise model's worst case, a pixel whose caustic is still and whose
+    history is never cut (the seam where histories are cut is smaller).
+
+    Per-frame estimates E_k of variance sigma^2, N = ``max_history``, q = 1 - 1/N. One process, long past the
+    shot's start, holds the exponential mean, weights (1/N) q^k for the frame k frames back; its frame-to-frame
+    change has variance sigma^2 (1/N^2) 2N / (2N - 1). A chunk after N - 1 warm-up frames holds the plain mean of
+    its N frames, weights 1/N; the difference of the two has variance
+    sigma^2 ((1/N^2) (N - 2N (1 - q^N)) + 1 / (2N - 1)). Each further warm-up frame multiplies the weights
+    that differ by q. Returns the ratio of the standard deviations: 0.48 sqrt(N) for W = N - 1.
+    """
+    n = int(max_history)
+    q = 1.0 - 1.0 / n
+    ratio2 = (2 * n - 1) / (2 * n) * (n * (2 * q ** n - 1) + n * n / (2 * n - 1))
+    return math.sqrt(max(ratio2, 0.0)) * q ** max(int(warmup) - n + 1, 0)
 
 
 @dataclass(frozen=True)
@@ -106,4 +135,4 @@ def plan_chunks(todo, shot_start: int, workers: int, warmup: int) -> list[Chunk]
     return cut(lo)
 
 
-__all__ = ["Chunk", "OUTPUT_STEP", "plan_chunks", "warmup_frames"]
+__all__ = ["Chunk", "OUTPUT_STEP", "caustic_seam_factor", "plan_chunks", "warmup_frames"]

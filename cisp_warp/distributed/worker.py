@@ -105,14 +105,13 @@ def restart_history(renderer, animation, index: int) -> None:
     """Forget every frame-to-frame state and number the next frame ``index`` (its index in the shot).
 
     Afterwards the renderer behaves as a fresh one whose sequence started ``index`` frames before the shot's
-    first frame: SVGF and caustics-map histories empty, no motion into the next frame, random streams of
-    frame ``index``.
+    first frame: the denoiser's history (caustic, SVGF) and the caustics map's empty, no motion into the
+    next frame, random streams of frame ``index``.
     """
-    from ..denoise import SVGF
-
     renderer.frame = int(index)
-    if isinstance(renderer.denoiser, SVGF):
-        renderer.denoiser.reset()
+    forget = getattr(renderer.denoiser, "reset", None)  # the denoisers that keep a history have reset()
+    if forget is not None:
+        forget()
     reset = getattr(renderer.photons, "reset_history", None)
     if reset is not None:
         reset()

@@ -123,6 +123,8 @@ class RSMBatch(NamedTuple):
     scramble: wp.vec2i  #: the R2 sequence's Cranley-Patterson rotation
     order: wp.array  #: tracing order (read when the pass's ``use_order`` is set)
     light_pos: wp.vec3  #: [m]
+    skip_window: wp.vec4  #: this view's pixels a finer cascade samples (x0, y0, x1, y1); empty when x1 <= x0
+    luminance_cutoff: float  #: the luminance cutoff against the light's brightest texel, scaled to this view's texels
 
 
 class PhotonPass:
@@ -160,29 +162,44 @@ class PhotonPass:
         self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
 
     def photons_per_view(self, lm: LightMaps) -> int:
-        return max(1, self.settings.photons // len(lm.rsm))
+        """A light's photons split evenly over its RSM views that emit this frame (every view, unless
+        they are fitted to the camera: then the active cascades)."""
+        return max(1, self.settings.photons // max(1, sum(lm.active)))
 
     def max_photons_per_view(self) -> int:
-        return max((self.photons_per_view(lm) for lm in self.lights), default=1)
+        """The most photons one view can get (all of its light's, when one cascade alone is active)."""
+        return max((self.settings.photons if lm.fitted else self.photons_per_view(lm) for lm in self.lights), default=1)
 
     def begin(self) -> None:
-        """Zero the photon map and the ledger, and find each light's brightest RSM texel (luminance cutoff)."""
+        """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
+        luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
         self.ledger.zero_()
         self.max_lum.zero_()
         for li, lm in enumerate(self.lights):
-            for r in lm.rsm:
+            for r in lm.whole_rsm:
                 n = r.width * r.height
                 block = 256 if self.device.is_cuda else 1
                 blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
                 wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
                                 inputs=[r.flux, n, self._max_lum_of[li]])
+            for r, window, angle in zip(lm.pilot, lm.outside_windows, lm.outside_angles):
+                self.launch_photons(C.book_outside_window, r.width * r.height,
+                                    [r.flux, r.width, r.width * r.height, wp.vec4(*window), float(angle),
+                                     wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger_rows])
 
     def launch_photons(self, kernel, n: int, inputs: list) -> None:
         """Launch a photon kernel over ``n`` photons as ``wp.launch_tiled`` blocks of ``ledger_block`` threads
         (the kernel computes its photon slot as ``block * wp.block_dim() + lane`` and ends with ``ledger_add``)."""
         blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
         wp.launch_tiled(kernel, dim=blocks, block_dim=self.ledger_block, device=self.device, inputs=inputs)
+
+    def add_outcomes(self, outcome: wp.array, n: int, entries: int) -> None:
+        """Add the final entries of ``n`` photons' outcome records (written by the trace kernel with
+        ``record_outcome``) to the ledger, once per block and entry (:func:`~.common.ledger_add_outcomes`)."""
+        blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
+        wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=self.ledger_block, device=self.device,
+                        inputs=[outcome, n, entries, self.ledger_rows])
 
     def photon_order(self, params: wp.struct, n: int, scramble: wp.vec2i) -> wp.array:
         """The order in which to trace the ``n`` photons of one RSM view (kernels take it with ``use_order``)."""
@@ -197,11 +214,14 @@ class PhotonPass:
         s = self.settings
         for li, lm in enumerate(self.lights):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
+            n = self.photons_per_view(lm)
             for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                n = self.photons_per_view(lm)
+                if not lm.active[vi]:
+                    continue
                 sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
                 scramble = wp.vec2i(sx, sy)
-                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos)
+                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos,
+                               wp.vec4(*lm.skip_windows[vi]), float(s.luminance_cutoff * lm.texel_scale[vi]))
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

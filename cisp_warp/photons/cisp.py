@@ -34,6 +34,8 @@ class CISP(PhotonPass):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
         n_hits = self.max_photons_per_view() if settings.splat == "point" else 1  # the grid keeps its own records
         self.hits = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
+        #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_photons)
+        self.outcome = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
         self.wavefront = None
         if settings.splat == "wavefront":
             from .kernels_world import CameraBuffers
@@ -72,9 +74,10 @@ class CISP(PhotonPass):
             self.launch_photons(K.trace_photons, b.n, inputs=[
                 b.params, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
-                sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
+                sc.geometry, b.skip_window, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
                 camera, gbuffer.depth, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
                 b.n, b.seed, b.scramble, b.order, self.use_order,
-                float(s.roughness_cutoff), float(s.luminance_cutoff), int(s.max_steps),
+                float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                self.photon_map, self.ledger_rows, self.hits])
+                self.photon_map, self.ledger_rows, self.hits, self.outcome])
+            self.add_outcomes(self.outcome, b.n, K.CISP_FINAL_ENTRIES)

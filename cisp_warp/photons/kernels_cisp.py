@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
-                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add,
+                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march_bounded
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
-#: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else)
-CISP_FINAL_ENTRIES = wp.constant(entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED))
+#: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else): written to its outcome
+#: record by trace_photons, added to the ledger by ledger_add_outcomes
+CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED)
 
 
 @wp.func
@@ -130,6 +132,8 @@ def trace_photons(
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     mat_albedo: wp.array(dtype=wp.vec3),
@@ -159,10 +163,12 @@ def trace_photons(
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (-1 none), for tests and stats
+    outcome: wp.array(dtype=wp.vec4),  # (>= n_photons,) per thread: final power [W] and entry (write)
 ):
     """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
-    ledger is added per block in two steps, so that no float64 sum is held in registers through the march:
-    after emission and bounce (sampled, culled, absorbed, reflected/refracted), then the final entries."""
+    ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
+    no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
+    added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     k = int(0)
@@ -176,16 +182,17 @@ def trace_photons(
     if t < n_photons:
         k = photon_index(order, use_order, t)
         hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-        # 1.-3. texel from the scrambled R2 sequence, origin on the texel's tangent plane, bounce by exact
+        # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
         # Fresnel as a probability (power unchanged); metals reflect with their albedo
         texel, power, origin, n, d, state = emit_and_bounce(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
-            rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff,
-            luminance_cutoff, emitted)
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
     ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
         trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
                      cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
                      t_max, footprint_mode, use_cascade, photon_map, tally, hits)
-    ledger_add(ledger, tally, lane, CISP_FINAL_ENTRIES)
+    if t < n_photons:
+        record_outcome(outcome, t, tally)

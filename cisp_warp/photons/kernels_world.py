@@ -20,15 +20,18 @@ import warp as wp
 
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
+from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
                      L_OCCLUDED, L_REJECTED, L_SAMPLED, L_STORED, Tally, book, book_bounce, deposit, emit_and_bounce,
-                     entry_mask, ledger_add, photon_index, r2_point, specular_bounce, tally_new)
+                     entry_mask, ledger_add, photon_index, r2_point, record_absorbed, record_outcome, specular_bounce,
+                     tally_new)
 
-#: the ways an SSPM photon ends after its first bounce (world_trace, trace_sspm_photon and deposit book nothing else)
-SSPM_FINAL_ENTRIES = wp.constant(entry_mask(L_ABSORBED, L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED,
-                                            L_REJECTED, L_STORED))
+#: what an SSPM photon books after its first bounce (world_trace, trace_sspm_photon and deposit book nothing else):
+#: its final entry and its absorption at further metallic bounces, written to two outcome records, added afterwards
+SSPM_FINAL_ENTRIES = entry_mask(L_ABSORBED, L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED,
+                                L_STORED)
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver; any other status is the ledger entry it was booked as
 
@@ -213,6 +216,8 @@ def trace_sspm(
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     ws: WorldScene,
     cam: CameraBuffers,
@@ -230,10 +235,15 @@ def trace_sspm(
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+    outcome: wp.array(dtype=wp.vec4),  # (>= 2 n_photons,) per thread t: final power [W] and entry at t, absorbed
+    # power at n_photons + t (write)
 ):
     """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility. One
     thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`); the ledger is
-    added per block after the first bounce and at the end (no float64 sum of emission held through the trace)."""
+    added per block after the first bounce (no float64 sum of emission held through the trace); each photon's final
+    entry and its absorption at further bounces go to its outcome records, added per block by
+    ``ledger_add_outcomes`` after this kernel (block reductions here cost registers: 104 with the absorption's, 96
+    without)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     texel = int(-1)
@@ -247,14 +257,16 @@ def trace_sspm(
         k = photon_index(order, use_order, t)
         texel, power, origin, n, d, state = emit_and_bounce(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
-            rsm_roughness, rsm_ior, rsm_tri, ws.triangle_material, ws.opacity, ws.albedo, max_lum[0], roughness_cutoff,
-            luminance_cutoff, emitted)
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
     ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
         trace_sspm_photon(origin, n, d, power, state, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max,
                           max_bounces, footprint_mode, photon_map, tally)
-    ledger_add(ledger, tally, lane, SSPM_FINAL_ENTRIES)
+    if t < n_photons:
+        record_outcome(outcome, t, tally)
+        record_absorbed(outcome, n_photons + t, tally)
 
 
 @wp.func

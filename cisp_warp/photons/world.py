@@ -59,6 +59,10 @@ class SSPM(_WorldPass):
             from .wavefront import WavefrontSplat
 
             self.wavefront = WavefrontSplat(self, self.cam)
+        #: (2N,) each photon's final entry and power, then its absorption at further bounces, added to the ledger
+        #: after the trace (K.trace_sspm)
+        n_out = 2 * self.max_photons_per_view() if self.wavefront is None else 1
+        self.outcome = wp.zeros(n_out, dtype=wp.vec4, device=self.device)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         s = self.settings
@@ -71,10 +75,11 @@ class SSPM(_WorldPass):
             sp = b.rsm.specular
             self.launch_photons(K.trace_sspm, b.n, inputs=[
                 b.params, int(b.lights.light.kind), b.light_pos,
-                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[b.light_index],
-                self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
-                float(s.roughness_cutoff), float(s.luminance_cutoff), float(s.thickness), float(s.thickness_rel),
-                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows])
+                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry, b.skip_window,
+                self._max_lum_of[b.light_index], self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
+                float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),
+                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows, self.outcome])
+            self.add_outcomes(self.outcome, 2 * b.n, K.SSPM_FINAL_ENTRIES)
 
 
 def reference_target(settings: PhotonSettings, device) -> int:
