@@ -576,3 +576,19 @@ def test_caustic_moving_caustic_never_worse_than_raw(device, photon):
           f"flicker {np.mean(flicker):.4f} (truth's change {np.mean(truth_change):.4f})")
     assert np.mean(err) <= np.mean(err_raw)
     assert np.mean(flicker) <= 1.5 * np.mean(truth_change)
+
+
+def test_caustic_stays_finite_after_a_history_of_vanishing_irradiance(device):
+    """A history that decayed towards float32's smallest numbers, then a bright frame: the change ratio over
+    the underflowing variance overflows; the history must reset (α = 1), never turn into NaN."""
+    rng = np.random.default_rng(4)
+    g = plane()
+    surf = g["depth"] > 0
+    den = CausticDenoiser(W, H, device)
+    out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+    for frame in range(12):
+        run_frame(den, g, poisson_map(rng, np.full((H, W), 1e-36), 1e-36), out)
+    for frame in range(3):
+        res = run_frame(den, g, poisson_map(rng, caustic_pattern(), 5.0), out)
+        assert np.all(np.isfinite(res))
+    assert res[surf].mean() > 1.0  # the bright frames are followed, not held at the vanished history

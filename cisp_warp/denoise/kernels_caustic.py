@@ -422,6 +422,7 @@ def accumulate(
             if bias2_p > 0.0:
                 r = wp.max(r, bias2_p * (1.0 + 1.0 / n_prev) / sigma2_p)
                 bias2 = wp.max(bias2, bias2_p)
+        r = wp.min(r, 1.0e30)  # a ratio over an underflowing σ² is inf: α = 1 (reset), never inf / inf = NaN
         inv_n = 1.0 / wp.min(n_prev, max_history - 1.0)
         alpha = (r + inv_n) / (r + inv_n + 1.0)
         n_new = 1.0 / ((1.0 - alpha) * (1.0 - alpha) * (r + inv_n) + alpha * alpha)

@@ -269,6 +269,7 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                     if bias2_p > 0:
                         ratio = max(ratio, bias2_p * (1 + 1 / n) / var_p)
                         bias2 = max(bias2, bias2_p)
+                ratio = min(ratio, 1e30)  # as the kernel: an overflowing ratio resets (α = 1)
                 inv_n = 1.0 / min(n, s.max_history - 1)
                 alpha = (ratio + inv_n) / (ratio + inv_n + 1)
                 n_new = 1.0 / ((1 - alpha) ** 2 * (ratio + inv_n) + alpha ** 2)
