@@ -76,6 +76,12 @@ def parse_count(text: str) -> int:
     return int(value)
 
 
+MAX_FRAMES = 100_000  #: --frames renders at most this many frames (over an hour at 24 per second)
+MAX_TIME_CODE = 1e9  #: |time code| of --time and --frames
+MAX_EXPOSURE_STOPS = 64.0  #: |--exposure|: 2^64 is far beyond any display range, and finite in float32
+MAX_COUNT_FLAGS = {"--max-bounces": 1024, "--cmap-history": 1024, "--reference-photons": 10**12}
+
+
 def parse_frames(text: str) -> range:
     try:
         a, b = (int(v) for v in text.split(":"))
@@ -83,7 +89,29 @@ def parse_frames(text: str) -> range:
         raise SceneError(f"--frames must be A:B with integers A < B, got {text!r}") from None
     if b <= a:
         raise SceneError(f"--frames must be A:B with A < B, got {text!r}")
+    if max(abs(a), abs(b)) > MAX_TIME_CODE or b - a > MAX_FRAMES:
+        raise SceneError(f"--frames {text}: at most {MAX_FRAMES} frames, with time codes within "
+                         f"±{MAX_TIME_CODE:g}")
     return range(a, b)
+
+
+def check_numbers(args) -> None:
+    """Range checks of the numeric flags that nothing downstream bounds (one SceneError naming the flag)."""
+    import math
+
+    if args.exposure is not None and not (math.isfinite(args.exposure) and abs(args.exposure) <= MAX_EXPOSURE_STOPS):
+        raise SceneError(f"--exposure must be a finite number of stops in [-{MAX_EXPOSURE_STOPS:g}, "
+                         f"{MAX_EXPOSURE_STOPS:g}], got {args.exposure}")
+    if args.time is not None and not (math.isfinite(args.time) and abs(args.time) <= MAX_TIME_CODE):
+        raise SceneError(f"--time must be a finite time code within ±{MAX_TIME_CODE:g}, got {args.time}")
+    for flag, hi in MAX_COUNT_FLAGS.items():
+        v = getattr(args, flag[2:].replace("-", "_"))
+        if v is not None and v > hi:
+            raise SceneError(f"{flag} must be at most {hi}, got {v}")
+    for flag in ("--roughness-cutoff", "--luminance-cutoff"):
+        v = getattr(args, flag[2:].replace("-", "_"))
+        if not (math.isfinite(v) and 0.0 <= v <= 1.0):
+            raise SceneError(f"{flag} must lie in [0, 1], got {v}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -114,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                   method=args.method, photons=photons, denoiser=args.denoiser)
         settings.validate()
+        check_numbers(args)
         frames = parse_frames(args.frames) if args.frames else None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)

@@ -45,7 +45,7 @@ def test_missing_file(tmp_path):
 
 
 def test_directory_is_not_a_file(tmp_path):
-    with pytest.raises(SceneError, match="not a file"):
+    with pytest.raises(SceneError, match="not a regular file"):
         load_usd(tmp_path)
 
 
@@ -74,7 +74,7 @@ def test_base_stage_of_the_corpus_loads(valid_stage):
     [
         (dict(width=0, height=360), "resolution"),
         (dict(width=-640), "resolution"),
-        (dict(width=10**6, height=10**6), "G-buffer"),
+        (dict(width=60000, height=60000), "G-buffer"),
         (dict(width=640.5), "whole number"),
         (dict(camera_path="/World/Nope"), "/World/Nope"),
         (dict(camera_path="/World/Sun"), "no UsdGeom.Camera"),

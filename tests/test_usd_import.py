@@ -425,18 +425,19 @@ def test_default_material_without_binding_or_display_color(tmp_path):
 def test_water_attributes_make_a_dynamic_mesh_range(tmp_path):
     stage = new_stage(tmp_path)
     add_mesh(stage, "/World/Floor", UNIT_QUAD, [4], [0, 1, 2, 3])
-    water = add_mesh(stage, "/World/Water", [(p[0], p[1], 1) for p in UNIT_QUAD], [4], [0, 1, 2, 3])
+    grid = [(0, 0.5, 0), (1, 0.5, 0), (0, 0.5, 1), (1, 0.5, 1)]  # a 2 x 2 rest grid, vertex iz * nx + ix
+    water = add_mesh(stage, "/World/Water", grid, [4], [0, 2, 3, 1])
     prim = water.GetPrim()
     prim.CreateAttribute("cisp:water:resolution", Sdf.ValueTypeNames.Int).Set(64)
     prim.CreateAttribute("cisp:water:wind_speed", Sdf.ValueTypeNames.Float).Set(2.0)
     prim.CreateAttribute("cisp:water:spectrum", Sdf.ValueTypeNames.Token).Set("phillips")
-    prim.CreateAttribute("cisp:water:wind", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(1, 0))
+    prim.CreateAttribute("cisp:water:wind_direction", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(1, 0))
     prim.CreateAttribute("cisp:other", Sdf.ValueTypeNames.Int).Set(1)
     scene = save_and_load(stage)
     floor, w = scene.meshes
     assert not floor.dynamic and floor.water is None
     assert w.dynamic and w.path == "/World/Water"
-    assert w.water == {"resolution": 64, "wind_speed": 2.0, "spectrum": "phillips", "wind": (1.0, 0.0)}
+    assert w.water == {"resolution": 64, "wind_speed": 2.0, "spectrum": "phillips", "wind_direction": (1.0, 0.0)}
     assert type(w.water["resolution"]) is int and type(w.water["spectrum"]) is str
     assert w.vertex_count == 4  # vertex i is point i: sim/ can write in place
 

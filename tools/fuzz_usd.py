@@ -159,18 +159,17 @@ def build_seeds(folder: Path, smoke: bool) -> list[Path]:
         shutil.copy(ROOT / "scenes_usd" / name, folder / name)
         seeds.append(folder / name)
     if not smoke:
-        spec = importlib.util.spec_from_file_location("make_pool_scene", ROOT / "tools" / "make_pool_scene.py")
-        mp = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mp)
+        import subprocess
+
         variants = {"pool_night.usda": ["--night", "--water-spacing", "0.5"],
                     "pool_baked.usda": ["--bake", "2", "--water-spacing", "0.5", "--seed", "3"],
                     "pool_choppy.usda": ["--choppiness", "2", "--wind-speed", "9", "--depth", "0.5",
                                          "--water-spacing", "0.25"]}
+        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
         for name, extra in variants.items():
             out = folder / name
-            with redirect_stdout(io.StringIO()), redirect_stderr(io.StringIO()):
-                opts_out, opts = mp.parse_args(["--out", str(out)] + extra)
-                mp.build(opts_out, opts)
+            subprocess.run([sys.executable, str(ROOT / "tools" / "make_pool_scene.py"), "--out", str(out)] + extra,
+                           check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             seeds.append(out)
     for src in (folder / "small_base.usda", folder / "small_water.usda", folder / "pool.usda"):
         dst = src.with_name(src.stem + "_crate.usdc")
