@@ -79,6 +79,7 @@ def parse_count(text: str) -> int:
 MAX_FRAMES = 100_000  #: --frames renders at most this many frames (over an hour at 24 per second)
 MAX_TIME_CODE = 1e9  #: |time code| of --time and --frames
 MAX_EXPOSURE_STOPS = 64.0  #: |--exposure|: 2^64 is far beyond any display range, and finite in float32
+MAX_REFERENCE_PASSES = 10_000  #: --reference-photons / --photons: passes of the reference per frame
 MAX_COUNT_FLAGS = {"--max-bounces": 1024, "--cmap-history": 1024, "--reference-photons": 10**12}
 
 
@@ -95,7 +96,7 @@ def parse_frames(text: str) -> range:
     return range(a, b)
 
 
-def check_numbers(args) -> None:
+def check_numbers(args, device: str) -> None:
     """Range checks of the numeric flags that nothing downstream bounds (one SceneError naming the flag)."""
     import math
 
@@ -108,6 +109,10 @@ def check_numbers(args) -> None:
         v = getattr(args, flag[2:].replace("-", "_"))
         if v is not None and v > hi:
             raise SceneError(f"{flag} must be at most {hi}, got {v}")
+    reference = args.reference_photons or (10**8 if device.startswith("cuda") else 4 * 10**6)  # the defaults
+    if args.method == "reference" and reference > MAX_REFERENCE_PASSES * args.photons:
+        raise SceneError(f"--reference-photons {reference} in passes of --photons {args.photons} is more than "
+                         f"{MAX_REFERENCE_PASSES} passes: raise --photons")
     for flag in ("--roughness-cutoff", "--luminance-cutoff"):
         v = getattr(args, flag[2:].replace("-", "_"))
         if not (math.isfinite(v) and 0.0 <= v <= 1.0):
@@ -142,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                   method=args.method, photons=photons, denoiser=args.denoiser)
         settings.validate()
-        check_numbers(args)
+        check_numbers(args, device)
         frames = parse_frames(args.frames) if args.frames else None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)

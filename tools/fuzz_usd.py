@@ -775,7 +775,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", type=int, default=None, help="run only this case id (with the same --seed)")
     ap.add_argument("--smoke", action="store_true", help="seeds without the pool generator's variants (fast)")
     ap.add_argument("--keep", action="store_true", help="keep every case's stage, not only the failing ones")
-    ap.add_argument("--tmp", default=None, help="scratch folder (default: the system's)")
+    ap.add_argument("--tmp", default="/dev/shm" if os.path.isdir("/dev/shm") else None,
+                    help="scratch folder (default: /dev/shm where it exists, else the system's)")
     ap.add_argument("--verbose", action="store_true", help="print every case")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     args = ap.parse_args(argv)

@@ -17,7 +17,8 @@ crash it. So before the stage is composed, :func:`check_layers`
    of a signal or runs out of memory is a :class:`SceneError` naming the file.
 
 The child parses; the caller then opens the stage itself (the files are parsed twice: the parse
-costs about 0.1 s for the shipped scenes). Where ``os.fork`` does not exist the walk runs in-process
+costs about 0.1 s for the shipped scenes). A stage whose files have not changed since they passed
+(same inode, size, mtime) is not walked again in the same process. Where ``os.fork`` does not exist the walk runs in-process
 (the regular-file and size checks still hold; the deadline does not).
 """
 
@@ -114,9 +115,30 @@ def _check_text(path: str) -> None:
                          file=path) from None
 
 
-def walk_layers(path: str) -> tuple[int, int]:
+def _signature(path: str) -> list:
+    st = os.stat(path)
+    return [path, st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_mode]
+
+
+#: {root path: signatures of every layer file its last walk passed}: a stage opened again (the
+#: animation's clock after load_usd) is not parsed a third time while none of its files changed.
+_PASSED: dict[str, list] = {}
+
+
+def _still_passed(root: str) -> bool:
+    sigs = _PASSED.get(root)
+    if not sigs:
+        return False
+    try:
+        return all(_signature(s[0]) == s for s in sigs)
+    except OSError:
+        return False
+
+
+def walk_layers(path: str) -> tuple[int, int, list]:
     """Parse ``path`` and every layer it names (sublayers, references, payloads) with ``Sdf``, checking
-    each asset as the module docstring says; returns (layers, bytes). Raises :class:`SceneError`."""
+    each asset as the module docstring says; returns (layers, bytes, file signatures). Raises
+    :class:`SceneError`."""
     root = os.path.abspath(path)
     total = _check_file(root, None, None, None)
     todo, seen, held = [root], {root}, []
@@ -152,7 +174,7 @@ def walk_layers(path: str) -> tuple[int, int]:
             if len(seen) > MAX_LAYERS:
                 raise SceneError(f"the stage pulls in more than {MAX_LAYERS} layers", file=root)
             todo.append(resolved)
-    return len(seen), total
+    return len(seen), total, [_signature(p) for p in sorted(seen)]
 
 
 def _vm_bytes() -> int:
@@ -166,8 +188,11 @@ def _vm_bytes() -> int:
 def check_layers(path: str) -> None:
     """Run :func:`walk_layers` on ``path`` in a forked child with a deadline and a memory cap (see the
     module docstring); raises :class:`SceneError` naming the file when the walk fails in any way."""
+    root = os.path.abspath(path)
+    if _still_passed(root):
+        return
     if not hasattr(os, "fork"):
-        walk_layers(path)
+        _PASSED[root] = walk_layers(path)[2]
         return
     size = os.path.getsize(path)
     deadline = PARSE_SECONDS + PARSE_SECONDS_PER_MB * size / 1e6
@@ -182,8 +207,8 @@ def check_layers(path: str) -> None:
             except (ValueError, OSError):
                 pass
             try:
-                layers, nbytes = walk_layers(path)
-                msg = {"ok": True, "layers": layers, "bytes": nbytes}
+                layers, nbytes, signatures = walk_layers(path)
+                msg = {"ok": True, "layers": layers, "bytes": nbytes, "signatures": signatures}
             except SceneError as exc:
                 msg = {"reason": exc.reason, "file": exc.file, "prim": exc.prim}
             except MemoryError:
@@ -222,3 +247,4 @@ def check_layers(path: str) -> None:
     msg = json.loads(text)
     if not msg.get("ok"):
         raise SceneError(msg["reason"], file=msg.get("file") or path, prim=msg.get("prim"))
+    _PASSED[root] = msg["signatures"]

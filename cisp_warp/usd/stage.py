@@ -161,10 +161,27 @@ def typed_get(ctx: "StageContext", attr: Usd.Attribute, kind: str, prim: str | N
         return None
     cpp_types, words = _KINDS[kind]
     type_name = attr.GetTypeName()
-    if type_name.type.typeName not in cpp_types:
-        raise SceneError(f"attribute '{attr.GetName()}' is authored as {type_name or 'an unknown type'}; it must be "
+    value = ctx.get(attr) if type_name.type.typeName in cpp_types else _MISMATCH
+    if value is not None and (value is _MISMATCH or not _VALUE_CHECKS[kind](value)):
+        # the declared type, or (where a schema overrides it) the value USD hands back, is not of this kind
+        shown = type_name if value is _MISMATCH else type(value).__name__
+        raise SceneError(f"attribute '{attr.GetName()}' is authored as {shown or 'an unknown type'}; it must be "
                          f"{words}", prim=prim or str(attr.GetPrim().GetPath()))
-    return ctx.get(attr)
+    return value
+
+
+_MISMATCH = object()
+_VALUE_CHECKS = {
+    "real": lambda v: isinstance(v, (float, int)) and not isinstance(v, bool),
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "bool": lambda v: isinstance(v, bool),
+    "token": lambda v: isinstance(v, str),
+    "vec2": lambda v: type(v).__name__ in ("Vec2f", "Vec2d", "Vec2h"),
+    "int2": lambda v: type(v).__name__ == "Vec2i",
+    "vec3": lambda v: type(v).__name__ in ("Vec3f", "Vec3d", "Vec3h"),
+    "vec3[]": lambda v: type(v).__name__ in ("Vec3fArray", "Vec3dArray", "Vec3hArray"),
+    "int[]": lambda v: type(v).__name__ == "IntArray",
+}
 
 
 def finite_float(value, what: str, prim: str, lo: float | None = None, hi: float | None = None) -> float:
