@@ -79,7 +79,7 @@ def parse_count(text: str) -> int:
 MAX_FRAMES = 100_000  #: --frames renders at most this many frames (over an hour at 24 per second)
 MAX_TIME_CODE = 1e9  #: |time code| of --time and --frames
 MAX_EXPOSURE_STOPS = 64.0  #: |--exposure|: 2^64 is far beyond any display range, and finite in float32
-MAX_REFERENCE_PASSES = 10_000  #: --reference-photons / --photons: passes of the reference per frame
+MAX_REFERENCE_PASSES = 1000  #: --reference-photons / --photons: passes of the reference per frame
 MAX_COUNT_FLAGS = {"--max-bounces": 1024, "--cmap-history": 1024, "--reference-photons": 10**12}
 
 
