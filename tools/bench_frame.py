@@ -1,9 +1,12 @@
 #!/usr/bin/env python3
 """Frame benchmark in the layout of seed 000's Table 1: per-stage ms (raster, direct, trace+store,
-denoise, shade) for several photon counts and methods; then the photons per second of each method's
-trace stage at equal photon counts. Prints tables with the device.
+denoise, shade) for several photon counts, methods and scenes; then the photons per second of each
+method's trace stage at equal photon counts. With ``--kernels``, also the per-kernel table: ms per frame
+of every kernel and copy (Warp's CUDA activity timing), and launches per frame. Prints tables with the
+device; ``--json`` writes every figure.
 
     python tools/bench_frame.py                                # 1920x1080, RSM 2048², 0.5M/1M/2M photons, CISP
+    python tools/bench_frame.py --scenes cornell,pool --photons 2M --kernels
     python tools/bench_frame.py --methods cisp,sspm,caustics_map,reference
     python tools/bench_frame.py --device cpu --width 320 --height 180 --rsm-size 256 --photons 50k,100k
     python tools/bench_frame.py --smoke                        # seconds
@@ -12,73 +15,127 @@ trace stage at equal photon counts. Prints tables with the device.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 
 import warp as wp
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCENES = {"cornell": os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda"),
+          "pool": os.path.join(ROOT, "scenes_usd", "pool.usda")}
+
+
+def kernel_table(results, frames: int) -> dict[str, tuple[float, float]]:
+    """{activity name: (ms per frame, launches per frame)} from ``wp.timing_end()`` over ``frames`` frames."""
+    acc: dict[str, list[float]] = {}
+    for r in results:
+        name = r.name
+        if name.startswith("forward kernel "):
+            name = name[len("forward kernel "):]
+        a = acc.setdefault(name, [0.0, 0])
+        a[0] += r.elapsed
+        a[1] += 1
+    return {k: (v[0] / frames, v[1] / frames) for k, v in sorted(acc.items(), key=lambda kv: -kv[1][0])}
+
+
+def run_config(scene_path, method, n, args, device):
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.render import Renderer, RenderSettings
+    from cisp_warp.timing import StageTimer
+    from cisp_warp.usd import load_usd
+
+    scene = load_usd(scene_path, width=args.width, height=args.height, device=device)
+    # the reference traces two passes of n per frame here: its rate per photon is what is compared
+    photons = PhotonSettings(photons=n, reference_photons=2 * n,
+                             sort_photons={"auto": None, "on": True, "off": False}[args.sort])
+    settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
+    r = Renderer(scene, settings, device=device)
+    timer = None
+    for frame in range(3 + args.frames):
+        if frame == 3:
+            timer = StageTimer(device)
+        r.render_frame(timer)
+    row = {"photons": n, "stages": timer.medians(), "traced": n * getattr(r.photons, "passes", 1) * len(scene.lights)}
+    if args.kernels and device.is_cuda:
+        wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+        for _ in range(args.frames):
+            r.render_frame()
+        row["kernels"] = kernel_table(wp.timing_end(), args.frames)
+    return row
 
 
 def main(argv=None) -> int:
     from cisp_warp.cli import parse_count
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scene", default=os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda"))
+    p.add_argument("--scene", default=None, help="a USD stage (default: --scenes)")
+    p.add_argument("--scenes", default="cornell", help="comma-separated: cornell, pool, or stage paths")
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
     p.add_argument("--width", type=int, default=1920)
     p.add_argument("--height", type=int, default=1080)
     p.add_argument("--rsm-size", type=int, default=2048)
-    p.add_argument("--photons", default="500k,1M,2M", help="comma-separated photon counts")
+    p.add_argument("--photons", default="500k,1M,2M", help="comma-separated photon counts (per light)")
     p.add_argument("--methods", default="cisp", help="comma-separated: cisp, sspm, caustics_map, reference")
     p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"])
     p.add_argument("--sort", default="auto", choices=["auto", "on", "off"],
                    help="trace RSM photons in texel order (auto: on CUDA only)")
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
+    p.add_argument("--kernels", action="store_true",
+                   help="also time every kernel (CUDA activity timing, separate frames) and count launches")
+    p.add_argument("--json", default=None, help="write every figure to this file")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, 2 frames")
     args = p.parse_args(argv)
     if args.smoke:
         args.width, args.height, args.rsm_size, args.photons, args.frames = 64, 36, 64, "2k", 2
     wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     wp.init()
-    from cisp_warp.photons import PhotonSettings
-    from cisp_warp.render import Renderer, RenderSettings
-    from cisp_warp.timing import StageTimer
-    from cisp_warp.usd import load_usd
 
     device = wp.get_device(args.device)
     counts = [parse_count(c) for c in args.photons.split(",")]
     methods = [m.strip() for m in args.methods.split(",")]
-    results = {}
-    for method in methods:
-        rows = []
-        for n in counts:
-            scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
-            # the reference traces two passes of n per frame here: its rate per photon is what is compared
-            photons = PhotonSettings(photons=n, reference_photons=2 * n,
-                                     sort_photons={"auto": None, "on": True, "off": False}[args.sort])
-            settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
-            r = Renderer(scene, settings, device=device)
-            timer = None
-            for frame in range(3 + args.frames):
-                if frame == 3:
-                    timer = StageTimer(device)
-                r.render_frame(timer)
-            traced = n * getattr(r.photons, "passes", 1) * len(scene.lights)
-            rows.append((n, timer.medians(), traced))
-        results[method] = rows
-        stages = list(rows[0][1])
-        print(f"{method}: device {device.alias} ({device.name}); {args.width}x{args.height}, RSM {args.rsm_size}², "
-              f"denoiser {args.denoiser}; median ms over {args.frames} frames")
-        print(f"{'stage':<14}" + "".join(f"{n:>14,}" for n, _, _ in rows))
-        for s in stages:
-            print(f"{s:<14}" + "".join(f"{m[s]:14.3f}" for _, m, _ in rows))
-        print(f"{'total':<14}" + "".join(f"{sum(m.values()):14.3f}" for _, m, _ in rows))
+    scenes = [args.scene] if args.scene else [SCENES.get(s.strip(), s.strip()) for s in args.scenes.split(",")]
+    dev = f"{device.alias} ({device.name})"
+    report = {"device": dev, "warp": wp.config.version, "width": args.width, "height": args.height,
+              "rsm_size": args.rsm_size, "denoiser": args.denoiser, "frames": args.frames, "runs": []}
+    for scene_path in scenes:
+        sname = os.path.splitext(os.path.basename(scene_path))[0]
+        results = {}
+        for method in methods:
+            rows = [run_config(scene_path, method, n, args, device) for n in counts]
+            results[method] = rows
+            for row in rows:
+                report["runs"].append({"scene": sname, "method": method, **row})
+            stages = list(rows[0]["stages"])
+            print(f"{sname}, {method}: device {dev}; {args.width}x{args.height}, RSM {args.rsm_size}², "
+                  f"denoiser {args.denoiser}; median ms over {args.frames} frames")
+            print(f"{'stage':<14}" + "".join(f"{row['photons']:>14,}" for row in rows))
+            for s in stages:
+                print(f"{s:<14}" + "".join(f"{row['stages'][s]:14.3f}" for row in rows))
+            print(f"{'total':<14}" + "".join(f"{sum(row['stages'].values()):14.3f}" for row in rows))
+            if "kernels" in rows[0]:
+                names = list(dict.fromkeys(k for row in rows for k in row["kernels"]))
+                width = max(len(k) for k in names) + 2
+                print(f"\nper kernel, ms per frame (launches per frame), mean over {args.frames} frames")
+                print(f"{'kernel':<{width}}" + "".join(f"{row['photons']:>18,}" for row in rows))
+                for k in names:
+                    cells = []
+                    for row in rows:
+                        ms, count = row["kernels"].get(k, (0.0, 0))
+                        cells.append(f"{ms:10.3f} ({count:4.0f})")
+                    print(f"{k:<{width}}" + "".join(f"{c:>18}" for c in cells))
+                totals = [(sum(v[0] for v in row["kernels"].values()), sum(v[1] for v in row["kernels"].values()))
+                          for row in rows]
+                print(f"{'sum':<{width}}" + "".join(f"{f'{ms:10.3f} ({c:4.0f})':>18}" for ms, c in totals))
+            print()
+        print(f"{sname}: trace+store rate [million photons per second], device {dev}")
+        print(f"{'method':<14}" + "".join(f"{n:>14,}" for n in counts))
+        for method, rows in results.items():
+            print(f"{method:<14}" + "".join(f"{row['traced'] / row['stages']['trace+store'] / 1e3:14.2f}" for row in rows))
         print()
-    print(f"trace+store rate [million photons per second], device {device.alias} ({device.name})")
-    print(f"{'method':<14}" + "".join(f"{n:>14,}" for n in counts))
-    for method, rows in results.items():
-        print(f"{method:<14}" + "".join(f"{traced / m['trace+store'] / 1e3:14.2f}" for _, m, traced in rows))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(report, f, indent=1)
     return 0
 
 

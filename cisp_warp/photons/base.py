@@ -150,6 +150,9 @@ class PhotonPass:
         n_sort = 2 * self.max_photons_per_view() if sort else 1
         self._sort_keys = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
+        #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU
+        #: tiles one thread per block unless ``wp.config.enable_cpu_blocks`` is set (a test does, to check the sums)
+        self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
 
     def photons_per_view(self, lm: LightMaps) -> int:
         return max(1, self.settings.photons // len(lm.rsm))
@@ -164,8 +167,17 @@ class PhotonPass:
         self.max_lum.zero_()
         for li, lm in enumerate(self.lights):
             for r in lm.rsm:
-                wp.launch(C.max_luminance, dim=r.width * r.height, inputs=[r.flux, self._max_lum_of[li]],
-                          device=self.device)
+                n = r.width * r.height
+                block = 256 if self.device.is_cuda else 1
+                blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
+                wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
+                                inputs=[r.flux, n, self._max_lum_of[li]])
+
+    def launch_photons(self, kernel, n: int, inputs: list) -> None:
+        """Launch a photon kernel over ``n`` photons as ``wp.launch_tiled`` blocks of ``ledger_block`` threads
+        (the kernel computes its photon slot as ``block * wp.block_dim() + lane`` and ends with ``ledger_add``)."""
+        blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
+        wp.launch_tiled(kernel, dim=blocks, block_dim=self.ledger_block, device=self.device, inputs=inputs)
 
     def photon_order(self, params: wp.struct, n: int, scramble: wp.vec2i) -> wp.array:
         """The order in which to trace the ``n`` photons of one RSM view (kernels take it with ``use_order``)."""

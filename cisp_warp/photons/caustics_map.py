@@ -120,7 +120,7 @@ class CausticsMap(PhotonPass):
                       inputs=[params, r.opaque_depth, r.opaque_tri, r.solid_angle, sc.points, sc.indices,
                               cm.receiver_normal, cm.receiver_area])
             cm.texel_power.zero_()
-            wp.launch(K.trace_to_caustic_map, dim=n, device=self.device, inputs=[
+            self.launch_photons(K.trace_to_caustic_map, n, inputs=[
                 params, int(light.kind), light_pos,
                 r.opaque_depth, r.opaque_tri, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                 cm.receiver_normal, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],

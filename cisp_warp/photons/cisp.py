@@ -30,7 +30,7 @@ class CISP(PhotonPass):
         for b in self.rsm_batches(frame):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
-            wp.launch(K.trace_photons, dim=b.n, device=self.device, inputs=[
+            self.launch_photons(K.trace_photons, b.n, inputs=[
                 b.params, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                 sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],

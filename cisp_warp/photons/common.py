@@ -48,18 +48,104 @@ FOOTPRINT_EXACT = wp.constant(0)
 FOOTPRINT_PAPER = wp.constant(1)
 
 
+LEDGER_BLOCK = 128  #: threads per block of the photon kernels on CUDA: each block adds to the ledger once per entry
+
+
+@wp.struct
+class Tally:
+    """One photon's (one thread's) share of the ledger, kept in registers while it is traced and added to
+    the ledger once per block by :func:`ledger_add`: no atomics onto the ledger's 42 shared addresses per
+    photon. Power [W] per RGB channel; the entries a photon may book more than once (bounces of the world
+    methods) accumulate in float64, as the ledger does."""
+
+    sampled: wp.vec3d  #: L_SAMPLED
+    absorbed: wp.vec3d  #: L_ABSORBED (once per metallic bounce)
+    reflected: wp.vec3d  #: L_REFLECTED (once per dielectric or metallic reflection)
+    refracted: wp.vec3d  #: L_REFRACTED
+    entry: wp.int32  #: the photon's one final entry (culled, lost, occluded, rejected, stored ...); -1 = none yet
+    power: wp.vec3  #: power booked under ``entry``
+
+
 @wp.func
-def book(ledger: wp.array(dtype=wp.float64), entry: int, power: wp.vec3):
-    wp.atomic_add(ledger, 3 * entry + 0, wp.float64(power[0]))
-    wp.atomic_add(ledger, 3 * entry + 1, wp.float64(power[1]))
-    wp.atomic_add(ledger, 3 * entry + 2, wp.float64(power[2]))
+def tally_new() -> Tally:
+    """An empty tally (nothing booked)."""
+    t = Tally()
+    t.sampled = wp.vec3d()
+    t.absorbed = wp.vec3d()
+    t.reflected = wp.vec3d()
+    t.refracted = wp.vec3d()
+    t.entry = -1
+    t.power = wp.vec3(0.0)
+    return t
+
+
+@wp.func
+def book(tally: wp.ref[Tally], entry: int, power: wp.vec3):
+    """Book ``power`` [W] under ``entry`` in this thread's tally (``entry`` is a constant at every call site, so
+    the branches fold away). Each photon has exactly one final entry; a second one would replace the first
+    and the ledger would no longer close (the tests check closure)."""
+    p = wp.vec3d(wp.float64(power[0]), wp.float64(power[1]), wp.float64(power[2]))
+    if entry == L_SAMPLED:
+        tally.sampled = tally.sampled + p
+    elif entry == L_ABSORBED:
+        tally.absorbed = tally.absorbed + p
+    elif entry == L_REFLECTED:
+        tally.reflected = tally.reflected + p
+    elif entry == L_REFRACTED:
+        tally.refracted = tally.refracted + p
+    else:
+        tally.entry = entry
+        tally.power = power
+
+
+@wp.func
+def ledger_add(ledger: wp.array(dtype=wp.float64), tally: Tally, lane: int):
+    """Sum every thread's tally over the block (Warp tiles) and add each non-zero entry to the ledger once,
+    from lane 0. Every thread of the block must call this (no early return before it). On the CPU a block
+    is one thread, so entries are added in photon order, as single atomics would."""
+    for e in range(LEDGER_ENTRIES):
+        v = wp.vec3d()
+        if e == L_SAMPLED:
+            v = tally.sampled
+        elif e == L_ABSORBED:
+            v = tally.absorbed
+        elif e == L_REFLECTED:
+            v = tally.reflected
+        elif e == L_REFRACTED:
+            v = tally.refracted
+        elif tally.entry == e:
+            v = wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
+        total = wp.tile_sum(wp.tile(v, preserve_type=True))
+        if lane == 0:
+            s = total[0]
+            if s[0] != wp.float64(0.0) or s[1] != wp.float64(0.0) or s[2] != wp.float64(0.0):
+                wp.atomic_add(ledger, 3 * e + 0, s[0])
+                wp.atomic_add(ledger, 3 * e + 1, s[1])
+                wp.atomic_add(ledger, 3 * e + 2, s[2])
+
+
+MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
 
 
 @wp.kernel
-def max_luminance(flux: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.float32)):
-    """out[0] = max over texels of luminance(flux) (atomic; out must be zeroed first)."""
-    p = wp.tid()
-    wp.atomic_max(out, 0, luminance(flux[p]))
+def max_luminance(
+    flux: wp.array(dtype=wp.vec3),  # (Hl*Wl,) RSM flux per texel [W] (read)
+    count: int,  # texels
+    out: wp.array(dtype=wp.float32),  # (1,) max luminance [W] (atomic max; zeroed by the caller)
+):
+    """out[0] = max over texels of luminance(flux): each thread reads MAX_LUM_TEXELS texels (coalesced across the
+    block), the block takes the max as a tile and adds it with one atomic_max, not one per texel."""
+    block, lane = wp.tid()
+    bd = wp.block_dim()
+    first = block * bd * MAX_LUM_TEXELS + lane
+    m = float(0.0)
+    for i in range(MAX_LUM_TEXELS):
+        p = first + i * bd
+        if p < count:
+            m = wp.max(m, luminance(flux[p]))
+    block_max = wp.tile_max(wp.tile(m))
+    if lane == 0:
+        wp.atomic_max(out, 0, block_max[0])
 
 
 @wp.func
@@ -123,7 +209,7 @@ def emit_photon(
     max_lum: float,
     roughness_cutoff: float,
     luminance_cutoff: float,
-    ledger: wp.array(dtype=wp.float64),
+    tally: wp.ref[Tally],
 ):
     """Photon k of an RSM view. Returns (texel or -1 when none is emitted, power [W], origin, incident
     direction, surface normal); books the power as sampled, and culled when the texel is culled."""
@@ -137,12 +223,12 @@ def emit_photon(
     if rsm_tri[texel] < 0:
         return int(-1), zero, zero, zero, zero
     power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
-    book(ledger, L_SAMPLED, power)
+    book(tally, L_SAMPLED, power)
     if rsm_roughness[texel] > roughness_cutoff:
-        book(ledger, L_CULLED_ROUGH, power)
+        book(tally, L_CULLED_ROUGH, power)
         return int(-1), zero, zero, zero, zero
     if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
-        book(ledger, L_CULLED_LUM, power)
+        book(tally, L_CULLED_LUM, power)
         return int(-1), zero, zero, zero, zero
     # origin: the light ray through the sample point, cut with the texel's tangent plane
     lo, ld = pixel_ray_world(light, sx, sy)
@@ -160,7 +246,7 @@ def emit_photon(
 
 @wp.func
 def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
-                    state: wp.uint32, ledger: wp.array(dtype=wp.float64)):
+                    state: wp.uint32, tally: wp.ref[Tally]):
     """Scatter a photon off a smooth surface. Returns (direction, power, refracted 0/1, rng state).
 
     Dielectric: reflect with probability F(θ), else refract (power unchanged either way).
@@ -177,7 +263,7 @@ def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, al
             return reflect(d_in, nn), power, int(0), state
         return refract(d_in, nn, eta), power, int(1), state
     kept = wp.cw_mul(power, albedo)
-    book(ledger, L_ABSORBED, power - kept)
+    book(tally, L_ABSORBED, power - kept)
     return reflect(d_in, nn), kept, int(0), state
 
 
@@ -202,30 +288,30 @@ def emit_and_bounce(
     max_lum: float,
     roughness_cutoff: float,
     luminance_cutoff: float,
-    ledger: wp.array(dtype=wp.float64),
+    tally: wp.ref[Tally],
 ):
     """Photon k of an RSM view, emitted (:func:`emit_photon`) and scattered by the specular surface it
     starts on (:func:`specular_bounce`), all booked. Returns (texel or -1 when none, power [W] after the
     bounce, origin [m], surface normal, outgoing direction, rng state)."""
     texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
                                                 rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum,
-                                                roughness_cutoff, luminance_cutoff, ledger)
+                                                roughness_cutoff, luminance_cutoff, tally)
     state = wp.rand_init(seed, k)
     if texel < 0:
         return texel, power, origin, n, d_in, state
     m = triangle_material[rsm_tri[texel]]
     d, power, refracted, state = specular_bounce(d_in, n, int(mat_opacity[m] < 1.0), rsm_ior[texel], mat_albedo[m],
-                                                 power, state, ledger)
-    book_bounce(ledger, refracted, power)
+                                                 power, state, tally)
+    book_bounce(tally, refracted, power)
     return texel, power, origin, n, d, state
 
 
 @wp.func
-def book_bounce(ledger: wp.array(dtype=wp.float64), refracted: int, power: wp.vec3):
+def book_bounce(tally: wp.ref[Tally], refracted: int, power: wp.vec3):
     if refracted != 0:
-        book(ledger, L_REFRACTED, power)
+        book(tally, L_REFRACTED, power)
     else:
-        book(ledger, L_REFLECTED, power)
+        book(tally, L_REFLECTED, power)
 
 
 @wp.func
@@ -258,16 +344,16 @@ def pixel_footprint(camera: ViewParams, pixel_solid_angle: float, x: wp.vec3, n:
 def deposit(camera: ViewParams, pix: int, d: wp.vec3, power: wp.vec3,
             cam_depth: wp.array(dtype=wp.float32), cam_position: wp.array(dtype=wp.vec3),
             cam_normal: wp.array(dtype=wp.vec3), cam_solid_angle: wp.array(dtype=wp.float32),
-            footprint_mode: int, photon_map: wp.array(dtype=wp.vec3), ledger: wp.array(dtype=wp.float64)) -> int:
+            footprint_mode: int, photon_map: wp.array(dtype=wp.vec3), tally: wp.ref[Tally]) -> int:
     """Validate a photon arriving along ``d`` at camera pixel ``pix`` and add its irradiance; 1 if stored."""
     nr = cam_normal[pix]
     if wp.dot(-d, nr) < 0.0 or cam_depth[pix] <= 0.0:
-        book(ledger, L_REJECTED, power)
+        book(tally, L_REJECTED, power)
         return 0
     area = pixel_footprint(camera, cam_solid_angle[pix], cam_position[pix], nr, footprint_mode)
     e = power / area
     if footprint_mode == FOOTPRINT_PAPER:
         e = e * wp.dot(-d, nr)
     wp.atomic_add(photon_map, pix, e)
-    book(ledger, L_STORED, power)
+    book(tally, L_STORED, power)
     return 1

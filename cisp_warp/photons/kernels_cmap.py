@@ -19,9 +19,11 @@ from __future__ import annotations
 import warp as wp
 
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
-from .common import (FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, book, emit_and_bounce, photon_index,
-                    pixel_footprint)
+from .common import (FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, Tally, book, emit_and_bounce, ledger_add,
+                     photon_index, pixel_footprint, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
+
+wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
 SQRT2 = wp.constant(1.4142135623730951)
 #: steepest receiver slope (tan θ between its normal and the light ray) the depth test allows for; steeper
@@ -71,6 +73,78 @@ def receiver_footprints(
     receiver_area[t] = pixel_footprint(light, texel_solid_angle[t], x, n, FOOTPRINT_EXACT)
 
 
+@wp.func
+def trace_to_caustic_map_photon(
+    t: int,  # thread (photon slot) index
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m] (point and spot lights)
+    # RSM view of the light (flat Hl*Wl arrays, read)
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # linear depth of the nearest opaque surface [m], 0 = none
+    rsm_opaque_tri: wp.array(dtype=wp.int32),  # its triangle, -1 = none
+    rsm_position: wp.array(dtype=wp.vec3),  # specular layer: world position [m]
+    rsm_normal: wp.array(dtype=wp.vec3),  # specular layer: authored unit normal
+    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),  # specular layer triangle, -1 = none
+    receiver_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) from receiver_footprints, facing the light
+    # scene materials (read)
+    triangle_material: wp.array(dtype=wp.int32),  # (T,)
+    mat_opacity: wp.array(dtype=wp.float32),  # (M,)
+    mat_albedo: wp.array(dtype=wp.vec3),  # (M,)
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    # settings
+    n_photons: int,
+    seed: int,  # seed of this (frame, view)'s random streams
+    scramble: wp.vec2i,  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
+    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+    use_order: int,
+    roughness_cutoff: float,
+    luminance_cutoff: float,  # relative to max_lum
+    max_steps: int,
+    thickness: float,  # [m]
+    thickness_rel: float,
+    t_max: float,  # [m]
+    # outputs
+    texel_power: wp.array(dtype=wp.vec3),  # (Hl*Wl,) power landed per light texel this frame [W] (accumulate)
+    tally: wp.ref[Tally],  # this thread's ledger share (accumulate)
+):
+    """One thread per photon: same emission and bounce as CISP, then the light view's opaque depth only.
+
+    A photon whose march leaves the light view (or lands in a texel without an opaque surface) is
+    ``lost_light_view``; one arriving on the side of its receiver the light does not see is ``rejected``;
+    the rest are ``stored``: splatted into the caustic map in light space.
+    """
+    k = photon_index(order, use_order, t)
+    texel, power, origin, n, d, state = emit_and_bounce(
+        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
+        rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
+        tally)
+    if texel < 0:
+        return
+    o = origin + d * (1.0e-4 * t_max)  # start a hair off the specular surface, as CISP does
+    status, t_end, steps = screen_march(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness, thickness_rel)
+    if status == MARCH_STEPS:
+        book(tally, L_STEPS, power)
+        return
+    if status != MARCH_HIT:
+        book(tally, L_LOST_LIGHT, power)
+        return
+    q = world_project(light, o + d * t_end)
+    i = wp.clamp(int(q[0]), 0, light.width - 1)
+    j = wp.clamp(int(q[1]), 0, light.height - 1)
+    t = j * light.width + i
+    if rsm_opaque_tri[t] < 0:  # the refined crossing fell just off a silhouette, onto no surface
+        book(tally, L_LOST_LIGHT, power)
+        return
+    if wp.dot(-d, receiver_normal[t]) < 0.0:
+        book(tally, L_REJECTED, power)
+        return
+    wp.atomic_add(texel_power, t, power)
+    book(tally, L_STORED, power)
+
+
 @wp.kernel
 def trace_to_caustic_map(
     light: ViewParams,
@@ -107,39 +181,18 @@ def trace_to_caustic_map(
     texel_power: wp.array(dtype=wp.vec3),  # (Hl*Wl,) power landed per light texel this frame [W] (accumulate)
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) power [W] (accumulate)
 ):
-    """One thread per photon: same emission and bounce as CISP, then the light view's opaque depth only.
-
-    A photon whose march leaves the light view (or lands in a texel without an opaque surface) is
-    ``lost_light_view``; one arriving on the side of its receiver the light does not see is ``rejected``;
-    the rest are ``stored``: splatted into the caustic map in light space.
-    """
-    k = photon_index(order, use_order, wp.tid())
-    texel, power, origin, n, d, state = emit_and_bounce(
-        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-        rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
-        ledger)
-    if texel < 0:
-        return
-    o = origin + d * (1.0e-4 * t_max)  # start a hair off the specular surface, as CISP does
-    status, t_end, steps = screen_march(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness, thickness_rel)
-    if status == MARCH_STEPS:
-        book(ledger, L_STEPS, power)
-        return
-    if status != MARCH_HIT:
-        book(ledger, L_LOST_LIGHT, power)
-        return
-    q = world_project(light, o + d * t_end)
-    i = wp.clamp(int(q[0]), 0, light.width - 1)
-    j = wp.clamp(int(q[1]), 0, light.height - 1)
-    t = j * light.width + i
-    if rsm_opaque_tri[t] < 0:  # the refined crossing fell just off a silhouette, onto no surface
-        book(ledger, L_LOST_LIGHT, power)
-        return
-    if wp.dot(-d, receiver_normal[t]) < 0.0:
-        book(ledger, L_REJECTED, power)
-        return
-    wp.atomic_add(texel_power, t, power)
-    book(ledger, L_STORED, power)
+    """One thread per photon (``wp.launch_tiled`` over :func:`~.common.photon_blocks`): trace it, then add the
+    block's ledger once."""
+    block, lane = wp.tid()
+    t = block * wp.block_dim() + lane
+    tally = tally_new()
+    if t < n_photons:
+        trace_to_caustic_map_photon(t, light, light_kind, light_pos, rsm_opaque_depth, rsm_opaque_tri, rsm_position,
+                                    rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri, receiver_normal,
+                                    triangle_material, mat_opacity, mat_albedo, max_lum, n_photons, seed, scramble,
+                                    order, use_order, roughness_cutoff, luminance_cutoff, max_steps, thickness,
+                                    thickness_rel, t_max, texel_power, tally)
+    ledger_add(ledger, tally, lane)
 
 
 @wp.kernel

@@ -22,8 +22,9 @@ from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
-from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_SAMPLED, book,
-                     book_bounce, deposit, emit_and_bounce, photon_index, r2_point, specular_bounce)
+from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_SAMPLED, Tally, book,
+                     book_bounce, deposit, emit_and_bounce, ledger_add, photon_index, r2_point, specular_bounce,
+                     tally_new)
 
 WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
 WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
@@ -110,7 +111,7 @@ def offset_origin(x: wp.vec3, ng: wp.vec3, d: wp.vec3, eps: float) -> wp.vec3:
 
 @wp.func
 def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.vec3, state: wp.uint32,
-                roughness_cutoff: float, t_max: float, max_bounces: int, ledger: wp.array(dtype=wp.float64)):
+                roughness_cutoff: float, t_max: float, max_bounces: int, tally: wp.ref[Tally]):
     """Follow a photon leaving the surface point ``x`` along ``d`` through further specular bounces.
 
     Returns (WT_LANDED or WT_DONE, landing point, receiver shading normal, arriving direction, power, rng).
@@ -122,23 +123,23 @@ def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.v
     while bounce <= max_bounces:
         tri, y, n, g = world_hit(ws, o, d, t_max)
         if tri < 0:
-            book(ledger, L_ESCAPED, power)
+            book(tally, L_ESCAPED, power)
             return WT_DONE, y, n, d, power, state
         if is_smooth_specular(ws, tri, roughness_cutoff) != 0:
             if bounce == max_bounces:
-                book(ledger, L_BOUNCES, power)
+                book(tally, L_BOUNCES, power)
                 return WT_DONE, y, n, d, power, state
             m = ws.triangle_material[tri]
             d, power, refracted, state = specular_bounce(d, n, int(ws.opacity[m] < 1.0), ws.ior[m], ws.albedo[m],
-                                                         power, state, ledger)
+                                                         power, state, tally)
             o = offset_origin(y, g, d, eps)
             bounce += 1
             continue
         if (ws.triangle_layers[tri] & LAYER_OPAQUE_C) == 0:  # a rough transmissive surface: not modelled
-            book(ledger, L_CULLED_ROUGH, power)
+            book(tally, L_CULLED_ROUGH, power)
             return WT_DONE, y, n, d, power, state
         return WT_LANDED, y, n, d, power, state
-    book(ledger, L_BOUNCES, power)
+    book(tally, L_BOUNCES, power)
     return WT_DONE, o, ng, d, power, state
 
 
@@ -150,6 +151,61 @@ def camera_pixel(cam: CameraBuffers, y: wp.vec3):
     if q[2] <= v.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(v.width) or q[1] >= float(v.height):
         return int(-1), q
     return int(q[1]) * v.width + int(q[0]), q
+
+
+@wp.func
+def trace_sspm_photon(
+    t: int,  # thread (photon slot) index
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
+    # RSM view of the light (flat H*W arrays, read)
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    ws: WorldScene,
+    cam: CameraBuffers,
+    n_photons: int,
+    seed: int,
+    scramble: wp.vec2i,
+    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+    use_order: int,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+    thickness: float,  # [m] depth-visibility tolerance, absolute
+    thickness_rel: float,  # relative (× depth)
+    t_max: float,
+    max_bounces: int,
+    footprint_mode: int,
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    tally: wp.ref[Tally],  # this thread's ledger share (accumulate)
+):
+    """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility."""
+    k = photon_index(order, use_order, t)
+    texel, power, origin, n, d, state = emit_and_bounce(
+        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
+        rsm_ior, rsm_tri, ws.triangle_material, ws.opacity, ws.albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
+        tally)
+    if texel < 0:
+        return
+    status, y, nr, d, power, state = world_trace(ws, origin, n, d, power, state, roughness_cutoff, t_max,
+                                                 max_bounces, tally)
+    if status != WT_LANDED:
+        return
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        book(tally, L_LOST_CAMERA, power)
+        return
+    zc = cam.depth[pix]
+    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
+        book(tally, L_OCCLUDED, power)
+        return
+    deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
+            photon_map, tally)
 
 
 @wp.kernel
@@ -182,28 +238,17 @@ def trace_sspm(
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
 ):
-    """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility."""
-    k = photon_index(order, use_order, wp.tid())
-    texel, power, origin, n, d, state = emit_and_bounce(
-        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-        rsm_ior, rsm_tri, ws.triangle_material, ws.opacity, ws.albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
-        ledger)
-    if texel < 0:
-        return
-    status, y, nr, d, power, state = world_trace(ws, origin, n, d, power, state, roughness_cutoff, t_max,
-                                                 max_bounces, ledger)
-    if status != WT_LANDED:
-        return
-    pix, q = camera_pixel(cam, y)
-    if pix < 0:
-        book(ledger, L_LOST_CAMERA, power)
-        return
-    zc = cam.depth[pix]
-    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
-        book(ledger, L_OCCLUDED, power)
-        return
-    deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
-            photon_map, ledger)
+    """One thread per photon (``wp.launch_tiled`` over :func:`~.common.photon_blocks`): trace it, then add the
+    block's ledger once."""
+    block, lane = wp.tid()
+    t = block * wp.block_dim() + lane
+    tally = tally_new()
+    if t < n_photons:
+        trace_sspm_photon(t, light, light_kind, light_pos, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
+                          rsm_ior, rsm_tri, max_lum, ws, cam, n_photons, seed, scramble, order, use_order,
+                          roughness_cutoff, luminance_cutoff, thickness, thickness_rel, t_max, max_bounces,
+                          footprint_mode, photon_map, tally)
+    ledger_add(ledger, tally, lane)
 
 
 @wp.func
@@ -226,6 +271,97 @@ def light_sample(light: ViewParams, light_kind: int, light_rgb: wp.vec3, light_p
     if light_kind == 2:
         power = power * spot_falloff(wp.dot(d, spot_axis), cone_angle, cone_softness)
     return light_pos, d, power
+
+
+@wp.func
+def trace_reference_photon(
+    t: int,  # thread (photon slot) index
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_rgb: wp.vec3,  # W/m² (distant) or W/sr (point, spot)
+    light_pos: wp.vec3,  # [m]
+    spot_axis: wp.vec3,  # unit
+    cone_angle: float,  # [rad]
+    cone_softness: float,
+    ws: WorldScene,
+    cam: CameraBuffers,
+    n_photons: int,
+    seed: int,
+    scramble: wp.vec2i,
+    roughness_cutoff: float,
+    t_max: float,
+    max_bounces: int,
+    footprint_mode: int,
+    landing_offset: int,  # first slot of this view's photons in the landing arrays
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] of this pass (accumulate)
+    landing_pos: wp.array(dtype=wp.vec3),  # (P,) where each photon landed [m], FAR_AWAY if nowhere (write)
+    landing_normal: wp.array(dtype=wp.vec3),  # (P,) receiver normal (write)
+    landing_power: wp.array(dtype=wp.vec3),  # (P,) [W] (write)
+    tally: wp.ref[Tally],  # this thread's ledger share (accumulate)
+):
+    """Ground truth: photons from the light itself, first hit by ray casting, stored by exact visibility.
+
+    Only photons whose first hit is a smooth specular surface are caustic photons; their power is the
+    ledger's ``sampled``. Photons that first hit a diffuse surface are direct light (the shadow-mapped
+    term) and are not counted.
+    """
+    k = t
+    slot = landing_offset + k
+    landing_pos[slot] = wp.vec3(FAR_AWAY)
+    landing_normal[slot] = wp.vec3(0.0)
+    landing_power[slot] = wp.vec3(0.0)
+    u = r2_point(k, scramble)
+    o, d, power = light_sample(light, light_kind, light_rgb, light_pos, spot_axis, cone_angle, cone_softness,
+                               u[0] * float(light.width), u[1] * float(light.height), n_photons)
+    if wp.length(power) <= 0.0:
+        return
+    t0 = float(0.0)
+    if light.orthographic != 0:
+        t0 = light.near
+    tri, x, n, ng = world_hit(ws, o + d * t0, d, t_max)
+    if tri < 0 or is_smooth_specular(ws, tri, roughness_cutoff) == 0:
+        return
+    book(tally, L_SAMPLED, power)
+    m = ws.triangle_material[tri]
+    state = wp.rand_init(seed, k)
+    d, power, refracted, state = specular_bounce(d, n, int(ws.opacity[m] < 1.0), ws.ior[m], ws.albedo[m], power,
+                                                 state, tally)
+    book_bounce(tally, refracted, power)
+    status, y, nr, d, power, state = world_trace(ws, x, ng, d, power, state, roughness_cutoff, t_max, max_bounces,
+                                                 tally)
+    if status != WT_LANDED:
+        return
+    landing_pos[slot] = y
+    landing_normal[slot] = nr
+    landing_power[slot] = power
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        book(tally, L_LOST_CAMERA, power)
+        return
+    # exact visibility: nothing opaque between the receiver and the eye
+    to_eye = view_eye_world(cam.view, y)
+    dist = q[2]
+    if cam.view.orthographic == 0:
+        dist = wp.length(wp.transform_point(cam.view.view_to_world, wp.vec3(0.0)) - y)
+    eps = 1.0e-5 * t_max
+    hit = wp.mesh_query_ray(ws.opaque_mesh, offset_origin(y, nr, to_eye, eps), to_eye, dist - 2.0 * eps)
+    if hit.result:
+        book(tally, L_OCCLUDED, power)
+        return
+    # the surface the pixel shows (its G-buffer sample): a photon on another surface seen in the same pixel
+    # (a silhouette, a crease) is not part of that surface's irradiance, as in every screen-space method
+    zc = cam.depth[pix]
+    if zc <= 0.0:
+        book(tally, L_REJECTED, power)
+        return
+    pixel_size = zc / cam.view.fx
+    if cam.view.orthographic != 0:
+        pixel_size = 1.0 / cam.view.fx
+    if wp.abs(wp.dot(y - cam.position[pix], cam.normal[pix])) > 2.0 * pixel_size:
+        book(tally, L_REJECTED, power)
+        return
+    deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
+            photon_map, tally)
 
 
 @wp.kernel
@@ -253,69 +389,16 @@ def trace_reference(
     landing_power: wp.array(dtype=wp.vec3),  # (P,) [W] (write)
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
 ):
-    """Ground truth: photons from the light itself, first hit by ray casting, stored by exact visibility.
-
-    Only photons whose first hit is a smooth specular surface are caustic photons; their power is the
-    ledger's ``sampled``. Photons that first hit a diffuse surface are direct light (the shadow-mapped
-    term) and are not counted.
-    """
-    k = wp.tid()
-    slot = landing_offset + k
-    landing_pos[slot] = wp.vec3(FAR_AWAY)
-    landing_normal[slot] = wp.vec3(0.0)
-    landing_power[slot] = wp.vec3(0.0)
-    u = r2_point(k, scramble)
-    o, d, power = light_sample(light, light_kind, light_rgb, light_pos, spot_axis, cone_angle, cone_softness,
-                               u[0] * float(light.width), u[1] * float(light.height), n_photons)
-    if wp.length(power) <= 0.0:
-        return
-    t0 = float(0.0)
-    if light.orthographic != 0:
-        t0 = light.near
-    tri, x, n, ng = world_hit(ws, o + d * t0, d, t_max)
-    if tri < 0 or is_smooth_specular(ws, tri, roughness_cutoff) == 0:
-        return
-    book(ledger, L_SAMPLED, power)
-    m = ws.triangle_material[tri]
-    state = wp.rand_init(seed, k)
-    d, power, refracted, state = specular_bounce(d, n, int(ws.opacity[m] < 1.0), ws.ior[m], ws.albedo[m], power,
-                                                 state, ledger)
-    book_bounce(ledger, refracted, power)
-    status, y, nr, d, power, state = world_trace(ws, x, ng, d, power, state, roughness_cutoff, t_max, max_bounces,
-                                                 ledger)
-    if status != WT_LANDED:
-        return
-    landing_pos[slot] = y
-    landing_normal[slot] = nr
-    landing_power[slot] = power
-    pix, q = camera_pixel(cam, y)
-    if pix < 0:
-        book(ledger, L_LOST_CAMERA, power)
-        return
-    # exact visibility: nothing opaque between the receiver and the eye
-    to_eye = view_eye_world(cam.view, y)
-    dist = q[2]
-    if cam.view.orthographic == 0:
-        dist = wp.length(wp.transform_point(cam.view.view_to_world, wp.vec3(0.0)) - y)
-    eps = 1.0e-5 * t_max
-    hit = wp.mesh_query_ray(ws.opaque_mesh, offset_origin(y, nr, to_eye, eps), to_eye, dist - 2.0 * eps)
-    if hit.result:
-        book(ledger, L_OCCLUDED, power)
-        return
-    # the surface the pixel shows (its G-buffer sample): a photon on another surface seen in the same pixel
-    # (a silhouette, a crease) is not part of that surface's irradiance, as in every screen-space method
-    zc = cam.depth[pix]
-    if zc <= 0.0:
-        book(ledger, L_REJECTED, power)
-        return
-    pixel_size = zc / cam.view.fx
-    if cam.view.orthographic != 0:
-        pixel_size = 1.0 / cam.view.fx
-    if wp.abs(wp.dot(y - cam.position[pix], cam.normal[pix])) > 2.0 * pixel_size:
-        book(ledger, L_REJECTED, power)
-        return
-    deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
-            photon_map, ledger)
+    """One thread per light photon (``wp.launch_tiled`` over :func:`~.common.photon_blocks`): trace it, then add
+    the block's ledger once."""
+    block, lane = wp.tid()
+    t = block * wp.block_dim() + lane
+    tally = tally_new()
+    if t < n_photons:
+        trace_reference_photon(t, light, light_kind, light_rgb, light_pos, spot_axis, cone_angle, cone_softness, ws,
+                               cam, n_photons, seed, scramble, roughness_cutoff, t_max, max_bounces, footprint_mode,
+                               landing_offset, photon_map, landing_pos, landing_normal, landing_power, tally)
+    ledger_add(ledger, tally, lane)
 
 
 @wp.kernel
@@ -428,7 +511,6 @@ def camera_paths(
             w = wp.cw_mul(w, ws.albedo[m])
         o = offset_origin(y, g, d, eps)
         bounce += 1
-
 
 
 @wp.kernel

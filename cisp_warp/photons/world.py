@@ -57,7 +57,7 @@ class SSPM(_WorldPass):
         self.cam.view = camera
         for b in self.rsm_batches(frame):
             sp = b.rsm.specular
-            wp.launch(K.trace_sspm, dim=b.n, device=self.device, inputs=[
+            self.launch_photons(K.trace_sspm, b.n, inputs=[
                 b.params, int(b.lights.light.kind), b.light_pos,
                 sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[b.light_index],
                 self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
@@ -152,7 +152,7 @@ class Reference(_WorldPass):
                 for vi, params in enumerate(lm.params):
                     n = self.photons_per_view(lm)
                     sx, sy, rng_seed = frame_random(s.seed, frame, (k + 1) * 4096 + li * 64 + vi)
-                    wp.launch(K.trace_reference, dim=n, device=d, inputs=[
+                    self.launch_photons(K.trace_reference, n, inputs=[
                         params, int(light.kind), wp.vec3(*light.radiometric_rgb.astype(np.float32)),
                         wp.vec3(*np.asarray(light.position, np.float32)),
                         wp.vec3(*np.asarray(light.direction, np.float32)),
