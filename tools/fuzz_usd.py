@@ -472,7 +472,7 @@ def mutate_cli(rng: random.Random) -> tuple[list[str], str, str]:
     """(extra argv, description, the flag it exercises) of one bad or edge cisp-render number."""
     flag, values = rng.choice([
         ("--exposure", ["nan", "inf", "-inf", "1e6", "-1e6", "128", "1e300", "3", "-2"]),
-        ("--frames", ["0:2000000000", "0:1", "-5:-3", "1e3:2", "0:100000", "nan:3", "0:2"]),
+        ("--frames", ["0:2000000000", "0:1", "-5:-3", "1e3:2", "0:100001", "nan:3", "0:2", "5:5", "3:1"]),
         ("--width", ["0", "-1", "100000", "1", "2147483647"]),
         ("--height", ["0", "-1", "100000", "1"]),
         ("--photons", ["0", "1", "1e12", "10000000000000", "nan", "1.5", "inf"]),
@@ -637,6 +637,16 @@ def _warm_up(seeds: list[Path], scratch: Path, smoke: bool) -> None:
             shutil.rmtree(out, ignore_errors=True)
 
 
+def _die_with_parent() -> None:
+    """Linux: the worker is killed when the fuzzer dies, so no case outlives an interrupted run."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _vm_bytes() -> int:
     with open("/proc/self/statm") as f:
         return int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
@@ -691,6 +701,16 @@ def run(args) -> int:
             print(f"[{case['id']}] {outcome}: {case['seed_stage']} {case['method']} {case['mutation']} :: "
                   f"{message[:200]}", flush=True)
 
+    def stop(signum, frame):  # an interrupted run takes its workers (and their process groups) with it
+        for pid in list(running):
+            try:
+                os.killpg(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        raise SystemExit(f"fuzz_usd: stopped by signal {signum} after {len(results)} cases")
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
     while pending or running:
         while pending and len(running) < args.jobs:
             case = pending.pop(0)
@@ -700,6 +720,7 @@ def run(args) -> int:
             if pid == 0:  # worker
                 code = 0
                 try:
+                    _die_with_parent()
                     os.setpgid(0, 0)
                     resource.setrlimit(resource.RLIMIT_AS, (mem_cap, mem_cap))
                     fd = os.open(case_dir / "worker.log", os.O_WRONLY | os.O_CREAT, 0o644)

@@ -40,9 +40,16 @@ Camera
     that aspect ratio.
 
 Errors
-    Anything unusable raises :class:`SceneError` whose message names the file, the prim and the reason;
-    USD's own errors (``pxr.Tf.ErrorException``) are re-raised as :class:`SceneError`. A resolution is
-    checked against device memory (``GBUFFER_BYTES_PER_PIXEL``) before anything is allocated.
+    Anything unusable raises :class:`SceneError` whose message names the file, the prim, the attribute
+    and what was expected; USD's own errors (``pxr.Tf.ErrorException``) are re-raised as
+    :class:`SceneError`. What is ignored or clamped is a :class:`SceneWarning` naming the same. Every
+    attribute is checked where it is read (:func:`~cisp_warp.usd.stage.typed_get`: its type, then element
+    counts and ranges): positions within ``MAX_EXTENT_M`` of the origin, light power within float32
+    headroom (``lights.MAX_LIGHT_POWER``), ``cisp:water`` parameters within ``sim.params``' bounds and their
+    rest grid regular (:mod:`cisp_warp.usd.water`), image edges at most ``MAX_EDGE``. Before USD composes
+    the stage, :mod:`cisp_warp.usd.guard` checks every layer it would read (regular files, size caps) and
+    parses them in a guarded step (deadline, memory cap). A resolution is checked against device memory
+    (``GBUFFER_BYTES_PER_PIXEL``) before anything is allocated.
 """
 
 from __future__ import annotations
