@@ -151,3 +151,19 @@ def test_missing_reference_warns_and_still_loads(valid_stage):
     with pytest.warns(SceneWarning, match="gone.usda"):
         scene = load_usd(valid_stage)
     assert scene.triangle_count == 2
+
+
+def test_references_that_multiply_are_refused(tmp_path, monkeypatch):
+    """Each level references the next twice: 2^depth prims once composed (with depth 30, a hang before)."""
+    from cisp_warp.usd import guard
+
+    monkeypatch.setattr(guard, "MAX_PRIMS", 100)
+    depth = 8
+    text = ['#usda 1.0\n(\n    defaultPrim = "L0"\n)\n', f'def Xform "L{depth}"\n{{\n}}\n']
+    for d in range(depth - 1, -1, -1):
+        arcs = "".join(f'    def Xform "{c}" (\n        references = </L{d + 1}>\n    )\n    {{\n    }}\n' for c in "AB")
+        text.append(f'def Xform "L{d}"\n{{\n{arcs}}}\n')
+    path = tmp_path / "laughs.usda"
+    path.write_text("".join(text))
+    with pytest.raises(SceneError, match=r"laughs\.usda.*more than 100 prims"):
+        load_usd(path, device="cpu")

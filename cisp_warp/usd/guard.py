@@ -11,7 +11,10 @@ crash it. So before the stage is composed, :func:`check_layers`
    left to USD, which reports it as a composition error: the importer warns); each file at most
    ``MAX_LAYER_BYTES``, all of them at most ``MAX_TOTAL_BYTES``, at most ``MAX_LAYERS`` layers; a
    ``.usda`` must be UTF-8 text;
-2. does that walk, which parses every layer, in a forked child with a memory cap
+2. composes the stage once and counts its prims (instance proxies included): at most ``MAX_PRIMS``,
+   so references that multiply each other (a prim that references two copies of a prim that
+   references two copies ...) are refused before the importer traverses them;
+3. does both, which parse every layer, in a forked child with a memory cap
    (``RLIMIT_AS``: ``PARSE_MEMORY_BYTES`` plus ``PARSE_BYTES_PER_FILE_BYTE`` per byte of the files)
    and a deadline (``PARSE_SECONDS`` plus ``PARSE_SECONDS_PER_MB``): a parse that runs past it, dies
    of a signal or runs out of memory is a :class:`SceneError` naming the file.
@@ -39,6 +42,7 @@ from ..errors import SceneError
 MAX_LAYER_BYTES = 512 << 20  #: largest layer file USD may parse [bytes]
 MAX_TOTAL_BYTES = 2 << 30  #: all layers of a stage together [bytes]
 MAX_LAYERS = 10_000  #: layers a stage may pull in
+MAX_PRIMS = 2_000_000  #: prims of the composed stage, instance proxies included
 PARSE_SECONDS = 30.0  #: deadline of the guarded parse [s] ...
 PARSE_SECONDS_PER_MB = 2.0  #: ... plus this per MB of layer files
 PARSE_MEMORY_BYTES = 2 << 30  #: memory the parse may add to the process [bytes] ...
@@ -177,6 +181,22 @@ def walk_layers(path: str) -> tuple[int, int, list]:
     return len(seen), total, [_signature(p) for p in sorted(seen)]
 
 
+def count_prims(path: str) -> int:
+    """Compose ``path`` and count its prims up to ``MAX_PRIMS`` (then :class:`SceneError`)."""
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+    if stage is None:
+        raise SceneError("USD could not open the file (not a USD file, truncated or unreadable)", file=path)
+    n = 0
+    for _ in Usd.PrimRange(stage.GetPseudoRoot(), Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)):
+        n += 1
+        if n > MAX_PRIMS:
+            raise SceneError(f"the composed stage has more than {MAX_PRIMS} prims (references or instances that "
+                             "multiply each other?)", file=path)
+    return n
+
+
 def _vm_bytes() -> int:
     try:
         with open("/proc/self/statm") as f:
@@ -193,6 +213,7 @@ def check_layers(path: str) -> None:
         return
     if not hasattr(os, "fork"):
         _PASSED[root] = walk_layers(path)[2]
+        count_prims(path)
         return
     size = os.path.getsize(path)
     deadline = PARSE_SECONDS + PARSE_SECONDS_PER_MB * size / 1e6
@@ -208,14 +229,20 @@ def check_layers(path: str) -> None:
                 pass
             try:
                 layers, nbytes, signatures = walk_layers(path)
-                msg = {"ok": True, "layers": layers, "bytes": nbytes, "signatures": signatures}
+                os.write(write_end, b'{"phase": "compose"}\n')
+                prims = count_prims(path)
+                msg = {"ok": True, "layers": layers, "bytes": nbytes, "prims": prims, "signatures": signatures}
             except SceneError as exc:
                 msg = {"reason": exc.reason, "file": exc.file, "prim": exc.prim}
             except MemoryError:
                 msg = {"reason": "parsing it ran out of memory"}
+            except Tf.ErrorException as exc:
+                from .stage import tf_reason
+
+                msg = {"reason": f"not a readable USD file ({tf_reason(exc)})"}
             except Exception as exc:  # noqa: BLE001 - reported as the file's fault, by type and text
                 msg = {"reason": f"USD failed to parse it ({type(exc).__name__}: {str(exc)[:300]})"}
-            os.write(write_end, json.dumps(msg).encode())
+            os.write(write_end, json.dumps(msg).encode() + b"\n")
         finally:
             os._exit(0)
     os.close(write_end)
@@ -226,6 +253,9 @@ def check_layers(path: str) -> None:
             if left <= 0.0:
                 os.kill(pid, signal.SIGKILL)
                 os.waitpid(pid, 0)
+                if b"compose" in b"".join(chunks):
+                    raise SceneError(f"composing the stage did not finish within {deadline:.0f} s: its references "
+                                     "or instances multiply into far too many prims", file=path)
                 raise SceneError(f"USD's parser did not finish within {deadline:.0f} s: the file is malformed "
                                  "(e.g. an array of the wrong shape that the parser cannot recover from) or "
                                  "far too large", file=path)
@@ -238,12 +268,14 @@ def check_layers(path: str) -> None:
         _, status = os.waitpid(pid, 0)
     finally:
         os.close(read_end)
-    text = b"".join(chunks).decode("utf-8", "replace")
+    lines = [ln for ln in b"".join(chunks).decode("utf-8", "replace").splitlines() if ln.strip()]
+    text = lines[-1] if lines and "phase" not in lines[-1] else ""
     if os.WIFSIGNALED(status) or not text:
         sig = os.WTERMSIG(status) if os.WIFSIGNALED(status) else None
         name = signal.Signals(sig).name if sig else "no answer"
-        raise SceneError(f"USD's parser crashed on it ({name}; out of memory past "
-                         f"{cap / 2**30:.1f} GiB, or a corrupt file)", file=path)
+        step = "composing the stage" if any("phase" in ln for ln in lines) else "parsing it"
+        raise SceneError(f"USD crashed {step} ({name}; out of memory past {cap / 2**30:.1f} GiB, or a corrupt "
+                         "file)", file=path)
     msg = json.loads(text)
     if not msg.get("ok"):
         raise SceneError(msg["reason"], file=msg.get("file") or path, prim=msg.get("prim"))
