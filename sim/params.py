@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import reprlib
 from dataclasses import dataclass
 from numbers import Integral, Real
 from typing import Any, Mapping
@@ -40,7 +41,7 @@ class SimParameterError(ValueError):
 
 
 def _fail(name: str, value: Any, fix: str) -> SimParameterError:
-    return SimParameterError(f"{name}={value!r} is invalid: {fix}")
+    return SimParameterError(f"{name}={reprlib.repr(value)} is invalid: {fix}")  # long values abbreviated
 
 
 def check_finite(name: str, value: Any, minimum: float | None = None, strict: bool = False,

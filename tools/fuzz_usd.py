@@ -561,7 +561,7 @@ def run_case_in_child(case: dict, seeds_dir: Path, case_dir: Path, result_path: 
                 res["rc"] = exc.code if isinstance(exc.code, int) else 2
             except BaseException:  # noqa: BLE001 - exactly what the fuzzer looks for
                 res["traceback"] = traceback.format_exc()[-3000:]
-        res["stderr"] = err.getvalue()[-3000:]
+        res["stderr"] = err.getvalue()[-20000:]
         nonfinite, shapes = [], set()
         for f in sorted(out.glob("*.npy")):
             a = np.load(f)
@@ -685,7 +685,7 @@ def run(args) -> int:
             except ValueError:
                 res = None
         outcome, message = classify(case, res, status)
-        case.update(outcome=outcome, message=message[:400], seconds=round(time.monotonic() - t0, 2),
+        case.update(outcome=outcome, message=message[:1000], seconds=round(time.monotonic() - t0, 2),
                     mutation=(res or {}).get("mutation", case.get("mutation")), argv=(res or {}).get("argv"))
         results.append(case)
         if outcome in FAILURES or outcome == "fuzzer_error" or args.keep:

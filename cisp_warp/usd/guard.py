@@ -34,6 +34,7 @@ import select
 import signal
 import stat
 import time
+import warnings
 
 from pxr import Sdf, Tf
 
@@ -219,7 +220,9 @@ def check_layers(path: str) -> None:
     deadline = PARSE_SECONDS + PARSE_SECONDS_PER_MB * size / 1e6
     cap = _vm_bytes() + PARSE_MEMORY_BYTES + PARSE_BYTES_PER_FILE_BYTE * size
     read_end, write_end = os.pipe()
-    pid = os.fork()
+    with warnings.catch_warnings():  # Python 3.12+ warns of fork in a threaded process: the child only parses
+        warnings.simplefilter("ignore", DeprecationWarning)
+        pid = os.fork()
     if pid == 0:  # the child: parse, report one line of JSON, leave without running any cleanup
         os.close(read_end)
         try:

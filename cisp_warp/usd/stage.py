@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import reprlib
 import sys
 import warnings
 from dataclasses import dataclass, field
@@ -189,7 +190,7 @@ def finite_float(value, what: str, prim: str, lo: float | None = None, hi: float
     try:
         x = float(value)
     except (TypeError, ValueError):
-        raise SceneError(f"{what} must be a number, got {value!r}", prim=prim) from None
+        raise SceneError(f"{what} must be a number, got {reprlib.repr(value)}", prim=prim) from None
     if not math.isfinite(x):
         raise SceneError(f"{what} is {x}: it must be finite", prim=prim)
     if (lo is not None and x < lo) or (hi is not None and x > hi):
@@ -205,7 +206,7 @@ def finite_vec3(value, what: str, prim: str, bound: float = FLOAT32_MAX) -> np.n
     except (TypeError, ValueError):
         v = np.zeros(0)
     if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise SceneError(f"{what} must be three finite numbers, got {python_value(value)!r}"[:300], prim=prim)
+        raise SceneError(f"{what} must be three finite numbers, got {reprlib.repr(python_value(value))}", prim=prim)
     if np.any(np.abs(v) > bound):
         raise SceneError(f"{what} = {tuple(float(c) for c in v)} has a component beyond ±{bound:g}", prim=prim)
     return v
