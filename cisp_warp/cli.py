@@ -15,11 +15,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="cisp-render",
         description="Render a USD scene with screen-space caustics (Cascaded Image-Space Photon Tracing) on "
-        "NVIDIA Warp. Writes final.png plus every AOV as NAME.exr and NAME.npy (float32, SI units).",
+        "NVIDIA Warp. Writes final.png (tone mapped), final.exr (HDR radiance, W/(m2 sr)) and aovs.exr: one "
+        "multi-channel EXR of the main AOVs (R,G,B beauty; caustics.*, direct.*, sky.* irradiance in W/m2; "
+        "Z depth in m; N.X/Y/Z normal; id triangle id).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("scene", help="USD stage to render (.usda, .usdc, .usd)")
-    p.add_argument("--out", default="out", help="output folder (created if missing)")
+    p.add_argument("scene", nargs="?", default=None, help="USD stage to render (.usda, .usdc, .usd)")
+    p.add_argument("--demo", default=None, metavar="NAME",
+                   help="render a scene that ships with cisp_warp instead: pool (the default demo) or cornell")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    p.add_argument("--out", default="out", help="output folder (created if missing; checked before rendering)")
     p.add_argument("--device", default=None,
                    help="Warp device: cpu or cuda:0 (default: cuda:0 when a GPU is present, else cpu)")
     p.add_argument("--width", type=int, default=None, help="image width [pixels] (default: the stage's render settings, else 640)")
@@ -28,14 +33,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", default=None, help="prim path of the camera (default: the first camera found)")
     p.add_argument("--rsm-size", type=int, default=1024, help="edge of each reflective shadow map view [texels]")
     p.add_argument("--method", default="cisp", choices=["cisp", "sspm", "caustics_map", "reference", "none"],
-                   help="caustics method: cisp (Cascaded Image-Space Photon Tracing, seed 000), sspm (world-space "
-                   "Screen-Space Photon Mapping, seed 003), caustics_map (light-space Caustics Mapping, seed 004), "
+                   help="caustics method: cisp (Cascaded Image-Space Photon Tracing, Meenrattanakorn & Lambers), sspm "
+                   "(world-space Screen-Space Photon Mapping, Kim 2019), caustics_map (light-space Caustics Mapping, "
+                   "Wyman & Davis 2006), "
                    "reference (converged world-space photon tracing, no denoising: the ground truth), "
                    "or none (direct light only)")
     p.add_argument("--photons", type=parse_count, default=parse_count("1M"),
                    help="photons per light per frame; accepts 500k, 1M, 2M, or a plain integer")
     p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"],
-                   help="photon-map denoiser: SVGF, the 7x7 Gaussian gather of seed 004, or none")
+                   help="photon-map denoiser: SVGF, the 7x7 Gaussian gather of Caustics Mapping, or none")
     p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
     p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
                    help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")
@@ -45,22 +51,46 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-bounces", type=int, default=8, help="sspm, reference: specular bounces before a photon is dropped")
     p.add_argument("--cmap-gather", default="light", choices=["light", "eye"],
                    help="caustics_map: Gaussian gather in the light-space caustic map, or leave it to the eye-space denoiser")
-    p.add_argument("--cmap-history", type=int, default=4, help="caustics_map: frames averaged by seed 004's temporal filter")
+    p.add_argument("--cmap-history", type=int, default=4, help="caustics_map: frames averaged by Caustics Mapping's temporal filter")
     p.add_argument("--reference-photons", type=parse_count, default=None,
                    help="reference: photons per light to accumulate, in passes of --photons (default: 100M on CUDA, 4M on CPU)")
     p.add_argument("--frames", default=None, metavar="A:B",
                    help="render time codes A..B-1 as a sequence: final.####.png and final.mp4, the temporal filter "
                    "carried across frames")
     p.add_argument("--frame-aovs", action="store_true",
-                   help="with --frames, also write photon_map, caustics and final of every frame as NAME.####.exr/.npy")
+                   help="with --frames, also write final, caustics and photon_map of every frame as layers of aovs.####.exr")
     p.add_argument("--no-sim", action="store_true",
                    help="render the stage's own water points (baked time samples or the rest grid) instead of "
                    "simulating cisp:water meshes with sim/")
     p.add_argument("--stats", action="store_true", help="print the photon energy ledger of each frame")
     p.add_argument("--exposure", type=float, default=None, help="tone-mapping exposure in stops (default: automatic)")
-    p.add_argument("--no-rsm-aovs", action="store_true", help="do not write the rsm_<light>_* AOVs")
+    p.add_argument("--aovs", default=None, metavar="LIST",
+                   help="more AOVs as layers of aovs.exr, comma separated (photon_map, position, albedo, roughness, "
+                   "motion, water_depth, water_normal, ...), or 'all'")
+    p.add_argument("--npy", action="store_true", help="also write every AOV of aovs.exr as NAME.npy (float32, int32)")
+    p.add_argument("--rsm-aovs", action="store_true",
+                   help="also write the light views' buffers (reflective shadow maps) as layers of rsm.exr")
+    p.add_argument("--supersample", type=int, default=2,
+                   help="anti-aliasing: N x N samples per pixel (1 = off)")
+    p.add_argument("--no-rsm-aovs", action="store_true", help=argparse.SUPPRESS)  # the default now
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return p
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+#: RenderSettings / PhotonSettings fields whose cisp-render flag is not --field-name
+FLAGS = {"reference_photons": "--reference-photons", "supersample": "--supersample"}
+
+
+def flag_of(exc) -> str:
+    """A SettingsError's message in the command line's words: the field becomes its flag."""
+    flag = FLAGS.get(exc.field, "--" + exc.field.replace("_", "-"))
+    return f"{flag} {exc.detail}"
 
 
 def parse_count(text: str) -> int:
@@ -119,14 +149,48 @@ def check_numbers(args, device: str) -> None:
             raise SceneError(f"{flag} must lie in [0, 1], got {v}")
 
 
+def parse_aov_list(text: str | None) -> list[str]:
+    if not text:
+        return []
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise SceneError(f"--aovs must be a comma-separated list of AOV names or 'all', got {text!r}")
+    return names
+
+
+def write_outputs(out_dir: str, aovs: dict, extra: list[str], exposure, npy: bool = False, rsm: bool = False) -> list[str]:
+    """final.png, final.exr and aovs.exr (the main AOVs plus ``extra``); .npy and rsm.exr when asked. Paths."""
+    from .image_io import MAIN_AOVS, write_aovs, write_layers, write_png
+
+    paths = [os.path.join(out_dir, n) for n in ("final.png", "final.exr", "aovs.exr")]
+    write_png(paths[0], aovs["final"], exposure)
+    write_layers(paths[1], {"final": aovs["final"]})  # R, G, B; float16 where it fits
+    views = {k: v for k, v in aovs.items() if not k.startswith("rsm_")}
+    keep = [k for k in MAIN_AOVS if k in views] + [k for k in views if k not in MAIN_AOVS and ("all" in extra or k in extra)]
+    layers = {k: views[k] for k in keep}
+    write_layers(paths[2], layers)
+    if npy:
+        paths += write_aovs(out_dir, layers, exr=False, npy=True)
+    if rsm:
+        maps = {k: v for k, v in aovs.items() if k.startswith("rsm_")}
+        by_size = {}
+        for k, v in maps.items():
+            by_size.setdefault(v.shape[:2], {})[k] = v
+        for i, group in enumerate(by_size.values()):
+            p = os.path.join(out_dir, "rsm.exr" if i == 0 else f"rsm{i}.exr")
+            write_layers(p, group)
+            paths.append(p)
+    return paths
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
-    from .image_io import write_aovs, write_png
+    from .image_io import check_out_dir
     from .photons import PhotonSettings
-    from .render import Renderer, RenderSettings
+    from .render import Renderer, RenderSettings, SettingsError
     from .usd import load_usd
 
     def say(msg):
@@ -134,25 +198,37 @@ def main(argv: list[str] | None = None) -> int:
             print(msg, file=sys.stderr)
 
     try:
-        wp.init()
-        device = args.device or ("cuda:0" if wp.is_cuda_available() else "cpu")
+        if (args.scene is None) == (args.demo is None):
+            raise SceneError("give a USD file to render or --demo NAME (pool or cornell), not both"
+                             if args.scene else "give a USD file to render, or --demo pool for the shipped pool")
+        from .api import demo, pick_device
+
+        scene_path = demo(args.demo) if args.demo else args.scene
+        if not os.path.exists(scene_path):
+            raise SceneError("not found: no such USD file", file=scene_path)
+        check_out_dir(args.out)
         try:
-            wp.get_device(device)
-        except (RuntimeError, ValueError) as e:
-            raise SceneError(f"unknown --device '{device}': {e}. Use cpu or cuda:N") from e
-        photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
-                                 roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff,
-                                 max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
-                                 cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0)
-        settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
-                                  method=args.method, photons=photons, denoiser=args.denoiser)
-        settings.validate()
+            device = pick_device(args.device)
+        except SceneError as e:
+            raise SceneError(f"--device: {e}") from None
+        try:
+            photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
+                                     roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff,
+                                     max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
+                                     cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0)
+            settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
+                                      method=args.method, photons=photons, denoiser=args.denoiser,
+                                      supersample=args.supersample)
+        except SettingsError as e:
+            raise SceneError(flag_of(e)) from None
         check_numbers(args, device)
+        extra = parse_aov_list(args.aovs)
         frames = parse_frames(args.frames) if args.frames else None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)
             first = frames.start if frames else args.time
-            scene = load_usd(args.scene, time_code=first, width=args.width, height=args.height, camera_path=args.camera, device=device)
+            scene = load_usd(scene_path, time_code=first, width=args.width, height=args.height,
+                             camera_path=args.camera, device=device)
         for w in caught:
             say(f"warning: {w.message}")
         exposure = None if args.exposure is None else 2.0 ** args.exposure
@@ -160,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         renderer = Renderer(scene, settings, device=device)
         from .animation import Animation
 
-        animation = Animation(renderer, args.scene, camera_path=args.camera, simulate=not args.no_sim)
+        animation = Animation(renderer, scene_path, camera_path=args.camera, simulate=not args.no_sim)
         if getattr(renderer.photons, "passes", 1) > 4 and not args.quiet:
             from tqdm import tqdm
 
@@ -169,15 +245,17 @@ def main(argv: list[str] | None = None) -> int:
         if frames is None:
             animation.set_time_code(scene.time_code)
             renderer.render_frame()
-            aovs = renderer.aovs(include_rsm=not args.no_rsm_aovs)
+            aovs = renderer.aovs(include_rsm=args.rsm_aovs)
             dt = time.perf_counter() - t0
-            written = write_aovs(args.out, aovs)
-            write_png(os.path.join(args.out, "final.png"), aovs["final"], exposure)
+            unknown = [n for n in extra if n != "all" and n not in aovs]
+            if unknown:
+                raise SceneError(f"--aovs: no AOV named {', '.join(unknown)} (this render has: "
+                                 f"{', '.join(sorted(k for k in aovs if not k.startswith('rsm_')))})")
+            written = write_outputs(args.out, aovs, extra, exposure, npy=args.npy, rsm=args.rsm_aovs)
             if args.stats and renderer.photons is not None:
                 print(renderer.photons.read_ledger().table())
-            cam = renderer.scene.camera
-            say(f"rendered {args.scene} at {cam.width}x{cam.height} on {device} in {dt:.2f} s; "
-                f"wrote final.png and {len(written)} AOV files to {args.out}")
+            say(f"rendered {scene_path} at {renderer.width}x{renderer.height} on {device} in {dt:.2f} s; "
+                f"wrote {', '.join(os.path.basename(w) for w in written)} to {args.out}")
         else:
             from functools import partial
 
@@ -197,9 +275,17 @@ def main(argv: list[str] | None = None) -> int:
                                                                           disable=args.quiet))
             for w in caught:
                 say(f"warning: {w.message}")
-            say(f"rendered {args.scene} time codes {frames.start}..{frames.stop - 1} on {device} in "
+            if stats.interrupted:
+                say(f"cisp-render: interrupted after {len(stats.codes)} of {len(frames)} frames; kept "
+                    f"final.####.png of those{' and a closed final.mp4' if stats.video else ''} in {args.out}")
+                return 130
+            say(f"rendered {scene_path} time codes {frames.start}..{frames.stop - 1} on {device} in "
                 f"{time.perf_counter() - t0:.2f} s to {args.out} (final.####.png"
                 f"{', final.mp4' if stats.video else ''}): {stats.summary()}")
+    except KeyboardInterrupt:
+        print(f"cisp-render: interrupted; files already written to {args.out} are complete and kept",
+              file=sys.stderr)
+        return 130
     except SceneError as e:
         print(f"cisp-render: error: {e}", file=sys.stderr)
         return 2

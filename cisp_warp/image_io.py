@@ -1,4 +1,12 @@
-"""Image output: float32 AOVs as OpenEXR and .npy, the HDR image tone-mapped to an 8-bit sRGB PNG."""
+"""Image output: AOVs as one multi-channel OpenEXR (compositor channel names), the HDR image as EXR and as
+an 8-bit sRGB PNG, optional .npy; every file written under a temporary name and renamed when complete.
+
+The layered EXR (:func:`write_layers`): the beauty as ``R, G, B``, every other AOV as a layer
+``NAME.R/G/B`` (colours, irradiances), ``NAME.X/Y/Z`` (positions, normals, motion), ``Z`` (depth) or a
+bare ``NAME`` (scalars); integer ids as UINT (−1, none, becomes 4294967295). Colour layers are stored as
+float16 (HALF) when every value fits (|v| < 60000; float16 keeps 3 significant digits, below what a
+display or a compositing grade resolves), else float32; depth and positions always float32.
+"""
 
 from __future__ import annotations
 
@@ -9,12 +17,32 @@ import numpy as np
 from .errors import SceneError
 
 
+def atomic_path(path: str) -> str:
+    """Temporary name beside ``path`` to write to before :func:`os.replace` puts the file in place."""
+    d, name = os.path.split(path)
+    return os.path.join(d, f".{name}.partial")
+
+
+def check_out_dir(out_dir: str) -> None:
+    """Create ``out_dir`` if needed and make sure files can be written there, before any rendering."""
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as e:
+        raise SceneError(f"cannot create the output folder: {e.strerror}", file=out_dir) from None
+    if not os.path.isdir(out_dir):
+        raise SceneError("the output path exists and is not a folder", file=out_dir)
+    probe = os.path.join(out_dir, f".cisp_write_test_{os.getpid()}")
+    try:
+        with open(probe, "wb") as f:
+            f.write(b"0")
+        os.remove(probe)
+    except OSError as e:
+        raise SceneError(f"the output folder is not writable: {e.strerror}", file=out_dir) from None
+
+
 def write_exr(path: str, image: np.ndarray) -> None:
     """Write a float32 image: (H, W) as channel Y, (H, W, 3) as RGB, (H, W, 2) as R, G (ZIP compression)."""
-    import OpenEXR
-
     a = np.ascontiguousarray(np.asarray(image, dtype=np.float32))
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     if a.ndim == 2:
         channels = {"Y": a}
     elif a.ndim == 3 and a.shape[2] == 3:
@@ -23,7 +51,67 @@ def write_exr(path: str, image: np.ndarray) -> None:
         channels = {name: np.ascontiguousarray(a[..., k]) for k, name in enumerate("RGBA"[: a.shape[2]])}
     else:
         raise ValueError(f"cannot write an image of shape {a.shape} to '{path}'")
-    OpenEXR.File(header, channels).write(path)
+    _write_channels(path, channels)
+
+
+def _write_channels(path: str, channels: dict[str, np.ndarray]) -> None:
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    tmp = atomic_path(path)
+    try:
+        OpenEXR.File(header, channels).write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+#: suffixes of a layer's channels by AOV kind; the beauty ("final") is the unprefixed R, G, B
+VECTOR_AOVS = ("position", "normal", "water_position", "water_normal", "motion")
+MAIN_AOVS = ("final", "caustics", "direct_irradiance", "sky_irradiance", "depth", "normal", "tri_id")
+#: conventional layer names of the main AOVs
+LAYER_NAMES = {"final": "", "caustics": "caustics", "direct_irradiance": "direct", "sky_irradiance": "sky",
+               "depth": "Z", "normal": "N", "tri_id": "id", "photon_map": "photon_map"}
+HALF_MAX = 60000.0
+
+
+def exr_channels(aovs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Channel name -> (H, W) array (float16, float32 or uint32) for :func:`write_layers` (see the module doc)."""
+    out = {}
+    for name, a in aovs.items():
+        a = np.asarray(a)
+        layer = LAYER_NAMES.get(name, name)
+        if a.dtype.kind in "iu":
+            if a.ndim != 2:
+                raise ValueError(f"integer AOV '{name}' must be (H, W)")
+            out[layer] = np.ascontiguousarray(a.astype(np.int64).astype(np.uint32))
+            continue
+        a = a.astype(np.float32)
+        exact = name in ("depth", "position", "water_depth", "water_position") or a.ndim == 2 and name != "roughness"
+        if not exact and np.all(np.isfinite(a)) and (a.size == 0 or float(np.abs(a).max()) < HALF_MAX):
+            a = a.astype(np.float16)
+        if a.ndim == 2:
+            out[layer] = np.ascontiguousarray(a)
+            continue
+        names = "XYZ" if name in VECTOR_AOVS else "RGBA"
+        for k in range(a.shape[2]):
+            out[f"{layer}.{names[k]}" if layer else names[k]] = np.ascontiguousarray(a[..., k])
+    return out
+
+
+def write_layers(path: str, aovs: dict[str, np.ndarray]) -> None:
+    """One multi-channel EXR of ``aovs`` (channel names in the module docstring), written atomically."""
+    _write_channels(path, exr_channels(aovs))
+
+
+def read_layers(path: str) -> dict[str, np.ndarray]:
+    """Every channel of an EXR: name -> (H, W) array in its stored type (float16, float32, uint32)."""
+    import OpenEXR
+
+    with OpenEXR.File(path, separate_channels=True) as f:
+        return {name: np.asarray(c.pixels) for name, c in f.channels().items()}
 
 
 def read_exr(path: str) -> np.ndarray:
@@ -68,7 +156,14 @@ def tonemap(hdr: np.ndarray, exposure: float | None = None) -> np.ndarray:
 def write_png(path: str, hdr: np.ndarray, exposure: float | None = None) -> None:
     from PIL import Image
 
-    Image.fromarray(tonemap(hdr, exposure)).save(path)
+    tmp = atomic_path(path)
+    try:
+        Image.fromarray(tonemap(hdr, exposure)).save(tmp, format="PNG")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
 
 
 def write_aovs(out_dir: str, aovs: dict[str, np.ndarray], exr: bool = True, npy: bool = True) -> list[str]:
@@ -84,7 +179,9 @@ def write_aovs(out_dir: str, aovs: dict[str, np.ndarray], exr: bool = True, npy:
             a = a.astype(np.float32)
         if npy:
             p = os.path.join(out_dir, f"{name}.npy")
-            np.save(p, a)
+            tmp = atomic_path(p) + ".npy"
+            np.save(tmp, a)
+            os.replace(tmp, p)
             written.append(p)
         if exr:
             p = os.path.join(out_dir, f"{name}.exr")

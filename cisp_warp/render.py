@@ -3,12 +3,17 @@
 >>> r = Renderer(load_usd("scenes_usd/cornell_flooded.usda"), RenderSettings(), device="cpu")
 >>> r.render_frame()
 >>> aovs = r.aovs()          # dict of numpy arrays, host copies
+
+``cisp_warp.render`` is this module and, called, :func:`cisp_warp.api.render` (the one-call API).
 """
 
 from __future__ import annotations
 
 from contextlib import nullcontext
-from dataclasses import dataclass, field, replace
+import re
+import sys
+import types
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 import warp as wp
@@ -19,11 +24,18 @@ from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .raster import GBuffer, LightMaps, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
+from .sky import SkyLighting, sky_map
 
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """What a render is asked for. Frozen and hashable: passes may specialise kernels on it."""
+    """What a render is asked for. Frozen and hashable: passes may specialise kernels on it.
+
+    Plain values are accepted where a settings object is expected: ``RenderSettings(photons=100_000)``
+    means ``PhotonSettings(photons=100_000)``, and a dict gives the fields of ``photons`` or ``svgf``.
+    A bad value raises :class:`SettingsError` naming the field (``RenderSettings.width``,
+    ``PhotonSettings.photons``, ...).
+    """
 
     width: int | None = None  #: image width [pixels]; None = the scene camera's
     height: int | None = None  #: image height [pixels]; None = the scene camera's
@@ -32,19 +44,83 @@ class RenderSettings:
     photons: PhotonSettings = PhotonSettings()
     denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
+    supersample: int = 1  #: anti-aliasing: s × s samples per pixel (every pass runs at s·width × s·height,
+    #: the AOVs are box-filtered down); 1 = one sample per pixel. ``cisp_warp.render`` and the CLI use 2.
+    sky_maps: int = 32  #: occlusion maps of the sky term (directions over the sphere)
+    sky_map_size: int = 256  #: edge of each sky occlusion map [texels]
+
+    def __post_init__(self):
+        photons = self.photons
+        if isinstance(photons, (int, np.integer)) and not isinstance(photons, bool):
+            photons = PhotonSettings(photons=int(photons))
+        elif isinstance(photons, dict):
+            photons = _from_dict(PhotonSettings, photons, "PhotonSettings")
+        elif not isinstance(photons, PhotonSettings):
+            raise SettingsError("photons", f"must be a photon count or a PhotonSettings, got {photons!r}",
+                                owner="RenderSettings")
+        object.__setattr__(self, "photons", photons)
+        svgf = self.svgf
+        if isinstance(svgf, dict):
+            svgf = _from_dict(SVGFSettings, svgf, "SVGFSettings")
+        elif not isinstance(svgf, SVGFSettings):
+            raise SettingsError("svgf", f"must be an SVGFSettings or a dict of its fields, got {svgf!r}",
+                                owner="RenderSettings")
+        object.__setattr__(self, "svgf", svgf)
+        self.validate()
 
     def validate(self) -> None:
+        """Raise :class:`SettingsError` naming the first field whose value cannot be rendered."""
         for name in ("width", "height"):
             v = getattr(self, name)
-            if v is not None and (not isinstance(v, (int, np.integer)) or v <= 0):
-                raise SceneError(f"--{name} must be a positive integer, got {v!r}")
-        if not isinstance(self.rsm_size, (int, np.integer)) or not (1 <= self.rsm_size <= 16384):
-            raise SceneError(f"--rsm-size must be an integer in [1, 16384], got {self.rsm_size!r}")
+            if v is not None and not _is_int(v, 1):
+                raise SettingsError(name, f"must be a positive integer, got {v!r}")
+        if not _is_int(self.rsm_size, 1, 16384):
+            raise SettingsError("rsm_size", f"must be an integer in [1, 16384], got {self.rsm_size!r}")
         if self.method not in METHODS:
-            raise SceneError(f"--method must be one of {', '.join(METHODS)}, got {self.method!r}")
+            raise SettingsError("method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
         if self.denoiser not in DENOISERS:
-            raise SceneError(f"--denoiser must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
-        self.photons.validate()
+            raise SettingsError("denoiser", f"must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
+        if not _is_int(self.supersample, 1, 8):
+            raise SettingsError("supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
+        if not _is_int(self.sky_maps, 0, 1024):
+            raise SettingsError("sky_maps", f"must be an integer in [0, 1024], got {self.sky_maps!r}")
+        if not _is_int(self.sky_map_size, 1, 8192):
+            raise SettingsError("sky_map_size", f"must be an integer in [1, 8192], got {self.sky_map_size!r}")
+        try:
+            self.photons.validate()
+        except SceneError as exc:  # its messages name cisp-render flags: say the field instead
+            flag = re.match(r"--([a-z-]+) (.*)", exc.reason)
+            name, rest = (flag.group(1).replace("-", "_"), flag.group(2)) if flag else (None, exc.reason)
+            if name is None:
+                words = re.match(r"([a-z_]+) (.*)", exc.reason)
+                name, rest = (words.group(1), words.group(2)) if words else ("photons", exc.reason)
+            raise SettingsError(name, rest, owner="PhotonSettings") from None
+
+
+class SettingsError(SceneError):
+    """A settings field with a value the renderer cannot use; ``field`` and ``owner`` name it
+    (the CLI turns them back into its flag)."""
+
+    def __init__(self, field: str, reason: str, owner: str = "RenderSettings"):
+        self.field = field
+        self.owner = owner
+        self.detail = reason
+        super().__init__(f"{owner}.{field} {reason}")
+
+
+def _is_int(v, lo: int, hi: int | None = None) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= lo and (hi is None or v <= hi)
+
+
+def _from_dict(cls, values: dict, owner: str):
+    names = {f.name for f in fields(cls)}
+    for k in values:
+        if k not in names:
+            raise SettingsError(str(k), f"is not a field of {owner} (fields: {', '.join(sorted(names))})", owner=owner)
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as exc:
+        raise SceneError(f"{owner}: {exc}") from None
 
 
 METHODS = PHOTON_METHODS + ("none",)
@@ -59,8 +135,12 @@ class Renderer:
         self.settings.validate()
         self.device = wp.get_device(device)
         cam = scene.camera
-        if self.settings.width or self.settings.height:
-            cam = replace(cam, width=self.settings.width or cam.width, height=self.settings.height or cam.height)
+        ss = self.settings.supersample
+        self.width = int(self.settings.width or cam.width)  #: output image width [pixels]
+        self.height = int(self.settings.height or cam.height)  #: output image height [pixels]
+        if (cam.width, cam.height) != (self.width * ss, self.height * ss):
+            # every pass runs at the supersampled size; aovs() filters down to width x height
+            cam = replace(cam, width=self.width * ss, height=self.height * ss)
             scene.camera = cam
         scene.validate()
         self.scene = scene
@@ -70,6 +150,12 @@ class Renderer:
         self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size) for light in scene.lights]
         self.direct = DirectLighting(self.gbuffer, self.device)
         n = cam.width * cam.height
+        self.sky = None
+        if scene.sky is not None:
+            self.sky = SkyLighting(self.gpu, scene.sky, cam.width, cam.height, self.settings.sky_maps,
+                                   self.settings.sky_map_size)
+        self.sky_map = self.sky.map if self.sky is not None else sky_map(None, self.device)
+        self.sky_irradiance = self.sky.irradiance if self.sky is not None else wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
@@ -126,6 +212,9 @@ class Renderer:
             g.render(self.raster, self.view_params, self.prev_view_params)
         with stage("direct"):
             self.direct.render(g, self.lights)
+        if self.sky is not None:
+            with stage("sky"):
+                self.sky.render(self.raster, g)
         if self.photons is not None:
             with stage("trace+store"):
                 self.photons.trace(g, self.view_params, self.frame)
@@ -142,32 +231,76 @@ class Renderer:
         with stage("shade"):
             n = g.width * g.height
             wp.launch(surface_radiance, dim=n, device=self.device,
-                      inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.surface_radiance])
+                      inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.sky_irradiance,
+                              self.surface_radiance])
             ps = self.settings.photons
             wp.launch(composite, dim=n, device=self.device,
                       inputs=[self.view_params, g.depth, self.surface_radiance, w.depth, w.position, w.normal, w.ior,
-                              self.t_max, ps.max_steps, ps.thickness, self.final])
+                              self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
         self.prev_view_params = self.view_params
         self.frame += 1
 
     def aovs(self, include_rsm: bool = True) -> dict[str, np.ndarray]:
-        """Host copies of the frame's AOVs, images of shape (H, W[, C]), float32 / int32."""
+        """Host copies of the frame's AOVs, images of shape (height, width[, C]), float32 / int32.
+
+        With ``supersample`` s > 1 the passes ran at s·width × s·height: radiometric AOVs (``final``,
+        irradiances, ``albedo``) are the mean of each pixel's s × s samples; geometric ones (depth,
+        position, normal, ids, the water layer) are the sample nearest the pixel centre; ``motion`` is
+        in output pixels. The RSM AOVs keep their own size.
+        """
         g = self.gbuffer
         shape = (g.height, g.width)
         gb = g.numpy()
         out = {k: gb[k] for k in ("depth", "position", "normal", "albedo", "roughness", "tri_id", "motion",
                                   "water_depth", "water_normal")}
         out["direct_irradiance"] = self.direct.irradiance.numpy().reshape(shape + (3,))
+        if self.sky is not None:
+            out["sky_irradiance"] = self.sky_irradiance.numpy().reshape(shape + (3,))
         out["final"] = self.final.numpy().reshape(shape + (3,))
         if self.photons is not None:
             out["photon_map"] = self.photons.photon_map.numpy().reshape(shape + (3,))
             out["caustics"] = self.caustic_irradiance.numpy().reshape(shape + (3,))
             out.update(self.photons.aovs(shape))
+        ss = self.settings.supersample
+        if ss > 1:
+            out = {k: (box_filter(v, ss) if k in AVERAGED_AOVS else v[ss // 2 :: ss, ss // 2 :: ss])
+                   for k, v in out.items()}
+            out["motion"] = out["motion"] / np.float32(ss)
         if include_rsm:
             for lm in self.lights:
                 for r in lm.rsm:
                     for k, v in r.numpy().items():
                         out[f"{r.view.name}_{k}"] = v
         return out
+
+    def final_image(self) -> np.ndarray:
+        """The frame's HDR image [W/(m² sr)], (height, width, 3) float32 on the host (filtered down)."""
+        g = self.gbuffer
+        return box_filter(self.final.numpy().reshape(g.height, g.width, 3), self.settings.supersample)
+
+
+#: AOVs that are means over a pixel's samples when supersampling (the rest take the central sample)
+AVERAGED_AOVS = frozenset({"final", "photon_map", "caustics", "direct_irradiance", "sky_irradiance", "albedo"})
+
+
+def box_filter(image: np.ndarray, s: int) -> np.ndarray:
+    """Mean of each s × s block of ``image`` (H, W[, C]) -> (H/s, W/s[, C]), same dtype."""
+    if s == 1:
+        return image
+    h, w = image.shape[:2]
+    return image.reshape(h // s, s, w // s, s, *image.shape[2:]).mean(axis=(1, 3)).astype(image.dtype)
+
+
+class _CallableModule(types.ModuleType):
+    """``cisp_warp.render`` is this module (``Renderer``, ``RenderSettings``) and, called, the one-call
+    :func:`cisp_warp.api.render`: importing the module must not hide the package's ``render()``."""
+
+    def __call__(self, *args, **kwargs):
+        from .api import render
+
+        return render(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

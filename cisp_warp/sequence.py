@@ -22,7 +22,8 @@ import warp as wp
 
 from .animation import Animation, memory_in_use
 from .errors import SceneError
-from .image_io import auto_exposure, tonemap, write_aovs
+from .render import box_filter
+from .image_io import atomic_path, auto_exposure, tonemap, write_layers
 
 
 class VideoWriter:
@@ -83,6 +84,7 @@ class SequenceStats:
     seconds: list[float] = field(default_factory=list)
     memory: list[dict[str, float]] = field(default_factory=list)
     video: str | None = None
+    interrupted: bool = False  #: stopped by Ctrl-C: the frames before are written, the video closed
 
     @property
     def median_seconds(self) -> float:
@@ -103,8 +105,11 @@ def render_sequence(renderer, animation: Animation, codes, out_dir: str, exposur
     """Render time codes ``codes`` into ``out_dir`` (see the module docstring).
 
     ``exposure``: tone-mapping scale (linear), None = automatic from the first frame; ``aovs``: also write
-    ``photon_map``, ``caustics`` and ``final`` per frame as ``NAME.####.exr`` / ``.npy``; ``on_frame(code)``
+    ``final``, ``caustics`` and ``photon_map`` per frame as layers of ``aovs.####.exr``; ``on_frame(code)``
     is called after each frame is written; ``progress``: wraps the iterable of codes (e.g. tqdm).
+    Ctrl-C (KeyboardInterrupt) stops after the files of the frame in flight are either complete or absent
+    (each is written under a temporary name and renamed), closes the MP4 (playable up to the last frame
+    written) and returns with ``interrupted`` set.
     """
     try:
         os.makedirs(out_dir, exist_ok=True)
@@ -112,6 +117,7 @@ def render_sequence(renderer, animation: Animation, codes, out_dir: str, exposur
         raise SceneError(f"cannot create output directory: {exc.strerror}", file=out_dir) from None
     g = renderer.gbuffer
     shape = (g.height, g.width, 3)
+    ss = renderer.settings.supersample
     stats = SequenceStats()
     writer = VideoWriter(os.path.join(out_dir, "final.mp4"), animation.clock.time_codes_per_second) if video else None
     from PIL import Image
@@ -122,25 +128,32 @@ def render_sequence(renderer, animation: Animation, codes, out_dir: str, exposur
             t0 = time.perf_counter()
             animation.set_time_code(code)
             renderer.render_frame()
-            final = renderer.final.numpy().reshape(shape)  # the one host copy a frame needs
+            final = renderer.final_image()  # the one host copy a frame needs
             if exposure is None:
                 exposure = auto_exposure(final)
             ldr = tonemap(final, exposure)
-            Image.fromarray(ldr).save(os.path.join(out_dir, f"final.{code:04d}.png"))
+            png = os.path.join(out_dir, f"final.{code:04d}.png")
+            Image.fromarray(ldr).save(atomic_path(png), format="PNG")
+            os.replace(atomic_path(png), png)
             if writer is not None:
                 writer.append(ldr)
             if aovs:
-                keep = {f"final.{code:04d}": final}
+                keep = {"final": final}
                 if renderer.photons is not None:
-                    keep[f"photon_map.{code:04d}"] = renderer.photons.photon_map.numpy().reshape(shape)
-                    keep[f"caustics.{code:04d}"] = renderer.caustic_irradiance.numpy().reshape(shape)
-                write_aovs(out_dir, keep)
+                    full = {"caustics": renderer.caustic_irradiance, "photon_map": renderer.photons.photon_map}
+                    keep.update({k: box_filter(v.numpy().reshape(shape), ss) for k, v in full.items()})
+                write_layers(os.path.join(out_dir, f"aovs.{code:04d}.exr"), keep)
             wp.synchronize_device(renderer.device)
             stats.seconds.append(time.perf_counter() - t0)
             stats.codes.append(int(code))
             stats.memory.append(memory_in_use(renderer.device))
             if on_frame is not None:
                 on_frame(code)
+    except KeyboardInterrupt:
+        stats.interrupted = True
+        for name in os.listdir(out_dir):  # a file interrupted while being written is never left behind
+            if name.startswith(".") and name.endswith(".partial"):
+                os.remove(os.path.join(out_dir, name))
     finally:
         if writer is not None:
             writer.close()

@@ -14,10 +14,11 @@ import warp as wp
 
 from .optics import fresnel_dielectric, reflect, refract
 from .photons.march import MARCH_HIT, screen_march
-from .raster.views import ViewParams, view_eye_world, world_project
+from .raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from .raster.rasterizer import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
+from .sky import SkyMap, sky_radiance
 
 INV_PI = wp.constant(1.0 / math.pi)
 
@@ -107,12 +108,13 @@ def surface_radiance(
     albedo: wp.array(dtype=wp.vec3),
     direct_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
     caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
+    sky_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] from the dome light, occluded (read)
     radiance: wp.array(dtype=wp.vec3),  # (H*W,) Lambertian radiance of the opaque surface [W/(m² sr)] (write)
 ):
     p = wp.tid()
     l_surface = wp.vec3(0.0)
     if depth[p] > 0.0:
-        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p]) * INV_PI
+        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
     radiance[p] = l_surface
 
 
@@ -144,17 +146,25 @@ def composite(
     t_max: float,
     max_steps: int,
     thickness: float,
+    sky: SkyMap,  # radiance of the dome light, seen where a ray finds no surface (black without one)
     final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
 ):
     """Opaque pixels show their surface; water pixels Fresnel-blend screen-space refraction and reflection.
 
     The refracted camera ray is marched through the opaque G-buffer (how caustics under water are
     seen, the ESDSL paths of seed 000 Fig. 3); radiance crossing the boundary is scaled by
-    (n_t/n_i)² (L/n² is invariant along a ray). A reflected or refracted ray that leaves the image
-    sees nothing (black: the scene has no environment light), as a screen-space method must.
+    (n_t/n_i)² (L/n² is invariant along a ray). A camera ray that meets no surface, and a reflected ray
+    that leaves the image, see the sky (``sky``; black when the scene has none); a refracted ray that
+    leaves the image or passes behind a surface sees the opaque surface behind the water pixel itself
+    (the undistorted background, the usual screen-space fallback).
     """
     p = wp.tid()
     l = radiance[p]
+    if depth[p] <= 0.0 and water_depth[p] <= 0.0:
+        px = float(p % camera.width) + 0.5
+        py = float(p // camera.width) + 0.5
+        o, d = pixel_ray_world(camera, px, py)
+        l = sky_radiance(sky, d)
     if water_depth[p] > 0.0:
         x = water_position[p]
         v = view_eye_world(camera, x)  # towards the eye; the view plane's normal for an orthographic camera
@@ -167,11 +177,16 @@ def composite(
         d_in = -v
         l = wp.vec3(0.0)
         if f > 0.0:
-            found, lr = screen_space_lookup(camera, depth, radiance, x, reflect(d_in, n), t_max, max_steps, thickness)
+            dr = reflect(d_in, n)
+            found, lr = screen_space_lookup(camera, depth, radiance, x, dr, t_max, max_steps, thickness)
+            if found == 0:
+                lr = sky_radiance(sky, dr)
             l = l + lr * f
         if f < 1.0:
             dt = refract(d_in, n, eta)
             found, lt = screen_space_lookup(camera, depth, radiance, x, dt, t_max, max_steps, thickness)
+            if found == 0:  # the refracted ray leaves the screen or goes behind a surface: the opaque
+                lt = radiance[p]  # surface behind this pixel stands in (undistorted), never black
             l = l + lt * ((1.0 - f) / (eta * eta))
     final[p] = l
 

@@ -25,11 +25,9 @@ TINY = RenderSettings(width=64, height=36, rsm_size=64, photons=PhotonSettings(p
 
 @pytest.fixture(scope="module")
 def gen():
-    spec = importlib.util.spec_from_file_location("make_pool_scene", ROOT / "tools" / "make_pool_scene.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses resolve their annotations through sys.modules
-    spec.loader.exec_module(module)
-    return module
+    import cisp_warp.pool_scene  # the generator behind cisp-make-pool and tools/make_pool_scene.py
+
+    return cisp_warp.pool_scene
 
 
 @pytest.fixture(scope="module")

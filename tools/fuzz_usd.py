@@ -478,6 +478,7 @@ def mutate_cli(rng: random.Random) -> tuple[list[str], str, str]:
         ("--photons", ["0", "1", "1e12", "10000000000000", "nan", "1.5", "inf"]),
         ("--time", ["nan", "inf", "1e300", "-1e300", "3"]),
         ("--rsm-size", ["0", "1", "100000"]),
+        ("--supersample", ["0", "-1", "3", "64", "100000"]),
         ("--seed", ["-1", "99999999999999999999", "3"]),
         ("--max-bounces", ["0", "1000000", "-1"]),
         ("--reference-photons", ["1e15", "0", "1"]),
@@ -530,7 +531,7 @@ def prepare_case(case: dict, seeds_dir: Path, case_dir: Path) -> tuple[Path, lis
 def base_argv(stage: Path, out: Path, method: str) -> list[str]:
     return [str(stage), "--out", str(out), "--device", "cpu", "--width", "32", "--height", "32",
             "--rsm-size", "32", "--photons", "2k", "--reference-photons", "8k", "--method", method,
-            "--no-rsm-aovs"]
+            "--supersample", "1", "--aovs", "all", "--npy"]
 
 
 def run_case_in_child(case: dict, seeds_dir: Path, case_dir: Path, result_path: Path) -> None:

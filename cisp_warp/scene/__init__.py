@@ -9,6 +9,7 @@ from .model import (
     Material,
     MeshRange,
     Scene,
+    Sky,
 )
 from .device import DeviceScene
 
@@ -22,4 +23,5 @@ __all__ = [
     "Material",
     "MeshRange",
     "Scene",
+    "Sky",
 ]

@@ -11,6 +11,8 @@ distant light           ``intensity`` is the irradiance [W/m²] it delivers to a
                         surface facing it, per unit of ``color``
 point and spot light    ``intensity`` is the radiant intensity [W/sr] along the
                         axis, per unit of ``color``
+dome light (sky)        ``color × intensity`` (× the texture, when it has one) is
+                        the radiance [W/(m² sr)] arriving from each direction
 ======================  ==========================================================
 """
 
@@ -86,6 +88,31 @@ class Light:
         """``name`` reduced to characters that are safe in a file name."""
         s = "".join(c if c.isalnum() else "_" for c in self.name).strip("_")
         return s or "light"
+
+
+@dataclass
+class Sky:
+    """A dome light: radiance [W/(m² sr)] arriving from every direction of an infinitely distant sphere.
+
+    The radiance from world direction ω (pointing from the scene towards the sky) is
+    ``radiance × texture(to_local · ω)``. ``texture`` is a lat-long map in the OpenEXR convention that
+    UsdLux prescribes for dome lights: column ``x`` has longitude π − 2π (x + ½)/W, row ``y`` latitude
+    π/2 − π (y + ½)/H, and (latitude, longitude) is the dome-local direction
+    (cos lat · sin lon, sin lat, cos lat · cos lon): +Y up, longitude 0 along +Z. Without a texture the
+    sky is uniform.
+    """
+
+    name: str  #: prim path
+    radiance: tuple[float, float, float] = (1.0, 1.0, 1.0)  #: colour × intensity × 2^exposure [W/(m² sr)]
+    texture: np.ndarray | None = None  #: (H, W, 3) float32 linear RGB multiplier, lat-long; None = uniform
+    to_world: np.ndarray = field(default_factory=lambda: np.eye(3))  #: rotation, dome-local -> world
+
+    def radiance_map(self) -> np.ndarray:
+        """(H, W, 3) float64 lat-long radiance [W/(m² sr)] in dome-local directions ((1, 2, 3) when uniform)."""
+        rgb = np.asarray(self.radiance, dtype=np.float64)
+        if self.texture is None:
+            return np.broadcast_to(rgb, (1, 2, 3)).copy()
+        return np.asarray(self.texture, dtype=np.float64) * rgb
 
 
 @dataclass
@@ -190,6 +217,7 @@ class Scene:
     lights: list[Light]
     camera: Camera
     meshes: list[MeshRange] = field(default_factory=list)
+    sky: Sky | None = None  #: the dome light, lighting diffuse surfaces and seen where nothing else is
     time: float = 0.0  #: stage time [s] (time code / timeCodesPerSecond)
     time_code: float = 0.0
     source: str = ""  #: file the scene came from, for messages
@@ -234,6 +262,6 @@ class Scene:
             raise SceneError("triangle_material must have one entry per triangle", file=src)
         if not self.materials or self.triangle_material.max() >= len(self.materials):
             raise SceneError("triangle material index out of range", file=src)
-        if not self.lights:
-            raise SceneError("the scene has no light: add a DistantLight, SphereLight or spot light", file=src)
+        if not self.lights and self.sky is None:
+            raise SceneError("the scene has no light: add a DistantLight, SphereLight, spot light or DomeLight", file=src)
         self.camera.validate()

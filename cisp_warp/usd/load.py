@@ -63,7 +63,7 @@ from pxr import Tf, Usd, UsdGeom, UsdLux, UsdRender
 from ..errors import SceneError
 from ..scene.device import check_memory
 from ..scene.model import Camera, MeshRange, Scene
-from .lights import read_light
+from .lights import read_dome, read_light
 from .material import MaterialTable
 from .mesh import MeshPart, read_mesh
 from .stage import MAX_EXTENT_M, StageContext, finite_float, open_stage, tf_reason, typed_get
@@ -125,6 +125,7 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
     parts: list[MeshPart] = []
     skipped: list[tuple[str, str]] = []
     lights, unsupported_lights, cameras, settings = [], [], [], []
+    sky = None
     it = iter(Usd.PrimRange(stage.GetPseudoRoot(), Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
     for prim in it:
         if prim.IsA(UsdGeom.Camera):
@@ -154,6 +155,11 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
                 skipped.append((pp, reason))
             else:
                 parts.append(part)
+        elif is_light and prim.IsA(UsdLux.DomeLight):
+            if sky is None:
+                sky = read_dome(ctx, prim)
+            else:
+                ctx.warn(f"a second DomeLight is ignored: the sky is '{sky.name}'", pp)
         elif is_light:
             light = read_light(ctx, prim)
             (lights if light is not None else unsupported_lights).append(light or pp)
@@ -167,15 +173,15 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
             "the stage has no renderable triangles" + (f" (skipped {detail})" if detail else " (no UsdGeom.Mesh)"),
             prim=skipped[0][0] if skipped else None,
         )
-    if not lights:
+    if not lights and sky is None:
         if unsupported_lights:
             raise SceneError(
                 "no usable light: only unsupported light types (" + ", ".join(unsupported_lights)
                 + "); add a DistantLight, SphereLight or a SphereLight with ShapingAPI (spot)",
                 prim=unsupported_lights[0],
             )
-        raise SceneError("the stage has no light: add a DistantLight, SphereLight or a SphereLight with "
-                         "ShapingAPI (spot)")
+        raise SceneError("the stage has no light: add a DistantLight, SphereLight, a SphereLight with "
+                         "ShapingAPI (spot) or a DomeLight")
 
     rs = _render_settings(stage, settings)
     cam_prim = _pick_camera(stage, cameras, camera_path, rs)
@@ -193,6 +199,7 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
     camera = read_camera(ctx, cam_prim, w, h, policy)
 
     scene = _assemble(parts, table, lights, camera, path, code, tcps)
+    scene.sky = sky
     scene.validate()
     return scene
 

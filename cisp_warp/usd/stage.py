@@ -46,6 +46,7 @@ _KINDS = {
     "vec3[]": ({"VtArray<GfVec3f>", "VtArray<GfVec3d>", "VtArray<GfVec3h>"},
                "an array of 3-vectors (point3f[], normal3f[], color3f[], float3[])"),
     "int[]": ({"VtArray<int>"}, "an int[]"),
+    "asset": ({"SdfAssetPath"}, "an asset path"),
 }
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # cisp_warp/
 
@@ -182,6 +183,7 @@ _VALUE_CHECKS = {
     "vec3": lambda v: type(v).__name__ in ("Vec3f", "Vec3d", "Vec3h"),
     "vec3[]": lambda v: type(v).__name__ in ("Vec3fArray", "Vec3dArray", "Vec3hArray"),
     "int[]": lambda v: type(v).__name__ == "IntArray",
+    "asset": lambda v: type(v).__name__ == "AssetPath",
 }
 
 

@@ -331,11 +331,12 @@ def cases() -> dict[str, tuple[bytes | str, str | None, str]]:
         float inputs:intensity = 10
     }
 """), "/World/Rect", "no usable light")
-    c["only_dome_light.usda"] = (stage_text(sun=False, extra_world="""
+    c["dome_missing_texture.usda"] = (stage_text(sun=False, extra_world="""
     def DomeLight "Dome"
     {
+        asset inputs:texture:file = @no_such_sky.exr@
     }
-"""), "/World/Dome", "no usable light")
+"""), "/World/Dome", "does not exist")
     c["negative_intensity.usda"] = (stage_text(intensity="-3"), "/World/Sun", "intensity")
     c["nan_intensity.usda"] = (stage_text(intensity="nan"), "/World/Sun", "intensity")
     c["inf_exposure.usda"] = (stage_text(exposure="inf"), "/World/Sun", "exposure")
