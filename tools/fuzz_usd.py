@@ -158,6 +158,8 @@ def build_seeds(folder: Path, smoke: bool) -> list[Path]:
     for name in ("cornell_flooded.usda", "pool.usda"):
         shutil.copy(ROOT / "scenes_usd" / name, folder / name)
         seeds.append(folder / name)
+    for image in (ROOT / "scenes_usd").glob("*.exr"):  # the shipped stages' sky images, next to them
+        shutil.copy(image, folder / image.name)
     if not smoke:
         import subprocess
 
@@ -507,6 +509,9 @@ def prepare_case(case: dict, seeds_dir: Path, case_dir: Path) -> tuple[Path, lis
     """Write the mutated stage of ``case`` into ``case_dir``; returns (stage path, extra argv)."""
     rng = random.Random(case["rng"])
     src = seeds_dir / case["seed_stage"]
+    for asset in seeds_dir.iterdir():  # images the stages name relative to themselves (sky domes)
+        if asset.suffix.lower() not in (".usda", ".usdc", ".usd"):
+            os.symlink(asset, case_dir / asset.name)
     family = case["family"]
     extra: list[str] = []
     if family == "text":
