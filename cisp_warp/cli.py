@@ -165,14 +165,15 @@ def write_outputs(out_dir: str, aovs: dict, extra: list[str], exposure, npy: boo
     paths = [os.path.join(out_dir, n) for n in ("final.png", "final.exr", "aovs.exr")]
     write_png(paths[0], aovs["final"], exposure)
     write_layers(paths[1], {"final": aovs["final"]})  # R, G, B; float16 where it fits
-    views = {k: v for k, v in aovs.items() if not k.startswith("rsm_")}
+    image = aovs["final"].shape[:2]  # light-space maps (caustics_map's cmap_rsm_*) are not camera images
+    views = {k: v for k, v in aovs.items() if not k.startswith("rsm_") and v.shape[:2] == image}
     keep = [k for k in MAIN_AOVS if k in views] + [k for k in views if k not in MAIN_AOVS and ("all" in extra or k in extra)]
     layers = {k: views[k] for k in keep}
     write_layers(paths[2], layers)
     if npy:
         paths += write_aovs(out_dir, layers, exr=False, npy=True)
     if rsm:
-        maps = {k: v for k, v in aovs.items() if k.startswith("rsm_")}
+        maps = {k: v for k, v in aovs.items() if k.startswith("rsm_") or v.shape[:2] != image}
         by_size = {}
         for k, v in maps.items():
             by_size.setdefault(v.shape[:2], {})[k] = v

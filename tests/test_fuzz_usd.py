@@ -25,3 +25,18 @@ def test_fuzz_smoke_run_has_no_failures(tmp_path):
     assert len(report["results"]) == 30
     assert outcomes == {"rendered", "scene_error"}  # the mutations both break stages and leave some renderable
     assert "| hang | 0 |" in proc.stdout and "| Python traceback | 0 |" in proc.stdout
+
+
+def test_caustic_map_aovs_of_another_size_than_the_image(tmp_path):
+    """Found by the fuzzer: `--method caustics_map --aovs all` put the light-space caustic map (RSM size) into
+    aovs.exr beside the camera images and raised; it belongs with the RSM maps."""
+    from cisp_warp import cli
+
+    rc = cli.main([str(ROOT / "scenes_usd" / "cornell_flooded.usda"), "--out", str(tmp_path), "--device", "cpu",
+                   "--width", "40", "--height", "20", "--rsm-size", "32", "--photons", "2k", "--supersample", "1",
+                   "--method", "caustics_map", "--aovs", "all", "--npy", "--rsm-aovs", "--quiet"])
+    assert rc == 0
+    assert (tmp_path / "aovs.exr").is_file() and (tmp_path / "rsm.exr").is_file()
+    import numpy as np
+
+    assert np.load(tmp_path / "caustics.npy").shape[:2] == (20, 40)
