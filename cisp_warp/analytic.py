@@ -7,6 +7,9 @@ scene                  known answer
 ``flat_water``         floor irradiance E⊥ · cos θ · (1 − F(θ)) under the water
 ``sinusoidal_water``   floor irradiance profile from the analytic refraction ray map
 ``wall_scene``         a reflected caustic on a wall outside the spot light's cone
+``wavy_water``         smooth 2-D waves over a floor, a camera close over part of it: the converged
+                       caustic must not depend on the RSM size, and light views fitted to the
+                       camera must leave it unchanged
 =====================  ======================================================================
 """
 
@@ -151,3 +154,43 @@ def footprint_area(aovs: dict, view) -> np.ndarray:
     r2 = (to_eye ** 2).sum(-1)
     cos_t = np.abs((n * to_eye).sum(-1)) / np.sqrt(r2)
     return omega * r2 / np.maximum(cos_t, 1e-6)
+
+
+WAVY = dict(A=0.012, kx=2 * math.pi / 0.31, kz=2 * math.pi / 0.23, D=0.45, E=1000.0, eta=1.33, half=1.0)
+
+
+def wavy_water(width: int = 64, height: int = 64, grid: int = 96, closeup: float = 0.3, sun_deg: float = 10.0,
+               **kw) -> Scene:
+    """Smooth crossed waves h(x, z) = A sin(kx·x) sin(kz·z + 0.7) over a white floor at depth D, under a sun
+    ``sun_deg`` from the zenith; a perspective camera 0.35 m over the water looks down at a ``closeup`` m
+    wide patch of floor near one corner, so most of the water's light lands where the camera does not look.
+
+    The water is a ``grid``² vertex sheet of half-width ``half`` with analytic (exact) vertex normals; the
+    caustic folds at this depth, so a photon's normal, not its texel's, decides where it lands.
+    """
+    p = {**WAVY, **kw}
+    A, kx, kz, D, E, half = p["A"], p["kx"], p["kz"], p["D"], p["E"], p["half"]
+    t = np.linspace(-half, half, grid)
+    X, Z = np.meshgrid(t, t, indexing="ij")
+    H = A * np.sin(kx * X) * np.sin(kz * Z + 0.7)
+    hx = A * kx * np.cos(kx * X) * np.sin(kz * Z + 0.7)
+    hz = A * kz * np.sin(kx * X) * np.cos(kz * Z + 0.7)
+    pts = np.stack([X, H, Z], -1).reshape(-1, 3)
+    nrm = np.stack([-hx, np.ones_like(hx), -hz], -1).reshape(-1, 3)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    q = (np.arange(grid - 1)[:, None] * grid + np.arange(grid - 1)[None, :]).reshape(-1)
+    # counter-clockwise seen from above (+y): (i, j) -> (i, j+1) -> (i+1, j)
+    faces = np.concatenate([np.stack([q, q + 1, q + grid], -1), np.stack([q + 1, q + grid + 1, q + grid], -1)])
+    floor_p, floor_f = quad(0, -D, 0, (1.5 * half, 0, 0), (0, 0, -1.5 * half))
+    th = math.radians(sun_deg)
+    sun = Light(LightKind.DISTANT, "sun", intensity=E, direction=(math.sin(th), -math.cos(th), 0.0))
+    target = np.array([0.45 * half, -D, 0.35 * half])
+    fov = math.radians(40.0)
+    dist = 0.5 * closeup / math.tan(0.5 * fov)
+    eye = target + np.array([0.0, dist, 0.25 * dist])
+    cam = Camera(look_at_matrix(tuple(eye), tuple(target)), fov_y=fov, width=width, height=height, near=0.02, far=10.0)
+    water = Material("water", albedo=(1, 1, 1), roughness=0.0, opacity=0.0, ior=p["eta"])
+    return Scene(np.vstack([pts, floor_p]).astype(np.float32),
+                 np.vstack([nrm, np.tile([0, 1, 0], (4, 1))]).astype(np.float32),
+                 np.vstack([faces, floor_f + len(pts)]).astype(np.int32),
+                 np.concatenate([np.full(len(faces), 1), np.zeros(2)]).astype(np.int32), [FLOOR, water], [sun], cam)

@@ -107,7 +107,7 @@ def _frames(frames) -> list[float]:
 
 def render(stage_or_path, *, time=None, frames=None, method: str = "cisp", photons=1_000_000, device=None,
            width: int | None = None, height: int | None = None, camera: str | None = None, seed: int = 0,
-           denoiser: str = "svgf", supersample: int = 2, rsm_size: int = 1024, simulate: bool = True,
+           denoiser: str = "caustic", supersample: int = 2, rsm_size: int = 1024, simulate: bool = True,
            settings=None, include_rsm: bool = False):
     """Render a USD stage: one frame's AOVs as a dict of numpy arrays, or with ``frames`` an iterator of them.
 

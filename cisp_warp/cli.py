@@ -33,6 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time", type=float, default=None, help="USD time code to render (default: the stage's start time code)")
     p.add_argument("--camera", default=None, help="prim path of the camera (default: the first camera found)")
     p.add_argument("--rsm-size", type=int, default=1024, help="edge of each reflective shadow map view [texels]")
+    p.add_argument("--light-views", default="camera", choices=["camera", "scene"],
+                   help="cisp, sspm: RSM views fitted to what the camera sees, as cascades (camera), "
+                   "or one view over all the specular geometry (scene, for comparison)")
+    p.add_argument("--light-cascades", type=int, default=2, help="with --light-views camera: fitted views per light view")
     p.add_argument("--method", default="cisp", choices=["cisp", "sspm", "caustics_map", "reference", "none"],
                    help="caustics method: cisp (Cascaded Image-Space Photon Tracing, Meenrattanakorn & Lambers), sspm "
                    "(world-space Screen-Space Photon Mapping, Kim 2019), caustics_map (light-space Caustics Mapping, "
@@ -41,14 +45,19 @@ def build_parser() -> argparse.ArgumentParser:
                    "or none (direct light only)")
     p.add_argument("--photons", type=parse_count, default=parse_count("1M"),
                    help="photons per light per frame; accepts 500k, 1M, 2M, or a plain integer")
-    p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"],
-                   help="photon-map denoiser: SVGF, the 7x7 Gaussian gather of Caustics Mapping, or none")
+    p.add_argument("--denoiser", default="caustic", choices=["caustic", "svgf", "gather", "none"],
+                   help="photon-map denoiser: caustic (accumulates the raw photon map over frames, reacting where "
+                   "the caustic changes, and filters the noise left), SVGF (the paper's), the 7x7 Gaussian gather "
+                   "of Caustics Mapping, or none")
     p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
     p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
                    help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")
     p.add_argument("--roughness-cutoff", type=float, default=0.3, help="RSM texels rougher than this emit no photons")
     p.add_argument("--luminance-cutoff", type=float, default=0.01,
                    help="RSM texels dimmer than this fraction of the brightest emit no photons")
+    p.add_argument("--splat", default="point", choices=["point", "wavefront"],
+                   help="cisp, sspm: store photons as points, or as a wavefront: photons on a grid of the RSM "
+                   "(--photons cells per light), each cell's power spread over the area its corners land on")
     p.add_argument("--max-bounces", type=int, default=8, help="sspm, reference: specular bounces before a photon is dropped")
     p.add_argument("--cmap-gather", default="light", choices=["light", "eye"],
                    help="caustics_map: Gaussian gather in the light-space caustic map, or leave it to the eye-space denoiser")
@@ -75,6 +84,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="anti-aliasing: N x N samples per pixel (1 = off)")
     p.add_argument("--no-rsm-aovs", action="store_true", help=argparse.SUPPRESS)  # the default now
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    d = p.add_argument_group("distributed rendering (with --frames; needs pip install -e '.[distributed]')")
+    d.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="spread the frames over N Dask workers of a local cluster: one per GPU, else CPU processes")
+    d.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the workers of a running Dask cluster (e.g. tcp://head:8786; with --workers N, N of "
+                   "them); the stage and --out must be at the same paths there")
+    d.add_argument("--resume", action="store_true", help="keep the frames already in --out, render the missing ones")
+    d.add_argument("--warmup", type=int, default=None, metavar="N",
+                   help="frames each chunk renders unwritten before its first frame; None: as many as the "
+                   "denoiser's temporal filter needs")
     return p
 
 
@@ -85,7 +104,8 @@ def _version() -> str:
 
 
 #: RenderSettings / PhotonSettings fields whose cisp-render flag is not --field-name
-FLAGS = {"reference_photons": "--reference-photons", "supersample": "--supersample"}
+FLAGS = {"reference_photons": "--reference-photons", "supersample": "--supersample", "fit": "--light-views",
+         "cascades": "--light-cascades"}
 
 
 def flag_of(exc) -> str:
@@ -192,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     from .image_io import check_out_dir
     from .photons import PhotonSettings
+    from .raster import LightViewSettings
     from .render import Renderer, RenderSettings, SettingsError
     from .usd import load_usd
 
@@ -217,15 +238,21 @@ def main(argv: list[str] | None = None) -> int:
             photons = PhotonSettings(photons=args.photons, seed=args.seed, footprint=args.footprint,
                                      roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff,
                                      max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
-                                     cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0)
+                                     cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0,
+                                     splat=args.splat)
             settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                       method=args.method, photons=photons, denoiser=args.denoiser,
-                                      supersample=args.supersample)
+                                      supersample=args.supersample,
+                                      light_views=LightViewSettings(fit=args.light_views, cascades=args.light_cascades))
         except SettingsError as e:
             raise SceneError(flag_of(e)) from None
         check_numbers(args, device)
         extra = parse_aov_list(args.aovs)
         frames = parse_frames(args.frames) if args.frames else None
+        if args.workers is not None or args.scheduler or args.resume:
+            from .distributed import main_distributed
+
+            return main_distributed(args, settings, frames, say, scene_path)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SceneWarning)
             first = frames.start if frames else args.time

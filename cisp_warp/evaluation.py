@@ -2,22 +2,29 @@
 and references computed once and cached on disk. Used by ``tools/evaluate.py``, ``tools/stability.py``
 and their tests; the figures themselves are :mod:`cisp_warp.metrics`.
 
-Denoising, per method, is the filtering its paper pairs it with:
+Every method runs with every denoiser of the renderer (``caustic``, the default; ``svgf``, the paper's;
+``none``, the raw photon map); ``caustics_map`` also with ``own``, seed 004's own filters:
 
-==============  =================================================  =======================================
-method          denoise on                                         denoise off (raw)
-==============  =================================================  =======================================
-cisp, sspm      SVGF (``denoiser="svgf"``)                         ``denoiser="none"``
-caustics_map    seed 004's own filters: 4-frame temporal mean and  no temporal mean (``cmap_history=1``),
-                the 7×7 Gaussian in the light-space caustic map    no gather (``cmap_gather="eye"``,
-                (``cmap_gather="light"``)                          ``denoiser="none"``)
-==============  =================================================  =======================================
+==============  ===================================================================================
+method          denoiser
+==============  ===================================================================================
+cisp, sspm      ``RenderSettings(denoiser=...)``: caustic, svgf or none
+caustics_map    own: the 4-frame temporal mean and the 7×7 Gaussian in the light-space caustic map
+                (``cmap_history=4``, ``cmap_gather="light"``, eye-space denoiser none); caustic, svgf,
+                none: the raw light-space map (``cmap_history=1``, ``cmap_gather="eye"``) through the
+                renderer's denoiser
+==============  ===================================================================================
+
+References of still scenes (:func:`accumulated_reference`) accumulate independent reference frames until
+their own noise over their caustic mask is below a target, cached on disk so that a later run goes on
+where an earlier one stopped.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import time
 from dataclasses import dataclass, replace
@@ -39,28 +46,50 @@ REFERENCE_AOVS = MEASURED_AOVS + ("caustics_stderr",)
 METHODS = ("cisp", "sspm", "caustics_map")
 
 
+#: the renderer's denoisers every method is measured with, and caustics_map's own filters (seed 004)
+DENOISERS = ("caustic", "svgf", "none", "own")
+
+
 @dataclass(frozen=True)
 class Config:
-    """One point of the evaluation: a method, its photons per frame and whether it is denoised."""
+    """One point of the evaluation: a method, its photons per frame and its denoiser (``DENOISERS``)."""
 
     method: str
     photons: int
-    denoise: bool
+    denoiser: str
+    splat: str = "point"  #: cisp, sspm: "point" or "wavefront" (``photons`` then counts grid cells per light)
+
+    @property
+    def denoise(self) -> bool:
+        """Whether any filter runs on the photon map."""
+        return self.denoiser != "none"
+
+    @property
+    def curve(self) -> str:
+        """The method as a chart names it: ``cisp``, or ``cisp wavefront``."""
+        return self.method if self.splat == "point" else f"{self.method} {self.splat}"
 
     @property
     def label(self) -> str:
-        return f"{self.method} {self.photons:,} {'denoised' if self.denoise else 'raw'}"
+        return f"{self.curve} {self.photons:,} {self.denoiser}"
+
+
+def applicable(method: str, denoiser: str) -> bool:
+    """``own`` (seed 004's filters) belongs to caustics_map alone; every other denoiser to every method."""
+    return denoiser in DENOISERS and (denoiser != "own" or method == "caustics_map")
 
 
 def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSettings()) -> RenderSettings:
-    """The renderer's settings for ``cfg`` (see the module table for what "denoise" means per method)."""
-    photons = replace(base, photons=int(cfg.photons))
+    """The renderer's settings for ``cfg`` (see the module table)."""
+    if not applicable(cfg.method, cfg.denoiser):
+        raise ValueError(f"denoiser {cfg.denoiser!r} does not apply to method {cfg.method!r}")
+    photons = replace(base, photons=int(cfg.photons), splat=cfg.splat)
     if cfg.method == "caustics_map":
-        photons = replace(photons, cmap_gather="light" if cfg.denoise else "eye",
-                          cmap_history=4 if cfg.denoise else 1)
-        return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser="none")
-    return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons,
-                          denoiser="svgf" if cfg.denoise else "none")
+        own = cfg.denoiser == "own"
+        photons = replace(photons, cmap_gather="light" if own else "eye", cmap_history=4 if own else 1)
+        return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons,
+                              denoiser="none" if own else cfg.denoiser)
+    return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser=cfg.denoiser)
 
 
 def host_aovs(r: Renderer, keys=MEASURED_AOVS) -> dict[str, np.ndarray]:
@@ -170,6 +199,91 @@ def cached_reference(cache_dir: str | None, name: str, scenes: list[Scene], sett
     return frames, meta
 
 
+def accumulated_reference(cache_dir: str | None, name: str, scene: Scene, settings: RenderSettings, device,
+                          noise: float = 0.02, seconds: float = 60.0, max_chunks: int = 256,
+                          prepare: Callable[[Renderer], None] | None = None, key_extra: str = "",
+                          progress: Callable[[int, int], None] | None = None) -> tuple[dict, dict]:
+    """The reference of a still ``scene``, accumulated in chunks until its own relative noise over its caustic
+    mask (:func:`cisp_warp.metrics.reference_noise`) is at most ``noise``.
+
+    A chunk is one reference frame of ``settings`` (its ``reference_photons`` per light, in passes of
+    ``photons``); chunk k renders frame k, so every chunk draws new random numbers. The estimate is the mean
+    of the chunks' photon maps and final images, its standard error sqrt(Σ_k se_k²) / K. The running sums
+    (and those of the even and odd chunks apart, whose two half estimates give FLIP's noise floor) are kept in
+    ``cache_dir``: a later call with the same scene, settings and Warp version goes on from there. This call
+    renders until the target is met, ``max_chunks`` are done, or ``seconds`` of rendering have passed (0:
+    use the cache as it is, rendering only when there is none). Returns (AOVs ``REFERENCE_AOVS`` plus
+    ``final_halves`` (2, H, W, 3) when there are two chunks or more, meta)."""
+    from . import metrics as M
+
+    ps = settings.photons
+    key = hashlib.blake2b("|".join([scene_digest(scene), key_extra, str(settings.rsm_size), repr(ps),
+                                    wp.config.version, "chunks"]).encode(), digest_size=10).hexdigest()
+    path = os.path.join(cache_dir, f"reference_{name}_{key}.npz") if cache_dir else None
+    sums, meta = None, {}
+    if path and os.path.exists(path):
+        with np.load(path) as f:
+            meta = json.loads(str(f["meta"]))
+            sums = {k: f[k] for k in f.files if k != "meta"}
+
+    def estimate():
+        k = int(sums["chunks"])
+        est = {key_: sums[key_] for key_ in REFERENCE_AOVS if key_ not in ("photon_map", "caustics", "final",
+                                                                           "caustics_stderr")}
+        est["photon_map"] = (sums["photon_map"] / k).astype(np.float32)
+        est["caustics"] = est["photon_map"]
+        est["final"] = ((sums["final_even"] + sums["final_odd"]) / k).astype(np.float32)
+        est["caustics_stderr"] = (np.sqrt(sums["stderr_sq"]) / k).astype(np.float32)
+        if k >= 2:
+            even, odd = (k + 1) // 2, k // 2
+            est["final_halves"] = np.stack([sums["final_even"] / even, sums["final_odd"] / odd]).astype(np.float32)
+        return est
+
+    def own_noise(est):
+        return M.reference_noise(est, M.caustic_mask(est))
+
+    done = int(sums["chunks"]) if sums is not None else 0
+    current = own_noise(estimate()) if done else math.inf
+    if done == 0 or (seconds > 0 and current > noise and done < max_chunks):
+        r = Renderer(scene, settings, device=device)
+        if prepare is not None:
+            prepare(r)
+        t0 = time.perf_counter()
+        while done == 0 or (current > noise and done < max_chunks and time.perf_counter() - t0 < seconds):
+            r.frame = done  # chunk k: frame k, fresh random numbers
+            if progress is not None:
+                r.photons.progress = lambda i, n, k=done: progress(k * n + i, max(k + 1, 1) * n)
+            r.render_frame()
+            a = host_aovs(r, REFERENCE_AOVS)
+            if sums is None:
+                sums = {k: v for k, v in a.items() if k not in ("photon_map", "caustics", "final", "caustics_stderr")}
+                sums.update(photon_map=np.zeros(a["photon_map"].shape), stderr_sq=np.zeros(a["photon_map"].shape),
+                            final_even=np.zeros(a["final"].shape), final_odd=np.zeros(a["final"].shape))
+            sums["photon_map"] = sums["photon_map"] + a["photon_map"]
+            sums["stderr_sq"] = sums["stderr_sq"] + a["caustics_stderr"].astype(np.float64) ** 2
+            half = "final_even" if done % 2 == 0 else "final_odd"
+            sums[half] = sums[half] + a["final"]
+            done += 1
+            sums["chunks"] = np.array(done)
+            current = own_noise(estimate())
+        wp.synchronize_device(r.device)
+        meta = {"name": name, "key": key, "chunks": done, "photons_per_chunk": int(r.photons.target),
+                "photons": int(r.photons.target) * done, "passes": int(r.photons.passes) * done,
+                "seconds": meta.get("seconds", 0.0) + time.perf_counter() - t0, "device": device_name(r.device),
+                "width": r.gbuffer.width, "height": r.gbuffer.height}
+        if path:
+            os.makedirs(cache_dir, exist_ok=True)
+            tmp = path + ".tmp.npz"
+            np.savez_compressed(tmp, meta=json.dumps(meta), **sums)
+            os.replace(tmp, path)
+        meta["cached"] = False
+    else:
+        meta["cached"] = True
+    meta["reference_noise"] = current
+    meta["noise_target"] = noise
+    return estimate(), meta
+
+
 def source_version() -> str:
     """``git describe --always --dirty`` of the checkout the figures come from ("unknown" outside git)."""
     import subprocess
@@ -208,6 +322,7 @@ class CaseFigures:
     case: str
     method: str
     photons: int
+    denoiser: str
     energy_lost: float  #: 1 − power(caustics) / power(reference) over the case's region, mean over frames
     error: float  #: relative RMSE of the caustics over the reference's caustic mask ∩ region, mean over frames
     flicker: float  #: of the denoised caustics, mean over consecutive frame pairs
@@ -245,13 +360,20 @@ def play_case(case, settings: RenderSettings, width: int, height: int, frames: i
     return r, out
 
 
+def default_denoiser(method: str) -> str:
+    """What "denoised" means for a method when no denoiser is named: the renderer's default (``caustic``)."""
+    return "caustic"
+
+
 def measure_case(case, method: str, reference: list[dict], width: int, height: int, frames: int, measured: int,
-                 rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings()) -> CaseFigures:
-    """Play ``case`` with ``method`` denoised (:func:`render_settings`) and measure it against ``reference``
-    (:func:`case_reference` of the same frames)."""
+                 rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings(),
+                 denoiser: str | None = None, splat: str = "point") -> CaseFigures:
+    """Play ``case`` with ``method`` and ``denoiser`` (:func:`render_settings`; None: the default; ``splat`` for
+    cisp and sspm) and measure it against ``reference`` (:func:`case_reference` of the same frames)."""
     from . import metrics as M
 
-    settings = render_settings(Config(method, photons, True), rsm_size, base)
+    denoiser = denoiser or default_denoiser(method)
+    settings = render_settings(Config(method, photons, denoiser, splat), rsm_size, base)
     r, shots = play_case(case, settings, width, height, frames, measured, device)
     ref_frames = case_frames(case, frames, measured)
     ref_at = dict(zip(ref_frames, reference))
@@ -279,7 +401,7 @@ def measure_case(case, method: str, reference: list[dict], width: int, height: i
     ledger = r.photons.read_ledger()
     whole = ledger.as_dict()["sampled"]
     return CaseFigures(
-        case.name, method, int(photons), _nanmean(lost), _nanmean(errors), _nanmean(flick), _nanmean(flick_raw),
+        case.name, method, int(photons), denoiser, _nanmean(lost), _nanmean(errors), _nanmean(flick), _nanmean(flick_raw),
         _nanmean(ref_flick), M.reference_noise(last_ref, masks[frames - 1]),
         {k: (v / whole if whole > 0 else 0.0) for k, v in ledger.as_dict().items()}, float(ledger.closure()),
         all(np.isfinite(v).all() for a in shots for v in a.values() if v.dtype.kind == "f"))

@@ -18,10 +18,13 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 import warp as wp
 
-from .denoise import SVGF, GaussianGather, SVGFSettings
+from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings
 from .errors import SceneError
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
-from .raster import GBuffer, LightMaps, Rasterizer, camera_view
+from .photons.cisp import build_bounds
+from .photons.fit import LightViewFitter
+from .photons.march import bounds_size
+from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
 from .sky import SkyLighting, sky_map
@@ -42,8 +45,11 @@ class RenderSettings:
     rsm_size: int = 1024  #: edge of each reflective-shadow-map view [texels]
     method: str = "cisp"  #: photon method: "cisp", "sspm", "caustics_map", "reference", or "none" (direct only)
     photons: PhotonSettings = PhotonSettings()
-    denoiser: str = "svgf"  #: "svgf", "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
+    light_views: LightViewSettings = LightViewSettings()  #: RSM views fitted to the camera (cisp, sspm); or "scene"
+    denoiser: str = "caustic"  #: "caustic" (accumulate the raw map, filter what noise is left), "svgf" (the
+    #: paper's), "gather" (seed 004's 7×7 Gaussian) or "none" (raw photon map)
     svgf: SVGFSettings = field(default_factory=SVGFSettings)
+    caustic: CausticSettings = field(default_factory=CausticSettings)
     supersample: int = 1  #: anti-aliasing: s × s samples per pixel (every pass runs at s·width × s·height,
     #: the AOVs are box-filtered down); 1 = one sample per pixel. ``cisp_warp.render`` and the CLI use 2.
     sky_maps: int = 32  #: occlusion maps of the sky term (directions over the sphere)
@@ -66,6 +72,22 @@ class RenderSettings:
             raise SettingsError("svgf", f"must be an SVGFSettings or a dict of its fields, got {svgf!r}",
                                 owner="RenderSettings")
         object.__setattr__(self, "svgf", svgf)
+        views = self.light_views
+        if isinstance(views, str):
+            views = LightViewSettings(fit=views)
+        elif isinstance(views, dict):
+            views = _from_dict(LightViewSettings, views, "LightViewSettings")
+        elif not isinstance(views, LightViewSettings):
+            raise SettingsError("light_views", f"must be 'camera', 'scene', a LightViewSettings or a dict of its "
+                                f"fields, got {views!r}", owner="RenderSettings")
+        object.__setattr__(self, "light_views", views)
+        caustic = self.caustic
+        if isinstance(caustic, dict):
+            caustic = _from_dict(CausticSettings, caustic, "CausticSettings")
+        elif not isinstance(caustic, CausticSettings):
+            raise SettingsError("caustic", f"must be a CausticSettings or a dict of its fields, got {caustic!r}",
+                                owner="RenderSettings")
+        object.__setattr__(self, "caustic", caustic)
         self.validate()
 
     def validate(self) -> None:
@@ -95,6 +117,15 @@ class RenderSettings:
                 words = re.match(r"([a-z_]+) (.*)", exc.reason)
                 name, rest = (words.group(1), words.group(2)) if words else ("photons", exc.reason)
             raise SettingsError(name, rest, owner="PhotonSettings") from None
+        try:
+            self.light_views.validate()
+        except SceneError as exc:  # "fit must be ...": the field first
+            words = re.match(r"([a-z_]+) (.*)", exc.reason)
+            name, rest = (words.group(1), words.group(2)) if words else ("fit", exc.reason)
+            raise SettingsError(name, rest, owner="LightViewSettings") from None
+        if self.photons.splat != "point" and self.method not in ("cisp", "sspm"):
+            raise SettingsError("splat", f"{self.photons.splat} works with method cisp or sspm, not {self.method}",
+                                owner="PhotonSettings")
 
 
 class SettingsError(SceneError):
@@ -124,7 +155,10 @@ def _from_dict(cls, values: dict, owner: str):
 
 
 METHODS = PHOTON_METHODS + ("none",)
-DENOISERS = ("svgf", "gather", "none")
+#: methods whose RSM views are fitted to the camera; caustics_map keeps whole views: its caustic maps and their
+#: temporal history live in light space, which a window that follows the camera would move under them
+FITTED_METHODS = ("cisp", "sspm")
+DENOISERS = ("caustic", "svgf", "gather", "none")
 
 
 class Renderer:
@@ -147,7 +181,10 @@ class Renderer:
         self.gpu = DeviceScene(scene, self.device)
         self.raster = Rasterizer(self.gpu)
         self.gbuffer = GBuffer.allocate(cam.width, cam.height, self.device)
-        self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size) for light in scene.lights]
+        # wavefront splatting lays its grid over each whole RSM view (cascades would overlap and miss the skip)
+        fitted = self.settings.method in FITTED_METHODS and self.settings.photons.splat == "point"
+        views = self.settings.light_views if fitted else LightViewSettings(fit="scene")
+        self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size, views) for light in scene.lights]
         self.direct = DirectLighting(self.gbuffer, self.device)
         n = cam.width * cam.height
         self.sky = None
@@ -159,6 +196,7 @@ class Renderer:
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        self.depth_bounds = wp.zeros(bounds_size(cam.width, cam.height), dtype=wp.vec2, device=self.device)
         self.view = camera_view(cam)
         self.view_params = self.view.params()
         self.prev_view_params = self.view_params
@@ -168,8 +206,13 @@ class Renderer:
         if self.settings.method != "none":
             cls = photon_pass_class(self.settings.method)
             self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
+        ps = self.settings.photons
+        self.fitter = LightViewFitter(self.gpu, self.gbuffer, self.lights, ps.roughness_cutoff, ps.thickness,
+                                      ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed)
         self.denoiser = None
-        if self.settings.denoiser == "svgf":
+        if self.settings.denoiser == "caustic":
+            self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
+        elif self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
         elif self.settings.denoiser == "gather":
             self.denoiser = GaussianGather(cam.width, cam.height, self.device)
@@ -207,9 +250,10 @@ class Renderer:
         stage = timer.stage if timer is not None else (lambda name: nullcontext())
         g = self.gbuffer
         with stage("raster"):
+            g.render(self.raster, self.view_params, self.prev_view_params)
+            self.fitter.fit(self.raster, self.view_params, self.frame)  # light views fitted to what the camera sees
             for lm in self.lights:
                 lm.render(self.raster)
-            g.render(self.raster, self.view_params, self.prev_view_params)
         with stage("direct"):
             self.direct.render(g, self.lights)
         if self.sky is not None:
@@ -221,7 +265,7 @@ class Renderer:
             with stage("denoise"):
                 if not self.photons.denoise:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
-                elif isinstance(self.denoiser, SVGF):
+                elif isinstance(self.denoiser, (CausticDenoiser, SVGF)):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)
@@ -234,9 +278,10 @@ class Renderer:
                       inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.sky_irradiance,
                               self.surface_radiance])
             ps = self.settings.photons
+            build_bounds(g.depth, g.width, g.height, ps.thickness, 0.02, self.depth_bounds, self.device)
             wp.launch(composite, dim=n, device=self.device,
-                      inputs=[self.view_params, g.depth, self.surface_radiance, w.depth, w.position, w.normal, w.ior,
-                              self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
+                      inputs=[self.view_params, g.depth, self.depth_bounds, self.surface_radiance, w.depth, w.position,
+                              w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
         self.prev_view_params = self.view_params

@@ -13,9 +13,9 @@ import numpy as np
 import warp as wp
 
 from .optics import fresnel_dielectric, reflect, refract
-from .photons.march import MARCH_HIT, screen_march
+from .photons.march import MARCH_HIT, screen_march_bounded
 from .raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
-from .raster.rasterizer import GBuffer, LightMaps
+from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
 from .sky import SkyMap, sky_radiance
@@ -119,13 +119,14 @@ def surface_radiance(
 
 
 @wp.func
-def screen_space_lookup(camera: ViewParams, depth: wp.array(dtype=wp.float32), radiance: wp.array(dtype=wp.vec3),
-                        o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int, thickness: float):
+def screen_space_lookup(camera: ViewParams, depth: wp.array(dtype=wp.float32), depth_bounds: wp.array(dtype=wp.vec2),
+                        radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int,
+                        thickness: float):
     """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer.
 
     Returns (found, radiance); not found when the ray leaves the image or runs out of steps.
     """
-    status, t, steps = screen_march(camera, depth, o, d, t_max, max_steps, thickness, 0.02)
+    status, t, steps = screen_march_bounded(camera, depth, depth_bounds, o, d, t_max, max_steps, thickness, 0.02)
     if status != MARCH_HIT:
         return int(0), wp.vec3(0.0)
     q = world_project(camera, o + d * t)
@@ -138,6 +139,7 @@ def screen_space_lookup(camera: ViewParams, depth: wp.array(dtype=wp.float32), r
 def composite(
     camera: ViewParams,
     depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+    depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
     radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
     water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
     water_position: wp.array(dtype=wp.vec3),
@@ -178,13 +180,13 @@ def composite(
         l = wp.vec3(0.0)
         if f > 0.0:
             dr = reflect(d_in, n)
-            found, lr = screen_space_lookup(camera, depth, radiance, x, dr, t_max, max_steps, thickness)
+            found, lr = screen_space_lookup(camera, depth, depth_bounds, radiance, x, dr, t_max, max_steps, thickness)
             if found == 0:
                 lr = sky_radiance(sky, dr)
             l = l + lr * f
         if f < 1.0:
             dt = refract(d_in, n, eta)
-            found, lt = screen_space_lookup(camera, depth, radiance, x, dt, t_max, max_steps, thickness)
+            found, lt = screen_space_lookup(camera, depth, depth_bounds, radiance, x, dt, t_max, max_steps, thickness)
             if found == 0:  # the refracted ray leaves the screen or goes behind a surface: the opaque
                 lt = radiance[p]  # surface behind this pixel stands in (undistorted), never black
             l = l + lt * ((1.0 - f) / (eta * eta))

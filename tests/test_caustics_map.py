@@ -8,6 +8,7 @@ import pytest
 
 from cisp_warp import analytic
 from cisp_warp.photons import PhotonSettings
+from cisp_warp.raster import LightViewSettings
 from cisp_warp.render import Renderer, RenderSettings
 from cisp_warp.scene import Camera, Light, LightKind
 from cisp_warp.scene.model import look_at_matrix
@@ -15,9 +16,11 @@ from cisp_warp.scene.model import look_at_matrix
 
 def renderer(scene, device, photons, method="caustics_map", rsm=256, seed=3, **kw):
     """A renderer whose denoiser matches the gather: none after the light-space gather, seed 004's
-    7x7 eye-space Gaussian after the eye-space projection."""
+    7x7 eye-space Gaussian after the eye-space projection. Light views over the whole scene for every
+    method (caustics_map's own), so that cisp traces the same photons."""
     denoiser = "gather" if kw.get("cmap_gather") == "eye" else "none"
     return Renderer(scene, RenderSettings(rsm_size=rsm, method=method, denoiser=denoiser,
+                                          light_views=LightViewSettings(fit="scene"),
                                           photons=PhotonSettings(photons=photons, seed=seed, **kw)), device=device)
 
 

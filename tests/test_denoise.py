@@ -1,4 +1,6 @@
-"""Tests of the denoise pass: SVGF (constant, energy, disocclusion, motion, naive twin) and the Gaussian gather.
+"""Tests of the denoise pass: the caustics denoiser (constant, convergence to the long-run mean, step change,
+disocclusion, energy, naive twin), SVGF (constant, energy, disocclusion, motion, naive twin) and the Gaussian
+gather.
 
 G-buffers are built by hand in numpy: a tilted plane (depth linear in x, one normal), optionally a
 box in front of it and a corner with no surface. Sizes are tiny; generators are seeded.
@@ -10,8 +12,9 @@ import numpy as np
 import pytest
 import warp as wp
 
-from cisp_warp.denoise import SVGF, GaussianGather, SVGFSettings, launch_atrous_level
-from cisp_warp.denoise.naive import atrous_level_naive, depth_slope_naive
+from cisp_warp.denoise import (SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings,
+                               launch_atrous_level)
+from cisp_warp.denoise.naive import atrous_level_naive, caustic_frame_naive, depth_slope_naive
 
 W, H = 32, 24
 PLANE_NORMAL = np.array([0.3, 0.0, 1.0]) / np.hypot(0.3, 1.0)
@@ -44,6 +47,19 @@ def run_frame(svgf, g_np, irradiance, out):
 
 def history(svgf):
     return svgf.history_length.numpy().reshape(svgf.height, svgf.width)
+
+
+def poisson_map(rng, truth, photon):
+    """A photon map whose pixels hold Poisson counts of photons of irradiance ``photon`` [W/m²] with mean
+    ``truth`` (H, W) [W/m²]: the sparse, integer-valued noise of a real photon map (grey)."""
+    return (rng.poisson(truth / photon) * photon)[..., None] * np.ones(3, np.float32)
+
+
+def caustic_pattern(w=W, h=H, shift=0.0):
+    """A smooth caustic-like irradiance [W/m²]: bright bands 3-4 pixels wide over a dim floor."""
+    x = np.arange(w)[None, :] - shift
+    y = np.arange(h)[:, None]
+    return 2.0 + 30.0 * np.exp(-np.sin(0.25 * x + 0.5 * np.sin(0.3 * y)) ** 2 / 0.1)
 
 
 def photon_map(rng, h, w, density, value):
@@ -168,8 +184,11 @@ def test_fractional_motion_keeps_constant(device):
     assert np.all(history(svgf)[1:-1, 1:-1] == 5)
 
 
-@pytest.mark.parametrize("step,conserve", [(1, True), (2, True), (4, True), (1, False), (2, False)])
-def test_atrous_level_matches_naive_twin(device, step, conserve):
+@pytest.mark.parametrize("step,conserve,gate", [(1, True, None), (2, True, None), (4, True, None), (1, False, None),
+                                                (2, False, None), (1, True, 0.2), (2, True, 0.1)])
+def test_atrous_level_matches_naive_twin(device, step, conserve, gate):
+    """One à-trous level against the per-pixel float64 twin; ``gate``: the caustics denoiser's gated level
+    (noise target chosen so that the footprint radii straddle the step: some pixels filtered, some kept)."""
     rng = np.random.default_rng(11 + step)
     w, h = 16, 12
     g = plane(w, h)
@@ -183,14 +202,20 @@ def test_atrous_level_matches_naive_twin(device, step, conserve):
     dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
     slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
     var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
-    scratch = wp.zeros(w * h, dtype=wp.float32, device=device)
+    guide_a = wp.zeros(w * h, dtype=wp.vec4, device=device)
+    guide_b = wp.zeros(w * h, dtype=wp.vec4, device=device)
+    color_variance = wp.zeros(w * h, dtype=wp.vec4, device=device)
     weight_sum = wp.zeros(w * h, dtype=wp.float32, device=device)
     c_out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     v_out = wp.zeros(w * h, dtype=wp.float32, device=device)
-    launch_atrous_level(dev["irradiance"], var_in, dev["depth"], dev["normal"], slope, w, h, step, s, scratch,
-                        weight_sum, c_out, v_out)
+    launch_atrous_level(dev["irradiance"], var_in, dev["depth"], dev["normal"], slope, w, h, step, s.sigma_depth,
+                        s.sigma_normal, s.sigma_luminance, conserve, guide_a, guide_b, color_variance, weight_sum, c_out, v_out,
+                        noise_target=gate)
     c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
-                                      s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve)
+                                      s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve, noise_target=gate)
+    if gate is not None:  # the gate really splits the image: some pixels kept, some filtered
+        radius = guide_b.numpy()[:, 3].reshape(h, w)[g["depth"] > 0]
+        assert np.any(2 * radius <= step) and np.any(radius >= step)
     c_warp = c_out.numpy().reshape(h, w, 3)
     np.testing.assert_allclose(c_warp, c_ref, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
@@ -273,3 +298,215 @@ def test_gaussian_gather_constant_and_impulse(device):
     d = upload(dict(g, irradiance=impulse), device)
     gather.apply(d["irradiance"], d["depth"], d["normal"], d["tri_id"], out)
     assert np.all(out.numpy().reshape(H, W, 3)[14:, 20:] == 0.0)
+
+
+# ---- the caustics denoiser ---------------------------------------------------------------------------------
+
+
+def test_caustic_constant_stays_constant(device):
+    g = plane()
+    g["depth"][8:16, 10:20] = 1.5  # a box: depth edges
+    surf = g["depth"] > 0
+    e = np.array([1.5, 0.7, 0.2], np.float32)
+    den = CausticDenoiser(W, H, device)
+    out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+    for frame in range(8):
+        res = run_frame(den, g, np.broadcast_to(e, (H, W, 3)), out)
+        np.testing.assert_allclose(res[surf], np.broadcast_to(e, res[surf].shape), rtol=1e-5)
+        assert np.all(res[~surf] == 0.0)
+    np.testing.assert_allclose(history(den)[surf], 8.0, rtol=1e-5)  # nothing changed: a plain running mean
+    assert np.all(history(den)[~surf] == 0)
+
+
+def test_caustic_static_converges_to_long_run_mean(device):
+    """A still caustic under fresh photon noise every frame: the accumulated estimate is the running mean of
+    the raw photon maps (no change is detected), the error against the true irradiance falls like 1/sqrt(n),
+    the spatial filter gives way as the estimate converges, and SVGF, which feeds filtered output back,
+    stays far behind."""
+    rng = np.random.default_rng(21)
+    g = plane(hole=False)
+    truth = caustic_pattern()
+    photon = 1.0  # W/m² per photon: 2 to 32 photons per pixel and frame
+    den = CausticDenoiser(W, H, device)
+    svgf = SVGF(W, H, device)
+    out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+    out_svgf = wp.zeros(W * H, dtype=wp.vec3, device=device)
+    raw_sum = np.zeros((H, W))
+    err, err_svgf = [], []
+    frames = 48
+    for k in range(1, frames + 1):
+        e = poisson_map(rng, truth, photon)
+        raw_sum += e[..., 1]
+        res = run_frame(den, g, e, out)
+        res_svgf = run_frame(svgf, g, e, out_svgf)
+        err.append(np.sqrt(np.mean((res[..., 1] - truth) ** 2)) / truth.mean())
+        err_svgf.append(np.sqrt(np.mean((res_svgf[..., 1] - truth) ** 2)) / truth.mean())
+    integrated = den.integrated.numpy().reshape(H, W, 3)[..., 1]
+    running_mean = raw_sum / frames
+    # few false alarms: the history is close to the plain running mean of the raw maps
+    print(f"pixels with at least 0.9 x {frames} frames of history: {np.mean(history(den) >= 0.9 * frames):.3f}")
+    assert np.mean(history(den) >= 0.9 * frames) > 0.85
+    assert np.sqrt(np.mean((integrated - running_mean) ** 2)) / truth.mean() < 0.02
+    # error falls with the frames, to about the running mean's own (Poisson: sqrt(truth·photon / n))
+    floor = np.sqrt(np.mean(truth * photon / frames)) / truth.mean()
+    print(f"relative RMSE after 1, 8, 48 frames: {err[0]:.3f} {err[7]:.3f} {err[-1]:.3f}; running mean's "
+          f"noise {floor:.3f}; SVGF {err_svgf[-1]:.3f}")
+    assert err[-1] < 0.45 * err[7] and err[-1] < 1.3 * floor
+    # the filter gives way where the estimate has converged (the bands: 1536 photons per pixel, 2.6% noise,
+    # below the 3% target): there the output is the accumulated estimate
+    bands = truth > 20.0
+    kept = np.abs(res[..., 1] - integrated) <= 1e-5 * np.abs(integrated)
+    print(f"output = accumulated estimate on {np.mean(kept[bands]):.2f} of the bands, {np.mean(kept):.2f} overall")
+    assert np.mean(kept[bands]) > 0.8
+    assert err[-1] < 0.5 * err_svgf[-1]
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+def test_caustic_follows_a_step_change(device, noisy):
+    """The caustic doubles after 24 still frames: within 3 frames the estimate is the new level (the history
+    is cut back where the new photons disagree with it), where a plain running mean would still be at 1.1x."""
+    rng = np.random.default_rng(4)
+    g = plane(hole=False)
+    truth = caustic_pattern()
+    den = CausticDenoiser(W, H, device)
+    out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+
+    def frame(t):
+        tr = truth * (2.0 if t >= 24 else 1.0)
+        return poisson_map(rng, tr, 0.25) if noisy else np.repeat(tr[..., None], 3, -1).astype(np.float32)
+
+    for t in range(27):
+        res = run_frame(den, g, frame(t), out)
+    bright = truth > 10.0
+    integrated = den.integrated.numpy().reshape(H, W, 3)[..., 1]
+    ratio = integrated[bright].mean() / (2.0 * truth[bright].mean())
+    print(f"accumulated estimate over the bright bands 3 frames after the step: {ratio:.3f} of the new level; "
+          f"output image mean {res[..., 1].mean() / (2.0 * truth.mean()):.3f}")
+    assert abs(ratio - 1.0) < (0.03 if noisy else 1e-4)
+    assert abs(res[..., 1].mean() / (2.0 * truth.mean()) - 1.0) < (0.03 if noisy else 1e-4)
+    assert np.median(history(den)[bright]) <= 4.0
+    if not noisy:  # no noise, no spatial filter: the output is the new caustic itself
+        np.testing.assert_allclose(res[..., 1], 2.0 * truth, rtol=1e-4)
+
+
+def test_caustic_disocclusion_resets(device):
+    rng = np.random.default_rng(3)
+    g = plane()
+    den = CausticDenoiser(W, H, device)
+    out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+    truth = caustic_pattern()
+    for _ in range(6):
+        run_frame(den, g, poisson_map(rng, truth, 0.5), out)
+    surf = g["depth"] > 0
+    assert np.median(history(den)[surf]) == pytest.approx(6.0)
+    moved = dict(g, depth=g["depth"].copy(), tri_id=g["tri_id"].copy())
+    region = np.zeros((H, W), bool)
+    region[8:16, 10:20] = True
+    moved["depth"][region] *= 0.7  # a box appears in front of the plane
+    gone = np.zeros((H, W), bool)
+    gone[20:, 25:] = True
+    moved["depth"][gone] = 0.0
+    moved["tri_id"][gone] = -1  # and a patch of sky
+    res = run_frame(den, moved, poisson_map(rng, truth, 0.5), out)
+    h = history(den)
+    np.testing.assert_allclose(h[region], 1.0, rtol=1e-6)
+    assert np.all(h[gone] == 0) and np.all(res[gone] == 0.0)
+    assert np.median(h[surf & ~region & ~gone]) == pytest.approx(7.0)
+
+
+def test_caustic_conserves_energy(device):
+    """Every à-trous level keeps the image's total irradiance: output sum = accumulated sum (sparse maps, a
+    box and a hole); and the accumulated mean follows the running mean of the input means."""
+    rng = np.random.default_rng(8)
+    g = plane()
+    g["depth"][8:16, 10:20] = 1.5
+    surf = g["depth"] > 0
+    den = CausticDenoiser(W, H, device)
+    out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+    truth = caustic_pattern()
+    in_sum = np.zeros(3)
+    for k in range(1, 13):
+        e = poisson_map(rng, truth, 8.0)  # sparse: most pixels 0 in a frame
+        e[~surf] = 0.0
+        in_sum += e.reshape(-1, 3).sum(0)
+        res = run_frame(den, g, e, out)
+        integrated = den.integrated.numpy().reshape(H, W, 3)
+        np.testing.assert_allclose(res.reshape(-1, 3).sum(0), integrated.reshape(-1, 3).sum(0), rtol=1e-5)
+    assert np.mean((e[..., 1] == 0)[surf]) > 0.4
+    np.testing.assert_allclose(integrated.reshape(-1, 3).sum(0), in_sum / 12, rtol=0.03)
+
+
+def test_caustic_matches_naive_twin(device):
+    """Three frames (a box with a depth edge, noisy normals, a hole, fractional camera motion, sparse photons)
+    against the float64 twin written from the equations."""
+    rng = np.random.default_rng(17)
+    w, h = 20, 14
+    s = CausticSettings(atrous_levels=3, noise_target=0.1)
+    den = CausticDenoiser(w, h, device, s)
+    out = wp.zeros(w * h, dtype=wp.vec3, device=device)
+    hist = None
+    truth = caustic_pattern(w, h)
+    for t in range(3):
+        g = plane(w, h)
+        g["depth"][4:9, 6:11] = 1.2 if t < 2 else 1.4  # the box moves back: disoccluded in frame 2
+        nrm = g["normal"] + 0.05 * rng.standard_normal((h, w, 3)).astype(np.float32)
+        g["normal"] = (nrm / np.linalg.norm(nrm, axis=-1, keepdims=True)).astype(np.float32)
+        g["motion"][:] = (0.3 * (t > 0), -0.2 * (t > 0))
+        e = poisson_map(rng, truth, 4.0)
+        e[g["depth"] <= 0] = 0.0
+        res = run_frame(den, g, e, out)
+        ref, hist = caustic_frame_naive(e, g["depth"], g["normal"], g["motion"], hist, s)
+        np.testing.assert_allclose(history(den), hist["frames"], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(den.variance.numpy().reshape(h, w), hist["variance"], rtol=1e-4, atol=1e-6)
+        np.testing.assert_allclose(res, ref, rtol=1e-5, atol=1e-5 * truth.max())
+    assert np.any(hist["frames"] < 1.5) and np.any(hist["frames"] > 2.5)  # both reset and accumulated pixels
+
+
+def test_caustic_every_setting_reaches_a_kernel(device):
+    """Changing any one setting changes the output of a short sequence over a scene that exercises it."""
+    rng = np.random.default_rng(5)
+    truth = caustic_pattern()
+    frames = []
+    for t in range(6):
+        g = plane()
+        g["depth"][8:16, 10:20] = 1.5
+        g["depth"] *= 1.0 + 0.05 * (t % 2)  # depth jitter that depth_tolerance decides on
+        tilt = 0.1 * (t % 2)  # normal jitter that normal_tolerance decides on
+        n = np.stack([PLANE_NORMAL[0] + tilt + 0.05 * np.sin(np.arange(W) * 0.7)[None, :].repeat(H, 0),
+                      np.zeros((H, W)), np.ones((H, W))], -1)
+        g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+        frames.append((g, poisson_map(rng, truth * (1.0 + 0.5 * (t >= 3)), 2.0)))
+    changed = dict(max_history=3, change_radius=1, change_sigmas=0.5, atrous_levels=2, noise_target=0.3,
+                   sigma_depth=0.1, sigma_normal=4.0, sigma_luminance=0.5, depth_tolerance=0.01,
+                   normal_tolerance=0.999)
+    assert set(changed) == {f.name for f in fields(CausticSettings)}
+
+    def sequence(settings):
+        den = CausticDenoiser(W, H, device, settings)
+        out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+        return np.stack([run_frame(den, g, e, out).copy() for g, e in frames])
+
+    base = sequence(CausticSettings())
+    for name, value in changed.items():
+        assert not np.allclose(sequence(replace(CausticSettings(), **{name: value})), base, rtol=1e-4, atol=0), name
+
+
+def test_caustic_settings_validation():
+    for bad in (dict(max_history=1), dict(change_sigmas=0.0), dict(noise_target=0.0), dict(atrous_levels=-1),
+                dict(sigma_luminance=0.0), dict(normal_tolerance=1.5)):
+        with pytest.raises(ValueError):
+            CausticSettings(**bad)
+
+
+def test_bench_denoise_smoke():
+    """tools/bench_denoise.py runs end to end on its synthetic G-buffer and names every denoiser."""
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    res = subprocess.run([sys.executable, os.path.join(root, "tools", "bench_denoise.py"), "--smoke"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    for name in ("caustic", "svgf", "gather"):
+        assert f"  {name} " in res.stdout

@@ -123,8 +123,8 @@ def test_evaluate_smoke(tmp_path):
     data = json.loads((out / "results.json").read_text())
     assert data["device"].startswith("cpu") and data["preset"] == "smoke" and data["warp"]
     runs = data["runs"]
-    assert {(r["method"], r["denoise"]) for r in runs} == {(m, d) for m in ("cisp", "sspm", "caustics_map")
-                                                           for d in (True, False)}
+    assert {(r["method"], r["denoiser"]) for r in runs} == {
+        (m, d) for m in ("cisp", "sspm", "caustics_map") for d in ("caustic", "svgf", "none")} | {("caustics_map", "own")}
     for r in runs:
         assert r["finite"] and r["ledger_closure"] < 1e-5
         assert 0.9 < r["energy_ratio_raw"] < 1.1, r  # sinusoid: nothing is out of any method's reach

@@ -62,18 +62,20 @@ def test_hidden_photon_trail(device):
     assert f["caustics_map"].energy_lost > 0.95
 
 
-def test_svgf_halves_flicker_on_a_static_scene(device):
-    """A static caustic (only the photons' random numbers change from frame to frame): once SVGF has a history,
-    the frame-to-frame change of CISP's denoised caustics is below half of the raw photon map's — temporal
-    accumulation alone (α = 0.2) would give about 0.2 of it — and the error is below the raw map's."""
+@pytest.mark.parametrize("denoiser", ["caustic", "svgf"])
+def test_denoisers_halve_flicker_on_a_static_scene(device, denoiser):
+    """A static caustic (only the photons' random numbers change from frame to frame): once the denoiser has a
+    history, the frame-to-frame change of CISP's denoised caustics is below half of the raw photon map's —
+    SVGF's accumulation alone (α = 0.2) would give about 0.2 of it, the caustics denoiser's running mean 1/n —
+    and the energy is kept."""
     c = case("ior_2_4")
     w, h, frames, measured = 64, 48, 12, 4
     ref, _ = E.case_reference(c, w, h, frames, measured, E.reference_settings(128, 200_000, 400_000), device)
-    f = E.measure_case(c, "cisp", ref, w, h, frames, measured, 128, 20_000, device)
+    f = E.measure_case(c, "cisp", ref, w, h, frames, measured, 128, 20_000, device, denoiser=denoiser)
     check_books(f)
     assert f.flicker_raw > 0.1  # 20k photons: a noisy raw map
     assert f.flicker < 0.5 * f.flicker_raw, f
-    assert abs(f.energy_lost) < 0.05  # SVGF keeps the energy
+    assert abs(f.energy_lost) < 0.05
 
 
 # ---- property test --------------------------------------------------------------------------------------
@@ -142,8 +144,9 @@ def test_stability_smoke(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     data = json.loads((out / "stability.json").read_text())
     assert data["device"].startswith("cpu") and data["preset"] == "smoke"
-    assert {(r["case"], r["method"]) for r in data["rows"]} == {
-        (c, m) for c in ("hidden_trail", "fast_water") for m in ("cisp", "sspm", "caustics_map")}
+    assert {(r["case"], r["method"], r["denoiser"]) for r in data["rows"]} == {
+        (c, m, d) for c in ("hidden_trail", "fast_water") for m in ("cisp", "sspm", "caustics_map")
+        for d in ("caustic", "svgf", "own") if d != "own" or m == "caustics_map"}
     assert all(r["finite"] and r["closure"] < 1e-5 for r in data["rows"])
     md = (out / "stability.md").read_text()
     assert "| hidden_trail |" in md and "| fast_water |" in md

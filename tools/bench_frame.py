@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 
 import warp as wp
@@ -32,7 +33,7 @@ def kernel_table(results, frames: int) -> dict[str, tuple[float, float]]:
     for r in results:
         name = r.name
         if name.startswith("forward kernel "):
-            name = name[len("forward kernel "):]
+            name = re.sub(r"_[0-9a-f]{8}$", "", name[len("forward kernel "):])  # the module hash Warp appends
         a = acc.setdefault(name, [0.0, 0])
         a[0] += r.elapsed
         a[1] += 1
@@ -48,7 +49,8 @@ def run_config(scene_path, method, n, args, device):
     scene = load_usd(scene_path, width=args.width, height=args.height, device=device)
     # the reference traces two passes of n per frame here: its rate per photon is what is compared
     photons = PhotonSettings(photons=n, reference_photons=2 * n,
-                             sort_photons={"auto": None, "on": True, "off": False}[args.sort])
+                             sort_photons={"auto": None, "on": True, "off": False}[args.sort],
+                             splat=args.splat if method in ("cisp", "sspm") else "point")
     settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
     r = Renderer(scene, settings, device=device)
     timer = None
@@ -57,6 +59,8 @@ def run_config(scene_path, method, n, args, device):
             timer = StageTimer(device)
         r.render_frame(timer)
     row = {"photons": n, "stages": timer.medians(), "traced": n * getattr(r.photons, "passes", 1) * len(scene.lights)}
+    if getattr(r.photons, "wavefront", None) is not None:
+        row["traced"] = r.photons.wavefront.photons_traced()  # two sheets through every grid corner
     if args.kernels and device.is_cuda:
         wp.timing_begin(cuda_filter=wp.TIMING_ALL)
         for _ in range(args.frames):
@@ -77,9 +81,12 @@ def main(argv=None) -> int:
     p.add_argument("--rsm-size", type=int, default=2048)
     p.add_argument("--photons", default="500k,1M,2M", help="comma-separated photon counts (per light)")
     p.add_argument("--methods", default="cisp", help="comma-separated: cisp, sspm, caustics_map, reference")
-    p.add_argument("--denoiser", default="svgf", choices=["svgf", "gather", "none"])
+    p.add_argument("--denoiser", default="caustic", choices=["caustic", "svgf", "gather", "none"],
+                   help="caustic (the renderer's default), svgf (the paper's), gather, none")
     p.add_argument("--sort", default="auto", choices=["auto", "on", "off"],
                    help="trace RSM photons in texel order (auto: on CUDA only)")
+    p.add_argument("--splat", default="point", choices=["point", "wavefront"],
+                   help="cisp, sspm: point deposits or wavefront splatting (photons = grid cells per light)")
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
     p.add_argument("--kernels", action="store_true",
                    help="also time every kernel (CUDA activity timing, separate frames) and count launches")
@@ -105,10 +112,12 @@ def main(argv=None) -> int:
             rows = [run_config(scene_path, method, n, args, device) for n in counts]
             results[method] = rows
             for row in rows:
-                report["runs"].append({"scene": sname, "method": method, **row})
+                splat = args.splat if method in ("cisp", "sspm") else "point"
+                report["runs"].append({"scene": sname, "method": method, "splat": splat, **row})
             stages = list(rows[0]["stages"])
+            splat = f", splat {args.splat}" if method in ("cisp", "sspm") else ""
             print(f"{sname}, {method}: device {dev}; {args.width}x{args.height}, RSM {args.rsm_size}², "
-                  f"denoiser {args.denoiser}; median ms over {args.frames} frames")
+                  f"denoiser {args.denoiser}{splat}; median ms over {args.frames} frames")
             print(f"{'stage':<14}" + "".join(f"{row['photons']:>14,}" for row in rows))
             for s in stages:
                 print(f"{s:<14}" + "".join(f"{row['stages'][s]:14.3f}" for row in rows))
@@ -131,7 +140,8 @@ def main(argv=None) -> int:
         print(f"{sname}: trace+store rate [million photons per second], device {dev}")
         print(f"{'method':<14}" + "".join(f"{n:>14,}" for n in counts))
         for method, rows in results.items():
-            print(f"{method:<14}" + "".join(f"{row['traced'] / row['stages']['trace+store'] / 1e3:14.2f}" for row in rows))
+            rates = [row["traced"] / row["stages"]["trace+store"] / 1e3 for row in rows]
+            print(f"{method:<14}" + "".join(f"{r:14.2f}" for r in rates))
         print()
     if args.json:
         with open(args.json, "w") as f:

@@ -1,22 +1,34 @@
 #!/usr/bin/env python3
-"""Speed against accuracy: every method × photon count × denoiser on/off on every scene, measured against
-the converged reference, charted as a Pareto plot.
+"""Speed against accuracy: every method × photon count × denoiser on every scene, measured against the
+converged reference, charted as a Pareto plot.
 
-    python tools/evaluate.py --preset small --out results/          # CPU, 160x90, about 5 minutes on 2 cores
+    python tools/evaluate.py --preset small --out results/          # CPU, 160x90
     python tools/evaluate.py --preset small --out results/ --all    # and the stability suite (tools/stability.py)
-    python tools/evaluate.py --preset full --device cuda:0 --out results_cuda/   # 1920x1080, 0.125M..4M photons
+    python tools/evaluate.py --preset full --device cuda:0 --out results_cuda/ --references-only  # references
+    python tools/evaluate.py --preset full --device cuda:0 --out results_cuda/ --reference-seconds 0
     python tools/evaluate.py --smoke --out /tmp/eval                # seconds: what the tests run
+    python tools/evaluate.py --scenes sinusoid,pool --methods cisp --splats point,wavefront --denoisers none
+                                                                    # point photons against wavefront splatting
 
-Per run (scene, method, photons, denoise): median stage times [ms] over the timed frames after warm-up
+Denoisers (``--denoisers``): ``caustic`` (the renderer's default), ``svgf`` (the paper's), ``none`` (raw), and
+for caustics_map ``own`` (seed 004's filters); cisp_warp/evaluation.py says what each means per method. The
+scenes are still: the figures are of the last frames after 16 (the denoisers' steady state).
+
+References accumulate independent reference frames until their own relative noise over their caustic mask is
+at most ``--reference-noise`` (2% by default), within ``--reference-seconds`` of rendering per scene and call;
+the sums are cached in OUT/references, so a first call can build them (``--references-only``) and a second
+use them as they are (``--reference-seconds 0``).
+
+Per run (scene, method, photons, denoiser): median stage times [ms] over the timed frames after warm-up
 (CUDA events on a GPU, synchronised wall clock on the CPU; cisp_warp.timing.StageTimer), and, averaged over
 the last frames, against the reference's photon map: the relative RMSE of the caustic irradiance over the
 pixels where the reference shows caustics (``caustics``, and the raw ``photon_map``), the energy ratio, and
-LDR-FLIP of the tone-mapped final image. The definitions are in cisp_warp/metrics.py; what "denoise" means
-per method in cisp_warp/evaluation.py. References are rendered once per scene and cached under --out.
+LDR-FLIP of the tone-mapped final image (of the last frame, at the preset's ``flip_photons`` counts). The
+definitions are in cisp_warp/metrics.py. References are rendered once per scene and cached under --out.
 
 Writes OUT/results.csv, OUT/results.json (device, Warp version, preset, date, definitions) and
-OUT/pareto.png (relative RMSE and FLIP against frame time, log axes, one curve per method, one column per
-scene, solid = denoised, dashed = raw). FLIP needs ``flip-evaluator`` and the chart ``matplotlib``:
+OUT/pareto.png (relative RMSE and FLIP against frame time, log axes, one colour per method, one line style
+per denoiser, one column per scene). FLIP needs ``flip-evaluator`` and the chart ``matplotlib``:
 ``pip install -e .[eval]``; without them those columns are NaN and the chart is skipped, with a note.
 """
 
@@ -43,20 +55,24 @@ CORNELL = os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda")
 POOL = os.path.join(ROOT, "scenes_usd", "pool.usda")
 POOL_TIME_CODE = 48.0  #: 2 s into the pool's animation: simulated waves, the camera mid-dolly
 
-#: photons: per light per frame; reference: photons per light accumulated, in passes of ``reference_pass``
-#: (0 = the renderer's default: 1e8 on CUDA); frames: warm-up (untimed), timed, and the last ``measured``
-#: of the timed ones compared with the reference (a static scene: the denoisers' steady state)
+#: photons: per light per frame; reference: photons per light and chunk (0 = the renderer's default: 1e8 on
+#: CUDA), in passes of ``reference_pass``, chunks accumulated to ``reference_noise`` within ``reference_seconds``
+#: per scene; frames: warm-up (untimed), timed, and the last ``measured`` of the timed ones compared with the
+#: reference (static scenes: warmup + timed = 16, the denoisers' steady state); FLIP at ``flip_photons`` only
+#: (None: every count), on the last frame
 PRESETS = {
     "smoke": dict(width=64, height=36, rsm_size=64, photons=[4_000, 16_000], warmup=2, timed=2, measured=1,
-                  reference=400_000, reference_pass=100_000, scenes=["sinusoid"]),
+                  reference=200_000, reference_pass=100_000, reference_noise=0.05, reference_seconds=60.0,
+                  flip_photons=None, scenes=["sinusoid"]),
     "small": dict(width=160, height=90, rsm_size=256, photons=[31_250, 62_500, 125_000, 250_000, 500_000],
-                  warmup=8, timed=5, measured=3, reference=16_000_000, reference_pass=1_000_000,
+                  warmup=12, timed=4, measured=2, reference=8_000_000, reference_pass=1_000_000,
+                  reference_noise=0.02, reference_seconds=600.0, flip_photons=None,
                   scenes=["cornell", "pool", "sinusoid"]),
-    "full": dict(width=1920, height=1080, rsm_size=2048,
-                 photons=[125_000, 250_000, 500_000, 1_000_000, 2_000_000, 4_000_000],
-                 warmup=8, timed=20, measured=3, reference=0, reference_pass=4_000_000,
-                 scenes=["cornell", "pool", "sinusoid"]),
+    "full": dict(width=1920, height=1080, rsm_size=2048, photons=[250_000, 1_000_000, 2_000_000, 8_000_000],
+                 warmup=12, timed=4, measured=2, reference=0, reference_pass=4_000_000, reference_noise=0.02,
+                 reference_seconds=120.0, flip_photons=[2_000_000], scenes=["cornell", "pool", "sinusoid"]),
 }
+DENOISER_STYLES = {"caustic": "-", "svgf": "--", "none": ":", "own": "-."}
 
 
 @dataclass
@@ -98,8 +114,21 @@ def scene_specs(names: list[str]) -> list[SceneSpec]:
     return specs
 
 
+def analytic_sinusoid_reference(ref: dict, width: int, height: int) -> dict:
+    """The sinusoid's exact floor irradiance (the analytic refraction ray map, binned per pixel column) in place
+    of the photon reference's map, its standard error zero: errors are then measured against the truth, not
+    against a reference whose own noise (19% at 1920x1080 from 1e8 photons) would hide them."""
+    from cisp_warp import analytic
+
+    profile = analytic.sinusoidal_answer(width, height, samples=max(2_000_001, 4000 * width + 1))
+    e = np.where(ref["depth"][..., None] > 0, profile[None, :, None], 0.0).astype(np.float32)
+    return {**ref, "photon_map": np.broadcast_to(e, ref["photon_map"].shape).copy(),
+            "caustics_stderr": np.zeros_like(ref["caustics_stderr"])}
+
+
 def measure(shots: list[dict], ref: dict, mask: np.ndarray, footprint: np.ndarray, flip: bool) -> dict:
-    """Figures of the measured frames against the reference, each the mean over the frames."""
+    """Figures of the measured frames against the reference, each the mean over the frames; FLIP (when
+    ``flip``) of the last frame."""
     from cisp_warp import metrics as M
 
     rows = []
@@ -109,10 +138,10 @@ def measure(shots: list[dict], ref: dict, mask: np.ndarray, footprint: np.ndarra
             "rel_rmse_raw": M.relative_rmse(a["photon_map"], ref["photon_map"], mask),
             "energy_ratio": M.energy_ratio(a["caustics"], ref["photon_map"], footprint),
             "energy_ratio_raw": M.energy_ratio(a["photon_map"], ref["photon_map"], footprint),
-            "flip": M.flip_ldr(a["final"], ref["final"]) if flip else math.nan,
             "finite": bool(all(np.isfinite(v).all() for v in a.values() if v.dtype.kind == "f")),
         })
     out = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "finite"}
+    out["flip"] = M.flip_ldr(shots[-1]["final"], ref["final"]) if flip else math.nan
     out["finite"] = all(r["finite"] for r in rows)
     return out
 
@@ -125,8 +154,10 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
     import matplotlib.pyplot as plt
 
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    colours = {m: c for m, c in zip(methods, ("tab:blue", "tab:orange", "tab:green", "tab:red"))}
+    methods = list(dict.fromkeys(curve_name(r) for r in rows))
+    denoisers = list(dict.fromkeys(r["denoiser"] for r in rows))
+    colours = {m: c for m, c in zip(methods, ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
+                                              "tab:brown", "tab:pink"))}
     have_flip = any(np.isfinite(r["flip"]) for r in rows)
     metrics = [("rel_rmse", "relative RMSE of caustic irradiance")] + ([("flip", "LDR-FLIP of final image")]
                                                                           if have_flip else [])
@@ -136,17 +167,17 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
         for i, (key, label) in enumerate(metrics):
             ax = axes[i][j]
             for m in methods:
-                for denoise, style in ((True, "-"), (False, "--")):
+                for den in denoisers:
                     pts = sorted((r["photons"], r["frame_ms"], r[key]) for r in rows if r["scene"] == scene
-                                 and r["method"] == m and r["denoise"] == denoise and np.isfinite(r[key]))
+                                 and curve_name(r) == m and r["denoiser"] == den and np.isfinite(r[key]))
                     if not pts:
                         continue
                     _, x, y = zip(*pts)  # joined in photon order
-                    ax.plot(x, y, style, marker="o", ms=3.5, color=colours[m],
-                            label=f"{m} {'denoised' if denoise else 'raw'}")
+                    ax.plot(x, y, DENOISER_STYLES.get(den, "-"), marker="o", ms=3.5, color=colours[m],
+                            label=f"{m} {den}")
             floor_key = {"rel_rmse": "reference_noise", "flip": "reference_flip"}[key]
             floor = [r[floor_key] for r in rows if r["scene"] == scene]
-            if floor and np.isfinite(floor[0]):
+            if floor and np.isfinite(floor[0]) and floor[0] > 0:
                 ax.axhline(floor[0], color="grey", lw=0.8, ls=":", label="reference's own noise")
             ax.set_xscale("log")
             ax.set_yscale("log")
@@ -167,6 +198,12 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
     plt.close(fig)
 
 
+def curve_name(row: dict) -> str:
+    """A run's curve: its method, and its splat when not points (rows from before splats count as points)."""
+    splat = row.get("splat", "point")
+    return row["method"] if splat == "point" else f"{row['method']} {splat}"
+
+
 def chart_title(meta: dict) -> str:
     counts = sorted({r["photons"] for r in meta["runs"]})
     c = meta["settings"]
@@ -174,16 +211,16 @@ def chart_title(meta: dict) -> str:
             f"{meta['preset']} · {counts[0]:,} to {counts[-1]:,} photons per frame along each curve")
 
 
-FIELDS = ["scene", "method", "photons", "denoise", "width", "height", "frame_ms", "raster_ms", "direct_ms",
+FIELDS = ["scene", "method", "splat", "photons", "denoiser", "width", "height", "frame_ms", "raster_ms", "direct_ms",
           "trace_ms", "denoise_ms", "shade_ms", "rel_rmse", "rel_rmse_raw", "energy_ratio", "energy_ratio_raw",
           "flip", "reference_noise", "reference_flip", "mask_pixels", "stored_share", "ledger_closure", "finite"]
 
 
 def print_table(rows: list[dict]) -> None:
-    print(f"{'scene':<9}{'method':<13}{'photons':>9} {'denoise':<8}{'ms':>9}{'relRMSE':>9}{'raw':>8}"
+    print(f"{'scene':<9}{'method':<18}{'photons':>10} {'denoiser':<9}{'ms':>9}{'relRMSE':>9}{'raw':>8}"
           f"{'energy':>8}{'FLIP':>8}")
     for r in rows:
-        print(f"{r['scene']:<9}{r['method']:<13}{r['photons']:>9,} {('on' if r['denoise'] else 'off'):<8}"
+        print(f"{r['scene']:<9}{curve_name(r):<18}{r['photons']:>10,} {r['denoiser']:<9}"
               f"{r['frame_ms']:9.1f}{r['rel_rmse']:9.3f}{r['rel_rmse_raw']:8.3f}{r['energy_ratio']:8.3f}"
               f"{r['flip']:8.3f}")
 
@@ -197,9 +234,23 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
     p.add_argument("--scenes", default=None, help="comma-separated subset of cornell,pool,sinusoid")
     p.add_argument("--methods", default="cisp,sspm,caustics_map", help="comma-separated methods")
+    p.add_argument("--splats", default="point",
+                   help="comma-separated photon stores for cisp and sspm: point, wavefront (photons on an RSM grid, "
+                   "--photons then counts grid cells per light); one curve per method and splat")
+    p.add_argument("--denoisers", default="caustic,svgf,none,own",
+                   help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
+    p.add_argument("--reference-noise", type=float, default=None,
+                   help="accumulate references until their own relative noise over the caustic mask is at most this "
+                   "(default: the preset's, 0.02)")
+    p.add_argument("--reference-seconds", type=float, default=None,
+                   help="rendering time per reference and call [s] (0: use the cached references as they are)")
+    p.add_argument("--references-only", action="store_true", help="build or extend the references, then stop")
     p.add_argument("--photons", default=None, help="comma-separated photon counts (500k, 1M, ...) instead of the preset's")
     p.add_argument("--width", type=int, default=None, help="override the preset's image width [pixels]")
     p.add_argument("--height", type=int, default=None, help="override the preset's image height [pixels]")
+    p.add_argument("--analytic-sinusoid", action="store_true",
+                   help="measure the sinusoid's caustic against its analytic ray map (exact) instead of the photon "
+                   "reference (FLIP still compares with the reference's final image)")
     p.add_argument("--no-flip", action="store_true", help="skip FLIP (it is the slowest figure at full size)")
     p.add_argument("--merge", action="store_true",
                    help="keep the rows of other scenes already in OUT/results.json (same preset, device and size), "
@@ -245,7 +296,19 @@ def main(argv=None) -> int:
     os.makedirs(args.out, exist_ok=True)
     cache = os.path.join(args.out, "references")
     w, h, rsm = cfg["width"], cfg["height"], cfg["rsm_size"]
-    configs = [E.Config(m, n, d) for m in methods for d in (True, False) for n in cfg["photons"]]
+    denoisers = args.denoisers.split(",")
+    for d in denoisers:
+        if d not in E.DENOISERS:
+            raise SystemExit(f"unknown denoiser {d!r}: {', '.join(E.DENOISERS)}")
+    splats = args.splats.split(",")
+    for sp in splats:
+        if sp not in ("point", "wavefront"):
+            raise SystemExit(f"unknown splat {sp!r}: point, wavefront")
+    configs = [E.Config(m, n, d, sp) for m in methods for sp in (splats if m in ("cisp", "sspm") else ["point"])
+               for d in denoisers if E.applicable(m, d) for n in cfg["photons"]]
+    noise_target = args.reference_noise if args.reference_noise is not None else cfg["reference_noise"]
+    ref_seconds = args.reference_seconds if args.reference_seconds is not None else cfg["reference_seconds"]
+    flip_counts = cfg["flip_photons"]
     t_start = time.perf_counter()
     rows, references = [], {}
     for spec in specs:
@@ -257,22 +320,26 @@ def main(argv=None) -> int:
             bar.refresh()
 
         settings = E.reference_settings(rsm, cfg["reference_pass"], cfg["reference"])
-        (ref,), meta = E.cached_reference(cache, f"{spec.name}_{w}x{h}", [spec.make(w, h)], settings, device,
-                                          prepare=spec.prepare, key_extra=spec.key, progress=progress)
-        flip_floor = math.nan
-        if flip:  # FLIP of a second, independent reference (another seed): what FLIP sees of its noise
-            (ref2,), _ = E.cached_reference(cache, f"{spec.name}_{w}x{h}_seed1", [spec.make(w, h)],
-                                            E.reference_settings(rsm, cfg["reference_pass"], cfg["reference"], seed=1),
-                                            device, prepare=spec.prepare, key_extra=spec.key, progress=progress)
-            flip_floor = M.flip_ldr(ref2["final"], ref["final"])
+        ref, meta = E.accumulated_reference(cache, f"{spec.name}_{w}x{h}", spec.make(w, h), settings, device,
+                                            noise=noise_target, seconds=ref_seconds, prepare=spec.prepare,
+                                            key_extra=spec.key, progress=progress)
         bar.close()
+        flip_floor = math.nan
+        if flip and "final_halves" in ref:  # FLIP between the even and the odd chunks: what FLIP sees of its noise
+            flip_floor = M.flip_ldr(ref["final_halves"][0], ref["final_halves"][1])
+        if args.analytic_sinusoid and spec.name == "sinusoid":
+            ref = analytic_sinusoid_reference(ref, w, h)
+            meta["analytic"] = True
         mask = M.caustic_mask(ref)
         meta.update(mask_pixels=int(mask.sum()), reference_noise=M.reference_noise(ref, mask),
                     reference_flip=flip_floor)
         references[spec.name] = meta
         took = "cached" if meta["cached"] else f"{meta['seconds']:.1f} s"
-        tqdm.write(f"{spec.name}: reference {meta['photons']:,} photons per light ({took}), caustic mask "
-                   f"{meta['mask_pixels']} pixels, its own relative noise {meta['reference_noise']:.4f}")
+        tqdm.write(f"{spec.name}: reference {meta['photons']:,} photons per light in {meta['chunks']} chunks ({took}), "
+                   f"caustic mask {meta['mask_pixels']} pixels, its own relative noise {meta['reference_noise']:.4f}"
+                   f" (target {noise_target})")
+        if args.references_only:
+            continue
         footprint = None
         for cfg_run in tqdm(configs, desc=spec.name, unit="run"):
             r = Renderer(spec.make(w, h), E.render_settings(cfg_run, rsm), device=device)
@@ -281,11 +348,11 @@ def main(argv=None) -> int:
             timing, shots = E.run_frames(r, cfg["warmup"], cfg["timed"], cfg["measured"])
             if footprint is None:
                 footprint = M.pixel_footprint(ref, r.view)
-            fig = measure(shots, ref, mask, footprint, flip)
+            fig = measure(shots, ref, mask, footprint, flip and (flip_counts is None or cfg_run.photons in flip_counts))
             ledger = r.photons.read_ledger()
             s = timing.stages
-            rows.append({"scene": spec.name, "method": cfg_run.method, "photons": cfg_run.photons,
-                         "denoise": cfg_run.denoise, "width": w, "height": h, "frame_ms": timing.frame,
+            rows.append({"scene": spec.name, "method": cfg_run.method, "splat": cfg_run.splat, "photons": cfg_run.photons,
+                         "denoiser": cfg_run.denoiser, "width": w, "height": h, "frame_ms": timing.frame,
                          "raster_ms": s.get("raster", 0.0), "direct_ms": s.get("direct", 0.0),
                          "trace_ms": s.get("trace+store", 0.0), "denoise_ms": s.get("denoise", 0.0),
                          "shade_ms": s.get("shade", 0.0), **fig, "reference_noise": meta["reference_noise"],
@@ -294,6 +361,10 @@ def main(argv=None) -> int:
                          "stored_share": float(ledger["stored"].sum() / max(ledger["sampled"].sum(), 1e-300)),
                          "ledger_closure": float(ledger.closure())})
     wall = time.perf_counter() - t_start
+    if args.references_only:
+        print(f"references in {args.out}/references ({wall:.0f} s): " + "; ".join(
+            f"{k} {v['photons']:,} photons, noise {v['reference_noise']:.4f}" for k, v in references.items()))
+        return 0
     previous = os.path.join(args.out, "results.json")
     if args.merge and os.path.exists(previous):
         with open(previous) as f:
@@ -301,7 +372,7 @@ def main(argv=None) -> int:
         if (old["device"], old["preset"]) == (dev_name, args.preset):
             done = {spec.name for spec in specs}
             kept = [r for r in old["runs"] if r["scene"] not in done and (r["width"], r["height"]) == (w, h)]
-            rows = kept + rows
+            rows = [{"splat": "point", **r} for r in kept] + rows
             references = {**{k: v for k, v in old["references"].items() if k not in done}, **references}
             wall += old.get("wall_seconds", 0.0)
         else:
@@ -328,10 +399,13 @@ def main(argv=None) -> int:
                     "by cisp_warp.image_io.tonemap with the reference's automatic exposure",
             "frame_ms": "median over timed frames of the sum of the stages raster, direct, trace+store, denoise, "
                         "shade (after warm-up; synchronised)",
-            "reference_noise": "the reference's own relative standard error over the mask",
-            "reference_flip": "LDR-FLIP between the reference and a second one of another seed: FLIP's noise floor",
-            "denoise": "cisp, sspm: SVGF on/off; caustics_map: seed 004's light-space gather and 4-frame "
-                       "temporal mean on/off",
+            "reference_noise": "the reference's own relative standard error over the mask (0 for the sinusoid with "
+                               "--analytic-sinusoid: its reference is then the analytic ray map's irradiance)",
+            "reference_flip": "LDR-FLIP between the reference's even and odd chunks (each half of its photons): "
+                              "above FLIP's noise floor of the whole reference",
+            "denoiser": "caustic (default: reactive accumulation of the raw photon map + variance-sized "
+                        "à-trous), svgf, none (raw); own: caustics_map's seed-004 light-space gather and 4-frame mean",
+            "reference_noise_target": noise_target,
         },
         "flip": "LDR-FLIP" if flip else None, "references": references, "runs": rows,
     }

@@ -2,12 +2,12 @@
 """Stability suite: the cases where screen-space caustics fail (cisp_warp/stability_scenes.py), for every
 method, measured against the reference frame by frame.
 
-    python tools/stability.py --preset small --out results/     # CPU, 96x72, about 2 minutes on 2 cores
-    python tools/stability.py --preset full --device cuda:0 --out results_cuda/   # 1280x720
+    python tools/stability.py --preset small --out results/     # CPU, 96x72, every case
+    python tools/stability.py --preset full --device cuda:0 --out results_cuda/   # 960x540, the animated cases
     python tools/stability.py --smoke --out /tmp/stability       # seconds: what the tests run
 
-Per case and method (denoised as in cisp_warp/evaluation.py: SVGF for cisp and sspm, seed 004's own
-filters for caustics_map), over the last frames of a sequence (definitions in cisp_warp/metrics.py):
+Per case, method and denoiser (``--denoisers``: caustic, the default, svgf, none, and own for caustics_map;
+cisp_warp/evaluation.py), over the last frames of a sequence (definitions in cisp_warp/metrics.py):
 
 * energy lost: 1 − power(caustics) / power(reference) over the case's receiver (the wall for the wall cases,
   every pixel otherwise); negative means energy gained;
@@ -36,15 +36,16 @@ sys.path.insert(0, ROOT)
 
 #: photons per light per frame; reference: per light per reference frame, in passes of ``reference_pass``
 #: (0 = the renderer's default, 1e8 on CUDA); frames per sequence, the last ``measured`` of which are measured
+#: cases: the preset's default ``--cases`` (None: all)
 PRESETS = {
     "smoke": dict(width=48, height=36, rsm_size=64, photons=20_000, reference=400_000, reference_pass=100_000,
-                  frames=5, measured=3),
+                  frames=5, measured=3, cases=None),
     "small": dict(width=96, height=72, rsm_size=256, photons=100_000, reference=2_000_000,
-                  reference_pass=250_000, frames=16, measured=4),
-    "full": dict(width=1280, height=720, rsm_size=2048, photons=1_000_000, reference=0,
-                 reference_pass=4_000_000, frames=30, measured=4),
+                  reference_pass=250_000, frames=16, measured=4, cases=None),
+    "full": dict(width=960, height=540, rsm_size=2048, photons=2_000_000, reference=200_000_000,
+                 reference_pass=4_000_000, frames=24, measured=4, cases="fast_water,moving_light,camera_pan"),
 }
-FIELDS = ["case", "method", "photons", "energy_lost", "error", "flicker", "flicker_raw", "reference_flicker",
+FIELDS = ["case", "method", "denoiser", "photons", "energy_lost", "error", "flicker", "flicker_raw", "reference_flicker",
           "reference_noise", "stored", "lost_light_view", "lost_camera_view", "occluded", "closure", "finite"]
 
 
@@ -53,20 +54,23 @@ def fmt(v: float, digits: int = 3) -> str:
 
 
 def markdown(rows: list[dict], methods: list[str], header: str) -> str:
-    """A compact table (one row per case: lost / error / flicker per method), then every figure."""
+    """A compact table (one row per case and denoiser: lost / error / flicker per method), then every figure."""
     cases = list(dict.fromkeys(r["case"] for r in rows))
-    by = {(r["case"], r["method"]): r for r in rows}
+    denoisers = list(dict.fromkeys(r["denoiser"] for r in rows))
+    by = {(r["case"], r["method"], r["denoiser"]): r for r in rows}
     out = [header, "", "energy lost / relative error / flicker of the denoised caustics (– : no caustic to "
            "compare); last column: the reference's own flicker (noise + true change)", "",
-           "| case | " + " | ".join(methods) + " | reference flicker |",
-           "|---|" + "---|" * (len(methods) + 1)]
+           "| case | denoiser | " + " | ".join(methods) + " | reference flicker |",
+           "|---|---|" + "---|" * (len(methods) + 1)]
     for c in cases:
-        cells = []
-        for m in methods:
-            r = by.get((c, m))
-            cells.append("" if r is None else f"{fmt(r['energy_lost'], 2)} / {fmt(r['error'], 2)} / {fmt(r['flicker'], 3)}")
         ref = next(r for r in rows if r["case"] == c)
-        out.append(f"| {c} | " + " | ".join(cells) + f" | {fmt(ref['reference_flicker'], 3)} |")
+        for d in denoisers:
+            cells = []
+            for m in methods:
+                r = by.get((c, m, d))
+                cells.append("" if r is None else f"{fmt(r['energy_lost'], 2)} / {fmt(r['error'], 2)} / {fmt(r['flicker'], 3)}")
+            if any(cells):
+                out.append(f"| {c} | {d} | " + " | ".join(cells) + f" | {fmt(ref['reference_flicker'], 3)} |")
     out += ["", "| " + " | ".join(FIELDS) + " |", "|---" * len(FIELDS) + "|"]
     for r in rows:
         out.append("| " + " | ".join(fmt(r[k], 4) if isinstance(r[k], float) else str(r[k]) for k in FIELDS) + " |")
@@ -81,7 +85,11 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="results", help="output folder; references are cached in OUT/references")
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
     p.add_argument("--cases", default=None, help="comma-separated subset of the cases (default: all)")
-    p.add_argument("--methods", default="cisp,sspm,caustics_map", help="comma-separated methods")
+    p.add_argument("--methods", default="cisp,sspm,caustics_map",
+                   help="comma-separated methods; cisp:wavefront, sspm:wavefront for wavefront splatting (the preset's "
+                   "photons then count grid cells per light)")
+    p.add_argument("--denoisers", default="caustic,svgf,own",
+                   help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
     p.add_argument("--merge", action="store_true",
                    help="keep the rows of other cases already in OUT/stability.json (same preset and device), so "
                    "that a long preset can run a few cases per command")
@@ -101,24 +109,32 @@ def main(argv=None) -> int:
 
     device = wp.get_device(args.device)
     dev_name = E.device_name(device)
-    cases = [case(n) for n in args.cases.split(",")] if args.cases else list(CASES)
+    names = args.cases or cfg["cases"]
+    cases = [case(n) for n in names.split(",")] if names else list(CASES)
     methods = args.methods.split(",")
+    denoisers = args.denoisers.split(",")
+    for d in denoisers:
+        if d not in E.DENOISERS:
+            raise SystemExit(f"unknown denoiser {d!r}: {', '.join(E.DENOISERS)}")
+    runs = [(m, d) for m in methods for d in denoisers if E.applicable(m.partition(":")[0], d)]
     w, h, frames, measured = cfg["width"], cfg["height"], cfg["frames"], cfg["measured"]
     cache = os.path.join(args.out, "references")
     os.makedirs(args.out, exist_ok=True)
     settings = E.reference_settings(cfg["rsm_size"], cfg["reference_pass"], cfg["reference"])
     t_start = time.perf_counter()
     rows, references = [], {}
-    bar = tqdm(total=len(cases) * (len(methods) + 1), unit="run", desc="stability")
+    bar = tqdm(total=len(cases) * (len(runs) + 1), unit="run", desc="stability")
     for c in cases:
         bar.set_postfix_str(f"{c.name}: reference")
         reference, meta = E.case_reference(c, w, h, frames, measured, settings, device, cache)
         references[c.name] = meta
         bar.update()
-        for m in methods:
-            bar.set_postfix_str(f"{c.name}: {m}")
-            f = E.measure_case(c, m, reference, w, h, frames, measured, cfg["rsm_size"], cfg["photons"], device)
-            rows.append({"case": c.name, "method": m, "photons": f.photons, "energy_lost": f.energy_lost,
+        for m, d in runs:
+            bar.set_postfix_str(f"{c.name}: {m} {d}")
+            method, _, splat = m.partition(":")
+            f = E.measure_case(c, method, reference, w, h, frames, measured, cfg["rsm_size"], cfg["photons"], device,
+                               denoiser=d, splat=splat or "point")
+            rows.append({"case": c.name, "method": m, "denoiser": d, "photons": f.photons, "energy_lost": f.energy_lost,
                          "error": f.error, "flicker": f.flicker, "flicker_raw": f.flicker_raw,
                          "reference_flicker": f.reference_flicker, "reference_noise": f.reference_noise,
                          **{k: f.ledger[k] for k in ("stored", "lost_light_view", "lost_camera_view", "occluded")},
@@ -158,9 +174,9 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, "stability.md"), "w") as fh:
         fh.write(md)
     print(f"{header}; {wall:.0f} s")
-    print(f"{'case':<23}{'method':<13}{'lost':>8}{'error':>8}{'flicker':>9}{'raw':>8}{'ref':>8}")
+    print(f"{'case':<23}{'method':<16}{'denoiser':<9}{'lost':>8}{'error':>8}{'flicker':>9}{'raw':>8}{'ref':>8}")
     for r in rows:
-        print(f"{r['case']:<23}{r['method']:<13}{fmt(r['energy_lost']):>8}{fmt(r['error']):>8}"
+        print(f"{r['case']:<23}{r['method']:<16}{r['denoiser']:<9}{fmt(r['energy_lost']):>8}{fmt(r['error']):>8}"
               f"{fmt(r['flicker']):>9}{fmt(r['flicker_raw']):>8}{fmt(r['reference_flicker']):>8}")
     print(f"wrote {args.out}/stability.csv, stability.json, stability.md")
     return 0

@@ -1,10 +1,15 @@
 """Denoise pass: turns the sparse, noisy photon map (irradiance, W/m²) into the caustic irradiance.
 
-:class:`SVGF` (Schied et al. 2017, as in Falcor's SVGFPass) is the default; :class:`GaussianGather`
-(Wyman & Davis 2006, seed 004) is the cheap eye-space gather of the caustics-mapping baseline.
+:class:`CausticDenoiser` (the default) accumulates the raw photon map over frames, reacting where the
+caustic changes, and filters what noise is left with a footprint that shrinks as the estimate converges;
+:class:`SVGF` (Schied et al. 2017, as in Falcor's SVGFPass) is the paper's filter; :class:`GaussianGather`
+(Wyman & Davis 2006, seed 004) is the cheap eye-space gather of the caustics-mapping baseline. The
+à-trous level all but the gather share is :func:`launch_atrous_level`.
 """
 
+from .caustic import CausticDenoiser, CausticSettings
 from .gather import GaussianGather
-from .svgf import SVGF, SVGFSettings, launch_atrous_level
+from .kernels_atrous import launch_atrous_level
+from .svgf import SVGF, SVGFSettings
 
-__all__ = ["SVGF", "SVGFSettings", "GaussianGather", "launch_atrous_level"]
+__all__ = ["CausticDenoiser", "CausticSettings", "SVGF", "SVGFSettings", "GaussianGather", "launch_atrous_level"]

@@ -2,9 +2,15 @@
 
 Stages (Falcor ``RenderPasses/SVGFPass``): :func:`reproject` (temporal accumulation of colour and
 luminance moments), :func:`filter_moments` (variance: temporal, or spatial where history is short;
-depth slope), then per à-trous level :func:`blur_variance`, :func:`atrous_weight_sum` and :func:`atrous`
-(the variance-guided wavelet, made energy-conserving: see :func:`atrous`). Falcor's FinalModulate
-multiplies by albedo; the signal here is irradiance [W/m²], never demodulated, so it has no such stage.
+depth slope), then the à-trous levels of :mod:`.kernels_atrous` (the variance-guided wavelet, made
+energy-conserving), and :func:`store_history` (the feedback level's output becomes the colour history).
+Falcor's FinalModulate multiplies by albedo; the signal here is irradiance [W/m²], never demodulated, so it
+has no such stage.
+
+History is double-buffered as rows of ``(2, H*W)`` arrays; ``parity[0]`` (a one-element int32 device
+array) names the row that holds the last frame, the kernels write row ``1 - parity[0]``, and
+:func:`flip_parity` swaps them at the end of the frame. Nothing is swapped on the host, so one captured
+CUDA graph replays every frame.
 
 Every image is a flat array of ``height * width`` pixels, row-major, row 0 at the top; kernels are
 launched with ``dim=(height, width)``. A pixel *has a surface* when its depth is > 0 (the reproject
@@ -86,11 +92,12 @@ def reproject(
     normal: wp.array(dtype=wp.vec3),
     motion: wp.array(dtype=wp.vec2),
     tri_id: wp.array(dtype=wp.int32),
-    prev_depth: wp.array(dtype=wp.float32),
-    prev_normal: wp.array(dtype=wp.vec3),
-    prev_color: wp.array(dtype=wp.vec3),
-    prev_moments: wp.array(dtype=wp.vec2),
-    prev_history: wp.array(dtype=wp.int32),
+    hist_depth: wp.array2d(dtype=wp.float32),
+    hist_normal: wp.array2d(dtype=wp.vec3),
+    hist_color: wp.array2d(dtype=wp.vec3),
+    hist_moments: wp.array2d(dtype=wp.vec2),
+    hist_length: wp.array2d(dtype=wp.int32),
+    parity: wp.array(dtype=wp.int32),
     width: int,
     height: int,
     alpha_color: float,
@@ -108,13 +115,14 @@ def reproject(
 
     Reads: ``irradiance`` (H*W vec3 [W/m²], this frame's noisy signal); G-buffer ``depth`` (float32 [m],
     0 = none), ``normal`` (vec3, unit), ``motion`` (vec2 [pixels]: previous position minus pixel centre),
-    ``tri_id`` (int32, -1 = none); the previous frame's ``prev_depth``/``prev_normal`` (this pass's own
-    copies; depth 0 = no surface), ``prev_color`` (vec3 [W/m²], colour history), ``prev_moments``
-    (vec2: luminance mean and mean square), ``prev_history`` (int32 [frames]).
+    ``tri_id`` (int32, -1 = none); row ``parity[0]`` of the history (2 x H*W each): ``hist_depth``/
+    ``hist_normal`` (this pass's own G-buffer copies; depth 0 = no surface), ``hist_color`` (vec3 [W/m²],
+    colour history), ``hist_moments`` (vec2: luminance mean and mean square), ``hist_length`` (int32 [frames]).
 
-    Writes: ``cur_depth``/``cur_normal`` (the G-buffer copy the next frame reprojects against and the
-    later stages filter with; depth 0 where ``tri_id < 0``), ``integrated`` (vec3 [W/m²]),
-    ``moments`` (vec2) and ``history`` (int32 [frames], 1 on disocclusion, 0 without a surface).
+    Writes: ``cur_depth``/``cur_normal`` (the G-buffer copy the later stages filter with; depth 0 where
+    ``tri_id < 0``), ``integrated`` (vec3 [W/m²]), ``moments`` (vec2) and ``history`` (int32 [frames], 1 on
+    disocclusion, 0 without a surface), and the same depth, normal, moments and history into row
+    ``1 - parity[0]`` of the history, which the next frame reads.
 
     A previous-frame tap is consistent when it lies on screen, has a surface, its depth is within
     ``depth_tolerance`` (relative) of this pixel's and its normal's cosine to this one's is at least
@@ -122,6 +130,8 @@ def reproject(
     """
     y, x = wp.tid()
     p = y * width + x
+    prev = parity[0]
+    cur = 1 - prev
     z = depth[p]
     if z <= 0.0 or tri_id[p] < 0:
         cur_depth[p] = 0.0
@@ -129,10 +139,16 @@ def reproject(
         integrated[p] = wp.vec3(0.0)
         moments[p] = wp.vec2(0.0)
         history[p] = 0
+        hist_depth[cur, p] = 0.0
+        hist_normal[cur, p] = wp.vec3(0.0)
+        hist_moments[cur, p] = wp.vec2(0.0)
+        hist_length[cur, p] = 0
         return
     n = normal[p]
     cur_depth[p] = z
     cur_normal[p] = n
+    hist_depth[cur, p] = z
+    hist_normal[cur, p] = n
 
     # previous position in pixel units with pixel centres on integers
     m = motion[p]
@@ -157,15 +173,15 @@ def reproject(
         ty = y0 + dy
         if tx >= 0 and tx < width and ty >= 0 and ty < height:
             q = ty * width + tx
-            z_q = prev_depth[q]
-            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(prev_normal[q], n) >= normal_tolerance:
+            z_q = hist_depth[prev, q]
+            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(hist_normal[prev, q], n) >= normal_tolerance:
                 w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
                 sum_w += w
-                color_prev += w * prev_color[q]
-                moments_prev += w * prev_moments[q]
+                color_prev += w * hist_color[prev, q]
+                moments_prev += w * hist_moments[prev, q]
                 if w > best_w:
                     best_w = w
-                    history_prev = prev_history[q]
+                    history_prev = hist_length[prev, q]
 
     c = irradiance[p]
     lum = luminance(c)
@@ -174,13 +190,18 @@ def reproject(
         h = wp.min(history_prev + 1, max_history)
         a = wp.max(1.0 / float(h), alpha_color)  # equal weights while history is short
         a_m = wp.max(1.0 / float(h), alpha_moments)
+        m_new = wp.lerp(moments_prev / sum_w, m_now, a_m)
         integrated[p] = wp.lerp(color_prev / sum_w, c, a)
-        moments[p] = wp.lerp(moments_prev / sum_w, m_now, a_m)
+        moments[p] = m_new
         history[p] = h
+        hist_moments[cur, p] = m_new
+        hist_length[cur, p] = h
     else:  # disoccluded
         integrated[p] = c
         moments[p] = m_now
         history[p] = 1
+        hist_moments[cur, p] = m_now
+        hist_length[cur, p] = 1
 
 
 @wp.kernel
@@ -245,158 +266,15 @@ def filter_moments(
 
 
 @wp.kernel
-def blur_variance(
-    variance: wp.array(dtype=wp.float32),
-    depth: wp.array(dtype=wp.float32),
-    width: int,
-    height: int,
-    variance_blurred: wp.array(dtype=wp.float32),
-):
-    """Variance under a 3x3 Gaussian (1/4, 1/8, 1/16) over pixels with a surface, renormalised (paper
-    eq. 5's g3x3). Reads ``variance`` (H*W float32), ``depth`` ([m], 0 = none); writes ``variance_blurred``."""
-    y, x = wp.tid()
-    p = y * width + x
-    if depth[p] <= 0.0:
-        variance_blurred[p] = 0.0
-        return
-    sum_w = float(0.0)
-    sum_v = float(0.0)
-    for dy in range(-1, 2):
-        for dx in range(-1, 2):
-            qx = x + dx
-            qy = y + dy
-            if qx >= 0 and qx < width and qy >= 0 and qy < height:
-                q = qy * width + qx
-                if depth[q] > 0.0:
-                    k = wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25)
-                    sum_w += k
-                    sum_v += k * variance[q]
-    variance_blurred[p] = sum_v / sum_w
-
-
-@wp.func
-def atrous_weight(color_in: wp.array(dtype=wp.vec3), variance_blurred: wp.array(dtype=wp.float32),
-                  depth: wp.array(dtype=wp.float32), normal: wp.array(dtype=wp.vec3), slope: wp.array(dtype=wp.float32),
-                  p: int, q: int, dx: int, dy: int, step: int,
-                  sigma_depth: float, sigma_normal: float, sigma_luminance: float) -> float:
-    """w_pq of the à-trous level, symmetric in p and q (see :func:`atrous`); q must have a surface."""
-    z_p = depth[p]
-    z_q = depth[q]
-    dist = float(step) * wp.sqrt(float(dx * dx + dy * dy))
-    phi_z = sigma_depth * (wp.max(slope[p], slope[q]) * dist + DEPTH_NOISE_REL * wp.max(z_p, z_q))
-    phi_l = sigma_luminance * wp.sqrt(0.5 * wp.max(variance_blurred[p] + variance_blurred[q], 0.0) + VARIANCE_EPS)
-    w_geo = edge_stop_depth_normal(z_p, z_q, phi_z, normal[p], normal[q], sigma_normal)
-    w_lum = wp.exp(-wp.abs(luminance(color_in[p]) - luminance(color_in[q])) / phi_l)
-    return b3_spline(dx) * b3_spline(dy) * w_geo * w_lum
+def store_history(color: wp.array(dtype=wp.vec3), parity: wp.array(dtype=wp.int32),
+                  hist_color: wp.array2d(dtype=wp.vec3)):
+    """Colour history of this frame: ``color`` (H*W vec3 [W/m²], read) into row ``1 - parity[0]`` of
+    ``hist_color`` (2 x H*W vec3, written)."""
+    p = wp.tid()
+    hist_color[1 - parity[0], p] = color[p]
 
 
 @wp.kernel
-def atrous_weight_sum(
-    color_in: wp.array(dtype=wp.vec3),
-    variance_blurred: wp.array(dtype=wp.float32),
-    depth: wp.array(dtype=wp.float32),
-    normal: wp.array(dtype=wp.vec3),
-    slope: wp.array(dtype=wp.float32),
-    width: int,
-    height: int,
-    step: int,
-    sigma_depth: float,
-    sigma_normal: float,
-    sigma_luminance: float,
-    weight_sum: wp.array(dtype=wp.float32),
-):
-    """W_p = Σ_q w_pq over the level's taps, centre ((3/8)², every edge stop 1) included; 0 without a surface.
-
-    Reads the same arrays as :func:`atrous`; writes ``weight_sum`` (H*W float32, in (0, 1]).
-    """
-    y, x = wp.tid()
-    p = y * width + x
-    if depth[p] <= 0.0:
-        weight_sum[p] = 0.0
-        return
-    sum_w = b3_spline(0) * b3_spline(0)
-    for dy in range(-2, 3):
-        for dx in range(-2, 3):
-            qx = x + dx * step
-            qy = y + dy * step
-            if (dx != 0 or dy != 0) and qx >= 0 and qx < width and qy >= 0 and qy < height:
-                q = qy * width + qx
-                if depth[q] > 0.0:
-                    sum_w += atrous_weight(color_in, variance_blurred, depth, normal, slope, p, q, dx, dy, step,
-                                           sigma_depth, sigma_normal, sigma_luminance)
-    weight_sum[p] = sum_w
-
-
-@wp.kernel
-def atrous(
-    color_in: wp.array(dtype=wp.vec3),
-    variance_in: wp.array(dtype=wp.float32),
-    variance_blurred: wp.array(dtype=wp.float32),
-    depth: wp.array(dtype=wp.float32),
-    normal: wp.array(dtype=wp.vec3),
-    slope: wp.array(dtype=wp.float32),
-    weight_sum: wp.array(dtype=wp.float32),
-    width: int,
-    height: int,
-    step: int,
-    sigma_depth: float,
-    sigma_normal: float,
-    sigma_luminance: float,
-    conserve_energy: int,
-    color_out: wp.array(dtype=wp.vec3),
-    variance_out: wp.array(dtype=wp.float32),
-):
-    """One level of the edge-avoiding à-trous wavelet (paper section 4.3; Falcor SVGFAtrous).
-
-    Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (float32, luminance variance) and its 3x3 blur
-    ``variance_blurred``, the G-buffer copy ``depth`` ([m], 0 = none) and ``normal``, ``slope``
-    (float32 [m/pixel], ‖∇z‖) and ``weight_sum`` (float32, W from :func:`atrous_weight_sum`). Writes
-    ``color_out`` and ``variance_out``; they must not alias the inputs.
-
-    Taps q are 5x5 at ``step`` pixels apart, each with the B3-spline weight h(dx)·h(dy) times
-
-        w_pq = exp(-|z_p - z_q| / (σ_z max(‖∇z_p‖, ‖∇z_q‖) ‖p - q‖ + ε_z)
-                   - |l_p - l_q| / (σ_l sqrt((g3x3(Var)_p + g3x3(Var)_q) / 2) + ε_l)) · max(0, n_p·n_q)^σ_n
-
-    (‖∇z‖‖p−q‖ bounds the paper's |∇z·(p−q)| as Falcor does). Each factor is made symmetric in p and
-    q, so w_pq = w_qp; where p and q agree they are the paper's one-sided factors.
-
-    The level is c'_p = Σ_q A_pq c_q = c_p + Σ_{q≠p} A_pq (c_q − c_p) with A_pp = 1 − Σ_{q≠p} A_pq, and
-    Var'_p = Σ_q A_pq² Var_q, where for q ≠ p
-
-    * ``conserve_energy == 0``: A_pq = w_pq / W_p, the paper's normalised gather Σ w c / Σ w. A constant
-      stays constant, but the luminance weights depend on the signal and A is not symmetric, so the
-      image mean is biased (sparse photon maps lose several per cent, compounded through the history);
-    * ``conserve_energy != 0``: A_pq = w_pq / max(W_p, W_q), symmetric, so what p takes from q, q gives
-      to p and Σ_p c'_p = Σ_p c_p exactly. A constant still stays constant, Σ_{q≠p} A_pq ≤ 1 − w_pp / W_p
-      keeps it a convex combination (no negative irradiance), and where neighbours' W agree it is the
-      paper's filter. Where they differ (silhouettes, image borders) the pixel with the larger W sets
-      the exchange, so the pixel with the smaller one keeps more of itself.
-    """
-    y, x = wp.tid()
-    p = y * width + x
-    if depth[p] <= 0.0:
-        color_out[p] = wp.vec3(0.0)
-        variance_out[p] = 0.0
-        return
-    c_p = color_in[p]
-    w_p = weight_sum[p]
-    sum_a = float(0.0)  # Σ_{q≠p} A_pq
-    sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
-    sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q
-    for dy in range(-2, 3):
-        for dx in range(-2, 3):
-            qx = x + dx * step
-            qy = y + dy * step
-            if (dx != 0 or dy != 0) and qx >= 0 and qx < width and qy >= 0 and qy < height:
-                q = qy * width + qx
-                if depth[q] > 0.0:
-                    w = atrous_weight(color_in, variance_blurred, depth, normal, slope, p, q, dx, dy, step,
-                                      sigma_depth, sigma_normal, sigma_luminance)
-                    a = w / wp.where(conserve_energy != 0, wp.max(w_p, weight_sum[q]), w_p)
-                    sum_a += a
-                    sum_dc += a * (color_in[q] - c_p)
-                    sum_av += a * a * variance_in[q]
-    a_centre = 1.0 - sum_a
-    color_out[p] = c_p + sum_dc
-    variance_out[p] = sum_av + a_centre * a_centre * variance_in[p]
+def flip_parity(parity: wp.array(dtype=wp.int32)):
+    """End of frame: the row just written becomes the one the next frame reads (``parity``: 1 int32)."""
+    parity[0] = 1 - parity[0]

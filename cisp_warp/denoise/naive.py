@@ -34,9 +34,14 @@ def depth_slope_naive(depth: np.ndarray) -> np.ndarray:
 
 def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarray, normal: np.ndarray,
                        step: int, sigma_depth: float, sigma_normal: float, sigma_luminance: float,
-                       conserve_energy: bool):
+                       conserve_energy: bool, noise_target: float | None = None, slope: np.ndarray | None = None):
     """One à-trous level. ``color`` (H, W, 3), ``variance`` (H, W), ``depth`` (H, W) [m] (0 = none),
-    ``normal`` (H, W, 3). Returns (color_out (H, W, 3), variance_out (H, W)) in float64.
+    ``normal`` (H, W, 3); ``slope`` (H, W) [m/pixel] defaults to :func:`depth_slope_naive`. Returns
+    (color_out (H, W, 3), variance_out (H, W)) in float64.
+
+    ``noise_target`` (the caustics denoiser's gated levels): every w_pq (q ≠ p) is multiplied by
+    clamp(2 min(R_p, R_q) / step − 1, 0, 1), where R = sqrt(g3x3(Var) / (4π τ² μ²)) is the footprint
+    [pixels] a pixel still needs, μ the same 3x3 Gaussian's mean luminance and τ = ``noise_target``.
 
     Builds the level's matrix A row by row (out_p = Σ_q A_pq c_q, Var_p = Σ_q A_pq² Var_q) from the
     symmetric weights w_pq and their sums W_p = Σ_q w_pq (centre included): for q ≠ p, A_pq = w_pq / W_p
@@ -48,14 +53,15 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
     normal = normal.astype(np.float64)
     h, w = depth.shape
     lum = color @ REC709
-    slope = depth_slope_naive(depth)
+    slope = depth_slope_naive(depth) if slope is None else slope.astype(np.float64)
     # 3x3 Gaussian of the variance over pixels with a surface
     var_blur = np.zeros((h, w))
+    radius = np.full((h, w), np.inf)
     for y in range(h):
         for x in range(w):
             if depth[y, x] <= 0:
                 continue
-            kw, kv = 0.0, 0.0
+            kw, kv, kl = 0.0, 0.0, 0.0
             for dy in (-1, 0, 1):
                 for dx in (-1, 0, 1):
                     yy, xx = y + dy, x + dx
@@ -63,7 +69,11 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
                         k = (0.5 if dx == 0 else 0.25) * (0.5 if dy == 0 else 0.25)
                         kw += k
                         kv += k * variance[yy, xx]
+                        kl += k * lum[yy, xx]
             var_blur[y, x] = kv / kw
+            if noise_target is not None:
+                denom = 4.0 * np.pi * noise_target ** 2 * (kl / kw) ** 2
+                radius[y, x] = np.sqrt(var_blur[y, x] / max(denom, 1e-30))
     def weights(y, x):
         """{(yy, xx): w_pq} over the taps q ≠ p with a surface."""
         z = depth[y, x]
@@ -78,7 +88,8 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
                                        + DEPTH_NOISE_REL * max(z, zq))
                 phi_l = sigma_luminance * np.sqrt(0.5 * (var_blur[y, x] + var_blur[yy, xx]) + VARIANCE_EPS)
                 w_n = max(float(normal[y, x] @ normal[yy, xx]), 0.0) ** sigma_normal
-                taps[yy, xx] = (B3[abs(dx)] * B3[abs(dy)] * w_n
+                gate = float(np.clip(2.0 * min(radius[y, x], radius[yy, xx]) / step - 1.0, 0.0, 1.0))
+                taps[yy, xx] = (B3[abs(dx)] * B3[abs(dy)] * w_n * gate
                                 * np.exp(-abs(z - zq) / phi_z - abs(lum[y, x] - lum[yy, xx]) / phi_l))
         return taps
 
@@ -99,3 +110,147 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
             color_out[y, x] = sum(aq * color[q] for q, aq in a.items())
             variance_out[y, x] = sum(aq * aq * variance[q] for q, aq in a.items())
     return color_out, variance_out
+
+
+SPATIAL_VARIANCE_HISTORY = 4  # as kernels_svgf.SPATIAL_VARIANCE_HISTORY
+MIN_BILINEAR_WEIGHT = 0.01  # as kernels_svgf.MIN_BILINEAR_WEIGHT
+FLOAT_RESOLUTION = 1.0e-5  # as kernels_caustic.FLOAT_RESOLUTION
+
+
+def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, history: dict, fields: tuple,
+                    depth_tolerance: float, normal_tolerance: float) -> tuple[dict, np.ndarray]:
+    """Bilinear fetch of ``history[f]`` for ``f`` in ``fields`` at each pixel's previous position (``motion``,
+    (H, W, 2) [pixels]) over the consistent taps (on screen, a surface with history n > 0, relative depth
+    difference ≤ ``depth_tolerance``, normal cosine ≥ ``normal_tolerance``), renormalised. ``history`` holds
+    ``depth``, ``normal``, ``frames`` (H, W) and the fields. Returns ({field: values}, valid (H, W) bool)."""
+    h, w = depth.shape
+    out = {f: np.zeros(history[f].shape, np.float64) for f in fields}
+    valid = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            z = depth[y, x]
+            if z <= 0:
+                continue
+            px, py = x + motion[y, x, 0], y + motion[y, x, 1]
+            x0, y0 = int(np.floor(px)), int(np.floor(py))
+            fx, fy = px - x0, py - y0
+            acc = {f: 0.0 for f in fields}
+            sw = 0.0
+            for dy in (0, 1):
+                for dx in (0, 1):
+                    tx, ty = x0 + dx, y0 + dy
+                    if not (0 <= tx < w and 0 <= ty < h):
+                        continue
+                    zq = history["depth"][ty, tx]
+                    if (history["frames"][ty, tx] > 0 and zq > 0 and abs(zq - z) <= depth_tolerance * z
+                            and float(history["normal"][ty, tx] @ normal[y, x]) >= normal_tolerance):
+                        wt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
+                        sw += wt
+                        for f in fields:
+                            acc[f] = acc[f] + wt * history[f][ty, tx]
+            if sw >= MIN_BILINEAR_WEIGHT:
+                valid[y, x] = True
+                for f in fields:
+                    out[f][y, x] = acc[f] / sw
+    return out, valid
+
+
+def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
+                           history: dict | None, settings) -> dict:
+    """The caustics denoiser's temporal stage (:mod:`cisp_warp.denoise.kernels_caustic`, equations in its
+    docstring) for one frame, in float64. ``irradiance`` (H, W, 3) [W/m²]; ``depth`` (H, W) [m] (0 = none);
+    ``normal`` (H, W, 3); ``motion`` (H, W, 2) [pixels]; ``history``: the previous call's result (None: none).
+    ``settings``: a :class:`cisp_warp.denoise.CausticSettings`. Returns dict(depth, normal, mean (H, W, 3),
+    moments (H, W, 3): m1, m2, s², frames, variance (variance of the accumulated luminance), slope) for the next call."""
+    s = settings
+    depth = depth.astype(np.float64)
+    normal = normal.astype(np.float64)
+    irradiance = irradiance.astype(np.float64)
+    h, w = depth.shape
+    lum = irradiance @ REC709
+    if history is None:
+        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 3)), "frames": np.zeros((h, w))}, \
+            np.zeros((h, w), bool)
+    else:
+        prev, valid = reproject_naive(depth, normal, motion.astype(np.float64), history, ("mean", "moments", "frames"),
+                                      s.depth_tolerance, s.normal_tolerance)
+    n_prev = np.where(valid, prev["frames"], 0.0)
+    m1, m2, s2 = prev["moments"][..., 0], prev["moments"][..., 1], prev["moments"][..., 2]
+    res = {"depth": np.where(depth > 0, depth, 0.0), "normal": np.where(depth[..., None] > 0, normal, 0.0),
+           "mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 3)), "frames": np.zeros((h, w)),
+           "variance": np.zeros((h, w)), "slope": depth_slope_naive(depth)}
+    r = s.change_radius
+    k = s.change_sigmas
+    for y in range(h):
+        for x in range(w):
+            z = depth[y, x]
+            if z <= 0:
+                continue
+            qs = [(yy, xx) for yy in range(y - r, y + r + 1) for xx in range(x - r, x + r + 1)
+                  if 0 <= yy < h and 0 <= xx < w and depth[yy, xx] > 0 and abs(depth[yy, xx] - z) <= s.depth_tolerance * z
+                  and float(normal[yy, xx] @ normal[y, x]) >= s.normal_tolerance]
+            e = np.array([lum[q] for q in qs])
+            qset = set(qs)
+            # half the mean squared neighbour difference, along rows or columns, whichever is smaller
+            dh = [(lum[q] - lum[q[0], q[1] - 1]) ** 2 for q in qs if (q[0], q[1] - 1) in qset]
+            dv = [(lum[q] - lum[q[0] - 1, q[1]]) ** 2 for q in qs if (q[0] - 1, q[1]) in qset]
+            var_pairs = 0.5 * min([np.mean(dd) for dd in (dh, dv) if dd], default=0.0)
+            photon = min([v for v in e if v > 0], default=0.0)
+            n = n_prev[y, x]
+            bias2 = 0.0
+            pairs = var_pairs  # running mean over frames of the neighbour-difference variance
+            if n <= 0:
+                alpha, n_new, sigma2_est = 1.0, 1.0, var_pairs
+            else:
+                pairs = s2[y, x] + (var_pairs - s2[y, x]) / (min(n, s.max_history - 1) + 1)
+                hq = [q for q in qs if n_prev[q] > 0]
+                d = np.array([lum[q] - m1[q] for q in hq])
+                nq = np.array([n_prev[q] for q in hq])
+                var_t = np.array([max(m2[q] - m1[q] ** 2, 0.0) for q in hq]) * nq / np.maximum(nq - 1, 1)
+                d2 = np.mean(d ** 2)
+                temporal = np.mean(var_t)
+                if n < SPATIAL_VARIANCE_HISTORY or pairs < temporal:
+                    var_t = np.full(len(hq), pairs)
+                sigma2 = np.mean(var_t)
+                sigma2_est = sigma2
+                sigma2 = max(sigma2, (FLOAT_RESOLUTION * np.mean([m1[q] for q in hq])) ** 2)
+                if sigma2 > np.mean(var_t):  # floored: a homogeneous window of sigma2
+                    var_t = np.full(len(hq), sigma2)
+                m1_sum = sum(m1[q] for q in hq)
+                if m1_sum > 0:  # at most the window's Poisson quantum
+                    photon = min(photon, var_t.sum() / m1_sum)
+                history_noise = 1 + np.mean(1 / nq)
+                spread = sigma2 * history_noise
+                se_d2 = history_noise * np.sqrt(np.sum(2 * var_t ** 2 + photon ** 2 * var_t)) / len(hq)
+                bias2 = max(d2 - spread - k * se_d2, np.mean(d) ** 2 - k * k * spread / len(hq), 0.0)
+                ratio = bias2 / sigma2 if sigma2 > 0 else 0.0
+                inv_n = 1.0 / min(n, s.max_history - 1)
+                alpha = (ratio + inv_n) / (ratio + inv_n + 1)
+                n_new = 1.0 / ((1 - alpha) ** 2 * (ratio + inv_n) + alpha ** 2)
+                if n < SPATIAL_VARIANCE_HISTORY:
+                    sigma2_est = max(temporal, max(d2 - bias2, 0.0) / history_noise)
+            res["mean"][y, x] = (1 - alpha) * prev["mean"][y, x] + alpha * irradiance[y, x]
+            new_m1 = (1 - alpha) * m1[y, x] + alpha * lum[y, x]
+            # blend of the history (variance v) and the new sample, less the change found
+            own = ((1 - alpha) * max(m2[y, x] - m1[y, x] ** 2, 0.0)
+                   + alpha * (1 - alpha) * max((lum[y, x] - m1[y, x]) ** 2 - bias2, 0.0))
+            res["moments"][y, x] = (new_m1, new_m1 ** 2 + own, pairs)
+            sigma2_est = max(sigma2_est, own * n_new / max(n_new - 1, 1))
+            res["frames"][y, x] = n_new
+            res["variance"][y, x] = sigma2_est / n_new
+    return res
+
+
+def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
+                        history: dict | None, settings) -> tuple[np.ndarray, dict]:
+    """One frame of the caustics denoiser: :func:`caustic_temporal_naive`, then ``settings.atrous_levels``
+    gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output (H, W, 3) [W/m²], the
+    history for the next call)."""
+    s = settings
+    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s)
+    color, variance = t["mean"], t["variance"]
+    for level in range(s.atrous_levels):
+        color, variance = atrous_level_naive(color, variance, t["depth"], t["normal"], 1 << level, s.sigma_depth,
+                                             s.sigma_normal, s.sigma_luminance, True, noise_target=s.noise_target,
+                                             slope=t["slope"])
+    return color, t

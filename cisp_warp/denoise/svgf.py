@@ -2,8 +2,9 @@
 
 Follows Falcor's SVGFPass stage by stage (Reproject, FilterMoments, Atrous; FinalModulate is not
 needed because the signal is irradiance [W/m²], never demodulated by albedo). Kernels live in
-:mod:`.kernels_svgf`; this module holds the settings and the pass, which allocates every buffer once
-and swaps its history double buffers with tuple swaps.
+:mod:`.kernels_svgf` and :mod:`.kernels_atrous`; this module holds the settings and the pass, which
+allocates every buffer once. The history double buffers are the two rows of (2, H*W) arrays, flipped on
+the device by a one-element parity array, so a frame captured as a CUDA graph replays correctly.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_svgf as K
+from .kernels_atrous import launch_atrous_level
 
 
 @dataclass(frozen=True)
@@ -48,42 +50,17 @@ class SVGFSettings:
             raise ValueError(f"feedback_level must lie in [-1, atrous_levels - 1], got {self.feedback_level}")
 
 
-def launch_atrous_level(color_in: wp.array, variance_in: wp.array, depth: wp.array, normal: wp.array,
-                        slope: wp.array, width: int, height: int, step: int, settings: SVGFSettings,
-                        variance_blurred: wp.array, weight_sum: wp.array, color_out: wp.array,
-                        variance_out: wp.array) -> None:
-    """One à-trous level: :func:`.kernels_svgf.blur_variance`, :func:`.kernels_svgf.atrous_weight_sum`,
-    :func:`.kernels_svgf.atrous`.
-
-    Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (H*W float32, luminance variance), ``depth``
-    (H*W float32 [m], 0 = no surface), ``normal`` (H*W vec3), ``slope`` (H*W float32 [m/pixel], ‖∇z‖);
-    ``step`` is the tap spacing [pixels]. Writes the scratch ``variance_blurred`` and ``weight_sum``
-    (H*W float32 each) and ``color_out``/``variance_out``, which must not alias the inputs.
-    """
-    dim = (height, width)
-    d = color_in.device
-    wp.launch(K.blur_variance, dim=dim, device=d, inputs=[variance_in, depth, width, height],
-              outputs=[variance_blurred])
-    sigmas = [settings.sigma_depth, settings.sigma_normal, settings.sigma_luminance]
-    wp.launch(K.atrous_weight_sum, dim=dim, device=d,
-              inputs=[color_in, variance_blurred, depth, normal, slope, width, height, int(step), *sigmas],
-              outputs=[weight_sum])
-    wp.launch(K.atrous, dim=dim, device=d,
-              inputs=[color_in, variance_in, variance_blurred, depth, normal, slope, weight_sum, width, height,
-                      int(step), *sigmas, int(settings.conserve_energy)],
-              outputs=[color_out, variance_out])
-
-
 class SVGF:
     """SVGF denoiser for one ``width`` x ``height`` caustic irradiance map on ``device``.
 
-    History (double-buffered, swapped after every frame; ``prev_*`` is what the next frame reads):
-    ``*_depth`` (H*W float32 [m], 0 = no surface), ``*_normal`` (vec3), ``*_color`` (vec3 [W/m²]),
-    ``*_moments`` (vec2: luminance mean, mean square), ``*_history`` (int32 [frames]).
-    Scratch: ``integrated`` (vec3 [W/m²], temporal accumulation), ``depth_slope`` (float32 [m/pixel]),
-    ``variance_blurred`` and ``weight_sum`` (float32), ``filtered_color`` (2 x vec3),
-    ``filtered_variance`` (2 x float32). The Python-side tuple swaps mean a captured CUDA graph would
-    have to be captured for both parities of the swap.
+    History (2 x H*W each; row ``parity[0]`` holds the last frame, the next frame writes the other row and
+    flips ``parity`` on the device): ``hist_depth`` (float32 [m], 0 = no surface), ``hist_normal`` (vec3),
+    ``hist_color`` (vec3 [W/m²]), ``hist_moments`` (vec2: luminance mean, mean square), ``hist_length``
+    (int32 [frames]); ``parity`` (1 int32).
+    Per frame (H*W each): ``depth``/``normal`` (the G-buffer copy the filters read; depth 0 without a
+    surface), ``integrated`` (vec3 [W/m²], temporal accumulation), ``moments`` (vec2), ``history`` (int32),
+    ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4, per-level packed taps) and
+    ``weight_sum`` (float32), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
@@ -94,25 +71,35 @@ class SVGF:
         n = width * height
         d = self.device
 
-        def pair(dtype):
-            return wp.zeros(n, dtype=dtype, device=d), wp.zeros(n, dtype=dtype, device=d)
+        def one(dtype):
+            return wp.zeros(n, dtype=dtype, device=d)
 
-        self.prev_depth, self.cur_depth = pair(wp.float32)
-        self.prev_normal, self.cur_normal = pair(wp.vec3)
-        self.prev_color, self.cur_color = pair(wp.vec3)
-        self.prev_moments, self.cur_moments = pair(wp.vec2)
-        self.prev_history, self.cur_history = pair(wp.int32)
-        self.integrated = wp.zeros(n, dtype=wp.vec3, device=d)
-        self.depth_slope = wp.zeros(n, dtype=wp.float32, device=d)
-        self.variance_blurred = wp.zeros(n, dtype=wp.float32, device=d)
-        self.weight_sum = wp.zeros(n, dtype=wp.float32, device=d)
-        self.filtered_color = pair(wp.vec3)
-        self.filtered_variance = pair(wp.float32)
+        def two(dtype):
+            return wp.zeros((2, n), dtype=dtype, device=d)
+
+        self.hist_depth = two(wp.float32)
+        self.hist_normal = two(wp.vec3)
+        self.hist_color = two(wp.vec3)
+        self.hist_moments = two(wp.vec2)
+        self.hist_length = two(wp.int32)
+        self.parity = wp.zeros(1, dtype=wp.int32, device=d)
+        self.depth = one(wp.float32)
+        self.normal = one(wp.vec3)
+        self.integrated = one(wp.vec3)
+        self.moments = one(wp.vec2)
+        self.history = one(wp.int32)
+        self.depth_slope = one(wp.float32)
+        self.guide_a = one(wp.vec4)
+        self.guide_b = one(wp.vec4)
+        self.color_variance = one(wp.vec4)
+        self.weight_sum = one(wp.float32)
+        self.filtered_color = one(wp.vec3), one(wp.vec3)
+        self.filtered_variance = one(wp.float32), one(wp.float32)
 
     @property
     def history_length(self) -> wp.array:
         """History length [frames] of the last denoised frame, H*W int32 (1 = disoccluded, 0 = no surface)."""
-        return self.prev_history
+        return self.history
 
     @property
     def variance(self) -> wp.array:
@@ -121,7 +108,7 @@ class SVGF:
 
     def reset(self) -> None:
         """Forget all history: the next frame is treated as disoccluded everywhere."""
-        for a in (self.prev_depth, self.prev_normal, self.prev_color, self.prev_moments, self.prev_history):
+        for a in (self.hist_depth, self.hist_normal, self.hist_color, self.hist_moments, self.hist_length):
             a.zero_()
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
@@ -131,7 +118,8 @@ class SVGF:
         Reads ``irradiance_in`` (H*W vec3 [W/m²], the noisy photon map) and the camera G-buffer:
         ``depth`` (H*W float32 [m], 0 = none), ``normal`` (H*W vec3), ``motion`` (H*W vec2 [pixels],
         previous position minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out``
-        (H*W vec3 [W/m²]; 0 where there is no surface). Nothing is allocated or read back.
+        (H*W vec3 [W/m²]; 0 where there is no surface). Nothing is allocated, read back or swapped on
+        the host: the same launches with the same arguments every frame (CUDA-graph capturable).
         """
         s = self.settings
         w, h = self.width, self.height
@@ -139,14 +127,15 @@ class SVGF:
         d = self.device
         wp.launch(K.reproject, dim=dim, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id,
-                          self.prev_depth, self.prev_normal, self.prev_color, self.prev_moments, self.prev_history,
-                          w, h, s.alpha_color, s.alpha_moments, s.max_history, s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.cur_depth, self.cur_normal, self.integrated, self.cur_moments, self.cur_history])
+                          self.hist_depth, self.hist_normal, self.hist_color, self.hist_moments, self.hist_length,
+                          self.parity, w, h, s.alpha_color, s.alpha_moments, s.max_history, s.depth_tolerance,
+                          s.normal_tolerance],
+                  outputs=[self.depth, self.normal, self.integrated, self.moments, self.history])
         if s.feedback_level == -1:
-            wp.copy(self.cur_color, self.integrated)
+            wp.launch(K.store_history, dim=w * h, device=d, inputs=[self.integrated, self.parity],
+                      outputs=[self.hist_color])
         wp.launch(K.filter_moments, dim=dim, device=d,
-                  inputs=[self.cur_moments, self.cur_history, self.cur_depth, self.cur_normal,
-                          w, h, s.sigma_depth, s.sigma_normal],
+                  inputs=[self.moments, self.history, self.depth, self.normal, w, h, s.sigma_depth, s.sigma_normal],
                   outputs=[self.filtered_variance[0], self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
@@ -154,14 +143,12 @@ class SVGF:
         for level in range(s.atrous_levels):
             src, dst = level % 2, (level + 1) % 2
             color_dst = out if level == s.atrous_levels - 1 else self.filtered_color[dst]
-            launch_atrous_level(color_src, self.filtered_variance[src], self.cur_depth, self.cur_normal,
-                                self.depth_slope, w, h, 1 << level, s, self.variance_blurred,
-                                self.weight_sum, color_dst, self.filtered_variance[dst])
+            launch_atrous_level(color_src, self.filtered_variance[src], self.depth, self.normal, self.depth_slope,
+                                w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance,
+                                s.conserve_energy, self.guide_a, self.guide_b, self.color_variance, self.weight_sum, color_dst,
+                                self.filtered_variance[dst])
             if level == s.feedback_level:
-                wp.copy(self.cur_color, color_dst)
+                wp.launch(K.store_history, dim=w * h, device=d, inputs=[color_dst, self.parity],
+                          outputs=[self.hist_color])
             color_src = color_dst
-        self.prev_depth, self.cur_depth = self.cur_depth, self.prev_depth
-        self.prev_normal, self.cur_normal = self.cur_normal, self.prev_normal
-        self.prev_color, self.cur_color = self.cur_color, self.prev_color
-        self.prev_moments, self.cur_moments = self.cur_moments, self.prev_moments
-        self.prev_history, self.cur_history = self.cur_history, self.prev_history
+        wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])

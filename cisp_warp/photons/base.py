@@ -41,12 +41,15 @@ class PhotonSettings:
     cmap_history: int = 4  #: caustics_map: frames in seed 004's temporal filter (1 = off)
     reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
     sort_photons: bool | None = None  #: trace RSM photons in texel (Morton) order; None = on CUDA only
+    splat: str = "point"  #: cisp, sspm: "point" deposits, or "wavefront" (photons on an RSM grid, cells splatted)
 
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
             raise SceneError(f"--photons must be an integer in [1, 2^28], got {self.photons!r}")
         if self.footprint not in ("exact", "paper"):
             raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
+        if self.splat not in ("point", "wavefront"):
+            raise SceneError(f"--splat must be 'point' or 'wavefront', got {self.splat!r}")
         if self.cmap_gather not in ("light", "eye"):
             raise SceneError(f"--cmap-gather must be 'light' or 'eye', got {self.cmap_gather!r}")
         for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0)):
@@ -120,6 +123,8 @@ class RSMBatch(NamedTuple):
     scramble: wp.vec2i  #: the R2 sequence's Cranley-Patterson rotation
     order: wp.array  #: tracing order (read when the pass's ``use_order`` is set)
     light_pos: wp.vec3  #: [m]
+    skip_window: wp.vec4  #: this view's pixels a finer cascade samples (x0, y0, x1, y1); empty when x1 <= x0
+    luminance_cutoff: float  #: the luminance cutoff against the light's brightest texel, scaled to this view's texels
 
 
 class PhotonPass:
@@ -140,6 +145,8 @@ class PhotonPass:
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
+        #: (LEDGER_ENTRIES,) vec3d alias of ``ledger`` (one row per entry) that the photon kernels add to
+        self.ledger_rows = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,), device=self.device)
         self.max_lum = wp.zeros(len(lights), dtype=wp.float32, device=self.device)
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -147,7 +154,7 @@ class PhotonPass:
         self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
         sort = settings.sort_photons if settings.sort_photons is not None else self.device.is_cuda
         self.use_order = 1 if sort else 0
-        n_sort = 2 * self.max_photons_per_view() if sort else 1
+        n_sort = 2 * self.max_photons_per_view() if sort and settings.splat == "point" else 1  # a grid needs no order
         self._sort_keys = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
         #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU
@@ -155,23 +162,31 @@ class PhotonPass:
         self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
 
     def photons_per_view(self, lm: LightMaps) -> int:
-        return max(1, self.settings.photons // len(lm.rsm))
+        """A light's photons split evenly over its RSM views that emit this frame (every view, unless
+        they are fitted to the camera: then the active cascades)."""
+        return max(1, self.settings.photons // max(1, sum(lm.active)))
 
     def max_photons_per_view(self) -> int:
-        return max((self.photons_per_view(lm) for lm in self.lights), default=1)
+        """The most photons one view can get (all of its light's, when one cascade alone is active)."""
+        return max((self.settings.photons if lm.fitted else self.photons_per_view(lm) for lm in self.lights), default=1)
 
     def begin(self) -> None:
-        """Zero the photon map and the ledger, and find each light's brightest RSM texel (luminance cutoff)."""
+        """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
+        luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
         self.ledger.zero_()
         self.max_lum.zero_()
         for li, lm in enumerate(self.lights):
-            for r in lm.rsm:
+            for r in lm.whole_rsm:
                 n = r.width * r.height
                 block = 256 if self.device.is_cuda else 1
                 blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
                 wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
                                 inputs=[r.flux, n, self._max_lum_of[li]])
+            for r, window, angle in zip(lm.pilot, lm.outside_windows, lm.outside_angles):
+                self.launch_photons(C.book_outside_window, r.width * r.height,
+                                    [r.flux, r.width, r.width * r.height, wp.vec4(*window), float(angle),
+                                     wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger_rows])
 
     def launch_photons(self, kernel, n: int, inputs: list) -> None:
         """Launch a photon kernel over ``n`` photons as ``wp.launch_tiled`` blocks of ``ledger_block`` threads
@@ -192,11 +207,14 @@ class PhotonPass:
         s = self.settings
         for li, lm in enumerate(self.lights):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
+            n = self.photons_per_view(lm)
             for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                n = self.photons_per_view(lm)
+                if not lm.active[vi]:
+                    continue
                 sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
                 scramble = wp.vec2i(sx, sy)
-                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos)
+                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos,
+                               wp.vec4(*lm.skip_windows[vi]), float(s.luminance_cutoff * lm.texel_scale[vi]))
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

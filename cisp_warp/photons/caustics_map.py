@@ -123,11 +123,12 @@ class CausticsMap(PhotonPass):
             self.launch_photons(K.trace_to_caustic_map, n, inputs=[
                 params, int(light.kind), light_pos,
                 r.opaque_depth, r.opaque_tri, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
-                cm.receiver_normal, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
+                sc.geometry, b.skip_window, cm.receiver_normal, sc.triangle_material, sc.opacity, sc.albedo,
+                self._max_lum_of[b.light_index],
                 n, b.seed, b.scramble, b.order, self.use_order,
-                float(s.roughness_cutoff), float(s.luminance_cutoff),
+                float(s.roughness_cutoff), b.luminance_cutoff,
                 int(s.max_steps), float(s.thickness), float(s.thickness_rel), self.t_max,
-                cm.texel_power, self.ledger])
+                cm.texel_power, self.ledger_rows])
             wp.launch(K.temporal_filter, dim=n_texels, device=self.device,
                       inputs=[cm.texel_power, cm.receiver_area, slot, frames, cm.history, cm.irradiance])
             if cm.gather is not None:

@@ -8,9 +8,20 @@ from ..raster import GBuffer, LightMaps
 from ..raster.views import View
 from ..scene import DeviceScene
 from . import kernels_cisp as K
+from . import march as M
 from .base import Ledger, PhotonPass, PhotonSettings, camera_pixel_solid_angle, frame_random
 
 __all__ = ["CISP", "Ledger", "PhotonSettings", "camera_pixel_solid_angle", "frame_random"]
+
+
+def build_bounds(depth: wp.array, width: int, height: int, thickness: float, thickness_rel: float, bounds: wp.array,
+                 device) -> None:
+    """Fill ``bounds`` (``march.bounds_size``) with the fine and coarse depth bounds of ``depth``."""
+    fx, fy = M.bounds_shape(width, height, M.BOUNDS_CELL)
+    cx, cy = M.bounds_shape(width, height, M.BOUNDS_COARSE)
+    wp.launch(M.depth_bounds, dim=fx * fy, device=device,
+              inputs=[depth, width, height, float(thickness), float(thickness_rel), bounds])
+    wp.launch(M.coarsen_bounds, dim=cx * cy, device=device, inputs=[width, height, bounds])
 
 
 class CISP(PhotonPass):
@@ -21,21 +32,49 @@ class CISP(PhotonPass):
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
-        self.hits = wp.zeros(self.max_photons_per_view(), dtype=wp.vec4, device=self.device)
+        n_hits = self.max_photons_per_view() if settings.splat == "point" else 1  # the grid keeps its own records
+        self.hits = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
+        self.wavefront = None
+        if settings.splat == "wavefront":
+            from .kernels_world import CameraBuffers
+            from .wavefront import WavefrontSplat
+
+            cam = CameraBuffers()
+            cam.view = camera_view.params()
+            cam.depth, cam.position, cam.normal = gbuffer.depth, gbuffer.position, gbuffer.normal
+            cam.solid_angle = self.solid_angle
+            self.wavefront = WavefrontSplat(self, cam)
+        # depth bounds per 8x8 cell of every light view's opaque depth and of the camera's, rebuilt each frame:
+        # the march skips the steps they prove hitless
+        self.cam_bounds = self._bounds_for(gbuffer.width, gbuffer.height)
+        self.rsm_bounds = [[self._bounds_for(r.width, r.height) for r in lm.rsm] for lm in lights]
+
+    def _bounds_for(self, width: int, height: int) -> wp.array:
+        return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
+
+    def _build_bounds(self, depth: wp.array, width: int, height: int, bounds: wp.array) -> None:
+        build_bounds(depth, width, height, self.settings.thickness, self.settings.thickness_rel, bounds, self.device)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
         s = self.settings
         self.begin()
+        self._build_bounds(gbuffer.depth, gbuffer.width, gbuffer.height, self.cam_bounds)
+        if self.wavefront is not None:
+            self.wavefront.cam.view = camera
+            self.wavefront.trace(frame, "cisp")
+            return
         for b in self.rsm_batches(frame):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
+            rsm_bounds = self.rsm_bounds[b.light_index][b.view_index]
+            self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
             self.launch_photons(K.trace_photons, b.n, inputs=[
                 b.params, int(b.lights.light.kind), b.light_pos,
-                r.opaque_depth, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
-                sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
-                camera, gbuffer.depth, gbuffer.position, gbuffer.normal, self.solid_angle,
+                r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                sc.geometry, b.skip_window, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
+                camera, gbuffer.depth, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
                 b.n, b.seed, b.scramble, b.order, self.use_order,
-                float(s.roughness_cutoff), float(s.luminance_cutoff), int(s.max_steps),
+                float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                self.photon_map, self.ledger, self.hits])
+                self.photon_map, self.ledger_rows, self.hits])

@@ -17,6 +17,7 @@ import warp as wp
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world
+from ..scene.device import SurfaceGeometry
 
 # ledger entries: power [W] per RGB channel, slots 3*entry .. 3*entry+2
 L_SAMPLED = wp.constant(0)  #: power of the sampled texels (the whole)
@@ -33,11 +34,12 @@ L_REFLECTED = wp.constant(10)  #: of the traced power, reflected (informative, n
 L_REFRACTED = wp.constant(11)  #: of the traced power, refracted (informative, not part of the sum)
 L_ESCAPED = wp.constant(12)  #: world-space methods: left the scene without hitting anything
 L_BOUNCES = wp.constant(13)  #: world-space methods: still specular after the bounce limit
-LEDGER_ENTRIES = 14
+L_OUTSIDE = wp.constant(14)  #: on specular texels outside every light view fitted to the camera: not traced
+LEDGER_ENTRIES = 15
 
 LEDGER_NAMES = ("sampled", "culled_roughness", "culled_luminance", "absorbed", "lost_light_view",
                 "lost_camera_view", "occluded", "rejected", "out_of_steps", "stored", "reflected", "refracted",
-                "escaped", "bounce_limit")
+                "escaped", "bounce_limit", "outside_fitted_view")
 INFORMATIVE = ("sampled", "reflected", "refracted")  #: entries that are not parts of the whole
 
 R2_A1 = wp.constant(wp.uint32(3242174889))  # round(2^32 / phi_2), phi_2 = 1.32471795724... (Roberts' R2)
@@ -49,6 +51,11 @@ FOOTPRINT_PAPER = wp.constant(1)
 
 
 LEDGER_BLOCK = 128  #: threads per block of the photon kernels on CUDA: each block adds to the ledger once per entry
+#: CUDA launch bounds of CISP's trace kernel: blocks of at most LEDGER_BLOCK threads, 6 resident per SM (<= 80
+#: registers a thread). Measured on an H100 (Cornell box, 2M photons): 3.03 ms at the 128 registers nvcc picks by
+#: itself, 2.51 ms at 80 (a few spilled to L1), 2.76 ms at 96. Not yet measured on sspm / caustics_map, which keep
+#: nvcc's choice.
+PHOTON_LAUNCH_BOUNDS = (LEDGER_BLOCK, 6)
 
 
 @wp.struct
@@ -98,30 +105,42 @@ def book(tally: wp.ref[Tally], entry: int, power: wp.vec3):
         tally.power = power
 
 
+def entry_mask(*entries: int) -> int:
+    """Bit mask of ledger entries, for :func:`ledger_add`."""
+    m = 0
+    for e in entries:
+        m |= 1 << int(e)
+    return m
+
+
+#: what emission and the first bounce book (emit_and_bounce, and the reference's first hit)
+EMISSION_ENTRIES = wp.constant(entry_mask(0, 1, 2, 3, 10, 11))
+#: what may end a photon after its first bounce (absorbed: further metallic bounces of the world methods)
+FINAL_ENTRIES = wp.constant(entry_mask(1, 3, 4, 5, 6, 7, 8, 9, 12, 13))
+ALL_ENTRIES = wp.constant((1 << LEDGER_ENTRIES) - 1)
+
+
 @wp.func
-def ledger_add(ledger: wp.array(dtype=wp.float64), tally: Tally, lane: int):
-    """Sum every thread's tally over the block (Warp tiles) and add each non-zero entry to the ledger once,
-    from lane 0. Every thread of the block must call this (no early return before it). On the CPU a block
-    is one thread, so entries are added in photon order, as single atomics would."""
+def ledger_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, lane: int, entries: int):
+    """Sum every thread's tally over the block (Warp tiles) and add each entry in the bit mask ``entries`` to
+    ``ledger`` (the (LEDGER_ENTRIES,) vec3d view of the ledger) once per block. Every thread of the block must
+    call this with the same ``entries`` (no early return before it); an entry booked but left out of the mask
+    is lost, and the ledger then does not close (the tests check closure). On the CPU a block is one thread, so
+    entries are added in photon order, as single atomics would."""
     for e in range(LEDGER_ENTRIES):
-        v = wp.vec3d()
-        if e == L_SAMPLED:
-            v = tally.sampled
-        elif e == L_ABSORBED:
-            v = tally.absorbed
-        elif e == L_REFLECTED:
-            v = tally.reflected
-        elif e == L_REFRACTED:
-            v = tally.refracted
-        elif tally.entry == e:
-            v = wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
-        total = wp.tile_sum(wp.tile(v, preserve_type=True))
-        if lane == 0:
-            s = total[0]
-            if s[0] != wp.float64(0.0) or s[1] != wp.float64(0.0) or s[2] != wp.float64(0.0):
-                wp.atomic_add(ledger, 3 * e + 0, s[0])
-                wp.atomic_add(ledger, 3 * e + 1, s[1])
-                wp.atomic_add(ledger, 3 * e + 2, s[2])
+        if (entries >> e) & 1 != 0:
+            v = wp.vec3d()
+            if e == L_SAMPLED:
+                v = tally.sampled
+            elif e == L_ABSORBED:
+                v = tally.absorbed
+            elif e == L_REFLECTED:
+                v = tally.reflected
+            elif e == L_REFRACTED:
+                v = tally.refracted
+            if tally.entry == e:
+                v = v + wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
+            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(v, preserve_type=True)), offset=e)
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
@@ -193,6 +212,89 @@ def photon_index(order: wp.array(dtype=wp.int32), use_order: int, tid: int) -> i
     return tid
 
 
+MAX_WALK = wp.constant(64)  #: triangles a photon's sample may walk across from its texel's triangle
+BARY_EXTRAPOLATION = wp.constant(0.5)  #: how far (barycentric units) past a boundary edge a sample extrapolates
+
+
+@wp.func
+def _barycentrics(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry):
+    """(b0, b1, b2, t, ok): the ray ``lo + ld·t`` cut with triangle ``tri``'s plane, in its barycentrics."""
+    p0 = geometry.points[geometry.indices[3 * tri + 0]]
+    e1 = geometry.points[geometry.indices[3 * tri + 1]] - p0
+    e2 = geometry.points[geometry.indices[3 * tri + 2]] - p0
+    pv = wp.cross(ld, e2)
+    det = wp.dot(e1, pv)
+    if wp.abs(det) <= 1.0e-12 * wp.length(ld) * wp.length(e1) * wp.length(e2):
+        return 0.0, 0.0, 0.0, 0.0, int(0)
+    inv = 1.0 / det
+    sv = lo - p0
+    b1 = wp.dot(sv, pv) * inv
+    qv = wp.cross(sv, e1)
+    b2 = wp.dot(ld, qv) * inv
+    return 1.0 - b1 - b2, b1, b2, wp.dot(e2, qv) * inv, int(1)
+
+
+@wp.func
+def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec3, texel_normal: wp.vec3,
+                      geometry: SurfaceGeometry):
+    """Where the light ray ``lo + ld·t`` meets the surface under it, and the vertex normals interpolated
+    there: (point [m], unit normal). Sub-texel exact, so a texel's photons leave with the normals of the
+    surface under their own sample points instead of one normal per texel.
+
+    Starts on the RSM texel's triangle ``tri`` (what the texel's centre sees) and walks across edges
+    towards the sample (to the neighbour opposite the most negative barycentric) until the ray cuts
+    the triangle inside, so texels larger than triangles are exact too. At a boundary edge (or after
+    ``MAX_WALK`` steps) it keeps the last triangle's plane and the linear extension of its vertex
+    normals up to ``BARY_EXTRAPOLATION`` outside, clamped onto the triangle beyond. A ray in a
+    triangle's plane keeps the texel's point and normal.
+    """
+    cur = tri
+    b0, b1, b2, t, ok = _barycentrics(lo, ld, cur, geometry)
+    if ok == 0:
+        return texel_position, texel_normal
+    step = int(0)
+    while step < MAX_WALK:
+        corner = int(0)
+        bmin = b0
+        if b1 < bmin:
+            corner = 1
+            bmin = b1
+        if b2 < bmin:
+            corner = 2
+            bmin = b2
+        if bmin >= 0.0:
+            break
+        nxt = geometry.neighbors[3 * cur + corner]
+        if nxt < 0:
+            break
+        c0, c1, c2, tc, okc = _barycentrics(lo, ld, nxt, geometry)
+        if okc == 0:
+            break
+        cur = nxt
+        b0 = c0
+        b1 = c1
+        b2 = c2
+        t = tc
+        step += 1
+    p0 = geometry.points[geometry.indices[3 * cur + 0]]
+    p1 = geometry.points[geometry.indices[3 * cur + 1]]
+    p2 = geometry.points[geometry.indices[3 * cur + 2]]
+    x = lo + ld * t
+    lim = -BARY_EXTRAPOLATION
+    if b0 < lim or b1 < lim or b2 < lim:
+        b1 = wp.clamp(b1, 0.0, 1.0)
+        b2 = wp.clamp(b2, 0.0, 1.0 - b1)
+        b0 = 1.0 - b1 - b2
+        x = p0 * b0 + p1 * b1 + p2 * b2
+    nrm = geometry.normals
+    ind = geometry.indices
+    n = nrm[ind[3 * cur + 0]] * b0 + nrm[ind[3 * cur + 1]] * b1 + nrm[ind[3 * cur + 2]] * b2
+    ln = wp.length(n)
+    if ln < 1.0e-12:
+        return x, texel_normal
+    return x, n / ln
+
+
 @wp.func
 def emit_photon(
     light: ViewParams,
@@ -206,13 +308,22 @@ def emit_photon(
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
+    skip_window: wp.vec4,
     max_lum: float,
     roughness_cutoff: float,
     luminance_cutoff: float,
     tally: wp.ref[Tally],
 ):
     """Photon k of an RSM view. Returns (texel or -1 when none is emitted, power [W], origin, incident
-    direction, surface normal); books the power as sampled, and culled when the texel is culled."""
+    direction, surface normal); books the power as sampled, and culled when the texel is culled.
+
+    ``geometry``: the scene's triangles (``DeviceScene.geometry``), read: the photon starts where the
+    light ray through its sample point meets the surface, found from the texel's triangle, with the
+    vertex normals interpolated there (:func:`surface_at_sample`). ``skip_window``: (x0, y0, x1, y1) in this view's pixels, the window a
+    finer cascade samples; a sample inside it is left to that view (not sampled here, not booked);
+    empty when x1 <= x0.
+    """
     u = r2_point(k, scramble)
     sx = u[0] * float(light.width)
     sy = u[1] * float(light.height)
@@ -222,6 +333,8 @@ def emit_photon(
     zero = wp.vec3(0.0)
     if rsm_tri[texel] < 0:
         return int(-1), zero, zero, zero, zero
+    if sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]:
+        return int(-1), zero, zero, zero, zero
     power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
     book(tally, L_SAMPLED, power)
     if rsm_roughness[texel] > roughness_cutoff:
@@ -230,18 +343,61 @@ def emit_photon(
     if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
         book(tally, L_CULLED_LUM, power)
         return int(-1), zero, zero, zero, zero
-    # origin: the light ray through the sample point, cut with the texel's tangent plane
+    # origin and normal: the light ray through the sample point, cut with the texel's triangle
     lo, ld = pixel_ray_world(light, sx, sy)
-    n = rsm_normal[texel]
-    x0 = rsm_position[texel]
-    denom = wp.dot(ld, n)
-    origin = x0
-    if wp.abs(denom) > 1.0e-8:
-        origin = lo + ld * (wp.dot(x0 - lo, n) / denom)
+    origin, n = surface_at_sample(lo, ld, rsm_tri[texel], rsm_position[texel], rsm_normal[texel], geometry)
     d_in = wp.normalize(ld)
     if light_kind != 0:
         d_in = wp.normalize(origin - light_pos)
     return texel, power, origin, d_in, n
+
+
+OUTSIDE_ENTRIES = wp.constant(entry_mask(L_SAMPLED, L_OUTSIDE))  #: what book_outside_window books
+OUTSIDE_SUBSAMPLES = wp.constant(4)  #: per axis: a pilot texel's area inside a turned window, from 4×4 points
+
+
+@wp.kernel(enable_backward=False)  # books into a tally by reference
+def book_outside_window(
+    rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) a pilot view's flux per texel [W] (read)
+    width: int,
+    count: int,  # texels
+    window: wp.vec4,  # (x0, y0, x1, y1) sampled by the cascades, in the pilot's pixels turned by ``angle``; empty when x1 <= x0
+    angle: float,  # [rad] (views.rotate_pixels)
+    centre: wp.vec2,  # the pilot view's principal point [pixels]
+    aspect: float,  # the pilot view's fx / fy
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+):
+    """Book the power of each pilot texel's area outside ``window`` as sampled and ``outside_fitted_view``
+    (one thread per texel, tallied and added once per block, as the photon kernels do). Unturned windows
+    cut texels exactly; a turned one is measured on 4×4 points per texel."""
+    block, lane = wp.tid()
+    p = block * wp.block_dim() + lane
+    tally = tally_new()
+    if p < count:
+        f = rsm_flux[p]
+        i = float(p % width)
+        j = float(p / width)
+        inside = float(0.0)
+        if angle == 0.0:
+            ox = wp.max(wp.min(i + 1.0, window[2]) - wp.max(i, window[0]), 0.0)
+            oy = wp.max(wp.min(j + 1.0, window[3]) - wp.max(j, window[1]), 0.0)
+            inside = ox * oy
+        else:
+            c = wp.cos(angle)
+            s = wp.sin(angle)
+            for a in range(OUTSIDE_SUBSAMPLES):
+                for b in range(OUTSIDE_SUBSAMPLES):
+                    dx = i + (float(a) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[0]
+                    dy = j + (float(b) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[1]
+                    u = centre[0] + c * dx - s * aspect * dy
+                    v = centre[1] + s * dx / aspect + c * dy
+                    if u >= window[0] and u < window[2] and v >= window[1] and v < window[3]:
+                        inside += 1.0 / float(OUTSIDE_SUBSAMPLES * OUTSIDE_SUBSAMPLES)
+        outside = 1.0 - inside
+        if outside > 0.0 and f[0] + f[1] + f[2] > 0.0:
+            book(tally, L_SAMPLED, f * outside)
+            book(tally, L_OUTSIDE, f * outside)
+    ledger_add(ledger, tally, lane, OUTSIDE_ENTRIES)
 
 
 @wp.func
@@ -282,6 +438,8 @@ def emit_and_bounce(
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
+    skip_window: wp.vec4,
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     mat_albedo: wp.array(dtype=wp.vec3),
@@ -294,8 +452,8 @@ def emit_and_bounce(
     starts on (:func:`specular_bounce`), all booked. Returns (texel or -1 when none, power [W] after the
     bounce, origin [m], surface normal, outgoing direction, rng state)."""
     texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
-                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, max_lum,
-                                                roughness_cutoff, luminance_cutoff, tally)
+                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, geometry, skip_window,
+                                                max_lum, roughness_cutoff, luminance_cutoff, tally)
     state = wp.rand_init(seed, k)
     if texel < 0:
         return texel, power, origin, n, d_in, state

@@ -9,126 +9,130 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, world_project
-from .common import (L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_STEPS, Tally, book, deposit, emit_and_bounce, ledger_add,
+from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
+                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add,
                      photon_index, tally_new)
-from .march import MARCH_HIT, MARCH_STEPS, screen_march
+from .march import MARCH_HIT, MARCH_STEPS, screen_march_bounded
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
+
+#: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else)
+CISP_FINAL_ENTRIES = wp.constant(entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED))
+
+
+@wp.func
+def march_cascade(
+    light: ViewParams,
+    camera: ViewParams,
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) the light view's opaque depth [m] (read)
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) the camera's opaque depth [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    origin: wp.vec3,  # [m] where the photon leaves the specular surface
+    d: wp.vec3,  # unit direction after the bounce
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    use_cascade: int,  # 0: light view only (no camera march)
+):
+    """Steps 4-5 of seed 000 for one photon: march the light view, reproject the end point into the camera
+    view, march on there. Returns (ledger entry where the photon ends, end point [m], camera pixel): the
+    entry is ``L_STORED`` when the photon reached the surface camera pixel ``pix`` shows (validation and the
+    store are the caller's), else where it was lost (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``)."""
+    # 4. march the light view's opaque depth (start a hair off the surface)
+    o = origin + d * (1.0e-4 * t_max)
+    status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
+                                                 thickness, thickness_rel)
+    light_hit = status == MARCH_HIT
+    x_end = o + d * t_end
+    if status == MARCH_STEPS:
+        return L_STEPS, x_end, int(-1)
+    # 5. cascade: reproject into the camera view (Fig. 7)
+    q = world_project(camera, x_end)
+    inside = q[2] > camera.near and q[0] >= 0.0 and q[1] >= 0.0 and q[0] < float(camera.width) and q[1] < float(camera.height)
+    if not inside:
+        if light_hit:
+            return L_LOST_CAMERA, x_end, int(-1)
+        return L_LOST_LIGHT, x_end, int(-1)
+    pix = int(q[1]) * camera.width + int(q[0])
+    zc = cam_depth[pix]
+    tol = thickness + thickness_rel * zc
+    if zc > 0.0 and q[2] > zc + tol:
+        return L_OCCLUDED, x_end, pix
+    on_surface = zc > 0.0 and q[2] >= zc - tol
+    if not on_surface:
+        if use_cascade == 0:
+            return L_LOST_LIGHT, x_end, int(-1)
+        # floating in front of the camera's surfaces: the second chance, march on in the camera view
+        status, t2, steps2 = screen_march_bounded(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
+                                                  thickness, thickness_rel)
+        if status == MARCH_STEPS:
+            return L_STEPS, x_end, int(-1)
+        if status != MARCH_HIT:
+            return L_LOST_CAMERA, x_end, int(-1)
+        x_end = x_end + d * t2
+        q = world_project(camera, x_end)
+        pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
+    return L_STORED, x_end, pix
 
 
 @wp.func
 def trace_photon(
-    t: int,  # thread (photon slot) index
+    k: int,  # photon index
+    origin: wp.vec3,  # [m] on the specular surface
+    d: wp.vec3,  # unit direction after the bounce
+    power: wp.vec3,  # [W] after the bounce
     light: ViewParams,
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,
-    # RSM view of the light (flat H*W arrays)
-    rsm_opaque_depth: wp.array(dtype=wp.float32),
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
-    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
-    rsm_tri: wp.array(dtype=wp.int32),
-    triangle_material: wp.array(dtype=wp.int32),
-    mat_opacity: wp.array(dtype=wp.float32),
-    mat_albedo: wp.array(dtype=wp.vec3),
-    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
-    # camera G-buffer (flat H*W arrays)
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (Hl*Wl,) light view's opaque depth [m] (read)
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
     cam_position: wp.array(dtype=wp.vec3),
     cam_normal: wp.array(dtype=wp.vec3),
     cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
-    # settings
-    n_photons: int,
-    seed: int,  # seed of this (frame, view)'s random streams
-    scramble: wp.vec2i,  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
-    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
-    use_order: int,
-    roughness_cutoff: float,
-    luminance_cutoff: float,  # relative to max_lum
     max_steps: int,
     thickness: float,
     thickness_rel: float,
     t_max: float,
     footprint_mode: int,
     use_cascade: int,  # 0: light view only (no camera march), for comparisons
-    # outputs
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    tally: wp.ref[Tally],  # this thread's ledger share (accumulate)
-    hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (-1 none), for tests and stats
+    tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
+    hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored)
 ):
-    """One photon: emit, bounce, march the light view, cascade into the camera view, store; all booked."""
-    k = photon_index(order, use_order, t)
-    hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-    # 1.-3. texel from the scrambled R2 sequence, origin on the texel's tangent plane, bounce by exact
-    # Fresnel as a probability (power unchanged); metals reflect with their albedo
-    texel, power, origin, n, d, state = emit_and_bounce(
-        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-        rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
-        tally)
-    if texel < 0:
+    """Steps 4-7 of one emitted photon: march the light view, cascade into the camera view (:func:`march_cascade`),
+    validate, store; its final entry booked."""
+    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
+                                      origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
+    if entry != L_STORED:
+        book(tally, entry, power)
         return
-    # 4. march the light view's opaque depth (start a hair off the surface)
-    o = origin + d * (1.0e-4 * t_max)
-    status, t_end, steps = screen_march(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness, thickness_rel)
-    light_hit = status == MARCH_HIT
-    if status == MARCH_STEPS:
-        book(tally, L_STEPS, power)
-        return
-    x_end = o + d * t_end
-    # 5. cascade: reproject into the camera view (Fig. 7)
-    q = world_project(camera, x_end)
-    inside = q[2] > camera.near and q[0] >= 0.0 and q[1] >= 0.0 and q[0] < float(camera.width) and q[1] < float(camera.height)
-    if not inside:
-        if light_hit:
-            book(tally, L_LOST_CAMERA, power)
-        else:
-            book(tally, L_LOST_LIGHT, power)
-        return
-    pix = int(q[1]) * camera.width + int(q[0])
-    zc = cam_depth[pix]
-    tol = thickness + thickness_rel * zc
-    if zc > 0.0 and q[2] > zc + tol:
-        book(tally, L_OCCLUDED, power)
-        return
-    on_surface = zc > 0.0 and q[2] >= zc - tol
-    if not on_surface:
-        if use_cascade == 0:
-            book(tally, L_LOST_LIGHT, power)
-            return
-        # floating in front of the camera's surfaces: the second chance, march on in the camera view
-        status, t2, steps2 = screen_march(camera, cam_depth, x_end, d, t_max, max_steps, thickness, thickness_rel)
-        if status == MARCH_STEPS:
-            book(tally, L_STEPS, power)
-            return
-        if status != MARCH_HIT:
-            book(tally, L_LOST_CAMERA, power)
-            return
-        x_end = x_end + d * t2
-        q = world_project(camera, x_end)
-        pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(camera, pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, tally) != 0:
         hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
 def trace_photons(
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,
     # RSM view of the light (flat H*W arrays)
     rsm_opaque_depth: wp.array(dtype=wp.float32),
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
     rsm_position: wp.array(dtype=wp.vec3),
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     mat_albedo: wp.array(dtype=wp.vec3),
@@ -136,6 +140,7 @@ def trace_photons(
     # camera G-buffer (flat H*W arrays)
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
     cam_position: wp.array(dtype=wp.vec3),
     cam_normal: wp.array(dtype=wp.vec3),
     cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
@@ -155,18 +160,35 @@ def trace_photons(
     use_cascade: int,  # 0: light view only (no camera march), for comparisons
     # outputs
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) power [W] (accumulate)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (-1 none), for tests and stats
 ):
-    """One thread per photon (``wp.launch_tiled`` over :func:`~.common.photon_blocks`): trace it, then add the
-    block's ledger once."""
+    """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
+    ledger is added per block in two steps, so that no float64 sum is held in registers through the march:
+    after emission and bounce (sampled, culled, absorbed, reflected/refracted), then the final entries."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
-    tally = tally_new()
+    k = int(0)
+    texel = int(-1)
+    power = wp.vec3(0.0)
+    origin = wp.vec3(0.0)
+    n = wp.vec3(0.0)
+    d = wp.vec3(0.0)
+    state = wp.uint32(0)
+    emitted = tally_new()
     if t < n_photons:
-        trace_photon(t, light, light_kind, light_pos, rsm_opaque_depth, rsm_position, rsm_normal, rsm_flux,
-                     rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum, camera,
-                     cam_depth, cam_position, cam_normal, cam_solid_angle, n_photons, seed, scramble, order,
-                     use_order, roughness_cutoff, luminance_cutoff, max_steps, thickness, thickness_rel, t_max,
-                     footprint_mode, use_cascade, photon_map, tally, hits)
-    ledger_add(ledger, tally, lane)
+        k = photon_index(order, use_order, t)
+        hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
+        # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
+        # Fresnel as a probability (power unchanged); metals reflect with their albedo
+        texel, power, origin, n, d, state = emit_and_bounce(
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
+    ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
+    tally = tally_new()
+    if texel >= 0:
+        trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
+                     cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
+                     t_max, footprint_mode, use_cascade, photon_map, tally, hits)
+    ledger_add(ledger, tally, lane, CISP_FINAL_ENTRIES)

@@ -18,12 +18,17 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
-from .common import (FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED, Tally, book, emit_and_bounce, ledger_add,
-                     photon_index, pixel_footprint, tally_new)
+from .common import (EMISSION_ENTRIES, FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED,
+                     Tally, book, emit_and_bounce, entry_mask, ledger_add, photon_index,
+                     pixel_footprint, tally_new)
 from .march import MARCH_HIT, MARCH_STEPS, screen_march
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
+
+#: the ways a caustics-map photon ends after its bounce
+CMAP_FINAL_ENTRIES = wp.constant(entry_mask(L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED))
 
 SQRT2 = wp.constant(1.4142135623730951)
 #: steepest receiver slope (tan θ between its normal and the light ray) the depth test allows for; steeper
@@ -75,54 +80,26 @@ def receiver_footprints(
 
 @wp.func
 def trace_to_caustic_map_photon(
-    t: int,  # thread (photon slot) index
+    origin: wp.vec3,  # [m] on the specular surface
+    d: wp.vec3,  # unit direction after the bounce
+    power: wp.vec3,  # [W] after the bounce
     light: ViewParams,
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,  # [m] (point and spot lights)
-    # RSM view of the light (flat Hl*Wl arrays, read)
-    rsm_opaque_depth: wp.array(dtype=wp.float32),  # linear depth of the nearest opaque surface [m], 0 = none
-    rsm_opaque_tri: wp.array(dtype=wp.int32),  # its triangle, -1 = none
-    rsm_position: wp.array(dtype=wp.vec3),  # specular layer: world position [m]
-    rsm_normal: wp.array(dtype=wp.vec3),  # specular layer: authored unit normal
-    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
-    rsm_tri: wp.array(dtype=wp.int32),  # specular layer triangle, -1 = none
-    receiver_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) from receiver_footprints, facing the light
-    # scene materials (read)
-    triangle_material: wp.array(dtype=wp.int32),  # (T,)
-    mat_opacity: wp.array(dtype=wp.float32),  # (M,)
-    mat_albedo: wp.array(dtype=wp.vec3),  # (M,)
-    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
-    # settings
-    n_photons: int,
-    seed: int,  # seed of this (frame, view)'s random streams
-    scramble: wp.vec2i,  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
-    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
-    use_order: int,
-    roughness_cutoff: float,
-    luminance_cutoff: float,  # relative to max_lum
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (Hl*Wl,) [m], 0 = none (read)
+    rsm_opaque_tri: wp.array(dtype=wp.int32),  # (Hl*Wl,) -1 = none (read)
+    receiver_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) (read)
     max_steps: int,
     thickness: float,  # [m]
     thickness_rel: float,
     t_max: float,  # [m]
-    # outputs
     texel_power: wp.array(dtype=wp.vec3),  # (Hl*Wl,) power landed per light texel this frame [W] (accumulate)
-    tally: wp.ref[Tally],  # this thread's ledger share (accumulate)
+    tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
 ):
-    """One thread per photon: same emission and bounce as CISP, then the light view's opaque depth only.
+    """An emitted photon's end point in the light view's opaque depth only, splatted into its texel.
 
     A photon whose march leaves the light view (or lands in a texel without an opaque surface) is
     ``lost_light_view``; one arriving on the side of its receiver the light does not see is ``rejected``;
     the rest are ``stored``: splatted into the caustic map in light space.
     """
-    k = photon_index(order, use_order, t)
-    texel, power, origin, n, d, state = emit_and_bounce(
-        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-        rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
-        tally)
-    if texel < 0:
-        return
     o = origin + d * (1.0e-4 * t_max)  # start a hair off the specular surface, as CISP does
     status, t_end, steps = screen_march(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness, thickness_rel)
     if status == MARCH_STEPS:
@@ -159,6 +136,8 @@ def trace_to_caustic_map(
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),  # specular layer triangle, -1 = none
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     receiver_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) from receiver_footprints, facing the light
     # scene materials (read)
     triangle_material: wp.array(dtype=wp.int32),  # (T,)
@@ -179,20 +158,32 @@ def trace_to_caustic_map(
     t_max: float,  # [m]
     # outputs
     texel_power: wp.array(dtype=wp.vec3),  # (Hl*Wl,) power landed per light texel this frame [W] (accumulate)
-    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) power [W] (accumulate)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
 ):
-    """One thread per photon (``wp.launch_tiled`` over :func:`~.common.photon_blocks`): trace it, then add the
-    block's ledger once."""
+    """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`): same
+    emission and bounce as CISP, then the light view's opaque depth only. The ledger is added per block after
+    the bounce and at the end."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
-    tally = tally_new()
+    texel = int(-1)
+    power = wp.vec3(0.0)
+    origin = wp.vec3(0.0)
+    n = wp.vec3(0.0)
+    d = wp.vec3(0.0)
+    state = wp.uint32(0)
+    emitted = tally_new()
     if t < n_photons:
-        trace_to_caustic_map_photon(t, light, light_kind, light_pos, rsm_opaque_depth, rsm_opaque_tri, rsm_position,
-                                    rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri, receiver_normal,
-                                    triangle_material, mat_opacity, mat_albedo, max_lum, n_photons, seed, scramble,
-                                    order, use_order, roughness_cutoff, luminance_cutoff, max_steps, thickness,
-                                    thickness_rel, t_max, texel_power, tally)
-    ledger_add(ledger, tally, lane)
+        k = photon_index(order, use_order, t)
+        texel, power, origin, n, d, state = emit_and_bounce(
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
+    ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
+    tally = tally_new()
+    if texel >= 0:
+        trace_to_caustic_map_photon(origin, d, power, light, rsm_opaque_depth, rsm_opaque_tri, receiver_normal,
+                                    max_steps, thickness, thickness_rel, t_max, texel_power, tally)
+    ledger_add(ledger, tally, lane, CMAP_FINAL_ENTRIES)
 
 
 @wp.kernel

@@ -20,14 +20,18 @@ import warp as wp
 
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
+from ..scene.device import SurfaceGeometry
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
-from .common import (L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_SAMPLED, Tally, book,
-                     book_bounce, deposit, emit_and_bounce, ledger_add, photon_index, r2_point, specular_bounce,
-                     tally_new)
+from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
+                     L_OCCLUDED, L_REJECTED, L_SAMPLED, L_STORED, Tally, book, book_bounce, deposit, emit_and_bounce,
+                     entry_mask, ledger_add, photon_index, r2_point, specular_bounce, tally_new)
 
-WT_LANDED = wp.constant(0)  #: reached a diffuse receiver
-WT_DONE = wp.constant(1)  #: ended otherwise (escaped, culled, bounce limit); already booked
+#: the ways an SSPM photon ends after its first bounce (world_trace, trace_sspm_photon and deposit book nothing else)
+SSPM_FINAL_ENTRIES = wp.constant(entry_mask(L_ABSORBED, L_CULLED_ROUGH, L_ESCAPED, L_BOUNCES, L_LOST_CAMERA, L_OCCLUDED,
+                                            L_REJECTED, L_STORED))
+
+WT_LANDED = wp.constant(0)  #: reached a diffuse receiver; any other status is the ledger entry it was booked as
 
 INV_PI = wp.constant(1.0 / math.pi)
 wp.set_module_options({"enable_backward": False})  # forward only: no adjoints to compile
@@ -114,8 +118,9 @@ def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.v
                 roughness_cutoff: float, t_max: float, max_bounces: int, tally: wp.ref[Tally]):
     """Follow a photon leaving the surface point ``x`` along ``d`` through further specular bounces.
 
-    Returns (WT_LANDED or WT_DONE, landing point, receiver shading normal, arriving direction, power, rng).
-    The ways of ending other than landing are booked here (escaped, culled, bounce limit, absorbed).
+    Returns (WT_LANDED or the ledger entry it ended in, landing point, receiver shading normal, arriving
+    direction, power, rng). The ways of ending other than landing are booked here (escaped, culled, bounce
+    limit, absorbed).
     """
     eps = 1.0e-5 * t_max
     o = offset_origin(x, ng, d, eps)
@@ -124,11 +129,11 @@ def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.v
         tri, y, n, g = world_hit(ws, o, d, t_max)
         if tri < 0:
             book(tally, L_ESCAPED, power)
-            return WT_DONE, y, n, d, power, state
+            return L_ESCAPED, y, n, d, power, state
         if is_smooth_specular(ws, tri, roughness_cutoff) != 0:
             if bounce == max_bounces:
                 book(tally, L_BOUNCES, power)
-                return WT_DONE, y, n, d, power, state
+                return L_BOUNCES, y, n, d, power, state
             m = ws.triangle_material[tri]
             d, power, refracted, state = specular_bounce(d, n, int(ws.opacity[m] < 1.0), ws.ior[m], ws.albedo[m],
                                                          power, state, tally)
@@ -137,10 +142,10 @@ def world_trace(ws: WorldScene, x: wp.vec3, ng: wp.vec3, d: wp.vec3, power: wp.v
             continue
         if (ws.triangle_layers[tri] & LAYER_OPAQUE_C) == 0:  # a rough transmissive surface: not modelled
             book(tally, L_CULLED_ROUGH, power)
-            return WT_DONE, y, n, d, power, state
+            return L_CULLED_ROUGH, y, n, d, power, state
         return WT_LANDED, y, n, d, power, state
     book(tally, L_BOUNCES, power)
-    return WT_DONE, o, ng, d, power, state
+    return L_BOUNCES, o, ng, d, power, state
 
 
 @wp.func
@@ -154,55 +159,44 @@ def camera_pixel(cam: CameraBuffers, y: wp.vec3):
 
 
 @wp.func
+def camera_receiver(cam: CameraBuffers, y: wp.vec3, thickness: float, thickness_rel: float):
+    """Seed 003's depth-visibility test of a landing point ``y``. Returns (``L_STORED`` when the camera sees
+    it, validation and store pending, else ``L_LOST_CAMERA`` or ``L_OCCLUDED``; camera pixel or -1)."""
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        return L_LOST_CAMERA, pix
+    zc = cam.depth[pix]
+    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
+        return L_OCCLUDED, pix
+    return L_STORED, pix
+
+
+@wp.func
 def trace_sspm_photon(
-    t: int,  # thread (photon slot) index
-    light: ViewParams,
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,  # [m]
-    # RSM view of the light (flat H*W arrays, read)
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
-    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
-    rsm_tri: wp.array(dtype=wp.int32),
-    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    origin: wp.vec3,  # [m] on the specular surface
+    n: wp.vec3,  # its normal
+    d: wp.vec3,  # unit direction after the bounce
+    power: wp.vec3,  # [W] after the bounce
+    state: wp.uint32,  # rng state
     ws: WorldScene,
     cam: CameraBuffers,
-    n_photons: int,
-    seed: int,
-    scramble: wp.vec2i,
-    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
-    use_order: int,
     roughness_cutoff: float,
-    luminance_cutoff: float,
     thickness: float,  # [m] depth-visibility tolerance, absolute
     thickness_rel: float,  # relative (× depth)
     t_max: float,
     max_bounces: int,
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    tally: wp.ref[Tally],  # this thread's ledger share (accumulate)
+    tally: wp.ref[Tally],  # this thread's ledger share: further absorption and the final entry (accumulate)
 ):
-    """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility."""
-    k = photon_index(order, use_order, t)
-    texel, power, origin, n, d, state = emit_and_bounce(
-        light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-        rsm_ior, rsm_tri, ws.triangle_material, ws.opacity, ws.albedo, max_lum[0], roughness_cutoff, luminance_cutoff,
-        tally)
-    if texel < 0:
-        return
+    """Seed 003 after the first bounce: traced through the BVH, stored by depth visibility."""
     status, y, nr, d, power, state = world_trace(ws, origin, n, d, power, state, roughness_cutoff, t_max,
                                                  max_bounces, tally)
     if status != WT_LANDED:
         return
-    pix, q = camera_pixel(cam, y)
-    if pix < 0:
-        book(tally, L_LOST_CAMERA, power)
-        return
-    zc = cam.depth[pix]
-    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
-        book(tally, L_OCCLUDED, power)
+    entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
+    if entry != L_STORED:
+        book(tally, entry, power)
         return
     deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
             photon_map, tally)
@@ -220,6 +214,8 @@ def trace_sspm(
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     ws: WorldScene,
     cam: CameraBuffers,
@@ -236,19 +232,32 @@ def trace_sspm(
     max_bounces: int,
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
 ):
-    """One thread per photon (``wp.launch_tiled`` over :func:`~.common.photon_blocks`): trace it, then add the
-    block's ledger once."""
+    """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility. One
+    thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`); the ledger is
+    added per block after the first bounce and at the end (no float64 sum of emission held through the trace)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
-    tally = tally_new()
+    texel = int(-1)
+    power = wp.vec3(0.0)
+    origin = wp.vec3(0.0)
+    n = wp.vec3(0.0)
+    d = wp.vec3(0.0)
+    state = wp.uint32(0)
+    emitted = tally_new()
     if t < n_photons:
-        trace_sspm_photon(t, light, light_kind, light_pos, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-                          rsm_ior, rsm_tri, max_lum, ws, cam, n_photons, seed, scramble, order, use_order,
-                          roughness_cutoff, luminance_cutoff, thickness, thickness_rel, t_max, max_bounces,
-                          footprint_mode, photon_map, tally)
-    ledger_add(ledger, tally, lane)
+        k = photon_index(order, use_order, t)
+        texel, power, origin, n, d, state = emit_and_bounce(
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
+    ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
+    tally = tally_new()
+    if texel >= 0:
+        trace_sspm_photon(origin, n, d, power, state, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max,
+                          max_bounces, footprint_mode, photon_map, tally)
+    ledger_add(ledger, tally, lane, SSPM_FINAL_ENTRIES)
 
 
 @wp.func
@@ -387,10 +396,10 @@ def trace_reference(
     landing_pos: wp.array(dtype=wp.vec3),  # (P,) where each photon landed [m], FAR_AWAY if nowhere (write)
     landing_normal: wp.array(dtype=wp.vec3),  # (P,) receiver normal (write)
     landing_power: wp.array(dtype=wp.vec3),  # (P,) [W] (write)
-    ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
 ):
-    """One thread per light photon (``wp.launch_tiled`` over :func:`~.common.photon_blocks`): trace it, then add
-    the block's ledger once."""
+    """One thread per light photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`):
+    trace it, then add the block's ledger once."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     tally = tally_new()
@@ -398,7 +407,7 @@ def trace_reference(
         trace_reference_photon(t, light, light_kind, light_rgb, light_pos, spot_axis, cone_angle, cone_softness, ws,
                                cam, n_photons, seed, scramble, roughness_cutoff, t_max, max_bounces, footprint_mode,
                                landing_offset, photon_map, landing_pos, landing_normal, landing_power, tally)
-    ledger_add(ledger, tally, lane)
+    ledger_add(ledger, tally, lane, ALL_ENTRIES)
 
 
 @wp.kernel

@@ -16,6 +16,11 @@ Testing the depth *range* of each step rather than its end point matters for ray
 view axis, which advance far in depth per pixel.
 
 ``t`` is the parameter of the world-space ray ``o + d·t`` (``d`` need not be unit length).
+
+:func:`screen_march` reads the depth samples of ``MARCH_BATCH`` steps before it tests any of them: the
+reads do not depend on each other, so a GPU thread has them in flight together instead of waiting for one
+L2 round trip per step; the tests then run in step order with the same arithmetic, so the result is that of
+:func:`screen_march_naive` (the one-step-at-a-time twin the tests compare it with) bit for bit.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ def _buffer_depth(view: ViewParams, depth: wp.array(dtype=wp.float32), sx: float
 
 
 @wp.func
-def screen_march(
+def screen_march_naive(
     view: ViewParams,
     depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
     o: wp.vec3,  # world origin [m]
@@ -52,9 +57,10 @@ def screen_march(
     thickness: float,  # [m] absolute part of the surface thickness
     thickness_rel: float,  # relative part (× sample depth)
 ):
-    """March ``o + d·t`` for t in (0, t_max]. Returns (status, t_end, steps taken).
+    """March ``o + d·t`` for t in (0, t_max], one step at a time. Returns (status, t_end, steps taken).
 
-    On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view.
+    On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view. The twin of
+    :func:`screen_march`.
     """
     p0 = wp.transform_point(view.world_to_view, o)
     dv = wp.transform_vector(view.world_to_view, d)
@@ -142,3 +148,387 @@ def screen_march(
     if view.orthographic == 0:
         lam_last = s_last * k1 / ((1.0 - s_last) * k0 + s_last * k1)
     return status, lam_last * t1, n
+
+
+MARCH_BATCH = 4  #: depth samples :func:`screen_march` reads before testing them
+
+
+@wp.func
+def _ray_depth(orthographic: int, z0: float, z1: float, k0: float, k1: float, s: float) -> float:
+    """Linear depth of the ray at screen-segment parameter ``s`` (1/depth is linear for a perspective view)."""
+    if orthographic != 0:
+        return z0 + (z1 - z0) * s
+    return 1.0 / (k0 + (k1 - k0) * s)
+
+
+@wp.func
+def _crossing(zr_prev: float, zr: float, zs: float, diff_prev: float, thickness: float, thickness_rel: float) -> float:
+    """Where along a step the ray crosses the surface, u in [0, 1], or -1 when the ray's depth over the step,
+    [min, max], does not overlap the surface's [zs, zs + thickness]."""
+    diff = zr - zs
+    if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+        u = float(1.0)
+        if diff_prev < 0.0 and diff >= 0.0:
+            u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
+        elif zr != zr_prev:
+            u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
+        return u
+    return -1.0
+
+
+@wp.func
+def _segment_t(orthographic: int, k0: float, k1: float, t1: float, s: float) -> float:
+    """Ray parameter t of screen-segment parameter ``s`` (perspective-correct)."""
+    lam = s
+    if orthographic == 0:
+        lam = s * k1 / ((1.0 - s) * k0 + s * k1)
+    return lam * t1
+
+
+@wp.func
+def screen_march(
+    view: ViewParams,
+    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
+    o: wp.vec3,  # world origin [m]
+    d: wp.vec3,  # world direction
+    t_max: float,
+    max_steps: int,
+    thickness: float,  # [m] absolute part of the surface thickness
+    thickness_rel: float,  # relative part (× sample depth)
+):
+    """March ``o + d·t`` for t in (0, t_max]. Returns (status, t_end, steps taken).
+
+    On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view. Reads
+    MARCH_BATCH depth samples ahead (clamped to the image, so reads past the last step are harmless and
+    untested); the same result as :func:`screen_march_naive`.
+    """
+    p0 = wp.transform_point(view.world_to_view, o)
+    dv = wp.transform_vector(view.world_to_view, d)
+    z0 = -p0[2]
+    rate = -dv[2]  # d(depth)/dt
+    t1 = t_max
+    near = view.near * 1.0001
+    if z0 < near:
+        return MARCH_EXIT, float(0.0), int(0)
+    if rate < 0.0:
+        t1 = wp.min(t1, (z0 - near) / (-rate))
+    if view.orthographic == 0:
+        t1 = wp.min(t1, 1.0e6)
+    p1 = p0 + dv * t1
+    z1 = -p1[2]
+    s0 = wp.vec2(0.0)
+    s1 = wp.vec2(0.0)
+    k0 = float(1.0)
+    k1 = float(1.0)
+    if view.orthographic != 0:
+        s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
+        s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
+    else:
+        k0 = 1.0 / z0
+        k1 = 1.0 / z1
+        s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
+        s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
+    # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
+    w = float(view.width)
+    h = float(view.height)
+    if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
+        return MARCH_EXIT, float(0.0), int(0)
+    ds = s1 - s0
+    s_end = float(1.0)
+    if ds[0] > 0.0:
+        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
+    elif ds[0] < 0.0:
+        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
+    if ds[1] > 0.0:
+        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
+    elif ds[1] < 0.0:
+        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+    s_end = wp.max(s_end, 0.0)
+    pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
+    n = int(wp.ceil(pixels))
+    status = MARCH_EXIT
+    if n > max_steps:
+        n = max_steps
+        status = MARCH_STEPS
+    n = wp.max(n, 1)
+    ds_step = s_end / float(n)
+    if pixels > float(max_steps):
+        ds_step = s_end / pixels
+    ortho = view.orthographic
+    s_prev = float(0.0)
+    zr_prev = z0
+    diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+    i = int(1)
+    while i <= n:
+        # the batch's reads first (independent of each other), then its tests in step order
+        sa = ds_step * float(i)
+        sb = ds_step * float(i + 1)
+        sc = ds_step * float(i + 2)
+        sd = ds_step * float(i + 3)
+        pa = s0 + ds * sa
+        pb = s0 + ds * sb
+        pc = s0 + ds * sc
+        pd = s0 + ds * sd
+        zsa = _buffer_depth(view, depth, pa[0], pa[1])
+        zsb = _buffer_depth(view, depth, pb[0], pb[1])
+        zsc = _buffer_depth(view, depth, pc[0], pc[1])
+        zsd = _buffer_depth(view, depth, pd[0], pd[1])
+        zr = _ray_depth(ortho, z0, z1, k0, k1, sa)
+        u = _crossing(zr_prev, zr, zsa, diff_prev, thickness, thickness_rel)
+        if u >= 0.0:
+            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sa - s_prev) * u), i
+        s_prev = sa
+        zr_prev = zr
+        diff_prev = zr - zsa
+        if i + 1 > n:
+            break
+        zr = _ray_depth(ortho, z0, z1, k0, k1, sb)
+        u = _crossing(zr_prev, zr, zsb, diff_prev, thickness, thickness_rel)
+        if u >= 0.0:
+            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sb - s_prev) * u), i + 1
+        s_prev = sb
+        zr_prev = zr
+        diff_prev = zr - zsb
+        if i + 2 > n:
+            break
+        zr = _ray_depth(ortho, z0, z1, k0, k1, sc)
+        u = _crossing(zr_prev, zr, zsc, diff_prev, thickness, thickness_rel)
+        if u >= 0.0:
+            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sc - s_prev) * u), i + 2
+        s_prev = sc
+        zr_prev = zr
+        diff_prev = zr - zsc
+        if i + 3 > n:
+            break
+        zr = _ray_depth(ortho, z0, z1, k0, k1, sd)
+        u = _crossing(zr_prev, zr, zsd, diff_prev, thickness, thickness_rel)
+        if u >= 0.0:
+            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sd - s_prev) * u), i + 3
+        s_prev = sd
+        zr_prev = zr
+        diff_prev = zr - zsd
+        i += MARCH_BATCH
+    return status, _segment_t(ortho, k0, k1, t1, s_prev), n
+
+
+BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of :func:`depth_bounds`
+BOUNDS_COARSE = wp.constant(32)  #: edge [texels] of its coarse cells (4x4 fine cells)
+
+
+def bounds_shape(width: int, height: int, cell: int = 8) -> tuple[int, int]:
+    """(cells across, cells down) of a depth buffer's bounds with cells of ``cell`` texels."""
+    return (width + cell - 1) // cell, (height + cell - 1) // cell
+
+
+def bounds_size(width: int, height: int) -> int:
+    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells."""
+    fx, fy = bounds_shape(width, height, BOUNDS_CELL)
+    cx, cy = bounds_shape(width, height, BOUNDS_COARSE)
+    return fx * fy + cx * cy
+
+
+@wp.kernel
+def depth_bounds(
+    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
+    width: int,
+    height: int,
+    thickness: float,  # [m] absolute part of the surface thickness
+    thickness_rel: float,  # relative part (× sample depth)
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) fine cells first: (min z_s, max z_s + thickness) [m] (write)
+):
+    """Per fine cell of BOUNDS_CELL² texels: the nearest surface depth and the farthest back face of a surface
+    (z_s + thickness + thickness_rel·z_s, computed as :func:`screen_march` does), holes counting as BIG_DEPTH. A
+    ray whose depth over a stretch of steps stays in front of the first or behind the second cannot hit in
+    that cell, so :func:`screen_march_bounded` skips those steps. :func:`coarsen_bounds` then fills the
+    coarse cells."""
+    c = wp.tid()
+    cw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    i0 = (c % cw) * BOUNDS_CELL
+    j0 = (c / cw) * BOUNDS_CELL
+    z_min = float(BIG_DEPTH)
+    z_max = float(0.0)
+    for dj in range(BOUNDS_CELL):
+        j = j0 + dj
+        if j < height:
+            for di in range(BOUNDS_CELL):
+                i = i0 + di
+                if i < width:
+                    zs = depth[j * width + i]
+                    if zs <= 0.0:
+                        zs = BIG_DEPTH
+                    z_min = wp.min(z_min, zs)
+                    z_max = wp.max(z_max, zs + thickness + thickness_rel * zs)
+    # a hair wider (1e-6 relative) than the exact bounds: a kernel elsewhere may round z_s + thickness one ulp
+    # apart (CUDA fuses multiply-adds as it sees fit); wider bounds only skip less
+    bounds[c] = wp.vec2(z_min * 0.999999, z_max * 1.000001)
+
+
+@wp.kernel
+def coarsen_bounds(
+    width: int,
+    height: int,
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) fine cells (read), then coarse cells (write)
+):
+    """Coarse cell = min and max over its (BOUNDS_COARSE / BOUNDS_CELL)² fine cells."""
+    c = wp.tid()
+    fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    r = BOUNDS_COARSE / BOUNDS_CELL
+    i0 = (c % cw) * r
+    j0 = (c / cw) * r
+    b = wp.vec2(BIG_DEPTH, 0.0)
+    for dj in range(r):
+        for di in range(r):
+            if i0 + di < fw and j0 + dj < fh:
+                f = bounds[(j0 + dj) * fw + i0 + di]
+                b = wp.vec2(wp.min(b[0], f[0]), wp.max(b[1], f[1]))
+    bounds[fw * fh + c] = b
+
+
+@wp.func
+def _texel(view: ViewParams, s0: wp.vec2, ds: wp.vec2, s: float) -> wp.vec2i:
+    """The texel (i, j) the march samples at screen-segment parameter ``s`` (as :func:`_buffer_depth` reads it)."""
+    sp = s0 + ds * s
+    return wp.vec2i(wp.clamp(int(wp.floor(sp[0])), 0, view.width - 1),
+                    wp.clamp(int(wp.floor(sp[1])), 0, view.height - 1))
+
+
+@wp.func
+def _cell_exit(ci: int, cell: int, s0: float, ds: float, ds_step: float) -> float:
+    """Step index (as a float) past which the samples leave cell ``ci`` along one screen axis; 1e9 if never."""
+    if ds > 0.0:
+        return (float((ci + 1) * cell) - s0) / ds / ds_step
+    if ds < 0.0:
+        return (float(ci * cell) - s0) / ds / ds_step
+    return 1.0e9
+
+
+@wp.func
+def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, i: int, n: int, tx: wp.vec2i, cell: int):
+    """The cell (ci, cj) of ``cell`` texels that step i's sample (texel ``tx``) lies in, and the last step <= n
+    whose sample still does: all samples between lie in it too (texel coordinates are monotonic in the step)."""
+    ci = tx[0] / cell
+    cj = tx[1] / cell
+    last_f = wp.min(_cell_exit(ci, cell, s0[0], ds[0], ds_step), _cell_exit(cj, cell, s0[1], ds[1], ds_step))
+    last = n
+    if last_f < float(n):
+        last = wp.max(int(wp.ceil(last_f)) - 1, i)
+    tl = _texel(view, s0, ds, ds_step * float(last))
+    while last > i and (tl[0] / cell != ci or tl[1] / cell != cj):  # rounding: step back into the cell
+        last -= 1
+        tl = _texel(view, s0, ds, ds_step * float(last))
+    return last, ci, cj
+
+
+@wp.func
+def screen_march_bounded(
+    view: ViewParams,
+    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) :func:`depth_bounds` of ``depth`` with these thicknesses (read)
+    o: wp.vec3,  # world origin [m]
+    d: wp.vec3,  # world direction
+    t_max: float,
+    max_steps: int,
+    thickness: float,  # [m] absolute part of the surface thickness
+    thickness_rel: float,  # relative part (× sample depth)
+):
+    """:func:`screen_march_naive`, skipping the steps depth bounds prove hitless. Returns (status, t_end, steps
+    taken), the same as the naive march: a step tests the ray's depth range over it against the surface at its
+    sample; while the ray's depth over all the steps whose samples lie in one cell stays in front of the cell's
+    nearest surface or behind its farthest back face, none of them can hit, and the march jumps to the first
+    step past the cell (the ray's depth is monotonic along the segment, so its range over those steps is that
+    of their two ends). It tries the coarse cell first, then the fine one, else tests the fine cell's steps one
+    by one."""
+    p0 = wp.transform_point(view.world_to_view, o)
+    dv = wp.transform_vector(view.world_to_view, d)
+    z0 = -p0[2]
+    rate = -dv[2]  # d(depth)/dt
+    t1 = t_max
+    near = view.near * 1.0001
+    if z0 < near:
+        return MARCH_EXIT, float(0.0), int(0)
+    if rate < 0.0:
+        t1 = wp.min(t1, (z0 - near) / (-rate))
+    if view.orthographic == 0:
+        t1 = wp.min(t1, 1.0e6)
+    p1 = p0 + dv * t1
+    z1 = -p1[2]
+    s0 = wp.vec2(0.0)
+    s1 = wp.vec2(0.0)
+    k0 = float(1.0)
+    k1 = float(1.0)
+    if view.orthographic != 0:
+        s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
+        s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
+    else:
+        k0 = 1.0 / z0
+        k1 = 1.0 / z1
+        s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
+        s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
+    w = float(view.width)
+    h = float(view.height)
+    if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
+        return MARCH_EXIT, float(0.0), int(0)
+    ds = s1 - s0
+    s_end = float(1.0)
+    if ds[0] > 0.0:
+        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
+    elif ds[0] < 0.0:
+        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
+    if ds[1] > 0.0:
+        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
+    elif ds[1] < 0.0:
+        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+    s_end = wp.max(s_end, 0.0)
+    pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
+    n = int(wp.ceil(pixels))
+    status = MARCH_EXIT
+    if n > max_steps:
+        n = max_steps
+        status = MARCH_STEPS
+    n = wp.max(n, 1)
+    ds_step = s_end / float(n)
+    if pixels > float(max_steps):
+        ds_step = s_end / pixels
+    ortho = view.orthographic
+    fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
+    coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    s_prev = float(0.0)
+    zr_prev = z0
+    diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+    i = int(1)
+    while i <= n:
+        tx = _texel(view, s0, ds, ds_step * float(i))
+        # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
+        last, ci, cj = _cell_span(view, s0, ds, ds_step, i, n, tx, BOUNDS_COARSE)
+        b = bounds[coarse_0 + cj * coarse_x + ci]
+        zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+        skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+        if not skip:
+            last, ci, cj = _cell_span(view, s0, ds, ds_step, i, last, tx, BOUNDS_CELL)
+            b = bounds[cj * fine_x + ci]
+            zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+            skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+        if skip:
+            # no step i..last can hit: continue after them, as the naive march would
+            s_prev = ds_step * float(last)
+            sp_last = s0 + ds * s_prev
+            zr_prev = zr_last
+            diff_prev = zr_last - _buffer_depth(view, depth, sp_last[0], sp_last[1])
+            i = last + 1
+            continue
+        while i <= last:
+            s = ds_step * float(i)
+            sp = s0 + ds * s
+            zr = _ray_depth(ortho, z0, z1, k0, k1, s)
+            zs = _buffer_depth(view, depth, sp[0], sp[1])
+            u = _crossing(zr_prev, zr, zs, diff_prev, thickness, thickness_rel)
+            if u >= 0.0:
+                return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
+            s_prev = s
+            zr_prev = zr
+            diff_prev = zr - zs
+            i += 1
+    return status, _segment_t(ortho, k0, k1, t1, s_prev), n

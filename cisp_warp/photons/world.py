@@ -51,18 +51,30 @@ class SSPM(_WorldPass):
 
     name = "sspm"
 
+    def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
+                 settings: PhotonSettings, device, t_max: float):
+        super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
+        self.wavefront = None
+        if settings.splat == "wavefront":
+            from .wavefront import WavefrontSplat
+
+            self.wavefront = WavefrontSplat(self, self.cam)
+
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         s = self.settings
         self.begin()
         self.cam.view = camera
+        if self.wavefront is not None:
+            self.wavefront.trace(frame, "sspm", self.world)
+            return
         for b in self.rsm_batches(frame):
             sp = b.rsm.specular
             self.launch_photons(K.trace_sspm, b.n, inputs=[
                 b.params, int(b.lights.light.kind), b.light_pos,
-                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self._max_lum_of[b.light_index],
-                self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
-                float(s.roughness_cutoff), float(s.luminance_cutoff), float(s.thickness), float(s.thickness_rel),
-                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger])
+                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry, b.skip_window,
+                self._max_lum_of[b.light_index], self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
+                float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),
+                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows])
 
 
 def reference_target(settings: PhotonSettings, device) -> int:
@@ -159,7 +171,7 @@ class Reference(_WorldPass):
                         float(light.cone_angle), float(light.cone_softness),
                         self.world, self.cam, n, rng_seed, wp.vec2i(sx, sy), float(s.roughness_cutoff), self.t_max,
                         int(s.max_bounces), self.footprint_mode, self.offsets[li][vi], self.pass_map,
-                        self.landing_pos, self.landing_normal, self.landing_power, self.ledger])
+                        self.landing_pos, self.landing_normal, self.landing_power, self.ledger_rows])
             wp.launch(K.accumulate_pass, dim=self.pass_map.shape[0], device=d,
                       inputs=[self.pass_map, self.total, self.total_sq])
             self.grid.build(self.landing_pos, self.gather_radius)

@@ -153,6 +153,18 @@ def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
     return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
 
 
+@wp.func
+def _shared_edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
+    """:func:`_edge` evaluated from the edge's lexicographically smaller end, so that the two triangles sharing
+    edge ab (one walks it a->b, the other b->a) get bit-for-bit opposite values: a pixel centre on the edge is
+    covered by at least one of them. Evaluated from either end as written, the rounding differs (and CUDA
+    contracts the products into FMAs): a centre exactly on the edge could come out negative for both, a crack
+    of uncovered pixels along the diagonal of a quad."""
+    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
+        return _edge(a, b, x, y)
+    return -_edge(b, a, x, y)
+
+
 @wp.kernel
 def raster_tiles(
     view: ViewParams,
@@ -199,9 +211,9 @@ def raster_tiles(
             y = float(j) + 0.5
             for i in range(i_lo, i_hi + 1):
                 x = float(i) + 0.5
-                w0 = _edge(b, c, x, y)
-                w1 = _edge(c, a, x, y)
-                w2 = _edge(a, b, x, y)
+                w0 = _shared_edge(b, c, x, y)
+                w1 = _shared_edge(c, a, x, y)
+                w2 = _shared_edge(a, b, x, y)
                 if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
                     z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
                     depth = z

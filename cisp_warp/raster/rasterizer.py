@@ -1,4 +1,5 @@
-"""The software rasterizer and the two kinds of view it fills: the camera G-buffer and light RSMs.
+"""The software rasterizer and the two kinds of view it fills: the camera G-buffer and light RSMs
+(a light's set of views is ``light_maps.LightMaps``).
 
 Every buffer is a flat Warp array of ``height * width`` pixels in row-major order (row 0 at the
 top); ``numpy()`` helpers reshape to (height, width[, C]). Buffers are allocated once, when the
@@ -12,11 +13,10 @@ from dataclasses import dataclass, fields
 import numpy as np
 import warp as wp
 
-from ..errors import SceneError
 from ..scene.device import DeviceScene, check_memory
-from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR, Light, LightKind
+from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from . import kernels as K
-from .views import View, light_views, shadow_view
+from .views import View
 
 
 class Rasterizer:
@@ -172,74 +172,3 @@ class RSMView(_Buffers):
         for k in ("visibility", "solid_angle", "opaque_tri"):
             out.pop(prefix + k, None)
         return out
-
-
-@wp.kernel
-def _nearest_depth(spec_depth: wp.array(dtype=wp.float32), opaque_depth: wp.array(dtype=wp.float32),
-                   out: wp.array(dtype=wp.float32)):
-    p = wp.tid()
-    d = spec_depth[p]
-    out[p] = wp.where(d > 0.0, d, opaque_depth[p])
-
-
-class LightMaps:
-    """All views of one light: its RSM views and, for a distant light, a scene-wide shadow view."""
-
-    def __init__(self, scene: DeviceScene, light: Light, rsm_size: int):
-        self.scene = scene
-        self.light = light
-        self.rsm = [RSMView.allocate(v, scene.device) for v in light_views(scene.scene, light, rsm_size)]
-        self.params = [r.view.params() for r in self.rsm]
-        sv = shadow_view(scene.scene, light, rsm_size)
-        self.shadow_view = sv
-        if sv is not None:
-            self.shadow_params = sv.params()
-            self.shadow_visibility = wp.zeros(sv.width * sv.height, dtype=wp.uint64, device=scene.device)
-            self.shadow_depth_buf = wp.zeros(sv.width * sv.height, dtype=wp.float32, device=scene.device)
-            self.shadow_tri = wp.zeros(sv.width * sv.height, dtype=wp.int32, device=scene.device)
-
-    def set_light(self, light: Light) -> None:
-        """Move or re-aim the light for the next frame: its views are refitted, every buffer is kept.
-
-        The light must keep its kind and its number and size of views (a spot's cone may change: the
-        texels' solid angles are rewritten). Every pass reads ``light`` and ``params`` at launch.
-        """
-        views = light_views(self.scene.scene, light, self.rsm[0].width)
-        if light.kind != self.light.kind or [(v.width, v.height) for v in views] != [(r.width, r.height) for r in self.rsm]:
-            raise SceneError(f"light '{light.name}' changes its kind or its views; build a new renderer",
-                             prim=light.name)
-        for r, v in zip(self.rsm, views):
-            if not v.orthographic and (v.fx, v.fy) != (r.view.fx, r.view.fy):
-                r.solid_angle.assign(v.texel_solid_angle().astype(np.float32).reshape(-1))
-            r.view = v
-        self.params = [r.view.params() for r in self.rsm]
-        sv = shadow_view(self.scene.scene, light, self.rsm[0].width)
-        if sv is not None:
-            self.shadow_view, self.shadow_params = sv, sv.params()
-        self.light = light
-
-    def shadow_maps(self) -> list[tuple[K.ViewParams, wp.array]]:
-        """(view, depth of nearest surface of any layer) pairs that together cover what the light reaches."""
-        if self.shadow_view is not None:
-            return [(self.shadow_params, self.shadow_depth_buf)]
-        return [(p, r.shadow_depth) for p, r in zip(self.params, self.rsm)]
-
-    def render(self, raster: Rasterizer) -> None:
-        s = self.scene
-        light = self.light
-        rgb = light.radiometric_rgb.astype(np.float32)
-        axis = np.asarray(light.direction, dtype=np.float32)
-        for view, r in zip(self.params, self.rsm):
-            n = r.width * r.height
-            raster.draw(view, LAYER_OPAQUE, r.visibility)
-            wp.launch(K.resolve_depth, dim=n, device=s.device, inputs=[view, r.visibility, s.points, s.indices, r.opaque_depth, r.opaque_tri])
-            raster.draw(view, LAYER_SPECULAR, r.specular.visibility)
-            r.specular.resolve(s, view, r.opaque_depth)
-            wp.launch(K.rsm_flux, dim=n, device=s.device,
-                      inputs=[view, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
-                              float(light.cone_angle), float(light.cone_softness), r.solid_angle, r.specular.tri_id, r.flux])
-            wp.launch(_nearest_depth, dim=n, device=s.device, inputs=[r.specular.depth, r.opaque_depth, r.shadow_depth])
-        if self.shadow_view is not None:
-            raster.draw(self.shadow_params, LAYER_OPAQUE | LAYER_SPECULAR, self.shadow_visibility)
-            wp.launch(K.resolve_depth, dim=self.shadow_view.width * self.shadow_view.height, device=s.device,
-                      inputs=[self.shadow_params, self.shadow_visibility, s.points, s.indices, self.shadow_depth_buf, self.shadow_tri])

@@ -103,14 +103,15 @@ class View:
     fy: float
     orthographic: bool = False
     name: str = "camera"
+    principal: tuple[float, float] | None = None  #: principal point [pixels]; None = the image centre
 
     @property
     def cx(self) -> float:
-        return 0.5 * self.width
+        return 0.5 * self.width if self.principal is None else float(self.principal[0])
 
     @property
     def cy(self) -> float:
-        return 0.5 * self.height
+        return 0.5 * self.height if self.principal is None else float(self.principal[1])
 
     def params(self) -> ViewParams:
         v = ViewParams()
@@ -236,3 +237,149 @@ def shadow_view(scene: Scene, light: Light, size: int) -> View | None:
         return None
     lo, hi = scene.bounds()
     return _ortho_fit(np.asarray(light.direction, dtype=np.float64), lo, hi, lo, hi, size, f"shadow_{light.safe_name}")
+
+
+# --------------------------------------------------------------------------------------------------------
+# Light views fitted to the camera (cascaded shadow maps for photons)
+
+
+@dataclass(frozen=True)
+class LightViewSettings:
+    """How a light's RSM views are placed; every field reaches the fit.
+
+    ``fit="scene"`` keeps one view per light (per cube face) over all the specular geometry, as before.
+    ``fit="camera"`` fits ``cascades`` views of each such view to the part of the specular surfaces whose
+    light reaches what the camera sees: a pilot of one photon per texel of a ``pilot_size``² whole view,
+    traced in world space, marks the texels whose light lands on a visible pixel; the finest cascade
+    covers those whose receiver is nearest the camera, each coarser one those further out as well.
+    """
+
+    fit: str = "camera"  #: "camera" (fitted cascades) or "scene" (one whole view, for comparison)
+    cascades: int = 2  #: fitted views per whole view, finest (nearest the camera) first
+    pilot_size: int = 128  #: edge of the whole pilot view [texels]
+    margin: float = 2.0  #: pilot texels added around each fitted window (plus 2% of its size)
+
+    def validate(self) -> None:
+        """Raise :class:`SceneError` naming the first field (``fit must be ...``) whose value cannot be used."""
+        if self.fit not in ("camera", "scene"):
+            raise SceneError(f"fit must be 'camera' or 'scene', got {self.fit!r}")
+        if not isinstance(self.cascades, (int, np.integer)) or isinstance(self.cascades, bool) or not 1 <= self.cascades <= 4:
+            raise SceneError(f"cascades must be an integer in [1, 4], got {self.cascades!r}")
+        if not isinstance(self.pilot_size, (int, np.integer)) or not 8 <= self.pilot_size <= 4096:
+            raise SceneError(f"pilot_size must be an integer in [8, 4096], got {self.pilot_size!r}")
+        if not np.isfinite(self.margin) or self.margin < 0:
+            raise SceneError(f"margin must be a finite number >= 0, got {self.margin!r}")
+
+
+def resized_view(view: View, size: int, name: str | None = None) -> View:
+    """The same view (pose, frustum) drawn with ``size``² pixels."""
+    return View(view.to_world, size, size, view.near, view.far, view.fx * size / view.width,
+                view.fy * size / view.height, view.orthographic, name or view.name,
+                None if view.principal is None else (view.cx * size / view.width, view.cy * size / view.height))
+
+
+def rotated_view(view: View, angle: float) -> View:
+    """The view turned by ``angle`` [rad] about its own axis (same pixel scales; its pixels map by
+    :func:`rotate_pixels`)."""
+    if angle == 0.0:
+        return view
+    c, s = math.cos(angle), math.sin(angle)
+    rz = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=np.float64)
+    return View(np.asarray(view.to_world, np.float64) @ rz, view.width, view.height, view.near, view.far, view.fx,
+                view.fy, view.orthographic, view.name, view.principal)
+
+
+def rotate_pixels(px, py, cx: float, cy: float, angle: float, aspect: float = 1.0):
+    """Pixel coordinates in ``rotated_view(view, angle)`` of pixel (px, py) of ``view``, whose principal
+    point is (cx, cy) and ``aspect`` = fx / fy: with dx = px − cx, dy = py − cy,
+    u = cx + cos·dx − sin·aspect·dy, v = cy + sin·dx / aspect + cos·dy (a turn of the image plane; the
+    map keeps areas)."""
+    c, s = math.cos(angle), math.sin(angle)
+    dx, dy = np.asarray(px, np.float64) - cx, np.asarray(py, np.float64) - cy
+    return cx + c * dx - s * aspect * dy, cy + s * dx / aspect + c * dy
+
+
+def window_view(view: View, window, size: int, name: str) -> View:
+    """A ``size``² view of the pixel rectangle ``window = (x0, y0, x1, y1)`` of ``view``: same pose and
+    image plane, pixels scaled by size/(x1 − x0) across and size/(y1 − y0) down, principal point moved.
+    Pixel (px, py) of ``view`` is pixel ((px − x0)·sx, (py − y0)·sy) of the window view, perspective or
+    orthographic alike (texels need not be square)."""
+    x0, y0, x1, y1 = (float(v) for v in window)
+    sx, sy = size / (x1 - x0), size / (y1 - y0)
+    return View(view.to_world, size, size, view.near, view.far, view.fx * sx, view.fy * sy, view.orthographic, name,
+                ((view.cx - x0) * sx, (view.cy - y0) * sy))
+
+
+def cascade_splits(z_near: float, z_far: float, cascades: int, blend: float = 0.5) -> np.ndarray:
+    """Receiver depths [m] that end each cascade (the last is ``z_far``): the practical split scheme of
+    parallel-split shadow maps, ``blend`` between logarithmic and uniform splits."""
+    i = np.arange(1, cascades + 1) / cascades
+    z_near = max(z_near, 1e-6)
+    log = z_near * (z_far / z_near) ** i
+    uni = z_near + (z_far - z_near) * i
+    return blend * log + (1.0 - blend) * uni
+
+
+#: a finer cascade is kept only where its window covers at most this share of the next coarser one: the
+#: coarser cascade's samples inside it are left to the finer one (spent, not traced), so a share f costs
+#: f/2 of two cascades' photons for a texel (and photon) density 1/f times higher near the camera
+MERGE_AREA = 0.25
+
+
+def fit_angle(receiver_depth: np.ndarray, aspect: float = 1.0, steps: int = 18) -> float:
+    """The turn [rad] of a pilot view about its axis, among ``steps`` in [0, 90°), whose axis-aligned box
+    around the useful texels (receiver depth > 0) is smallest: a camera that looks across the light's
+    view sees a diagonal band of it, which a turned window covers tightly (0 when nothing is useful).
+    ``aspect``: the pilot view's fx / fy."""
+    h, w = receiver_depth.shape
+    jj, ii = np.nonzero(receiver_depth > 0)
+    if ii.size == 0:
+        return 0.0
+    best, best_area = 0.0, np.inf
+    for k in range(steps):
+        a = 0.5 * math.pi * k / steps
+        u, v = rotate_pixels(ii + 0.5, jj + 0.5, 0.5 * w, 0.5 * h, a, aspect)
+        area = (np.ptp(u) + 1.0) * (np.ptp(v) + 1.0)
+        if area < best_area * 0.98:  # prefer the smaller turn unless clearly tighter
+            best, best_area = a, area
+    return best
+
+
+def fit_windows(receiver_depth: np.ndarray, cascades: int, margin: float, angle: float = 0.0,
+                aspect: float = 1.0) -> list[tuple[float, float, float, float]]:
+    """Windows (x0, y0, x1, y1) in the pixels of the pilot view turned by ``angle`` (:func:`rotated_view`),
+    finest first and nested, from a pilot view's ``receiver_depth`` (H, W): the camera depth [m] where each
+    texel's light lands on a visible pixel, 0 where it lands on none. Cascade c covers the texels whose
+    receiver is nearer than its split (:func:`cascade_splits`), each window grown by ``margin`` texels plus
+    2% (and by the turned texels' own extent) and clipped to the box of the turned pilot image. A cascade whose window
+    would cover more than ``MERGE_AREA`` of the next coarser one is merged into it. Empty when no texel's
+    light is seen."""
+    h, w = receiver_depth.shape
+    useful = receiver_depth > 0
+    if not useful.any():
+        return []
+    z = receiver_depth[useful]
+    splits = cascade_splits(float(z.min()), float(z.max()), cascades)
+    splits[-1] = np.inf
+    jj, ii = np.nonzero(useful)
+    u, v = rotate_pixels(ii + 0.5, jj + 0.5, 0.5 * w, 0.5 * h, angle, aspect)
+    c, s = abs(math.cos(angle)), abs(math.sin(angle))
+    half_u, half_v = 0.5 * (c + s * aspect), 0.5 * (s / aspect + c)  # half extents of a turned texel
+    cu, cv = rotate_pixels(np.array([0.0, w, w, 0.0]), np.array([0.0, 0.0, h, h]), 0.5 * w, 0.5 * h, angle, aspect)
+    lo_u, hi_u, lo_v, hi_v = cu.min(), cu.max(), cv.min(), cv.max()  # the turned pilot image's box
+    windows = []
+    for zs in splits:
+        m = z <= zs
+        if not m.any():
+            continue
+        x0, x1, y0, y1 = u[m].min() - half_u, u[m].max() + half_u, v[m].min() - half_v, v[m].max() + half_v
+        gx, gy = margin + 0.02 * (x1 - x0), margin + 0.02 * (y1 - y0)
+        win = (max(x0 - gx, lo_u), max(y0 - gy, lo_v), min(x1 + gx, hi_u), min(y1 + gy, hi_v))
+        windows.append(tuple(float(round(c, 6)) for c in win))
+    area = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in windows]
+    kept = [windows[c] for c in range(len(windows) - 1) if area[c] <= MERGE_AREA * area[c + 1]] + [windows[-1]]
+    out = []
+    for win in kept:  # drop repeats (a cascade with the same texels as the next)
+        if not out or win != out[-1]:
+            out.append(win)
+    return out

@@ -32,6 +32,46 @@ def check_memory(nbytes: int, what: str, device) -> None:
         )
 
 
+@wp.struct
+class SurfaceGeometry:
+    """The triangles as photon emission reads them (views of ``DeviceScene`` arrays, no copies)."""
+
+    points: wp.array(dtype=wp.vec3)  #: (V,) vertex positions at this frame [m] (written in place by sim/)
+    normals: wp.array(dtype=wp.vec3)  #: (V,) unit vertex normals
+    indices: wp.array(dtype=wp.int32)  #: (3T,) triangle vertex indices
+    neighbors: wp.array(dtype=wp.int32)  #: (3T,) triangle across the edge opposite vertex i of each triangle, -1 = none
+
+
+def triangle_neighbors(indices: np.ndarray) -> np.ndarray:
+    """(T, 3) int32: for triangle t and corner i, the triangle sharing the edge opposite corner i (the
+    edge from corner i+1 to corner i+2), or -1 on a boundary. Edges are matched by vertex index; an
+    edge shared by more than two triangles (non-manifold) is left unconnected."""
+    tri = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+    t_count = len(tri)
+    out = np.full((t_count, 3), -1, dtype=np.int32)
+    if t_count == 0:
+        return out
+    a = np.concatenate([tri[:, 1], tri[:, 2], tri[:, 0]])  # edge opposite corner 0, 1, 2
+    b = np.concatenate([tri[:, 2], tri[:, 0], tri[:, 1]])
+    key = np.minimum(a, b) * (int(tri.max()) + 1) + np.maximum(a, b)
+    slot = np.arange(3 * t_count)  # slot = corner * T + triangle
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    start = np.r_[True, ks[1:] != ks[:-1]]
+    group = np.cumsum(start) - 1
+    count = np.bincount(group)
+    pair = count[group] == 2
+    first = np.flatnonzero(start)
+    o = order[pair]
+    g = group[pair]
+    partner = order[first[g] + (1 - (np.arange(len(o)) - np.searchsorted(g, g)))]
+    # slot s = corner*T + t: its neighbour is the triangle of the partner slot
+    flat = out.reshape(-1)
+    corner, t = o // t_count, o % t_count
+    flat[t * 3 + corner] = (partner % t_count).astype(np.int32)
+    return out
+
+
 class DeviceScene:
     """The scene's geometry and materials as Warp arrays on one device.
 
@@ -42,6 +82,7 @@ class DeviceScene:
     prev_points           (V,)         vec3     vertex positions at the previous frame [m] (motion)
     normals               (V,)         vec3     unit vertex normals
     indices               (3T,)        int32    flattened triangle vertex indices
+    tri_neighbors         (3T,)        int32    triangle across the edge opposite each corner, -1 = none
     triangle_material     (T,)         int32    material index per triangle
     triangle_layers       (T,)         int32    ``LAYER_*`` bit mask per triangle
     albedo                (M,)         vec3     diffuse reflectance, linear RGB
@@ -72,6 +113,10 @@ class DeviceScene:
         self.metallic = wp.array(np.array([m.metallic for m in mats], dtype=np.float32), device=d)
         self.opacity = wp.array(np.array([m.opacity for m in mats], dtype=np.float32), device=d)
         self.ior = wp.array(np.array([m.ior for m in mats], dtype=np.float32), device=d)
+        self.tri_neighbors = wp.array(triangle_neighbors(scene.indices).reshape(-1), dtype=wp.int32, device=d)
+        self.geometry = SurfaceGeometry()
+        self.geometry.points, self.geometry.normals = self.points, self.normals
+        self.geometry.indices, self.geometry.neighbors = self.indices, self.tri_neighbors
         self.has_layer = {LAYER_OPAQUE: bool(np.any(layers & LAYER_OPAQUE)), LAYER_SPECULAR: bool(np.any(layers & LAYER_SPECULAR))}
         self._bvh: dict[int, tuple[wp.Mesh, wp.array]] = {}
 

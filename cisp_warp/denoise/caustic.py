@@ -1,0 +1,170 @@
+"""The caustics denoiser (the default): reactive temporal accumulation of the *raw* photon map, then an
+energy-conserving à-trous filter whose footprint follows the variance still left in the estimate.
+
+Why not SVGF: SVGF feeds a filtered image back into its history (the paper's first à-trous level), so a
+still caustic is blurred again every frame and converges to a blur; and its luminance edge stop is scaled
+by the per-frame variance, which does not shrink as frames accumulate. Here
+
+1. temporal (:mod:`.kernels_caustic`): the history is the running mean of the raw irradiance, reprojected
+   through the motion vectors with SVGF's depth/normal consistency tests; a static caustic converges to the
+   photon map's long-run mean. Where the new photons disagree with the history by more than its noise
+   explains (moving water, a moving light), the history is cut back in proportion (the weight that
+   minimises the blend's error for the measured bias), so an animated caustic follows within a few frames;
+2. spatial (:mod:`.kernels_atrous`, gated levels): the variance of the *mean* (σ²/n, shrinking as frames
+   accumulate) sets both the luminance edge stop and, per pixel, the footprint R still needed to bring the
+   relative noise down to ``noise_target``; a level of spacing s acts only where R ≥ s/2, so the filter
+   narrows as the estimate converges and vanishes once it has. Weights are symmetric and normalised by
+   max(W_p, W_q): every level keeps the image's total irradiance exactly.
+
+Inputs and output are SVGF's (:meth:`CausticDenoiser.denoise`); the naive twin is
+:func:`cisp_warp.denoise.naive.caustic_frame_naive`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import warp as wp
+
+from . import kernels_caustic as K
+from .kernels_atrous import launch_atrous_level
+from .kernels_svgf import flip_parity
+
+
+@dataclass(frozen=True)
+class CausticSettings:
+    """Parameters of the caustics denoiser; every field is an argument of a kernel launch."""
+
+    max_history: int = 64  #: cap on the effective history [frames] (then an exponential mean of weight 1/N)
+    change_radius: int = 2  #: half width [pixels] of the window that tests the new photons against the history
+    change_sigmas: float = 5.0  #: deviations of the new photons from the history beyond this many standard
+    #: errors count as change
+    atrous_levels: int = 4  #: à-trous levels, spacings 1, 2, 4, ... pixels (0: temporal accumulation only)
+    noise_target: float = 0.03  #: relative noise the spatial footprint aims at (R from Var / (4π τ² μ²))
+    sigma_depth: float = 1.0  #: σ_z of the depth edge stop (in units of the depth gradient)
+    sigma_normal: float = 128.0  #: σ_n, exponent of the normal edge stop
+    sigma_luminance: float = 4.0  #: σ_l, luminance edge stop in standard deviations of the mean
+    depth_tolerance: float = 0.1  #: reprojection and change window: largest relative depth difference
+    normal_tolerance: float = 0.9  #: reprojection and change window: smallest cosine between normals
+
+    def __post_init__(self):
+        if self.max_history < 2:
+            raise ValueError("max_history must be >= 2")
+        if not 1 <= self.change_radius <= K.MAX_CHANGE_RADIUS:
+            raise ValueError(f"change_radius must lie in [1, {K.MAX_CHANGE_RADIUS}]")
+        if self.atrous_levels < 0:
+            raise ValueError("atrous_levels must be >= 0")
+        if self.change_sigmas <= 0.0:
+            raise ValueError("change_sigmas must be > 0")
+        if self.noise_target <= 0.0:
+            raise ValueError("noise_target must be > 0")
+        if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
+            raise ValueError("sigma_depth, sigma_normal and sigma_luminance must be > 0")
+        if self.depth_tolerance <= 0.0 or not (-1.0 <= self.normal_tolerance <= 1.0):
+            raise ValueError("depth_tolerance must be > 0 and normal_tolerance a cosine in [-1, 1]")
+
+
+class CausticDenoiser:
+    """Caustics denoiser for one ``width`` x ``height`` irradiance map on ``device``.
+
+    History (2 x H*W each; row ``parity[0]`` holds the last frame, the next frame writes the other row and
+    flips ``parity`` on the device, so a captured CUDA graph replays every frame): ``hist_depth`` (float32
+    [m], 0 = no surface), ``hist_normal`` (vec3), ``hist_mean`` (vec3 [W/m²], running mean of the raw photon
+    map), ``hist_moments`` (vec3: luminance mean [W/m²], mean square, neighbour-difference variance s²), ``hist_frames`` (float32,
+    effective frames); ``parity`` (1 int32).
+    Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface), ``prev_mean``
+    (vec3 [W/m²]), ``prev_pairs`` (float32) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
+    estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
+    ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
+    accumulated luminance), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
+    """
+
+    def __init__(self, width: int, height: int, device, settings: CausticSettings = CausticSettings()):
+        self.width = width
+        self.height = height
+        self.device = wp.get_device(device)
+        self.settings = settings
+        n = width * height
+        d = self.device
+
+        def one(dtype):
+            return wp.zeros(n, dtype=dtype, device=d)
+
+        def two(dtype):
+            return wp.zeros((2, n), dtype=dtype, device=d)
+
+        self.hist_depth = two(wp.float32)
+        self.hist_normal = two(wp.vec3)
+        self.hist_mean = two(wp.vec3)
+        self.hist_moments = two(wp.vec3)
+        self.hist_frames = two(wp.float32)
+        self.parity = wp.zeros(1, dtype=wp.int32, device=d)
+        self.depth = one(wp.float32)
+        self.normal = one(wp.vec3)
+        self.prev_mean = one(wp.vec3)
+        self.prev_pairs = one(wp.float32)
+        self.stats = one(wp.vec4)
+        self.integrated = one(wp.vec3)
+        self.frames = one(wp.float32)
+        self.temporal_variance = one(wp.float32)
+        self.depth_slope = one(wp.float32)
+        self.guide_a = one(wp.vec4)
+        self.guide_b = one(wp.vec4)
+        self.color_variance = one(wp.vec4)
+        self.weight_sum = one(wp.float32)
+        self.filtered_color = one(wp.vec3), one(wp.vec3)
+        self.filtered_variance = one(wp.float32), one(wp.float32)
+
+    @property
+    def history_length(self) -> wp.array:
+        """Effective frames behind each pixel's estimate after the last frame, H*W float32 (1 = disoccluded
+        or reset, 0 = no surface)."""
+        return self.frames
+
+    @property
+    def variance(self) -> wp.array:
+        """Variance of the accumulated luminance [(W/m²)²] after the temporal stage, H*W float32."""
+        return self.temporal_variance
+
+    def reset(self) -> None:
+        """Forget all history: the next frame is treated as disoccluded everywhere."""
+        for a in (self.hist_depth, self.hist_normal, self.hist_mean, self.hist_moments, self.hist_frames):
+            a.zero_()
+
+    def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
+                tri_id: wp.array, out: wp.array) -> None:
+        """Denoise one frame.
+
+        Reads ``irradiance_in`` (H*W vec3 [W/m²], the raw photon map) and the camera G-buffer: ``depth``
+        (H*W float32 [m], 0 = none), ``normal`` (H*W vec3), ``motion`` (H*W vec2 [pixels], previous position
+        minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out`` (H*W vec3 [W/m²]; 0 where
+        there is no surface). Nothing is allocated, read back or swapped on the host.
+        """
+        s = self.settings
+        w, h = self.width, self.height
+        dim = (h, w)
+        d = self.device
+        wp.launch(K.reproject_history, dim=dim, device=d,
+                  inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_depth, self.hist_normal,
+                          self.hist_mean, self.hist_moments, self.hist_frames, self.parity, w, h,
+                          s.depth_tolerance, s.normal_tolerance],
+                  outputs=[self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats])
+        wp.launch(K.accumulate, dim=dim, device=d,
+                  inputs=[irradiance_in, self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats,
+                          self.parity, w, h,
+                          s.change_radius, float(s.max_history), s.change_sigmas,
+                          s.depth_tolerance, s.normal_tolerance],
+                  outputs=[self.hist_mean, self.hist_moments, self.hist_frames, self.integrated,
+                           self.temporal_variance, self.frames, self.depth_slope])
+        if s.atrous_levels == 0:
+            wp.copy(out, self.integrated)
+        color_src, variance_src = self.integrated, self.temporal_variance
+        for level in range(s.atrous_levels):
+            dst = level % 2
+            color_dst = out if level == s.atrous_levels - 1 else self.filtered_color[dst]
+            launch_atrous_level(color_src, variance_src, self.depth, self.normal, self.depth_slope,
+                                w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True,
+                                self.guide_a, self.guide_b, self.color_variance, self.weight_sum, color_dst, self.filtered_variance[dst],
+                                noise_target=s.noise_target)
+            color_src, variance_src = color_dst, self.filtered_variance[dst]
+        wp.launch(flip_parity, dim=1, device=d, inputs=[self.parity])

@@ -1,0 +1,156 @@
+"""Frames per second of a distributed shot with 1, 2, ... workers (one per GPU) and the scaling efficiency.
+
+    python3 tools/bench_distributed.py                       # pool, 240 frames at 1920x1080, 1 and 2 GPU workers
+    python3 tools/bench_distributed.py --workers 1,2,4 --frames 480 --no-video
+    python3 tools/bench_distributed.py --smoke               # 30 tiny frames on 1 and 2 CPU workers, ~30 s
+
+Each worker count renders the same shot (``cisp_warp.distributed.render_shot``, a fresh local cluster each time,
+or the first N workers of ``--scheduler``'s cluster) into its own folder. Reported per run: the set-up (cluster start, every worker's renderer, the exposure frame),
+the frames phase (first chunk submitted -> last PNG on disk), frames/s over that phase, the speed-up and
+scaling efficiency against 1 worker (frames phase, and wall-clock with the set-up), the warm-up frames rendered,
+the host time spent tone-mapping and PNG-encoding in the workers' writer threads (summed; it overlaps the
+rendering) and how long the chunks waited for their writers at the end, the MP4 assembly, and how far the frames
+differ from the 1-worker run (a single chunk: the single-process frames) in 8-bit steps. On CUDA photon deposits
+are float atomics in no fixed order, so even two single-process runs differ in the last bits.
+
+A first untimed 2-frame run with one worker fills Warp's kernel cache, so no timed run compiles kernels
+(not with ``--smoke``, whose CPU kernels the tests have compiled).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def parse_args(argv=None):
+    from cisp_warp.cli import parse_count
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--scene", default=str(ROOT / "scenes_usd" / "pool.usda"))
+    p.add_argument("--start", type=int, default=0, help="first time code")
+    p.add_argument("--frames", type=int, default=240, help="frames in the shot")
+    p.add_argument("--workers", default="1,2", help="comma-separated worker counts; the first is the baseline")
+    p.add_argument("--width", type=int, default=1920)
+    p.add_argument("--height", type=int, default=1080)
+    p.add_argument("--photons", type=parse_count, default=parse_count("1M"), help="photons per light per frame")
+    p.add_argument("--rsm-size", type=int, default=1024)
+    p.add_argument("--method", default="cisp")
+    p.add_argument("--denoiser", default=None, help="caustic, svgf, gather or none (default: the renderer's)")
+    p.add_argument("--supersample", type=int, default=2, help="N x N samples per pixel (cisp-render's default: 2)")
+    p.add_argument("--device", default=None, help="cpu for CPU workers; default: one worker per GPU when Warp sees GPUs")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the first N workers of a running Dask cluster instead of a local cluster per run")
+    p.add_argument("--warmup", type=int, default=None, help="warm-up frames per chunk (default: from the denoiser)")
+    p.add_argument("--writer-threads", type=int, default=None,
+                   help="tone-map/PNG threads per worker (default: the cores shared by the most workers, at most 8)")
+    p.add_argument("--no-video", action="store_true", help="skip the MP4 (no imageio-ffmpeg on the machine)")
+    p.add_argument("--no-compare", action="store_true", help="skip comparing the frames with the 1-worker run")
+    p.add_argument("--out", default=None, help="folder for the runs' frames (default: a temporary folder, removed)")
+    p.add_argument("--smoke", action="store_true",
+                   help="tiny CPU run (32x18, 1 sample per pixel, 30 frames, 1000 photons: 2 workers split it after a "
+                   "full warm-up)")
+    args = p.parse_args(argv)
+    if args.smoke:
+        args.width, args.height, args.frames, args.photons, args.rsm_size = 32, 18, 30, 1000, 32
+        args.device, args.no_video, args.supersample = "cpu", True, 1
+        args.denoiser = "svgf"  # its 25-frame warm-up fits a 30-frame shot (the caustics denoiser's is 415)
+    return args
+
+
+def compare(a: str, b: str, codes) -> tuple[int, float]:
+    """Largest 8-bit difference and the fraction of pixel channels that differ between two runs' frames."""
+    from PIL import Image
+
+    from cisp_warp.distributed import frame_name
+
+    worst, differ, total = 0, 0, 0
+    for c in codes:
+        x = np.asarray(Image.open(os.path.join(a, frame_name(c))), dtype=np.int16)
+        y = np.asarray(Image.open(os.path.join(b, frame_name(c))), dtype=np.int16)
+        d = np.abs(x - y)
+        worst = max(worst, int(d.max()))
+        differ += int(np.count_nonzero(d))
+        total += d.size
+    return worst, differ / max(total, 1)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
+    from cisp_warp.distributed import render_shot, warmup_frames
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.render import RenderSettings
+
+    counts = [int(n) for n in args.workers.split(",")]
+    settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size, method=args.method,
+                              photons=PhotonSettings(photons=args.photons), supersample=args.supersample,
+                              **({"denoiser": args.denoiser} if args.denoiser else {}))
+    codes = range(args.start, args.start + args.frames)
+    threads = args.writer_threads or max(1, min(8, (os.cpu_count() or 2) // max(counts)))
+    root = args.out or tempfile.mkdtemp(prefix="bench_distributed_")
+    common = dict(device=args.device, warmup=args.warmup, writer_threads=threads, scheduler=args.scheduler)
+    print(f"{args.scene}: {len(codes)} frames at {args.width}x{args.height}, {args.photons} photons per light, "
+          f"method {args.method}, {settings.supersample}x{settings.supersample} samples per pixel, warm-up {warmup_frames(settings) if args.warmup is None else args.warmup} frames "
+          f"per chunk, {threads} writer threads per worker, {os.cpu_count()} host cores", flush=True)
+    if not args.smoke and not args.scheduler:  # Warp's kernel cache filled: no timed run compiles
+        render_shot(args.scene, range(args.start, args.start + 2), os.path.join(root, "prime"), settings, workers=1,
+                    video=False, **common)
+    rows = []
+    try:
+        for n in counts:
+            out = os.path.join(root, f"workers{n}")
+            t0 = time.perf_counter()
+            stats = render_shot(args.scene, codes, out, settings, workers=n, video=not args.no_video, **common)
+            wall = time.perf_counter() - t0
+            rows.append((n, out, stats, wall))
+            print(f"{n} workers: {stats.summary()}", flush=True)
+        base_fps = len(codes) / rows[0][2].render_seconds
+        base_wall = rows[0][3]
+        head = ("workers", "devices", "set-up s", "frames s", "frames/s", "speed-up", "efficiency", "wall s",
+                "wall speed-up", "warm-up", "PNG thread-s", "writer wait s", "video s", "max diff", "px differ")
+        lines = []
+        for n, out, stats, wall in rows:
+            fps = len(codes) / stats.render_seconds
+            devices = "; ".join(sorted({f"{w['device']} [CUDA_VISIBLE_DEVICES={w['cuda_visible_devices']}]"
+                                        if w["cuda_visible_devices"] is not None else w["device"]
+                                        for w in stats.workers}))
+            wait = max((r["write_wait_seconds"] for r in stats.chunks), default=0.0)
+            if args.no_compare or n == rows[0][0]:
+                diff, frac = "-", "-"
+            else:
+                d, f = compare(rows[0][1], out, codes)
+                diff, frac = str(d), f"{100 * f:.3f}%"
+            speed = fps / base_fps
+            scale = speed * rows[0][0] / n
+            lines.append((str(n), devices, f"{stats.setup_seconds:.1f}", f"{stats.render_seconds:.2f}", f"{fps:.2f}",
+                          f"{speed:.2f}x", f"{100 * scale:.0f}%", f"{wall:.1f}", f"{base_wall / wall:.2f}x",
+                          str(stats.warmup), f"{stats.write_seconds:.1f}", f"{wait:.2f}",
+                          f"{stats.video_seconds:.1f}" if stats.video else "-", diff, frac))
+        widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(head)]
+        print()
+        print(" | ".join(h.ljust(w) for h, w in zip(head, widths)))
+        print("-|-".join("-" * w for w in widths))
+        for line in lines:
+            print(" | ".join(v.ljust(w) for v, w in zip(line, widths)))
+    finally:
+        if args.out is None:
+            shutil.rmtree(root, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
