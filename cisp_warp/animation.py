@@ -35,63 +35,18 @@ set equal to the current ones, so the first frame has no motion.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 from pxr import Tf, Usd, UsdGeom, UsdRender
 
-from sim import FFTWater, SimParameterError, WaterMesh, WaterParams
+from sim import FFTWater, SimParameterError, WaterMesh
 
 from .errors import SceneError
 from .scene.device import DeviceScene
 from .scene.model import Camera, Scene
 from .usd.stage import StageContext, finite_float, open_stage, tf_reason
-
-GRID_TOLERANCE = 1e-3  #: rest points may miss their grid position by this fraction of the grid spacing
-
-
-@dataclass(frozen=True)
-class WaterGrid:
-    """Where a water mesh rests: ``WaterMesh(rect=rect, y0=y0, vertex_counts=counts)``."""
-
-    rect: tuple[float, float, float, float]  #: (x_min, z_min, x_max, z_max) [m]
-    y0: float  #: rest height [m]
-    counts: tuple[int, int]  #: (nx, nz) vertices
-
-
-def water_grid(rest: np.ndarray, prim: str = "") -> WaterGrid:
-    """The grid of rest points ``rest`` (V, 3) [m], vertex ``iz * nx + ix`` (see the module docstring)."""
-    p = np.asarray(rest, dtype=np.float64).reshape(-1, 3)
-    v = len(p)
-    layout = ("the rest points of a cisp:water mesh must form a regular grid, vertex iz*nx + ix at "
-              "(x0 + ix dx, y0, z0 + iz dz) with dx, dz > 0")
-    span = float(np.ptp(p[:, [0, 2]], axis=0).max()) if v else 0.0
-    same_row = np.abs(p[:, 2] - p[0, 2]) <= 1e-6 * span if v else np.zeros(0, bool)
-    nx = int(np.argmin(same_row)) if v and not same_row.all() else v
-    if v < 4 or nx < 2 or v % nx or v // nx < 2:
-        raise SceneError(f"{layout}; {v} points do not make nx x nz rows (nx = {nx})", prim=prim)
-    nz = v // nx
-    x0, z0, x1, z1 = float(p[0, 0]), float(p[0, 2]), float(p[-1, 0]), float(p[-1, 2])
-    if not (x1 > x0 and z1 > z0):
-        raise SceneError(f"{layout}; point 0 is at (x, z) = ({x0:g}, {z0:g}) and the last at ({x1:g}, {z1:g})",
-                         prim=prim)
-    dx, dz = (x1 - x0) / (nx - 1), (z1 - z0) / (nz - 1)
-    iz, ix = np.divmod(np.arange(v), nx)
-    miss = max(np.abs(p[:, 0] - (x0 + ix * dx)).max() / dx, np.abs(p[:, 2] - (z0 + iz * dz)).max() / dz)
-    if miss > GRID_TOLERANCE:
-        raise SceneError(f"{layout}; as a {nx} x {nz} grid over x [{x0:g}, {x1:g}], z [{z0:g}, {z1:g}] a point is "
-                         f"{miss:.3g} grid spacings off its place", prim=prim)
-    return WaterGrid((x0, z0, x1, z1), float(p[:, 1].mean()), (nx, nz))
-
-
-def water_params(values: dict, prim: str = "") -> WaterParams:
-    """:class:`WaterParams` from a mesh's ``cisp:water:*`` values, or :class:`SceneError` naming the attribute."""
-    try:
-        return WaterParams.from_dict(values)
-    except SimParameterError as exc:
-        raise SceneError(f"cisp:water attributes: {exc}", prim=prim) from None
-
+from .usd.water import GRID_TOLERANCE, WaterGrid, water_grid, water_params  # noqa: F401 (re-exported)
 
 class WaterSimulation:
     """Every ``cisp:water`` mesh of a :class:`DeviceScene`, simulated in place.
@@ -212,6 +167,12 @@ class Animation:
     """
 
     def __init__(self, renderer, path, camera_path=None, simulate: bool = True):
+        try:
+            self._setup(renderer, path, camera_path, simulate)
+        except SceneError as exc:  # every message names the file
+            raise SceneError(exc.reason, file=exc.file or os.fspath(path), prim=exc.prim) from None
+
+    def _setup(self, renderer, path, camera_path, simulate):
         self.renderer = renderer
         self.clock = StageClock(path, camera_path)
         self.camera_path = camera_path

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -121,9 +122,16 @@ def parse_count(text: str) -> int:
         value = float(t[:-1] if mult > 1 else t) * mult
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a photon count: {text!r} (use e.g. 500k, 1M or 2000000)") from None
-    if value < 1 or value != int(value):
+    if not math.isfinite(value) or value < 1 or value != int(value):
         raise argparse.ArgumentTypeError(f"photon count must be a positive integer, got {text!r}")
     return int(value)
+
+
+MAX_FRAMES = 100_000  #: --frames renders at most this many frames (over an hour at 24 per second)
+MAX_TIME_CODE = 1e9  #: |time code| of --time and --frames
+MAX_EXPOSURE_STOPS = 64.0  #: |--exposure|: 2^64 is far beyond any display range, and finite in float32
+MAX_REFERENCE_PASSES = 1000  #: --reference-photons / --photons: passes of the reference per frame
+MAX_COUNT_FLAGS = {"--max-bounces": 1024, "--cmap-history": 1024, "--reference-photons": 10**12}
 
 
 def parse_frames(text: str) -> range:
@@ -133,7 +141,33 @@ def parse_frames(text: str) -> range:
         raise SceneError(f"--frames must be A:B with integers A < B, got {text!r}") from None
     if b <= a:
         raise SceneError(f"--frames must be A:B with A < B, got {text!r}")
+    if max(abs(a), abs(b)) > MAX_TIME_CODE or b - a > MAX_FRAMES:
+        raise SceneError(f"--frames {text}: at most {MAX_FRAMES} frames, with time codes within "
+                         f"±{MAX_TIME_CODE:g}")
     return range(a, b)
+
+
+def check_numbers(args, device: str) -> None:
+    """Range checks of the numeric flags that nothing downstream bounds (one SceneError naming the flag)."""
+    import math
+
+    if args.exposure is not None and not (math.isfinite(args.exposure) and abs(args.exposure) <= MAX_EXPOSURE_STOPS):
+        raise SceneError(f"--exposure must be a finite number of stops in [-{MAX_EXPOSURE_STOPS:g}, "
+                         f"{MAX_EXPOSURE_STOPS:g}], got {args.exposure}")
+    if args.time is not None and not (math.isfinite(args.time) and abs(args.time) <= MAX_TIME_CODE):
+        raise SceneError(f"--time must be a finite time code within ±{MAX_TIME_CODE:g}, got {args.time}")
+    for flag, hi in MAX_COUNT_FLAGS.items():
+        v = getattr(args, flag[2:].replace("-", "_"))
+        if v is not None and v > hi:
+            raise SceneError(f"{flag} must be at most {hi}, got {v}")
+    reference = args.reference_photons or (10**8 if device.startswith("cuda") else 4 * 10**6)  # the defaults
+    if args.method == "reference" and reference > MAX_REFERENCE_PASSES * args.photons:
+        raise SceneError(f"--reference-photons {reference} in passes of --photons {args.photons} is more than "
+                         f"{MAX_REFERENCE_PASSES} passes: raise --photons")
+    for flag in ("--roughness-cutoff", "--luminance-cutoff"):
+        v = getattr(args, flag[2:].replace("-", "_"))
+        if not (math.isfinite(v) and 0.0 <= v <= 1.0):
+            raise SceneError(f"{flag} must lie in [0, 1], got {v}")
 
 
 def parse_aov_list(text: str | None) -> list[str]:
@@ -152,14 +186,15 @@ def write_outputs(out_dir: str, aovs: dict, extra: list[str], exposure, npy: boo
     paths = [os.path.join(out_dir, n) for n in ("final.png", "final.exr", "aovs.exr")]
     write_png(paths[0], aovs["final"], exposure)
     write_layers(paths[1], {"final": aovs["final"]})  # R, G, B; float16 where it fits
-    views = {k: v for k, v in aovs.items() if not k.startswith("rsm_")}
+    image = aovs["final"].shape[:2]  # light-space maps (caustics_map's cmap_rsm_*) are not camera images
+    views = {k: v for k, v in aovs.items() if not k.startswith("rsm_") and v.shape[:2] == image}
     keep = [k for k in MAIN_AOVS if k in views] + [k for k in views if k not in MAIN_AOVS and ("all" in extra or k in extra)]
     layers = {k: views[k] for k in keep}
     write_layers(paths[2], layers)
     if npy:
         paths += write_aovs(out_dir, layers, exr=False, npy=True)
     if rsm:
-        maps = {k: v for k, v in aovs.items() if k.startswith("rsm_")}
+        maps = {k: v for k, v in aovs.items() if k.startswith("rsm_") or v.shape[:2] != image}
         by_size = {}
         for k, v in maps.items():
             by_size.setdefault(v.shape[:2], {})[k] = v
@@ -211,6 +246,7 @@ def main(argv: list[str] | None = None) -> int:
                                       light_views=LightViewSettings(fit=args.light_views, cascades=args.light_cascades))
         except SettingsError as e:
             raise SceneError(flag_of(e)) from None
+        check_numbers(args, device)
         extra = parse_aov_list(args.aovs)
         frames = parse_frames(args.frames) if args.frames else None
         if args.workers is not None or args.scheduler or args.resume:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import reprlib
 from dataclasses import dataclass
 from numbers import Integral, Real
 from typing import Any, Mapping
@@ -21,21 +22,34 @@ MAX_RESOLUTION = 4096
 #: Smallest FFT size accepted (a radix-2 transform needs at least two butterfly stages).
 MIN_RESOLUTION = 4
 
+#: Upper bounds, far beyond any real water but low enough that the spectrum (which squares and
+#: exponentiates these) stays finite in float32: a patch of 10 km, an ocean trench 20 km deep, wind of
+#: 100 m/s (above the strongest gust measured, 113 m/s, as a sustained speed), a fetch of 10,000 km,
+#: waves 100x the physical spectrum, a choppy displacement 10x the heights' gradient, a cutoff of 10 km.
+MAX_PATCH_SIZE = 1e4  #: [m]
+MAX_DEPTH = 2e4  #: [m]; +inf (deep water) is accepted too
+MAX_WIND_SPEED = 100.0  #: [m/s]
+MAX_FETCH = 1e7  #: [m]
+MAX_AMPLITUDE = 100.0
+MAX_CHOPPINESS = 10.0
+MAX_SMALL_WAVE_CUTOFF = 1e4  #: [m]
+MAX_SEED = 2**31 - 1  #: seeds reach Warp kernels as int32
+
 
 class SimParameterError(ValueError):
     """A simulation parameter is out of range; the message names it, its value and the fix."""
 
 
 def _fail(name: str, value: Any, fix: str) -> SimParameterError:
-    return SimParameterError(f"{name}={value!r} is invalid: {fix}")
+    return SimParameterError(f"{name}={reprlib.repr(value)} is invalid: {fix}")  # long values abbreviated
 
 
 def check_finite(name: str, value: Any, minimum: float | None = None, strict: bool = False,
-                 allow_inf: bool = False) -> float:
+                 allow_inf: bool = False, maximum: float | None = None) -> float:
     """Return ``value`` as float, or raise ``SimParameterError`` naming ``name``.
 
-    ``minimum``/``strict`` bound it from below (``>`` when strict, else ``>=``); ``allow_inf`` lets
-    +inf through (used for infinite depth).
+    ``minimum``/``strict`` bound it from below (``>`` when strict, else ``>=``); ``maximum`` from above
+    (``<=``); ``allow_inf`` lets +inf through (used for infinite depth).
     """
     if isinstance(value, bool) or not isinstance(value, Real):
         raise _fail(name, value, "expected a real number")
@@ -44,6 +58,8 @@ def check_finite(name: str, value: Any, minimum: float | None = None, strict: bo
         raise _fail(name, value, "expected a finite number" + (" (or +inf)" if allow_inf else ""))
     if minimum is not None and (v < minimum or (strict and v == minimum)):
         raise _fail(name, value, f"must be {'>' if strict else '>='} {minimum}")
+    if maximum is not None and v > maximum and not (allow_inf and math.isinf(v)):
+        raise _fail(name, value, f"must be <= {maximum:g}" + (" (or +inf)" if allow_inf else ""))
     return v
 
 
@@ -56,6 +72,8 @@ class WaterParams:
     ``cisp:water:<k>``. Keys (units):
 
     - ``resolution``: FFT grid size N per axis, a power of two in [4, 4096].
+
+    Every real field has an upper bound too (``MAX_*`` above), so the spectrum stays finite.
     - ``patch_size``: side L of the square periodic patch [m]; the patch tiles the water.
     - ``depth``: still-water depth h [m] used in the finite-depth dispersion
       omega^2 = g k tanh(k h) (and the TMA depth factor for JONSWAP); ``math.inf`` = deep water.
@@ -94,20 +112,22 @@ class WaterParams:
             raise _fail("resolution", n,
                         f"must be a power of two in [{MIN_RESOLUTION}, {MAX_RESOLUTION}], e.g. 256")
         set_(self, "resolution", int(n))
-        set_(self, "patch_size", check_finite("patch_size", self.patch_size, 0.0, strict=True))
-        set_(self, "depth", check_finite("depth", self.depth, 0.0, strict=True, allow_inf=True))
-        set_(self, "wind_speed", check_finite("wind_speed", self.wind_speed, 0.0, strict=True))
+        set_(self, "patch_size", check_finite("patch_size", self.patch_size, 0.0, strict=True,
+                                              maximum=MAX_PATCH_SIZE))
+        set_(self, "depth", check_finite("depth", self.depth, 0.0, strict=True, allow_inf=True, maximum=MAX_DEPTH))
+        set_(self, "wind_speed", check_finite("wind_speed", self.wind_speed, 0.0, strict=True,
+                                              maximum=MAX_WIND_SPEED))
         set_(self, "wind_direction", _wind_angle(self.wind_direction))
-        set_(self, "fetch", check_finite("fetch", self.fetch, 0.0, strict=True))
+        set_(self, "fetch", check_finite("fetch", self.fetch, 0.0, strict=True, maximum=MAX_FETCH))
         if not isinstance(self.spectrum, str) or self.spectrum.lower() not in SPECTRA:
             raise _fail("spectrum", self.spectrum, f"must be one of {SPECTRA}")
         set_(self, "spectrum", self.spectrum.lower())
-        set_(self, "amplitude", check_finite("amplitude", self.amplitude, 0.0))
+        set_(self, "amplitude", check_finite("amplitude", self.amplitude, 0.0, maximum=MAX_AMPLITUDE))
         set_(self, "small_wave_cutoff",
-             check_finite("small_wave_cutoff", self.small_wave_cutoff, 0.0))
-        set_(self, "choppiness", check_finite("choppiness", self.choppiness, 0.0))
-        if isinstance(self.seed, bool) or not isinstance(self.seed, Integral) or self.seed < 0:
-            raise _fail("seed", self.seed, "expected a non-negative integer")
+             check_finite("small_wave_cutoff", self.small_wave_cutoff, 0.0, maximum=MAX_SMALL_WAVE_CUTOFF))
+        set_(self, "choppiness", check_finite("choppiness", self.choppiness, 0.0, maximum=MAX_CHOPPINESS))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, Integral) or not 0 <= self.seed <= MAX_SEED:
+            raise _fail("seed", self.seed, f"expected an integer in [0, {MAX_SEED}]")
         set_(self, "seed", int(self.seed))
 
     def to_dict(self) -> dict[str, Any]:
@@ -141,7 +161,7 @@ def _wind_angle(value: Any) -> float:
             wx, wz = (float(c) for c in value)
         except (TypeError, ValueError):
             raise _fail("wind_direction", value, "expected an angle [rad] or a 2-vector (x, z)")
-        if not (math.isfinite(wx) and math.isfinite(wz)) or math.hypot(wx, wz) == 0.0:
+        if not (math.isfinite(wx) and math.isfinite(wz)) or not 1e-30 < math.hypot(wx, wz) < 1e30:
             raise _fail("wind_direction", value, "2-vector must be finite and non-zero")
         return math.atan2(wz, wx)
-    return check_finite("wind_direction", value)
+    return check_finite("wind_direction", value, -1e6, maximum=1e6)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -25,12 +26,16 @@ def test_corpus_is_complete():
     assert len(files) >= 25
 
 
+ERRORS = sorted(n for n, c in EXPECTED.items() if c.get("outcome", "error") == "error")
+WARNINGS = sorted(n for n, c in EXPECTED.items() if c.get("outcome") == "warning")
+
+
 @pytest.mark.filterwarnings("ignore::cisp_warp.errors.SceneWarning")
-@pytest.mark.parametrize("name", sorted(EXPECTED))
+@pytest.mark.parametrize("name", ERRORS)
 def test_malformed_file_raises_scene_error(name):
     case = EXPECTED[name]
     with pytest.raises(SceneError) as info:
-        load_usd(CORPUS / name)
+        load_usd(CORPUS / name, device="cpu")
     message = str(info.value)
     assert name in message
     assert info.value.file is not None and info.value.file.endswith(name)
@@ -39,14 +44,67 @@ def test_malformed_file_raises_scene_error(name):
     assert case["keyword"].lower() in message.lower(), message
 
 
+@pytest.mark.parametrize("name", WARNINGS)
+def test_ignored_input_warns_naming_file_prim_and_attribute(name):
+    case = EXPECTED[name]
+    with pytest.warns(SceneWarning) as caught:
+        scene = load_usd(CORPUS / name, device="cpu")
+    assert scene.triangle_count > 0
+    messages = [str(w.message) for w in caught if issubclass(w.category, SceneWarning)]
+    hits = [m for m in messages if name in m and f"prim '{case['prim']}'" in m and case["keyword"] in m]
+    assert hits, messages
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(SceneError, match=r"nowhere\.usda.*not found"):
         load_usd(tmp_path / "nowhere.usda")
 
 
 def test_directory_is_not_a_file(tmp_path):
-    with pytest.raises(SceneError, match="not a file"):
+    with pytest.raises(SceneError, match="not a regular file"):
         load_usd(tmp_path)
+
+
+@pytest.mark.parametrize("arc", ["references", "payload", "subLayers"])
+@pytest.mark.parametrize("kind", ["fifo", "directory"])
+def test_asset_that_is_not_a_regular_file_is_refused_before_usd_reads_it(valid_stage, arc, kind):
+    """A FIFO blocked load_usd forever (issue 16); a folder is no layer either."""
+    target = valid_stage.parent / "asset.usda"
+    if kind == "fifo":
+        os.mkfifo(target)
+    else:
+        target.mkdir()
+    text = valid_stage.read_text()
+    if arc == "subLayers":
+        text = text.replace('    defaultPrim = "World"', '    subLayers = [@./asset.usda@]\n    defaultPrim = "World"')
+    else:
+        text = text.replace('def Xform "World"\n', f'def Xform "World" (\n    {arc} = @./asset.usda@\n)\n', 1)
+    valid_stage.write_text(text)
+    with pytest.raises(SceneError) as info:
+        load_usd(valid_stage, device="cpu")
+    message = str(info.value)
+    assert "valid.usda" in message and "asset.usda" in message
+    assert ("FIFO" if kind == "fifo" else "directory") in message
+    if arc != "subLayers":
+        assert "prim '/World'" in message
+
+
+def test_layer_over_the_size_cap_is_refused(valid_stage, monkeypatch):
+    from cisp_warp.usd import guard
+
+    monkeypatch.setattr(guard, "MAX_LAYER_BYTES", 100)
+    with pytest.raises(SceneError, match=r"valid\.usda.*MiB"):
+        load_usd(valid_stage, device="cpu")
+
+
+def test_parse_that_runs_past_its_deadline_is_a_scene_error(valid_stage, monkeypatch):
+    """The guarded parse is killed at its deadline: here a deadline of zero seconds."""
+    from cisp_warp.usd import guard
+
+    monkeypatch.setattr(guard, "PARSE_SECONDS", 0.0)
+    monkeypatch.setattr(guard, "PARSE_SECONDS_PER_MB", 0.0)
+    with pytest.raises(SceneError, match=r"valid\.usda.*did not finish"):
+        load_usd(valid_stage, device="cpu")
 
 
 def _load_generator():
@@ -74,7 +132,7 @@ def test_base_stage_of_the_corpus_loads(valid_stage):
     [
         (dict(width=0, height=360), "resolution"),
         (dict(width=-640), "resolution"),
-        (dict(width=10**6, height=10**6), "G-buffer"),
+        (dict(width=60000, height=60000), "G-buffer"),
         (dict(width=640.5), "whole number"),
         (dict(camera_path="/World/Nope"), "/World/Nope"),
         (dict(camera_path="/World/Sun"), "no UsdGeom.Camera"),
@@ -93,3 +151,19 @@ def test_missing_reference_warns_and_still_loads(valid_stage):
     with pytest.warns(SceneWarning, match="gone.usda"):
         scene = load_usd(valid_stage)
     assert scene.triangle_count == 2
+
+
+def test_references_that_multiply_are_refused(tmp_path, monkeypatch):
+    """Each level references the next twice: 2^depth prims once composed (with depth 30, a hang before)."""
+    from cisp_warp.usd import guard
+
+    monkeypatch.setattr(guard, "MAX_PRIMS", 100)
+    depth = 8
+    text = ['#usda 1.0\n(\n    defaultPrim = "L0"\n)\n', f'def Xform "L{depth}"\n{{\n}}\n']
+    for d in range(depth - 1, -1, -1):
+        arcs = "".join(f'    def Xform "{c}" (\n        references = </L{d + 1}>\n    )\n    {{\n    }}\n' for c in "AB")
+        text.append(f'def Xform "L{d}"\n{{\n{arcs}}}\n')
+    path = tmp_path / "laughs.usda"
+    path.write_text("".join(text))
+    with pytest.raises(SceneError, match=r"laughs\.usda.*more than 100 prims"):
+        load_usd(path, device="cpu")

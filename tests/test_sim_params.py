@@ -35,6 +35,17 @@ BAD_PARAMS = [
     ("choppiness", -0.5),
     ("seed", -1),
     ("seed", 1.5),
+    # upper bounds: each of these overflowed the spectrum or the kernels' float32 (fuzzer, issue 16)
+    ("wind_speed", 1e300),
+    ("wind_speed", 101.0),
+    ("choppiness", 1e30),
+    ("patch_size", 1e5),
+    ("depth", 1e6),
+    ("fetch", 1e300),
+    ("amplitude", 1e20),
+    ("small_wave_cutoff", 1e5),
+    ("seed", 2**31),
+    ("wind_direction", 1e300),
 ]
 
 

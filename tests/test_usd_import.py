@@ -427,18 +427,19 @@ def test_default_material_without_binding_or_display_color(tmp_path):
 def test_water_attributes_make_a_dynamic_mesh_range(tmp_path):
     stage = new_stage(tmp_path)
     add_mesh(stage, "/World/Floor", UNIT_QUAD, [4], [0, 1, 2, 3])
-    water = add_mesh(stage, "/World/Water", [(p[0], p[1], 1) for p in UNIT_QUAD], [4], [0, 1, 2, 3])
+    grid = [(0, 0.5, 0), (1, 0.5, 0), (0, 0.5, 1), (1, 0.5, 1)]  # a 2 x 2 rest grid, vertex iz * nx + ix
+    water = add_mesh(stage, "/World/Water", grid, [4], [0, 2, 3, 1])
     prim = water.GetPrim()
     prim.CreateAttribute("cisp:water:resolution", Sdf.ValueTypeNames.Int).Set(64)
     prim.CreateAttribute("cisp:water:wind_speed", Sdf.ValueTypeNames.Float).Set(2.0)
     prim.CreateAttribute("cisp:water:spectrum", Sdf.ValueTypeNames.Token).Set("phillips")
-    prim.CreateAttribute("cisp:water:wind", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(1, 0))
+    prim.CreateAttribute("cisp:water:wind_direction", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(1, 0))
     prim.CreateAttribute("cisp:other", Sdf.ValueTypeNames.Int).Set(1)
     scene = save_and_load(stage)
     floor, w = scene.meshes
     assert not floor.dynamic and floor.water is None
     assert w.dynamic and w.path == "/World/Water"
-    assert w.water == {"resolution": 64, "wind_speed": 2.0, "spectrum": "phillips", "wind": (1.0, 0.0)}
+    assert w.water == {"resolution": 64, "wind_speed": 2.0, "spectrum": "phillips", "wind_direction": (1.0, 0.0)}
     assert type(w.water["resolution"]) is int and type(w.water["spectrum"]) is str
     assert w.vertex_count == 4  # vertex i is point i: sim/ can write in place
 
@@ -536,3 +537,120 @@ def test_cornell_generator_is_deterministic_and_in_sync_with_the_committed_file(
     stage = gen.build(tmp_path / "c.usda", 2.4, 96, 0)
     assert gen.validation_errors(stage) == []
     assert (tmp_path / "c.usda").read_bytes() == CORNELL.read_bytes(), "rerun tools/make_cornell_flooded.py"
+
+
+# ------------------------------------------------------------------------- cost linear in the corners (issue 16)
+
+
+def _naive_auto_smooth(tri_point, tri_n, n_points):
+    """Twin of ``auto_smooth_normals`` for triangle meshes: every corner against every triangle at its point."""
+    cos = math.cos(math.radians(45.0))
+    flat = tri_n / np.linalg.norm(tri_n, axis=1, keepdims=True)
+    out = np.zeros((len(tri_point), 3, 3))
+    for t, tri in enumerate(tri_point):
+        for c, p in enumerate(tri):
+            for u in np.nonzero(np.any(tri_point == p, axis=1))[0]:
+                if flat[t] @ flat[u] >= cos:
+                    out[t, c] += tri_n[u]
+    return out / np.linalg.norm(out, axis=2, keepdims=True)
+
+
+@pytest.mark.parametrize("valence", [6, 200])
+def test_auto_smooth_matches_its_naive_twin(valence):
+    """A fan of ``valence`` triangles folded (63 degrees) into a hard edge: per-corner normals equal the
+    naive O(k^2) twin's below MAX_SMOOTH_VALENCE; above it the fan's centre is flat (its faces bend too much)."""
+    from cisp_warp.usd.mesh import MAX_SMOOTH_VALENCE, auto_smooth_normals
+
+    rng = np.random.default_rng(3)
+    a = np.linspace(0.0, 2.0 * math.pi, valence + 1)
+    rim = np.stack([np.cos(a), np.where(np.cos(a) > 0.0, 2.0 * np.cos(a), 0.0), np.sin(a)], axis=1)[:-1]
+    points = np.vstack([[0.0, 0.0, 0.0], rim]) + rng.normal(0.0, 1e-3, (valence + 1, 3))
+    tris = np.array([[0, 1 + (k + 1) % valence, 1 + k] for k in range(valence)])
+    p = points[tris]
+    tri_n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    per_point, per_corner, n_flat = auto_smooth_normals(tris, tri_n, len(points))
+    assert per_point is None  # the fold is a hard edge
+    if valence <= MAX_SMOOTH_VALENCE:
+        assert n_flat == 0
+        np.testing.assert_allclose(per_corner, _naive_auto_smooth(tris, tri_n, len(points)), atol=1e-12)
+    else:
+        assert n_flat == 1
+        flat = tri_n / np.linalg.norm(tri_n, axis=1, keepdims=True)
+        np.testing.assert_allclose(per_corner[:, 0], flat, atol=1e-12)  # the centre's corners keep their face's
+
+
+def test_polygon_counts_once_per_point_in_smoothing():
+    """An n-gon's fan triangles all meet at its first corner; they form one element, so a convex polygon's
+    normals are its plane's normal everywhere."""
+    from cisp_warp.usd.mesh import auto_smooth_normals
+
+    n = 50
+    a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    points = np.stack([np.cos(a), np.zeros(n), np.sin(a)], axis=1)
+    tris = np.array([[0, k + 1, k] for k in range(1, n - 1)])
+    p = points[tris]
+    tri_n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    per_point, per_corner, n_flat = auto_smooth_normals(tris, tri_n, n, np.zeros(len(tris), dtype=np.int64))
+    assert per_corner is None and n_flat == 0
+    np.testing.assert_allclose(per_point, np.tile([0.0, 1.0, 0.0], (n, 1)), atol=1e-12)
+
+
+@pytest.mark.parametrize("star", [False, True])
+def test_large_polygons_load(tmp_path, star):
+    """A 20,000-gon exhausted memory in the smoothing (k^2 corner pairs); a 1,500-corner star is ear-clipped."""
+    n = 1500 if star else 20000
+    a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    r = np.where(np.arange(n) % 2 == 0, 1.0, 0.6) if star else np.ones(n)
+    points = np.stack([r * np.cos(a), np.zeros(n), -r * np.sin(a)], axis=1)  # counter-clockwise seen from +Y
+    stage = new_stage(tmp_path)
+    add_mesh(stage, "/World/Disc", points, [n], list(range(n)))
+    scene = save_and_load(stage, device="cpu")
+    assert scene.triangle_count == n - 2
+    np.testing.assert_allclose(tri_area(scene).sum(), 0.5 * np.sum(r * np.roll(r, -1)) * math.sin(2 * math.pi / n),
+                               rtol=1e-5)
+    assert np.allclose(scene.normals, [0.0, 1.0, 0.0], atol=1e-6)
+
+
+def test_non_convex_polygon_over_the_cap_is_refused(tmp_path):
+    from cisp_warp.usd.mesh import MAX_EAR_CLIP_CORNERS
+
+    n = MAX_EAR_CLIP_CORNERS + 2
+    a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    r = np.where(np.arange(n) % 2 == 0, 1.0, 0.6)
+    stage = new_stage(tmp_path)
+    add_mesh(stage, "/World/Star", np.stack([r * np.cos(a), np.zeros(n), -r * np.sin(a)], axis=1), [n], list(range(n)))
+    with pytest.raises(SceneError, match=r"s\.usda.*/World/Star.*not convex.*faceVertexCounts"):
+        save_and_load(stage, device="cpu")
+
+
+# ------------------------------------------------------------------------------ ranges (issue 16)
+
+
+@pytest.mark.parametrize(
+    "setup, keyword",
+    [
+        (lambda s: s.GetPrimAtPath("/World/Sun").GetAttribute("inputs:exposure").Set(128.0), "overflow float32"),
+        (lambda s: s.GetPrimAtPath("/World/Sun").GetAttribute("inputs:intensity").Set(3e20), "overflow float32"),
+        (lambda s: UsdGeom.SetStageMetersPerUnit(s, 1e9), "metersPerUnit"),
+        (lambda s: UsdGeom.Xformable(s.GetPrimAtPath("/World/Floor")).AddScaleOp().Set((1e7, 1e7, 1e7)),
+         "/World/Floor"),
+    ],
+)
+def test_values_beyond_float32_or_the_scene_extent_are_refused(tmp_path, setup, keyword):
+    stage = new_stage(tmp_path)
+    stage.GetPrimAtPath("/World/Sun").GetAttribute("inputs:intensity").Set(3.0)
+    UsdLux.LightAPI(stage.GetPrimAtPath("/World/Sun")).CreateExposureAttr(0.0)
+    add_mesh(stage, "/World/Floor", UNIT_QUAD, [4], [0, 1, 2, 3])
+    setup(stage)
+    with pytest.raises(SceneError) as info:
+        save_and_load(stage, device="cpu")
+    assert keyword in str(info.value) and "s.usda" in str(info.value)
+
+
+def test_water_resolution_is_limited_on_the_cpu_only(tmp_path):
+    stage = new_stage(tmp_path)
+    grid = [(0, 0.5, 0), (1, 0.5, 0), (0, 0.5, 1), (1, 0.5, 1)]
+    water = add_mesh(stage, "/World/Water", grid, [4], [0, 2, 3, 1])
+    water.GetPrim().CreateAttribute("cisp:water:resolution", Sdf.ValueTypeNames.Int).Set(2048)
+    with pytest.raises(SceneError, match=r"/World/Water.*cisp:water:resolution = 2048.*CPU"):
+        save_and_load(stage, device="cpu")

@@ -9,6 +9,8 @@
 | ``mesh`` | ``UsdGeom.Mesh`` -> triangles, normals, ``cisp:water`` attributes |
 | ``material`` | ``UsdPreviewSurface`` bindings and ``displayColor`` |
 | ``lights`` | UsdLux distant, sphere (point) and spot lights |
+| ``water`` | ``cisp:water:*`` parameters and rest grid (checked at load) |
+| ``guard`` | what USD may open (regular files, size caps) and its parse in a guarded step |
 """
 
 from .load import GBUFFER_BYTES_PER_PIXEL, load_usd, read_camera

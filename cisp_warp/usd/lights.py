@@ -24,8 +24,12 @@ from pxr import UsdLux
 
 from ..errors import SceneError
 from ..scene.model import Light, LightKind, Sky
-from .stage import StageContext, finite_float, finite_vec3
+from .stage import StageContext, finite_float, finite_vec3, typed_get
 
+#: Largest intensity × 2^exposure × max(color) accepted [W/m² or W/sr]: 1e20 is 17 orders of magnitude above
+#: sunlight (1.4e3 W/m²) and leaves float32 (3.4e38) room for the products the photon kernels form with it.
+MAX_LIGHT_POWER = 1e20
+MAX_EXPOSURE = 128.0  #: |inputs:exposure| [stops] above this is refused (2^128 is beyond float32)
 POINT_RADIUS_M = 0.01  #: a SphereLight no larger than this [m] is a point light without a warning
 
 
@@ -63,26 +67,31 @@ def read_light(ctx: StageContext, prim) -> Light | None:
     light.position = tuple(float(x) for x in M[:3, 3])
     sphere = UsdLux.SphereLight(prim)
     radius_scale = float(np.max(np.linalg.norm(M[:3, :3], axis=0)))
-    radius = finite_float(ctx.get(sphere.GetRadiusAttr()), "inputs:radius", path) * radius_scale
-    if not ctx.get(sphere.GetTreatAsPointAttr()) and radius > POINT_RADIUS_M:
+    radius = finite_float(typed_get(ctx, sphere.GetRadiusAttr(), "real", path), "inputs:radius", path,
+                          0.0) * radius_scale
+    if not typed_get(ctx, sphere.GetTreatAsPointAttr(), "bool", path) and radius > POINT_RADIUS_M:
         ctx.warn(f"sphere light radius {radius:.4g} m is ignored: imported as a point light whose "
                  "intensity is in W/sr", path)
     cone_attr = prim.GetAttribute("inputs:shaping:cone:angle")
     if prim.HasAPI(UsdLux.ShapingAPI) or (cone_attr and cone_attr.HasAuthoredValue()):
-        angle = finite_float(ctx.get(cone_attr), "inputs:shaping:cone:angle", path)
-        if angle <= 0.0:
-            raise SceneError(f"inputs:shaping:cone:angle = {angle} degrees: a spot cone must be wider than 0",
-                             prim=path)
+        angle = finite_float(typed_get(ctx, cone_attr, "real", path), "inputs:shaping:cone:angle", path)
+        if not 0.0 < angle <= 180.0:
+            raise SceneError(f"inputs:shaping:cone:angle = {angle:g} degrees: a spot's half angle must lie in (0, 180] "
+                             "(180: a point light)", prim=path)
         if angle < 180.0:
             softness_attr = prim.GetAttribute("inputs:shaping:cone:softness")
-            softness = finite_float(ctx.get(softness_attr) if softness_attr else 0.0,
+            softness = finite_float(typed_get(ctx, softness_attr, "real", path) if softness_attr else 0.0,
                                     "inputs:shaping:cone:softness", path)
+            if not 0.0 <= softness <= 1.0:
+                ctx.warn(f"inputs:shaping:cone:softness = {softness:g} lies outside [0, 1]: clamped", path)
             light.kind = LightKind.SPOT
             light.cone_angle = math.radians(angle)
             light.cone_softness = min(max(softness, 0.0), 1.0)
         focus = prim.GetAttribute("inputs:shaping:focus")
         ies = prim.GetAttribute("inputs:shaping:ies:file")
-        if (focus and focus.HasAuthoredValue() and ctx.get(focus)) or (ies and ies.HasAuthoredValue()):
+        if (focus and focus.HasAuthoredValue() and typed_get(ctx, focus, "real", path)) or (
+            ies and ies.HasAuthoredValue()
+        ):
             ctx.warn("inputs:shaping:focus and IES profiles are not supported: ignored", path)
     return light
 
@@ -98,9 +107,9 @@ def read_dome(ctx: StageContext, prim) -> Sky:
     rotation = M / scale  # the dome's orientation; its scale means nothing for an infinitely distant sphere
     dome = UsdLux.DomeLight(prim)
     texture = None
-    asset = ctx.get(dome.GetTextureFileAttr())
+    asset = typed_get(ctx, dome.GetTextureFileAttr(), "asset", path)
     if asset is not None and asset.path:
-        fmt = str(ctx.get(dome.GetTextureFormatAttr()) or "automatic")
+        fmt = str(typed_get(ctx, dome.GetTextureFormatAttr(), "token", path) or "automatic")
         if fmt not in ("automatic", "latlong"):
             raise SceneError(f"inputs:texture:format = '{fmt}': only latlong sky images are supported", prim=path)
         file = asset.resolvedPath or asset.path
@@ -113,8 +122,11 @@ def read_dome(ctx: StageContext, prim) -> Sky:
 def read_latlong(file: str, prim: str) -> np.ndarray:
     """A lat-long sky image as (H, W, 3) float32 linear RGB: OpenEXR as stored, 8/16-bit images from sRGB."""
     where = "inputs:texture:file"
-    if not os.path.isfile(file):
+    if not os.path.exists(file):
         raise SceneError(f"{where}: the sky image '{file}' does not exist", prim=prim)
+    if not os.path.isfile(file):
+        raise SceneError(f"{where}: the sky image '{file}' is not a regular file (a directory, FIFO or device)",
+                         prim=prim)
     try:
         if file.lower().endswith(".exr"):
             from ..image_io import read_exr
@@ -143,19 +155,25 @@ def read_latlong(file: str, prim: str) -> np.ndarray:
 
 
 def _color_power(ctx: StageContext, prim, path: str):
-    """(inputs:color, inputs:intensity × 2^inputs:exposure) of any UsdLux light, checked."""
+    """(inputs:color, inputs:intensity × 2^inputs:exposure) of any UsdLux light, checked: types, signs, and
+    intensity × 2^exposure × max(color) at most ``MAX_LIGHT_POWER``."""
     api = UsdLux.LightAPI(prim)
-    intensity = finite_float(ctx.get(api.GetIntensityAttr()), "inputs:intensity", path)
+    intensity = finite_float(typed_get(ctx, api.GetIntensityAttr(), "real", path), "inputs:intensity", path)
     if intensity < 0.0:
         raise SceneError(f"inputs:intensity = {intensity}: a light's intensity must not be negative", prim=path)
-    exposure = finite_float(ctx.get(api.GetExposureAttr()), "inputs:exposure", path)
-    power = intensity * 2.0**exposure if exposure < 1024 else math.inf
-    if not math.isfinite(power):
-        raise SceneError(f"intensity × 2^exposure = {intensity} × 2^{exposure} overflows", prim=path)
-    color = finite_vec3(ctx.get(api.GetColorAttr()), "inputs:color", path)
+    exposure = finite_float(typed_get(ctx, api.GetExposureAttr(), "real", path), "inputs:exposure", path,
+                            -MAX_EXPOSURE, MAX_EXPOSURE)
+    power = intensity * 2.0**exposure
+    color = finite_vec3(typed_get(ctx, api.GetColorAttr(), "vec3", path), "inputs:color", path)
     if np.any(color < 0.0):
         raise SceneError(f"inputs:color = {tuple(color)} has a negative channel", prim=path)
-    if ctx.get(api.GetEnableColorTemperatureAttr()):
+    if power * float(color.max()) > MAX_LIGHT_POWER:
+        unit = ("W/m²" if prim.IsA(UsdLux.DistantLight) else "W/(m² sr)" if prim.IsA(UsdLux.DomeLight)
+                else "W/sr")
+        raise SceneError(f"inputs:intensity × 2^exposure × color = {intensity:g} × 2^{exposure:g} × {color.max():g} = "
+                         f"{power * float(color.max()):.3g} {unit}, above {MAX_LIGHT_POWER:g}: the photon powers would "
+                         "overflow float32", prim=path)
+    if typed_get(ctx, api.GetEnableColorTemperatureAttr(), "bool", path):
         ctx.warn("inputs:enableColorTemperature is on: colour temperature is not supported, "
                  "only inputs:color is used", path)
     return color, power

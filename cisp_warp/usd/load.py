@@ -40,9 +40,16 @@ Camera
     that aspect ratio.
 
 Errors
-    Anything unusable raises :class:`SceneError` whose message names the file, the prim and the reason;
-    USD's own errors (``pxr.Tf.ErrorException``) are re-raised as :class:`SceneError`. A resolution is
-    checked against device memory (``GBUFFER_BYTES_PER_PIXEL``) before anything is allocated.
+    Anything unusable raises :class:`SceneError` whose message names the file, the prim, the attribute
+    and what was expected; USD's own errors (``pxr.Tf.ErrorException``) are re-raised as
+    :class:`SceneError`. What is ignored or clamped is a :class:`SceneWarning` naming the same. Every
+    attribute is checked where it is read (:func:`~cisp_warp.usd.stage.typed_get`: its type, then element
+    counts and ranges): positions within ``MAX_EXTENT_M`` of the origin, light power within float32
+    headroom (``lights.MAX_LIGHT_POWER``), ``cisp:water`` parameters within ``sim.params``' bounds and their
+    rest grid regular (:mod:`cisp_warp.usd.water`), image edges at most ``MAX_EDGE``. Before USD composes
+    the stage, :mod:`cisp_warp.usd.guard` checks every layer it would read (regular files, size caps) and
+    parses them in a guarded step (deadline, memory cap). A resolution is checked against device memory
+    (``GBUFFER_BYTES_PER_PIXEL``) before anything is allocated.
 """
 
 from __future__ import annotations
@@ -59,11 +66,18 @@ from ..scene.model import Camera, MeshRange, Scene
 from .lights import read_dome, read_light
 from .material import MaterialTable
 from .mesh import MeshPart, read_mesh
-from .stage import StageContext, finite_float, open_stage, tf_reason
+from .stage import MAX_EXTENT_M, StageContext, finite_float, open_stage, tf_reason, typed_get
 
 DEFAULT_RESOLUTION = (640, 360)
+CONFORM_POLICIES = ("expandAperture", "cropAperture", "adjustApertureWidth", "adjustApertureHeight",
+                    "adjustPixelAspectRatio")
 GBUFFER_BYTES_PER_PIXEL = 64  #: G-buffer + photon map + denoiser history, an upper estimate per camera pixel
 MAX_PIXELS = 2**31 - 1  #: Warp indexes arrays with 32-bit ints
+MAX_EDGE = 65536  #: widest or tallest image [pixels] (16K video is 15360)
+MAX_OPTICS = 1e6  #: focalLength and apertures [tenths of a scene unit] above this are refused
+MIN_APERTURE_RATIO = 1e-3  #: apertures thinner than 1:1000 are refused
+MAX_CLIP_RATIO = 1e9  #: clippingRange far / near above this is warned about
+MAX_FAR_M = 1e7  #: a farther clippingRange far [m] is clamped to this, with a warning (float32 depths)
 
 __all__ = ["load_usd", "GBUFFER_BYTES_PER_PIXEL"]
 
@@ -80,9 +94,11 @@ def load_usd(path, time_code=None, width=None, height=None, camera_path=None, de
     try:
         return _load(path, time_code, width, height, camera_path, device)
     except SceneError as exc:
-        if exc.file:
-            raise
-        raise SceneError(exc.reason, file=path, prim=exc.prim) from None
+        if not exc.file:
+            raise SceneError(exc.reason, file=path, prim=exc.prim) from None
+        if os.path.abspath(exc.file) != os.path.abspath(path):  # a layer the stage pulls in
+            raise SceneError(f"{exc.reason} (in a layer of '{path}')", file=exc.file, prim=exc.prim) from None
+        raise
     except Tf.ErrorException as exc:
         raise SceneError(f"USD error: {tf_reason(exc)}", file=path) from None
 
@@ -101,6 +117,7 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
     else:
         code, time = 0.0, Usd.TimeCode.EarliestTime()
     ctx = StageContext.from_stage(stage, path, time)
+    ctx.on_cpu = _is_cpu(device)
     for err in stage.GetCompositionErrors():  # e.g. a missing referenced file: its prims are absent
         ctx.warn(f"composition error, the scene may be incomplete: {err}")
     table = MaterialTable(ctx)
@@ -175,13 +192,26 @@ def _load(path, time_code, width, height, camera_path, device) -> Scene:
         raise SceneError(exc.reason, prim=where) from None
     if w * h > MAX_PIXELS:
         raise SceneError(f"resolution {w}x{h} has more than 2^31 pixels, beyond 32-bit indexing", prim=where)
-    policy = str(ctx.get(rs.GetAspectRatioConformPolicyAttr())) if rs else "expandAperture"
+    policy = str(typed_get(ctx, rs.GetAspectRatioConformPolicyAttr(), "token")) if rs else "expandAperture"
+    if policy not in CONFORM_POLICIES:
+        raise SceneError(f"aspectRatioConformPolicy = '{policy}': it must be one of {', '.join(CONFORM_POLICIES)}",
+                         prim=str(rs.GetPath()))
     camera = read_camera(ctx, cam_prim, w, h, policy)
 
     scene = _assemble(parts, table, lights, camera, path, code, tcps)
     scene.sky = sky
     scene.validate()
     return scene
+
+
+def _is_cpu(device) -> bool:
+    """Whether the frame will be rendered on the CPU (``device`` None: Warp's default device)."""
+    import warp as wp
+
+    try:
+        return wp.get_device(device).is_cpu
+    except (RuntimeError, ValueError):
+        raise SceneError(f"unknown device '{device}': use cpu or cuda:N", prim="device") from None
 
 
 def _render_settings(stage, found):
@@ -193,9 +223,14 @@ def _render_settings(stage, found):
 
 def _pick_camera(stage, cameras, camera_path, rs):
     if camera_path is not None:
-        prim = stage.GetPrimAtPath(str(camera_path))
+        try:
+            prim = stage.GetPrimAtPath(str(camera_path))
+        except Tf.ErrorException:
+            prim = None
         if not prim or not prim.IsA(UsdGeom.Camera):
             raise SceneError("no UsdGeom.Camera at this path (camera_path)", prim=str(camera_path))
+        if not prim.IsActive():
+            raise SceneError("this camera is inactive (active = false) (camera_path)", prim=str(camera_path))
         return prim
     if rs:
         targets = rs.GetCameraRel().GetForwardedTargets()
@@ -203,6 +238,9 @@ def _pick_camera(stage, cameras, camera_path, rs):
             prim = stage.GetPrimAtPath(targets[0])
             if not prim or not prim.IsA(UsdGeom.Camera):
                 raise SceneError(f"the render settings' camera '{targets[0]}' is not a UsdGeom.Camera",
+                                 prim=str(rs.GetPath()))
+            if not prim.IsActive():
+                raise SceneError(f"the render settings' camera '{targets[0]}' is inactive (active = false)",
                                  prim=str(rs.GetPath()))
             return prim
     if not cameras:
@@ -215,10 +253,13 @@ def _resolution(ctx, rs, width, height) -> tuple[int, int, str]:
     where = "width/height"
     base = DEFAULT_RESOLUTION
     if rs:
-        res = ctx.get(rs.GetResolutionAttr())
+        res = typed_get(ctx, rs.GetResolutionAttr(), "int2")
         if res is not None:
             base = (int(res[0]), int(res[1]))
             where = str(rs.GetPath())
+            if not (0 < base[0] <= MAX_EDGE and 0 < base[1] <= MAX_EDGE):
+                raise SceneError(f"resolution = {base[0]}x{base[1]}: each edge must be a whole number of pixels in "
+                                 f"[1, {MAX_EDGE}]", prim=where)
     if width is None and height is None:
         w, h = base
     else:
@@ -232,6 +273,8 @@ def _resolution(ctx, rs, width, height) -> tuple[int, int, str]:
         h = int(height) if height is not None else int(round(int(width) * base[1] / base[0]))
     if w <= 0 or h <= 0:
         raise SceneError(f"resolution must be positive, got {w}x{h}", prim=where)
+    if w > MAX_EDGE or h > MAX_EDGE:
+        raise SceneError(f"resolution {w}x{h}: each edge must be at most {MAX_EDGE} pixels", prim=where)
     return w, h, where
 
 
@@ -263,22 +306,35 @@ def read_camera(ctx: StageContext, prim, width: int, height: int, policy: str = 
     """The :class:`Camera` of a ``UsdGeom.Camera`` prim at ``width`` × ``height`` pixels."""
     path = str(prim.GetPath())
     cam = UsdGeom.Camera(prim)
-    focal = finite_float(ctx.get(cam.GetFocalLengthAttr()), "focalLength", path)
-    ha = finite_float(ctx.get(cam.GetHorizontalApertureAttr()), "horizontalAperture", path)
-    va = finite_float(ctx.get(cam.GetVerticalApertureAttr()), "verticalAperture", path)
+    focal = finite_float(typed_get(ctx, cam.GetFocalLengthAttr(), "real"), "focalLength", path)
+    ha = finite_float(typed_get(ctx, cam.GetHorizontalApertureAttr(), "real"), "horizontalAperture", path)
+    va = finite_float(typed_get(ctx, cam.GetVerticalApertureAttr(), "real"), "verticalAperture", path)
     for value, name in ((focal, "focalLength"), (ha, "horizontalAperture"), (va, "verticalAperture")):
-        if value <= 0.0:
-            raise SceneError(f"{name} = {value}: it must be positive", prim=path)
-    clip = ctx.get(cam.GetClippingRangeAttr())
+        if not 0.0 < value <= MAX_OPTICS:
+            raise SceneError(f"{name} = {value:g}: it must be positive and at most {MAX_OPTICS:g}", prim=path)
+    if not MIN_APERTURE_RATIO <= ha / va <= 1.0 / MIN_APERTURE_RATIO:
+        raise SceneError(f"horizontalAperture / verticalAperture = {ha:g} / {va:g}: an aspect beyond "
+                         f"1:{1 / MIN_APERTURE_RATIO:g}", prim=path)
+    clip = typed_get(ctx, cam.GetClippingRangeAttr(), "vec2")
+    if clip is None:
+        raise SceneError("attribute 'clippingRange' has no value", prim=path)
     near = finite_float(clip[0], "clippingRange near", path)
     far = finite_float(clip[1], "clippingRange far", path)
     if not 0.0 < near < far:
-        raise SceneError(f"clippingRange ({near}, {far}) must satisfy 0 < near < far", prim=path)
+        raise SceneError(f"clippingRange ({near:g}, {far:g}) must satisfy 0 < near < far", prim=path)
+    mpu = ctx.meters_per_unit
+    if far * mpu > MAX_FAR_M:
+        ctx.warn(f"clippingRange far = {far * mpu:.3g} m is clamped to {MAX_FAR_M:g} m", path)
+        far = MAX_FAR_M / mpu
+        if not near < far:
+            raise SceneError(f"clippingRange near = {near * mpu:.3g} m lies beyond {MAX_FAR_M:g} m", prim=path)
+    if far / near > MAX_CLIP_RATIO:
+        ctx.warn(f"clippingRange far / near = {far / near:.3g}: depth precision is lost beyond a ratio of "
+                 f"{MAX_CLIP_RATIO:g}", path)
     if policy == "adjustPixelAspectRatio":
         ctx.warn("aspectRatioConformPolicy adjustPixelAspectRatio is not supported (square pixels only): "
                  "the vertical aperture is kept", path)
     va_image = _conform_vertical_aperture(ha, va, width / height, policy)
-    mpu = ctx.meters_per_unit
     camera = Camera(
         to_world=_orthonormal(ctx.to_world(prim), path),
         near=near * mpu,
@@ -286,7 +342,10 @@ def read_camera(ctx: StageContext, prim, width: int, height: int, policy: str = 
         width=int(width),
         height=int(height),
     )
-    if str(ctx.get(cam.GetProjectionAttr())) == UsdGeom.Tokens.orthographic:
+    projection = str(typed_get(ctx, cam.GetProjectionAttr(), "token"))
+    if projection not in (UsdGeom.Tokens.perspective, UsdGeom.Tokens.orthographic):
+        raise SceneError(f"projection = '{projection}': it must be perspective or orthographic", prim=path)
+    if projection == UsdGeom.Tokens.orthographic:
         camera.orthographic = True
         camera.ortho_height = va_image / 10.0 * mpu
     else:

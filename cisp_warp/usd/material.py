@@ -22,7 +22,7 @@ from pxr import UsdShade
 
 from ..errors import SceneError
 from ..scene.model import Material
-from .stage import StageContext, finite_float, finite_vec3
+from .stage import StageContext, finite_float, finite_vec3, typed_get
 
 PREVIEW_SURFACE_DEFAULTS = {
     "diffuseColor": (0.18, 0.18, 0.18),
@@ -31,6 +31,8 @@ PREVIEW_SURFACE_DEFAULTS = {
     "opacity": 1.0,
     "ior": 1.5,
 }
+MIN_IOR = 1.0  #: smallest index of refraction accepted (of the material relative to the air around it)
+MAX_IOR = 10.0  #: largest (the highest of natural materials is about 4)
 DISPLAY_COLOR_LEVELS = 255  #: displayColor is quantised to 8 bits per channel before it becomes a material
 
 
@@ -76,7 +78,7 @@ def _input_value(ctx: StageContext, shader: UsdShade.Shader, name: str, material
         return default
     for attr in inp.GetValueProducingAttributes():
         if UsdShade.Utils.GetType(attr.GetName()) == UsdShade.AttributeType.Output:
-            own = ctx.get(inp.GetAttr())
+            own = typed_get(ctx, inp.GetAttr(), "vec3" if name == "diffuseColor" else "real", material_path)
             value = default if own is None else own
             ctx.warn(
                 f"inputs:{name} of shader '{shader.GetPath()}' is connected to '{attr.GetPath()}' (a texture "
@@ -84,7 +86,8 @@ def _input_value(ctx: StageContext, shader: UsdShade.Shader, name: str, material
                 material_path,
             )
             return value
-        value = ctx.get(attr)
+        kind = "vec3" if name == "diffuseColor" else "real"
+        value = typed_get(ctx, attr, kind, material_path)
         if value is not None:
             return value
     return default
@@ -115,8 +118,9 @@ def read_preview_surface(ctx: StageContext, material: UsdShade.Material) -> Mate
         x = finite_float(_input_value(ctx, shader, name, path), f"inputs:{name}", sp)
         scalars[name] = _unit_interval(ctx, x, f"inputs:{name}", sp)
     ior = finite_float(_input_value(ctx, shader, "ior", path), "inputs:ior", sp)
-    if ior <= 0.0:
-        raise SceneError(f"inputs:ior = {ior}: an index of refraction must be positive", prim=sp)
+    if not MIN_IOR <= ior <= MAX_IOR:
+        raise SceneError(f"inputs:ior = {ior:g}: an index of refraction must be positive and lie in "
+                         f"[{MIN_IOR:g}, {MAX_IOR:g}] (water 1.33, glass 1.5, diamond 2.42)", prim=sp)
     return Material(
         name=path,
         albedo=tuple(float(v) for v in albedo),
@@ -134,11 +138,19 @@ def face_materials(ctx: StageContext, prim, face_count: int, table: MaterialTabl
     whole, _ = binding.ComputeBoundMaterial()
     if whole:
         face_mat[:] = table.bound(whole)
+    else:
+        _warn_unresolved_binding(ctx, prim)
     for subset in binding.GetMaterialBindSubsets():
         mat, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
+        sp = str(subset.GetPath())
         if not mat:
+            _warn_unresolved_binding(ctx, subset.GetPrim())
             continue
-        faces = np.asarray(ctx.get(subset.GetIndicesAttr()) or [], dtype=np.int64)
+        element = str(typed_get(ctx, subset.GetElementTypeAttr(), "token", sp))
+        if element != "face":
+            ctx.warn(f"GeomSubset elementType = '{element}': only face subsets bind materials; ignored", sp)
+            continue
+        faces = np.asarray(typed_get(ctx, subset.GetIndicesAttr(), "int[]", sp) or [], dtype=np.int64)
         bad = (faces < 0) | (faces >= face_count)
         if np.any(bad):
             raise SceneError(
@@ -147,6 +159,22 @@ def face_materials(ctx: StageContext, prim, face_count: int, table: MaterialTabl
             )
         face_mat[faces] = table.bound(mat)
     return face_mat
+
+
+def _warn_unresolved_binding(ctx: StageContext, prim) -> None:
+    """A ``material:binding`` that targets no ``UsdShade.Material`` is ignored, with a warning naming it."""
+    rel = prim.GetRelationship("material:binding")
+    if not rel:
+        return
+    targets = rel.GetTargets()
+    for target in targets:
+        found = prim.GetStage().GetPrimAtPath(target)
+        if not (found and found.IsA(UsdShade.Material) and found.IsActive()):
+            what = "no prim" if not found else ("an inactive prim" if not found.IsActive() else
+                                                 f"a {found.GetTypeName() or 'typeless prim'}, not a Material")
+            ctx.warn(f"material:binding targets '{target}', which is {what}: ignored (displayColor or the default "
+                     "grey is used)", str(prim.GetPath()))
+            return
 
 
 __all__ = ["MaterialTable", "PREVIEW_SURFACE_DEFAULTS", "face_materials", "read_preview_surface"]

@@ -4,15 +4,27 @@ Rules (each one a test in ``tests/test_usd_import.py``):
 
 * Polygons of any size are triangulated: a fan from the first corner when the fan is valid (every
   fan triangle faces along the polygon's Newell normal, which holds for convex polygons), else ear
-  clipping in the polygon's plane. ``holeIndices`` faces are dropped.
+  clipping in the polygon's plane. Ear clipping costs O(n²) in a polygon's n corners, so a
+  non-convex polygon may have at most ``MAX_EAR_CLIP_CORNERS`` corners and the non-convex polygons of a
+  mesh at most ``MAX_EAR_CLIP_WORK`` squared corners together (else :class:`SceneError`); the fan test
+  and the fan are linear. ``holeIndices`` faces are dropped.
 * ``orientation = leftHanded`` and transforms with a negative determinant each flip the winding, so
   output triangles are counter-clockwise seen from the side their normal points to.
 * Points go through ``XformCache.GetLocalToWorldTransform`` and the stage's unit/up-axis map; normals
   through its inverse transpose.
 * Authored normals (``primvars:normals`` over ``normals``) of any interpolation are used. Without
   them, normals are "auto-smooth": at each corner, the area-weighted mean of the normals of the
-  triangles around its point that are within ``CREASE_ANGLE_DEG`` of the corner's own triangle, so
-  curved surfaces are smooth and hard edges (a cube's) stay hard.
+  faces around its point that are within ``CREASE_ANGLE_DEG`` of the corner's own face, so curved
+  surfaces are smooth and hard edges (a cube's) stay hard. A polygon counts once per point (its
+  triangles there are summed), so an n-gon costs O(n); a point shared by more than
+  ``MAX_SMOOTH_VALENCE`` faces is smooth when all their normals lie within half the crease angle of
+  their mean, else its corners keep their face's normal (one :class:`SceneWarning`): linear in the
+  corners either way.
+* Types, counts and ranges are checked where they are read: ``points`` an array of 3-vectors within
+  ``MAX_EXTENT_M`` of the origin once transformed, ``faceVertexCounts``/``faceVertexIndices``/
+  ``holeIndices`` int arrays; authored ``normals`` or ``displayColor`` of another type, count or
+  non-finite values are ignored with a warning. A ``cisp:water`` mesh's parameters and rest grid are
+  checked here too (:func:`cisp_warp.usd.water.check_water`).
 * Vertex layout: when every corner of a point has the same normal, output vertex ``i`` is the prim's
   point ``i`` (unused points kept), so ``sim/`` and time-sampled updates can write points in place.
   Otherwise (face-varying / uniform normals, hard edges) corners are split into one vertex per distinct
@@ -29,13 +41,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import UsdGeom
+from pxr import Usd, UsdGeom
 
 from ..errors import SceneError
 from .material import MaterialTable, face_materials
-from .stage import StageContext, python_value
+from .stage import MAX_EXTENT_M, StageContext, python_value, typed_get
+from .water import check_water
 
-CREASE_ANGLE_DEG = 45.0  #: computed normals: triangles meeting at more than this form a hard edge
+CREASE_ANGLE_DEG = 45.0  #: computed normals: faces meeting at more than this form a hard edge
+MAX_SMOOTH_VALENCE = 64  #: faces per point up to which every pair is crease-tested (see the docstring)
+MAX_EAR_CLIP_CORNERS = 2000  #: most corners of a non-convex polygon (ear clipping is O(n²))
+MAX_EAR_CLIP_WORK = 4_000_000  #: most squared corners of a mesh's non-convex polygons together
 DEGENERATE_AREA = 1e-12  #: a triangle with |cross| <= this × (mesh bounding diagonal)² has zero area
 WATER_NAMESPACE = "cisp:water:"
 
@@ -127,6 +143,17 @@ def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> 
         bad_faces = bad_faces[counts[bad_faces] != 4]
     if bad_faces.size == 0:
         return tri_face, corners
+    big = counts[bad_faces] > MAX_EAR_CLIP_CORNERS
+    if np.any(big):
+        f = int(bad_faces[np.argmax(big)])
+        raise SceneError(f"face {f} has {int(counts[f])} corners and is not convex: a non-convex polygon may have at "
+                         f"most {MAX_EAR_CLIP_CORNERS} corners (ear clipping is quadratic); split or triangulate it "
+                         "(faceVertexCounts)")
+    work = int(np.sum(counts[bad_faces].astype(np.float64) ** 2))
+    if work > MAX_EAR_CLIP_WORK:
+        raise SceneError(f"{len(bad_faces)} non-convex polygons of up to {int(counts[bad_faces].max())} corners need "
+                         f"{work:.3g} steps of ear clipping, more than {MAX_EAR_CLIP_WORK:g}: triangulate the mesh "
+                         "(faceVertexCounts)")
     keep = ~np.isin(tri_face, bad_faces)
     extra_face, extra_corners = [], []
     for f in bad_faces:
@@ -143,41 +170,74 @@ def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> 
     return tri_face[order], corners[order]
 
 
-def auto_smooth_normals(tri_point: np.ndarray, tri_n: np.ndarray, n_points: int):
-    """Normals where none are authored: (per-point (N, 3), None) when the mesh has no hard edge, else
-    (None, per-corner (T, 3, 3)).
+def auto_smooth_normals(tri_point: np.ndarray, tri_n: np.ndarray, n_points: int, tri_face: np.ndarray | None = None):
+    """Normals where none are authored: (per-point (N, 3), None, 0) when the mesh has no hard edge, else
+    (None, per-corner (T, 3, 3), number of points left flat).
 
-    A corner's normal is the area-weighted sum of the normals of the triangles around its point that
-    lie within ``CREASE_ANGLE_DEG`` of its own triangle (``tri_n``: (T, 3) area-weighted normals).
+    ``tri_point`` (T, 3) point ids, ``tri_n`` (T, 3) area-weighted triangle normals, ``tri_face`` (T,) the
+    polygon of each triangle (default: each triangle its own). An *element* is one polygon at one point
+    (its triangles there summed). A corner's normal is the sum of the normals of the elements at its
+    point within ``CREASE_ANGLE_DEG`` of its own element; points with more than ``MAX_SMOOTH_VALENCE``
+    elements are smooth if all lie within half the crease angle of their mean, else flat. O(corners).
     """
-    flat = _unit(tri_n)
-    pid = tri_point.reshape(-1)
-    tri = np.repeat(np.arange(len(tri_point)), 3)
-    order = np.argsort(pid, kind="stable")
-    size = np.bincount(pid, minlength=n_points)
+    T = len(tri_point)
+    if tri_face is None:
+        tri_face = np.arange(T)
+    pid = tri_point.reshape(-1).astype(np.int64)
+    n_faces = int(tri_face.max()) + 1 if T else 1
+    key = pid * n_faces + np.repeat(tri_face.astype(np.int64), 3)
+    uniq, elem = np.unique(key, return_inverse=True)
+    elem = elem.reshape(-1)
+    e_point = uniq // n_faces  # sorted by point: the elements of a point are contiguous
+    corner_n = np.repeat(tri_n, 3, axis=0)
+    e_n = np.stack([np.bincount(elem, weights=corner_n[:, c], minlength=len(uniq)) for c in range(3)], axis=1)
+    e_u = _unit(e_n)
+    size = np.bincount(e_point, minlength=n_points)
     start = np.cumsum(size) - size
-    k = size[pid[order]]  # corners sharing the point of each (sorted) corner
-    i = np.repeat(order, k)
-    j = order[np.repeat(start[pid[order]], k) + (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k))]
-    smooth = np.einsum("ij,ij->i", flat[tri[i]], flat[tri[j]]) >= math.cos(math.radians(CREASE_ANGLE_DEG))
-    if np.all(smooth):
-        vn = np.zeros((n_points, 3))
-        np.add.at(vn, pid, tri_n[tri])
-        return _unit(vn), None
-    acc = np.zeros((len(pid), 3))
-    np.add.at(acc, i[smooth], tri_n[tri[j[smooth]]])
-    return None, _unit(acc).reshape(-1, 3, 3)
+    k = size[e_point]
+    cos_crease = math.cos(math.radians(CREASE_ANGLE_DEG))
+    # Points of small valence: every pair of elements tested.
+    es = np.nonzero(k <= MAX_SMOOTH_VALENCE)[0]
+    ks = k[es]
+    i = np.repeat(es, ks)
+    j = np.repeat(start[e_point[es]], ks) + (np.arange(int(ks.sum())) - np.repeat(np.cumsum(ks) - ks, ks))
+    smooth = np.einsum("ij,ij->i", e_u[i], e_u[j]) >= cos_crease
+    acc = np.zeros_like(e_n)
+    for c in range(3):
+        acc[:, c] = np.bincount(i[smooth], weights=e_n[j[smooth], c], minlength=len(uniq))
+    point_sum = np.stack([np.bincount(e_point, weights=e_n[:, c], minlength=n_points) for c in range(3)], axis=1)
+    # Points of large valence: smooth when the normals' cone is narrow enough, else flat.
+    eb = np.nonzero(k > MAX_SMOOTH_VALENCE)[0]
+    n_flat = 0
+    all_smooth = bool(np.all(smooth))
+    if eb.size:
+        mean = _unit(point_sum)
+        spread = np.ones(n_points)
+        np.minimum.at(spread, e_point[eb], np.einsum("ij,ij->i", e_u[eb], mean[e_point[eb]]))
+        narrow = spread[e_point[eb]] >= math.cos(math.radians(CREASE_ANGLE_DEG / 2.0))
+        acc[eb] = np.where(narrow[:, None], point_sum[e_point[eb]], e_n[eb])
+        n_flat = int(np.unique(e_point[eb][~narrow]).size)
+        all_smooth = all_smooth and bool(np.all(narrow))
+    if all_smooth:
+        return _unit(point_sum), None, 0
+    return None, _unit(acc)[elem].reshape(-1, 3, 3), n_flat
 
 
 def _authored_normals(ctx: StageContext, mesh: UsdGeom.Mesh, n_points, n_faces, n_corners, path):
     """(values (K, 3), interpolation) of authored normals, or None (warns when they are unusable)."""
     pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("normals")
     if pv and pv.HasAuthoredValue():
-        values, interp = pv.ComputeFlattened(ctx.time), pv.GetInterpolation()
+        attr, interp = pv.GetAttr(), pv.GetInterpolation()
     elif mesh.GetNormalsAttr().HasAuthoredValue():
-        values, interp = ctx.get(mesh.GetNormalsAttr()), mesh.GetNormalsInterpolation()
+        attr, interp = mesh.GetNormalsAttr(), mesh.GetNormalsInterpolation()
     else:
         return None
+    try:
+        typed_get(ctx, attr, "vec3[]", path)
+    except SceneError as exc:
+        ctx.warn(f"{exc.reason}: ignored, normals computed instead", path)
+        return None
+    values = pv.ComputeFlattened(ctx.time) if attr == pv.GetAttr() else ctx.get(attr)
     if values is None or len(values) == 0:
         return None
     n = np.asarray(values, dtype=np.float64).reshape(-1, 3)
@@ -186,8 +246,9 @@ def _authored_normals(ctx: StageContext, mesh: UsdGeom.Mesh, n_points, n_faces, 
         ctx.warn(f"normals have {len(n)} values for interpolation '{interp}' (expected "
                  f"{expected.get(interp, '?')}): ignored, normals computed instead", path)
         return None
-    if not np.all(np.isfinite(n)) or np.any(np.linalg.norm(n, axis=1) == 0.0):
-        ctx.warn("normals contain NaN, Inf or zero vectors: ignored, normals computed instead", path)
+    length = np.linalg.norm(n, axis=1) if np.all(np.isfinite(n)) else np.zeros(1)
+    if not (np.all(length > 1e-30) and np.all(length < 1e30)):
+        ctx.warn("normals contain NaN, Inf, zero or huge vectors: ignored, normals computed instead", path)
         return None
     return n, interp
 
@@ -197,13 +258,18 @@ def _display_color(ctx, mesh, tri_face, tri_point, tri_corner, n_points, n_faces
     pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("displayColor")
     if not (pv and pv.HasAuthoredValue()):
         return None
+    try:
+        typed_get(ctx, pv.GetAttr(), "vec3[]", path)
+    except SceneError as exc:
+        ctx.warn(f"{exc.reason}: ignored", path)
+        return None
     values = pv.ComputeFlattened(ctx.time)
     if values is None or len(values) == 0:
         return None
     c = np.asarray(values, dtype=np.float64).reshape(-1, 3)
     interp = pv.GetInterpolation()
     expected = {"constant": 1, "uniform": n_faces, "vertex": n_points, "varying": n_points, "faceVarying": n_corners}
-    if interp not in expected or len(c) != expected[interp] or not np.all(np.isfinite(c)):
+    if interp not in expected or len(c) != expected[interp] or not np.all(np.abs(c) < 1e30):
         ctx.warn(f"displayColor has {len(c)} values for interpolation '{interp}' (expected "
                  f"{expected.get(interp, '?')}) or non-finite values: ignored", path)
         return None
@@ -231,7 +297,7 @@ def read_mesh(ctx: StageContext, mesh: UsdGeom.Mesh, table: MaterialTable) -> tu
     prim = mesh.GetPrim()
     path = str(prim.GetPath())
     points_attr = mesh.GetPointsAttr()
-    raw = ctx.get(points_attr)
+    raw = typed_get(ctx, points_attr, "vec3[]", path)
     if raw is None or len(raw) == 0:
         return None, "the mesh has no points"
     P = np.asarray(raw, dtype=np.float64).reshape(-1, 3)
@@ -239,8 +305,8 @@ def read_mesh(ctx: StageContext, mesh: UsdGeom.Mesh, table: MaterialTable) -> tu
     if np.any(bad):
         raise SceneError(f"points contain NaN or Inf ({int(bad.sum())} points, first at index "
                          f"{int(np.argmax(bad))})", prim=path)
-    counts = np.asarray(ctx.get(mesh.GetFaceVertexCountsAttr()) or [], dtype=np.int64)
-    indices = np.asarray(ctx.get(mesh.GetFaceVertexIndicesAttr()) or [], dtype=np.int64)
+    counts = np.asarray(typed_get(ctx, mesh.GetFaceVertexCountsAttr(), "int[]", path) or [], dtype=np.int64)
+    indices = np.asarray(typed_get(ctx, mesh.GetFaceVertexIndicesAttr(), "int[]", path) or [], dtype=np.int64)
     if counts.size == 0:
         return None, "the mesh has no faces (faceVertexCounts is empty)"
     if np.any(counts < 3):
@@ -261,14 +327,27 @@ def read_mesh(ctx: StageContext, mesh: UsdGeom.Mesh, table: MaterialTable) -> tu
     det = float(np.linalg.det(lin))
     if not (abs(det) > 1e-300):
         return None, "its transform is singular (zero scale): no area"
-    Pw = P @ lin.T + M[:3, 3]
+    with np.errstate(over="ignore", invalid="ignore"):
+        Pw = P @ lin.T + M[:3, 3]
+    far = ~np.all(np.abs(Pw) <= MAX_EXTENT_M, axis=1)
+    if np.any(far):
+        k = int(np.argmax(far))
+        raise SceneError(f"points[{k}] lies at {tuple(float(f'{v:.3g}') for v in Pw[k])} m (after its transform and "
+                         f"metersPerUnit {ctx.meters_per_unit:g}): every point must lie within {MAX_EXTENT_M:g} m of "
+                         "the origin", prim=path)
 
-    tri_face, tri_corner = triangulate(Pw, counts, indices)
-    holes = np.asarray(ctx.get(mesh.GetHoleIndicesAttr()) or [], dtype=np.int64)
+    try:
+        tri_face, tri_corner = triangulate(Pw, counts, indices)
+    except SceneError as exc:
+        raise SceneError(exc.reason, prim=path) from None
+    holes = np.asarray(typed_get(ctx, mesh.GetHoleIndicesAttr(), "int[]", path) or [], dtype=np.int64)
     if holes.size:
         keep = ~np.isin(tri_face, holes)
         tri_face, tri_corner = tri_face[keep], tri_corner[keep]
-    if (str(ctx.get(mesh.GetOrientationAttr())) == "leftHanded") != (det < 0.0):
+    orientation = str(typed_get(ctx, mesh.GetOrientationAttr(), "token", path))
+    if orientation not in ("rightHanded", "leftHanded"):
+        raise SceneError(f"orientation = '{orientation}': it must be rightHanded or leftHanded", prim=path)
+    if (orientation == "leftHanded") != (det < 0.0):
         tri_corner = tri_corner[:, [0, 2, 1]]
     tri_point = indices[tri_corner]
 
@@ -285,6 +364,11 @@ def read_mesh(ctx: StageContext, mesh: UsdGeom.Mesh, table: MaterialTable) -> tu
         tri_face, tri_corner, tri_point, tri_n = tri_face[good], tri_corner[good], tri_point[good], tri_n[good]
 
     water = read_water(ctx, prim)
+    if water is not None:
+        default = points_attr.Get(Usd.TimeCode.Default())
+        rest = (np.asarray(default, dtype=np.float64).reshape(-1, 3) @ lin.T + M[:3, 3]
+                if default is not None and len(default) == len(P) else None)
+        check_water(water, rest, path, ctx.on_cpu)
     dynamic = water is not None or points_attr.GetNumTimeSamples() > 1
 
     # Normals per triangle corner (T, 3, 3), or per point (N, 3) when authored per vertex.
@@ -303,7 +387,11 @@ def read_mesh(ctx: StageContext, mesh: UsdGeom.Mesh, table: MaterialTable) -> tu
         else:
             corner_normals = n[tri_corner]
     else:
-        point_normals, corner_normals = auto_smooth_normals(tri_point, tri_n, len(P))
+        point_normals, corner_normals, n_flat = auto_smooth_normals(tri_point, tri_n, len(P), tri_face)
+        if n_flat:
+            ctx.warn(f"{n_flat} points are shared by more than {MAX_SMOOTH_VALENCE} faces that bend by more than "
+                     f"{CREASE_ANGLE_DEG / 2:g} degrees: their corners keep their face's normal (author normals "
+                     "to smooth them)", path)
 
     if point_normals is None and dynamic:  # keep vertex i = point i for in-place updates
         acc = np.zeros_like(Pw)

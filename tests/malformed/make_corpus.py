@@ -2,7 +2,10 @@
 
 Every file here is one way a scene can be broken. ``expected.json`` maps each file name to the prim
 path the error message must name (or null when the problem is the whole file) and a keyword the
-reason must contain. Run ``python tests/malformed/make_corpus.py`` after changing a case and commit
+reason must contain; ``"outcome": "warning"`` marks a file that loads, with a :class:`SceneWarning`
+naming the file, that prim and that keyword (something ignored or clamped), else loading it must raise
+:class:`SceneError`. The files after "issue 16" are one minimal file per failure family that
+``tools/fuzz_usd.py`` found (tracebacks, NaN renders, hangs, errors without a file, silent nonsense). Run ``python tests/malformed/make_corpus.py`` after changing a case and commit
 the files it writes (they are small).
 """
 
@@ -119,6 +122,148 @@ BOUND = """
         rel material:binding = </World/Looks/Water>"""
 
 
+def star_polygon(n: int) -> tuple[str, str, str]:
+    """(counts, indices, points) of one non-convex (star) polygon of ``n`` corners, integer coordinates."""
+    import math
+
+    pts = []
+    for k in range(n):
+        r = 1000 if k % 2 == 0 else 600
+        pts.append(f"({round(r * math.cos(2 * math.pi * k / n))}, 0, {round(r * math.sin(2 * math.pi * k / n))})")
+    return f"[{n}]", "[" + ", ".join(map(str, range(n))) + "]", "[" + ", ".join(pts) + "]"
+
+
+WATER_ATTRS = """
+        custom double cisp:water:choppiness = {chop}
+        custom int cisp:water:resolution = {res}
+        custom double cisp:water:wind_speed = {wind}
+        custom double cisp:water:depth = {depth}"""
+
+LIGHT_TEMPLATE = """
+    def {kind} "{name}"{meta}
+    {{{body}
+    }}
+"""
+
+
+def issue16_cases() -> dict[str, tuple[bytes | str, str | None, str, str]]:
+    """One minimal file per failure family of issue 16: name -> (content, prim, keyword, outcome)."""
+    valid = stage_text()
+    c: dict[str, tuple[bytes | str, str | None, str, str]] = {}
+    err, warn = "error", "warning"
+    # --- tracebacks before: USD's parse error quoting bytes that are not UTF-8; attributes of the wrong type
+    c["non_utf8_bytes.usda"] = (valid.encode().replace(b'def Mesh "Floor"', b'def Mesh "Fl\xc7\x9foor" \xba'),
+                                None, "UTF-8", err)
+    c["points_as_float_array.usda"] = (stage_text(points="[1, 2, 3]").replace("point3f[] points", "float[] points"),
+                                       "/World/Floor", "points", err)
+    c["points_as_string_array.usda"] = (stage_text(points='["a", "b"]').replace("point3f[] points", "string[] points"),
+                                        "/World/Floor", "points", err)
+    c["face_counts_scalar.usda"] = (stage_text(counts="4").replace("int[] faceVertexCounts", "int faceVertexCounts"),
+                                    "/World/Floor", "faceVertexCounts", err)
+    c["face_counts_float.usda"] = (stage_text(counts="[4.5]").replace("int[] faceVertexCounts",
+                                                                      "float[] faceVertexCounts"),
+                                   "/World/Floor", "faceVertexCounts", err)
+    c["clipping_range_scalar.usda"] = (stage_text(clip="5").replace("float2 clippingRange", "float clippingRange"),
+                                       "/World/Cam", "clippingRange", err)
+    c["normals_as_float_array.usda"] = (stage_text(mesh_extra="""
+        float[] normals = [0, 1, 0, 0]"""), "/World/Floor", "normals", warn)
+    c["display_color_as_float_array.usda"] = (stage_text(mesh_extra="""
+        float[] primvars:displayColor = [0.5, 0.5]"""), "/World/Floor", "displayColor", warn)
+    water = WATER_ATTRS.format(chop="0.5", res="16", wind="2", depth="1")
+    grid = dict(points="[(-1, 0, -1), (1, 0, -1), (-1, 0, 1), (1, 0, 1)]", indices="[0, 2, 3, 1]")
+    c["water_wind_speed_1e300.usda"] = (stage_text(mesh_extra=water.replace("wind_speed = 2", "wind_speed = 1e300"),
+                                                   **grid), "/World/Floor", "cisp:water:wind_speed", err)
+    # --- NaN renders before: light power or positions beyond float32
+    c["light_power_beyond_float32.usda"] = (stage_text(intensity="1e30", exposure="40"), "/World/Sun",
+                                            "float32", err)
+    c["light_exposure_128.usda"] = (stage_text(exposure="129"), "/World/Sun", "exposure", err)
+    c["light_at_1e300.usda"] = (stage_text(sun=False, extra_world=LIGHT_TEMPLATE.format(
+        kind="SphereLight", name="Far", meta="", body="""
+        float inputs:intensity = 10
+        bool treatAsPoint = 1
+        double3 xformOp:translate = (1e300, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]""")), "/World/Far", "origin", err)
+    c["meters_per_unit_1e9.usda"] = (stage_text(mpu="1e9"), None, "metersPerUnit", err)
+    c["meters_per_unit_1e-300.usda"] = (stage_text(mpu="1e-300"), None, "metersPerUnit", err)
+    c["huge_xform_scale.usda"] = (stage_text(mesh_extra="""
+        float3 xformOp:scale = (1e30, 1e30, 1e30)
+        uniform token[] xformOpOrder = ["xformOp:scale"]"""), "/World/Floor", "transform", err)
+    c["points_beyond_extent.usda"] = (stage_text(points="[(-1, 0, -1), (1e30, 0, -1), (1, 0, 1), (-1, 0, 1)]"),
+                                      "/World/Floor", "origin", err)
+    c["water_choppiness_1e30.usda"] = (stage_text(mesh_extra=water.replace("choppiness = 0.5", "choppiness = 1e30"),
+                                                  **grid), "/World/Floor", "cisp:water:choppiness", err)
+    # --- hangs before: assets that are not regular files, huge non-convex n-gons, tuples in a float[],
+    #     an FFT too large for the CPU (a FIFO cannot live in git: tests/test_malformed.py makes one)
+    c["reference_to_device.usda"] = (stage_text(extra_world="""
+    def Xform "Extra" (
+        references = @/dev/zero@
+    )
+    {
+    }
+"""), "/World/Extra", "device", err)
+    c["sublayer_device.usda"] = (valid.replace('    defaultPrim = "World"', '    subLayers = [@/dev/zero@]\n'
+                                               '    defaultPrim = "World"'), None, "device", err)
+    star = star_polygon(2001)
+    c["non_convex_2001_gon.usda"] = (stage_text(counts=star[0], indices=star[1], points=star[2]), "/World/Floor",
+                                     "not convex", err)
+    c["float_array_of_tuples.usda"] = (stage_text(mesh_extra="""
+        float[] weights = [(1, 2, 3), (4, 5, 6)]"""), None, "not a readable USD", err)
+    c["water_resolution_4096_cpu.usda"] = (stage_text(mesh_extra=water.replace("resolution = 16", "resolution = 4096"),
+                                                      **grid), "/World/Floor", "CPU", err)
+    # --- errors without a file before: cisp:water checks (now in load_usd); xform ops that do not exist
+    c["water_depth_nan.usda"] = (stage_text(mesh_extra=water.replace("depth = 1", "depth = nan"), **grid),
+                                 "/World/Floor", "cisp:water:depth", err)
+    c["water_not_a_grid.usda"] = (stage_text(mesh_extra=water), "/World/Floor", "regular grid", err)
+    c["invalid_xform_op.usda"] = (stage_text(mesh_extra="""
+        uniform token[] xformOpOrder = ["a", "b"]"""), "/World/Floor", "xform", err)
+    # --- silent nonsense before
+    c["resolution_as_string.usda"] = (stage_text(extra_root=render_settings('"640x360"').replace("uniform int2",
+                                                                                               "uniform string")),
+                                      "/Render/Settings", "resolution", err)
+    c["intensity_as_string.usda"] = (stage_text(intensity='"3"').replace("float inputs:intensity",
+                                                                        "string inputs:intensity"),
+                                     "/World/Sun", "inputs:intensity", err)
+    c["inactive_render_camera.usda"] = (stage_text(extra_world="""
+    def Camera "Off" (
+        active = false
+    )
+    {
+    }
+""", extra_root="""
+def Scope "Render"
+{
+    def RenderSettings "Settings"
+    {
+        rel camera = </World/Off>
+    }
+}
+"""), "/Render/Settings", "inactive", err)
+    c["binding_to_missing_material.usda"] = (stage_text(mesh_meta=BOUND_META, mesh_extra=BOUND), "/World/Floor",
+                                             "/World/Looks/Water", warn)
+    c["subset_of_points.usda"] = (stage_text(mesh_meta=BOUND_META, mesh_extra="""
+        def GeomSubset "Corners" (
+            prepend apiSchemas = ["MaterialBindingAPI"]
+        )
+        {
+            uniform token elementType = "point"
+            uniform token familyName = "materialBind"
+            int[] indices = [0, 1]
+            rel material:binding = </World/Looks/Water>
+        }""", extra_world=WATER_MATERIAL.format(ior="1.33")), "/World/Floor/Corners", "elementType", warn)
+    c["cone_angle_360.usda"] = (stage_text(sun=False, extra_world="""
+    def SphereLight "Spot" (
+        prepend apiSchemas = ["ShapingAPI"]
+    )
+    {
+        bool treatAsPoint = 1
+        float inputs:shaping:cone:angle = 360
+    }
+"""), "/World/Spot", "cone", err)
+    c["ior_1e-30.usda"] = (stage_text(mesh_meta=BOUND_META, mesh_extra=BOUND, extra_world=WATER_MATERIAL.format(
+        ior="1e-30")), "/World/Looks/Water/Surface", "ior", err)
+    return c
+
+
 def cases() -> dict[str, tuple[bytes | str, str | None, str]]:
     """file name -> (content, prim the message must name or None, keyword of the reason)."""
     valid = stage_text()
@@ -217,7 +362,7 @@ def cases() -> dict[str, tuple[bytes | str, str | None, str]]:
                                  "resolution")
     c["negative_resolution.usda"] = (stage_text(extra_root=render_settings("(640, -360)")), "/Render/Settings",
                                      "resolution")
-    c["resolution_beyond_memory.usda"] = (stage_text(extra_root=render_settings("(1000000, 1000000)")),
+    c["resolution_beyond_memory.usda"] = (stage_text(extra_root=render_settings("(60000, 60000)")),
                                           "/Render/Settings", "G-buffer")
     return c
 
@@ -228,10 +373,12 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     expected = {}
-    for name, (content, prim, keyword) in cases().items():
+    every = {name: (*case, "error") for name, case in cases().items()}
+    every.update(issue16_cases())
+    for name, (content, prim, keyword, outcome) in every.items():
         data = content.encode() if isinstance(content, str) else content
         (args.out / name).write_bytes(data)
-        expected[name] = {"prim": prim, "keyword": keyword}
+        expected[name] = {"prim": prim, "keyword": keyword, "outcome": outcome}
     (args.out / "expected.json").write_text(json.dumps(expected, indent=2, sort_keys=True) + "\n")
     print(f"wrote {len(expected)} malformed files and expected.json to {os.path.relpath(args.out)}")
 
