@@ -144,9 +144,14 @@ class PhotonPass:
         self.lights = lights
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        #: (3 * LEDGER_ENTRIES,) float64: the frame's ledger, power [W] per entry and RGB channel, once folded
         self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
-        #: (LEDGER_ENTRIES,) vec3d alias of ``ledger`` (one row per entry) that the photon kernels add to
-        self.ledger_rows = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,), device=self.device)
+        self._ledger_entries = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,),
+                                        device=self.device)  # (LEDGER_ENTRIES,) vec3d alias of ``ledger``
+        #: (stripes * LEDGER_ROW,) vec3d: the striped ledger the photon kernels add to (block b: stripe b % stripes),
+        #: summed into ``ledger`` by :meth:`fold_ledger`. One stripe on the CPU: entries added in photon order
+        self.ledger_stripes = C.LEDGER_STRIPES if self.device.is_cuda else 1
+        self.ledger_rows = wp.zeros(self.ledger_stripes * C.LEDGER_ROW, dtype=wp.vec3d, device=self.device)
         self.max_lum = wp.zeros(len(lights), dtype=wp.float32, device=self.device)
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -160,6 +165,8 @@ class PhotonPass:
         #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU
         #: tiles one thread per block unless ``wp.config.enable_cpu_blocks`` is set (a test does, to check the sums)
         self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
+        #: most blocks of the outcome pass (CUDA: each thread sums many records); None: one record per thread
+        self.outcome_max_blocks = C.OUTCOME_MAX_BLOCKS if self.device.is_cuda else None
 
     def photons_per_view(self, lm: LightMaps) -> int:
         """A light's photons split evenly over its RSM views that emit this frame (every view, unless
@@ -175,6 +182,7 @@ class PhotonPass:
         luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
         self.ledger.zero_()
+        self.ledger_rows.zero_()
         self.max_lum.zero_()
         for li, lm in enumerate(self.lights):
             for r in lm.whole_rsm:
@@ -196,10 +204,22 @@ class PhotonPass:
 
     def add_outcomes(self, outcome: wp.array, n: int, entries: int) -> None:
         """Add the final entries of ``n`` photons' outcome records (written by the trace kernel with
-        ``record_outcome``) to the ledger, once per block and entry (:func:`~.common.ledger_add_outcomes`)."""
-        blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
-        wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=self.ledger_block, device=self.device,
-                        inputs=[outcome, n, entries, self.ledger_rows])
+        ``record_outcome``) to the ledger (:func:`~.common.ledger_add_outcomes`): on CUDA at most
+        ``outcome_max_blocks`` blocks of ``OUTCOME_BLOCK`` threads, each thread summing every ``threads``-th
+        record, each block adding once per entry; on the CPU one record per thread, in photon order (the tests
+        cap the blocks there to run the CUDA layout)."""
+        block = C.OUTCOME_BLOCK if self.device.is_cuda else self.ledger_block
+        blocks = max(1, (n + block - 1) // block)
+        if self.outcome_max_blocks is not None:
+            blocks = min(blocks, self.outcome_max_blocks)
+        wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=self.device,
+                        inputs=[outcome, n, blocks * block, entries, self.ledger_rows])
+
+    def fold_ledger(self) -> None:
+        """Sum the striped ledger into ``ledger`` and zero the stripes (one small launch; idempotent)."""
+        block = self.ledger_stripes if self.device.is_cuda else 1
+        wp.launch_tiled(C.ledger_fold, dim=C.LEDGER_ENTRIES, block_dim=block, device=self.device,
+                        inputs=[self.ledger_rows, self._ledger_entries])
 
     def photon_order(self, params: wp.struct, n: int, scramble: wp.vec2i) -> wp.array:
         """The order in which to trace the ``n`` photons of one RSM view (kernels take it with ``use_order``)."""
@@ -227,7 +247,8 @@ class PhotonPass:
         raise NotImplementedError
 
     def read_ledger(self) -> Ledger:
-        """Host copy of this frame's ledger (a device->host copy: not for the inner frame loop)."""
+        """Host copy of this frame's ledger, folded first (a device->host copy: not for the inner frame loop)."""
+        self.fold_ledger()
         return Ledger(self.ledger.numpy())
 
     def aovs(self, shape: tuple[int, int]) -> dict[str, np.ndarray]:

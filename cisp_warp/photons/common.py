@@ -56,6 +56,16 @@ LEDGER_BLOCK = 128  #: threads per block of the photon kernels on CUDA: each blo
 #: itself, 2.51 ms at 80 (a few spilled to L1), 2.76 ms at 96. Not yet measured on sspm / caustics_map, which keep
 #: nvcc's choice.
 PHOTON_LAUNCH_BOUNDS = (LEDGER_BLOCK, 6)
+#: vec3d slots of one ledger stripe: the LEDGER_ENTRIES entries, padded to 384 bytes (three 128-byte lines)
+LEDGER_ROW = wp.constant(16)
+#: stripes of the device ledger on CUDA. A block adds its sums to stripe ``block % stripes`` and :func:`ledger_fold`
+#: sums the stripes once per frame. One stripe for every block made the ledger's float64 atomics queue on the same
+#: three cache lines: each is ~1 ns at one L2 slice (H100, measured: 16k blocks x 18 atomics = 0.28 ms,
+#: ``ledger_add_outcomes`` at 2M photons), so they cost time linear in photons whatever the block reduction did.
+LEDGER_STRIPES = 256
+#: threads per block and most blocks of :func:`ledger_add_outcomes` on CUDA (each thread sums many records)
+OUTCOME_BLOCK = 256
+OUTCOME_MAX_BLOCKS = 1024
 
 
 @wp.struct
@@ -123,12 +133,18 @@ ALL_ENTRIES = wp.constant((1 << LEDGER_ENTRIES) - 1)
 
 
 @wp.func
-def ledger_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, lane: int, entries: int):
+def ledger_slot(ledger: wp.array(dtype=wp.vec3d), block: int, entry: int) -> int:
+    """Index of ``entry`` in the stripe of the striped ledger that block ``block`` adds to."""
+    return (block % (ledger.shape[0] / LEDGER_ROW)) * LEDGER_ROW + entry
+
+
+@wp.func
+def ledger_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, block: int, entries: int):
     """Sum every thread's tally over the block (Warp tiles) and add each entry in the bit mask ``entries`` to
-    ``ledger`` (the (LEDGER_ENTRIES,) vec3d view of the ledger) once per block. Every thread of the block must
-    call this with the same ``entries`` (no early return before it); an entry booked but left out of the mask
-    is lost, and the ledger then does not close (the tests check closure). On the CPU a block is one thread, so
-    entries are added in photon order, as single atomics would."""
+    ``ledger`` (the striped ledger, (stripes * LEDGER_ROW,) vec3d; stripe ``block % stripes``) once per block.
+    Every thread of the block must call this with the same ``entries`` (no early return before it); an entry
+    booked but left out of the mask is lost, and the ledger then does not close (the tests check closure). On
+    the CPU a block is one thread, so entries are added in photon order, as single atomics would."""
     for e in range(LEDGER_ENTRIES):
         if (entries >> e) & 1 != 0:
             v = wp.vec3d()
@@ -142,7 +158,27 @@ def ledger_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, lane: int, entrie
                 v = tally.refracted
             if tally.entry == e:
                 v = v + wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
-            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(v, preserve_type=True)), offset=e)
+            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(v, preserve_type=True)), offset=ledger_slot(ledger, block, e))
+
+
+@wp.kernel
+def ledger_fold(
+    stripes: wp.array(dtype=wp.vec3d),  # (stripes * LEDGER_ROW,) the striped ledger (read, then zeroed)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+):
+    """One block per entry: ledger[e] += the sum of entry e over every stripe, then the stripes are zero. Launched
+    tiled with one thread per stripe (CUDA) or one thread (CPU: stripes in order)."""
+    e, lane = wp.tid()
+    bd = wp.block_dim()
+    v = wp.vec3d()
+    s = lane
+    while s * LEDGER_ROW < stripes.shape[0]:
+        v = v + stripes[s * LEDGER_ROW + e]
+        stripes[s * LEDGER_ROW + e] = wp.vec3d()
+        s += bd
+    total = wp.tile_sum(wp.tile(v, preserve_type=True))
+    if lane == 0:
+        ledger[e] = ledger[e] + total[0]
 
 
 @wp.func
@@ -161,24 +197,38 @@ def record_absorbed(outcome: wp.array(dtype=wp.vec4), slot: int, tally: Tally):
     outcome[slot] = wp.vec4(a[0], a[1], a[2], float(L_ABSORBED))
 
 
+#: an outcome record's power summed per entry: the final entries, and the absorption records of SSPM
+OutcomeSums = wp.types.matrix(shape=(LEDGER_ENTRIES, 3), dtype=wp.float64)
+
+
 @wp.kernel
 def ledger_add_outcomes(
     outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
-    count: int,  # photons
+    count: int,  # records
+    threads: int,  # threads launched (blocks * block_dim): each sums records t, t + threads, ...
     entries: int,  # bit mask of the entries the records may hold (entry_mask)
-    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+    ledger: wp.array(dtype=wp.vec3d),  # the striped ledger, (stripes * LEDGER_ROW,) [W] RGB (accumulate)
 ):
-    """The final entries of ``count`` outcome records, summed per block (:func:`ledger_add`) and added once per
-    block and entry. Launched tiled with the trace's block size: on the CPU one record per block, in photon order,
-    so every entry is summed in the same order as when the trace kernel added it itself."""
+    """The final entries of ``count`` outcome records: each thread sums its records per entry in registers, the
+    block tile-sums each entry of ``entries`` and adds it once to its ledger stripe. On CUDA a few hundred blocks
+    read the records once (16 B each, coalesced); on the CPU (one thread per block, one record per thread) the
+    entries are summed in photon order, as when the trace kernel added them itself."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
-    tally = tally_new()
-    if t < count:
-        o = outcome[t]
-        tally.entry = int(o[3])
-        tally.power = wp.vec3(o[0], o[1], o[2])
-    ledger_add(ledger, tally, lane, entries)
+    sums = OutcomeSums()
+    r = t
+    while r < count:
+        o = outcome[r]
+        code = int(o[3])
+        p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
+        for e in range(LEDGER_ENTRIES):
+            if ((FINAL_ENTRIES >> e) & 1) != 0 and code == e:  # a constant test per unrolled e, then one compare
+                sums[e] = sums[e] + p
+        r += threads
+    for e in range(LEDGER_ENTRIES):
+        if ((FINAL_ENTRIES >> e) & 1) != 0 and ((entries >> e) & 1) != 0:
+            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(sums[e], preserve_type=True)),
+                               offset=ledger_slot(ledger, block, e))
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
@@ -435,7 +485,7 @@ def book_outside_window(
         if outside > 0.0 and f[0] + f[1] + f[2] > 0.0:
             book(tally, L_SAMPLED, f * outside)
             book(tally, L_OUTSIDE, f * outside)
-    ledger_add(ledger, tally, lane, OUTSIDE_ENTRIES)
+    ledger_add(ledger, tally, block, OUTSIDE_ENTRIES)
 
 
 @wp.func

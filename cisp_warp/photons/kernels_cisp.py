@@ -188,7 +188,7 @@ def trace_photons(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
             rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
             max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
-    ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
+    ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
         trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,

@@ -178,12 +178,12 @@ def trace_to_caustic_map(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
             rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
             max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
-    ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
+    ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
         trace_to_caustic_map_photon(origin, d, power, light, rsm_opaque_depth, rsm_opaque_tri, receiver_normal,
                                     max_steps, thickness, thickness_rel, t_max, texel_power, tally)
-    ledger_add(ledger, tally, lane, CMAP_FINAL_ENTRIES)
+    ledger_add(ledger, tally, block, CMAP_FINAL_ENTRIES)
 
 
 @wp.kernel

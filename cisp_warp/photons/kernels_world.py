@@ -259,7 +259,7 @@ def trace_sspm(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
             rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
             max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
-    ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
+    ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
         trace_sspm_photon(origin, n, d, power, state, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max,
@@ -416,7 +416,7 @@ def trace_reference(
         trace_reference_photon(t, light, light_kind, light_rgb, light_pos, spot_axis, cone_angle, cone_softness, ws,
                                cam, n_photons, seed, scramble, roughness_cutoff, t_max, max_bounces, footprint_mode,
                                landing_offset, photon_map, landing_pos, landing_normal, landing_power, tally)
-    ledger_add(ledger, tally, lane, ALL_ENTRIES)
+    ledger_add(ledger, tally, block, ALL_ENTRIES)
 
 
 @wp.kernel

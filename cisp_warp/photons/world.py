@@ -187,6 +187,7 @@ class Reference(_WorldPass):
                 self.progress(k + 1, self.passes)
         wp.launch(K.finish_passes, dim=self.pass_map.shape[0], device=d,
                   inputs=[self.total, self.total_sq, self.passes, self.photon_map, self.stderr])
+        self.fold_ledger()
         wp.launch(K.scale_ledger, dim=self.ledger.shape[0], device=d, inputs=[self.ledger, wp.float64(1.0 / self.passes)])
         wp.launch(K.resolve_final, dim=self.pass_map.shape[0], device=d, inputs=[
             self.paths_per_pixel, self.passes, self.photon_map, self.end_weight, self.end_primary,
