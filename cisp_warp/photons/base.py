@@ -166,7 +166,7 @@ class PhotonPass:
         #: tiles one thread per block unless ``wp.config.enable_cpu_blocks`` is set (a test does, to check the sums)
         self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
         #: most blocks of the outcome pass (CUDA: each thread sums many records); None: one record per thread
-        self.outcome_max_blocks = C.OUTCOME_MAX_BLOCKS if self.device.is_cuda else None
+        self.outcome_max_blocks = C.OUTCOME_BLOCKS_PER_SM * self.device.sm_count if self.device.is_cuda else None
 
     def photons_per_view(self, lm: LightMaps) -> int:
         """A light's photons split evenly over its RSM views that emit this frame (every view, unless
@@ -221,10 +221,17 @@ class PhotonPass:
         wp.launch_tiled(C.ledger_fold, dim=C.LEDGER_ENTRIES, block_dim=block, device=self.device,
                         inputs=[self.ledger_rows, self._ledger_entries])
 
-    def photon_order(self, params: wp.struct, n: int, scramble: wp.vec2i) -> wp.array:
-        """The order in which to trace the ``n`` photons of one RSM view (kernels take it with ``use_order``)."""
+    def photon_order(self, params: wp.struct, lm: LightMaps, r, n: int, scramble: wp.vec2i, seed: int,
+                     skip_window: wp.vec4, max_lum: wp.array, luminance_cutoff: float) -> wp.array:
+        """The order in which to trace the ``n`` photons of RSM view ``r`` (kernels take it with ``use_order``):
+        grouped by how each will march (not traced, reflected, refracted), then by texel (:func:`~.common.photon_sort_keys`)."""
         if self.use_order:
-            wp.launch(C.photon_sort_keys, dim=n, device=self.device, inputs=[params, scramble, self._sort_keys, self._order])
+            sp, sc = r.specular, lm.scene
+            wp.launch(C.photon_sort_keys, dim=n, device=self.device, inputs=[
+                params, int(lm.light.kind), wp.vec3(*np.asarray(lm.light.position, np.float32)), scramble, seed,
+                sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, skip_window, sc.triangle_material,
+                sc.opacity, max_lum, float(self.settings.roughness_cutoff), float(luminance_cutoff),
+                self._sort_keys, self._order])
             wp.utils.radix_sort_pairs(self._sort_keys, self._order, n)
         return self._order
 
@@ -240,8 +247,10 @@ class PhotonPass:
                     continue
                 sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
                 scramble = wp.vec2i(sx, sy)
-                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, self.photon_order(params, n, scramble), light_pos,
-                               wp.vec4(*lm.skip_windows[vi]), float(s.luminance_cutoff * lm.texel_scale[vi]))
+                window = wp.vec4(*lm.skip_windows[vi])
+                cutoff = float(s.luminance_cutoff * lm.texel_scale[vi])
+                order = self.photon_order(params, lm, r, n, scramble, seed, window, self._max_lum_of[li], cutoff)
+                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, order, light_pos, window, cutoff)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

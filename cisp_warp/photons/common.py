@@ -63,9 +63,11 @@ LEDGER_ROW = wp.constant(16)
 #: three cache lines: each is ~1 ns at one L2 slice (H100, measured: 16k blocks x 18 atomics = 0.28 ms,
 #: ``ledger_add_outcomes`` at 2M photons), so they cost time linear in photons whatever the block reduction did.
 LEDGER_STRIPES = 256
-#: threads per block and most blocks of :func:`ledger_add_outcomes` on CUDA (each thread sums many records)
+#: threads per block of :func:`ledger_add_outcomes` on CUDA, and its blocks per SM: one wave of blocks (86 registers:
+#: two blocks of 256 fit an SM), each thread summing many records, so that the blocks' tile reductions run once per
+#: block and SM instead of once per 256 records (1024 blocks: 0.054 ms for 2M records on an H100, 4 waves)
 OUTCOME_BLOCK = 256
-OUTCOME_MAX_BLOCKS = 1024
+OUTCOME_BLOCKS_PER_SM = 2
 
 
 @wp.struct
@@ -274,21 +276,69 @@ def _spread_bits(v: int) -> int:
     return x
 
 
+SORT_GROUP_SHIFT = wp.constant(28)  #: bit of a sort key where its march group starts (Morton code below: 14 bits per axis)
+SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
+SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
+SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
+
+
 @wp.kernel
 def photon_sort_keys(
     light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
     scramble: wp.vec2i,
-    keys: wp.array(dtype=wp.int32),  # (2N,) Morton code of each photon's texel (write, first N)
+    seed: int,  # seed of the photons' random streams (the same as the trace kernel's)
+    rsm_position: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    skip_window: wp.vec4,
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+    keys: wp.array(dtype=wp.int32),  # (2N,) sort key of each photon (write, first N)
     values: wp.array(dtype=wp.int32),  # (2N,) photon index k (write, first N)
 ):
-    """Keys to trace photons in texel (Morton) order: neighbouring threads then start from neighbouring
-    texels and mostly travel alike, which keeps a GPU warp's memory reads and march lengths coherent.
-    Each photon is still photon k of the R2 sequence; only the order of the threads changes."""
+    """Keys to trace photons grouped by how they will march, then in texel (Morton) order: the threads of a GPU
+    warp then start from neighbouring texels and mostly travel alike, which keeps their memory reads and march
+    lengths coherent. The group is a cheap prediction of what the trace kernel will do with photon k: not traced
+    (culled as :func:`emit_photon` culls), reflected or refracted (the first draw of the photon's own random
+    stream against Fresnel at the texel's normal; the trace uses the exact normal under the sample, so a few
+    photons land in the other group). Each photon is still photon k of the R2 sequence, traced in full by the
+    trace kernel: only the order of the threads changes, never a result."""
     k = wp.tid()
     u = r2_point(k, scramble)
-    i = wp.min(int(u[0] * float(light.width)), light.width - 1)
-    j = wp.min(int(u[1] * float(light.height)), light.height - 1)
-    keys[k] = _spread_bits(i) | (_spread_bits(j) << 1)
+    sx = u[0] * float(light.width)
+    sy = u[1] * float(light.height)
+    i = wp.min(int(sx), light.width - 1)
+    j = wp.min(int(sy), light.height - 1)
+    texel = j * light.width + i
+    group = SORT_NOT_TRACED
+    tri = rsm_tri[texel]
+    in_window = sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]
+    if tri >= 0 and not in_window and rsm_roughness[texel] <= roughness_cutoff:
+        if luminance(rsm_flux[texel]) >= luminance_cutoff * max_lum[0]:
+            group = SORT_REFLECTED
+            m = triangle_material[tri]
+            if mat_opacity[m] < 1.0:
+                lo, ld = pixel_ray_world(light, sx, sy)
+                d_in = wp.normalize(ld)
+                if light_kind != 0:
+                    d_in = wp.normalize(rsm_position[texel] - light_pos)
+                n = rsm_normal[texel]
+                eta = rsm_ior[texel]
+                if wp.dot(d_in, n) > 0.0:
+                    n = -n
+                    eta = 1.0 / eta
+                state = wp.rand_init(seed, k)
+                if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
+                    group = SORT_REFRACTED
+    keys[k] = (group << SORT_GROUP_SHIFT) | ((_spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)))
     values[k] = k
 
 

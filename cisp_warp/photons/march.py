@@ -34,6 +34,9 @@ MARCH_EXIT = wp.constant(1)  #: left the view (image border, near plane) or reac
 MARCH_STEPS = wp.constant(2)  #: ran out of steps before either
 
 BIG_DEPTH = wp.constant(1.0e30)
+#: diff_prev of :func:`screen_march_bounded` after a skip, until read: no depth difference comes near it (depths and
+#: BIG_DEPTH are below 1e31)
+DIFF_UNREAD = wp.constant(3.0e38)
 
 
 @wp.func
@@ -395,22 +398,26 @@ def _texel(view: ViewParams, s0: wp.vec2, ds: wp.vec2, s: float) -> wp.vec2i:
 
 
 @wp.func
-def _cell_exit(ci: int, cell: int, s0: float, ds: float, ds_step: float) -> float:
-    """Step index (as a float) past which the samples leave cell ``ci`` along one screen axis; 1e9 if never."""
+def _cell_exit(ci: int, cell: int, s0: float, ds: float, inv_step: float) -> float:
+    """Step index (as a float) past which the samples leave cell ``ci`` along one screen axis; 1e9 if never.
+    ``inv_step`` = 1 / (ds · ds_step), computed once per march (no divisions per cell: an ulp off only moves the
+    estimate by one step, which :func:`_cell_span` checks)."""
     if ds > 0.0:
-        return (float((ci + 1) * cell) - s0) / ds / ds_step
+        return (float((ci + 1) * cell) - s0) * inv_step
     if ds < 0.0:
-        return (float(ci * cell) - s0) / ds / ds_step
+        return (float(ci * cell) - s0) * inv_step
     return 1.0e9
 
 
 @wp.func
-def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, i: int, n: int, tx: wp.vec2i, cell: int):
-    """The cell (ci, cj) of ``cell`` texels that step i's sample (texel ``tx``) lies in, and the last step <= n
-    whose sample still does: all samples between lie in it too (texel coordinates are monotonic in the step)."""
+def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_step: wp.vec2, i: int, n: int,
+               tx: wp.vec2i, cell: int):
+    """The cell (ci, cj) of ``cell`` texels that step i's sample (texel ``tx``) lies in, and a step ``last`` in
+    [i, n] whose sample still does: all samples between lie in it too (texel coordinates are monotonic in the
+    step). ``last`` is the cell's last step up to rounding: one step short only costs another visit of the cell."""
     ci = tx[0] / cell
     cj = tx[1] / cell
-    last_f = wp.min(_cell_exit(ci, cell, s0[0], ds[0], ds_step), _cell_exit(cj, cell, s0[1], ds[1], ds_step))
+    last_f = wp.min(_cell_exit(ci, cell, s0[0], ds[0], inv_step[0]), _cell_exit(cj, cell, s0[1], ds[1], inv_step[1]))
     last = n
     if last_f < float(n):
         last = wp.max(int(wp.ceil(last_f)) - 1, i)
@@ -495,28 +502,39 @@ def screen_march_bounded(
     fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
     coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
     coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    inv_step = wp.vec2(0.0)  # 1 / (screen pixels per step) along each axis, for the cell exits
+    if ds[0] != 0.0:
+        inv_step[0] = 1.0 / (ds[0] * ds_step)
+    if ds[1] != 0.0:
+        inv_step[1] = 1.0 / (ds[1] * ds_step)
     s_prev = float(0.0)
     zr_prev = z0
     diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+    failed_coarse = int(-1)  # the coarse cell (index) whose bounds last failed: not tested again
     i = int(1)
     while i <= n:
         tx = _texel(view, s0, ds, ds_step * float(i))
         # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
-        last, ci, cj = _cell_span(view, s0, ds, ds_step, i, n, tx, BOUNDS_COARSE)
-        b = bounds[coarse_0 + cj * coarse_x + ci]
-        zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-        skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+        last = n
+        skip = False
+        zr_last = float(0.0)
+        if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
+            last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
+            b = bounds[coarse_0 + cj * coarse_x + ci]
+            zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+            skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+            if not skip:
+                failed_coarse = cj * coarse_x + ci
         if not skip:
-            last, ci, cj = _cell_span(view, s0, ds, ds_step, i, last, tx, BOUNDS_CELL)
+            last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
             b = bounds[cj * fine_x + ci]
             zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
             skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
         if skip:
             # no step i..last can hit: continue after them, as the naive march would
             s_prev = ds_step * float(last)
-            sp_last = s0 + ds * s_prev
             zr_prev = zr_last
-            diff_prev = zr_last - _buffer_depth(view, depth, sp_last[0], sp_last[1])
+            diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
             i = last + 1
             continue
         while i <= last:
@@ -524,8 +542,11 @@ def screen_march_bounded(
             sp = s0 + ds * s
             zr = _ray_depth(ortho, z0, z1, k0, k1, s)
             zs = _buffer_depth(view, depth, sp[0], sp[1])
-            u = _crossing(zr_prev, zr, zs, diff_prev, thickness, thickness_rel)
-            if u >= 0.0:
+            if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+                if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
+                    sp_prev = s0 + ds * s_prev
+                    diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
+                u = _crossing(zr_prev, zr, zs, diff_prev, thickness, thickness_rel)
                 return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
             s_prev = s
             zr_prev = zr
