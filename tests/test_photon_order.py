@@ -3,6 +3,7 @@ the order of the threads: every photon is traced as without the sort, and the gr
 
 import numpy as np
 import pytest
+import warp as wp
 
 from cisp_warp.photons import PhotonSettings
 from cisp_warp.photons import common as C
@@ -30,16 +31,23 @@ def test_sorted_photons_trace_as_unsorted(device, method):
 
 
 def test_sort_groups_predict_the_trace(device):
-    """The order is a permutation, its keys ascend, and the groups predict the trace: every photon keyed 'not traced'
-    is not traced (no hit record), and reflected/refracted match the Fresnel draw at the exact normal for nearly all."""
+    """The order is a permutation, its group keys ascend, texel (Morton) order holds inside each group, and the
+    groups predict the trace: every photon keyed 'not traced' is not traced (no outcome record), every other is."""
     r = frame(device, "cisp", True)
     p = r.photons
     n = p.photons_per_view(p.lights[0])
-    keys, order = p._sort_keys.numpy()[:n], p._order.numpy()[:n]
+    group, order = p._sort_keys.numpy()[:n].copy(), p._order.numpy()[:n].copy()
     assert np.array_equal(np.sort(order), np.arange(n))
-    assert np.all(np.diff(keys) >= 0)
-    group = keys >> int(C.SORT_GROUP_SHIFT)
-    traced_or_lost = p.outcome.numpy()[:n, 3] >= 0  # outcome records are per thread: a final entry after the bounce
+    assert np.all(np.diff(group) >= 0)
+    traced = p.outcome.numpy()[:n, 3] >= 0  # outcome records are per thread: a final entry after the bounce
     assert (group == int(C.SORT_NOT_TRACED)).any() and (group == int(C.SORT_REFRACTED)).any()
-    assert not traced_or_lost[group == int(C.SORT_NOT_TRACED)].any()
-    assert traced_or_lost[group != int(C.SORT_NOT_TRACED)].all()
+    assert not traced[group == int(C.SORT_NOT_TRACED)].any()
+    assert traced[group != int(C.SORT_NOT_TRACED)].all()
+    # texel order inside each group: the Morton keys of the photons, recomputed, ascend within a group
+    b = next(p.rsm_batches(r.frame - 1))
+    keys = wp.zeros(n, dtype=wp.int32, device=device)
+    index = wp.zeros(n, dtype=wp.int32, device=device)
+    wp.launch(C.photon_sort_keys, dim=n, device=device, inputs=[b.params, b.scramble, keys, index])
+    morton = keys.numpy()[order]
+    for g in np.unique(group):
+        assert np.all(np.diff(morton[group == g]) >= 0)

@@ -224,15 +224,19 @@ class PhotonPass:
     def photon_order(self, params: wp.struct, lm: LightMaps, r, n: int, scramble: wp.vec2i, seed: int,
                      skip_window: wp.vec4, max_lum: wp.array, luminance_cutoff: float) -> wp.array:
         """The order in which to trace the ``n`` photons of RSM view ``r`` (kernels take it with ``use_order``):
-        grouped by how each will march (not traced, reflected, refracted), then by texel (:func:`~.common.photon_sort_keys`)."""
+        by texel (Morton), then stably grouped by how each will march (refracted, reflected, not traced;
+        :func:`~.common.photon_group_keys`), two radix sorts over only the key bits in use."""
         if self.use_order:
+            wp.launch(C.photon_sort_keys, dim=n, device=self.device, inputs=[params, scramble, self._sort_keys, self._order])
+            side = min(max(r.width, r.height), 1 << 14)
+            wp.utils.radix_sort_pairs(self._sort_keys, self._order, n, end_bit=2 * max(1, (side - 1).bit_length()))
             sp, sc = r.specular, lm.scene
-            wp.launch(C.photon_sort_keys, dim=n, device=self.device, inputs=[
+            wp.launch(C.photon_group_keys, dim=n, device=self.device, inputs=[
                 params, int(lm.light.kind), wp.vec3(*np.asarray(lm.light.position, np.float32)), scramble, seed,
                 sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, skip_window, sc.triangle_material,
                 sc.opacity, max_lum, float(self.settings.roughness_cutoff), float(luminance_cutoff),
-                self._sort_keys, self._order])
-            wp.utils.radix_sort_pairs(self._sort_keys, self._order, n)
+                self._order, self._sort_keys])
+            wp.utils.radix_sort_pairs(self._sort_keys, self._order, n, end_bit=C.SORT_GROUP_BITS)
         return self._order
 
     def rsm_batches(self, frame: int) -> Iterator[RSMBatch]:

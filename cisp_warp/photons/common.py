@@ -285,6 +285,30 @@ SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade,
 @wp.kernel
 def photon_sort_keys(
     light: ViewParams,
+    scramble: wp.vec2i,
+    keys: wp.array(dtype=wp.int32),  # (2N,) Morton code of each photon's texel (write, first N)
+    values: wp.array(dtype=wp.int32),  # (2N,) photon index k (write, first N)
+):
+    """Keys to trace photons in texel (Morton) order: neighbouring threads then start from neighbouring
+    texels and mostly travel alike, which keeps a GPU warp's memory reads and march lengths coherent.
+    Each photon is still photon k of the R2 sequence; only the order of the threads changes."""
+    k = wp.tid()
+    u = r2_point(k, scramble)
+    i = wp.min(int(u[0] * float(light.width)), light.width - 1)
+    j = wp.min(int(u[1] * float(light.height)), light.height - 1)
+    keys[k] = _spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)
+    values[k] = k
+
+
+SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
+SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
+SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
+SORT_GROUP_BITS = 2  #: key bits of a march group
+
+
+@wp.kernel
+def photon_group_keys(
+    light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
     scramble: wp.vec2i,
@@ -301,17 +325,17 @@ def photon_sort_keys(
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
     luminance_cutoff: float,
-    keys: wp.array(dtype=wp.int32),  # (2N,) sort key of each photon (write, first N)
-    values: wp.array(dtype=wp.int32),  # (2N,) photon index k (write, first N)
+    order: wp.array(dtype=wp.int32),  # (2N,) photon index per thread, in texel order (read, first N)
+    keys: wp.array(dtype=wp.int32),  # (2N,) march group of thread t's photon (write, first N)
 ):
-    """Keys to trace photons grouped by how they will march, then in texel (Morton) order: the threads of a GPU
-    warp then start from neighbouring texels and mostly travel alike, which keeps their memory reads and march
-    lengths coherent. The group is a cheap prediction of what the trace kernel will do with photon k: not traced
-    (culled as :func:`emit_photon` culls), reflected or refracted (the first draw of the photon's own random
-    stream against Fresnel at the texel's normal; the trace uses the exact normal under the sample, so a few
-    photons land in the other group). Each photon is still photon k of the R2 sequence, traced in full by the
-    trace kernel: only the order of the threads changes, never a result."""
-    k = wp.tid()
+    """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent);
+    a stable sort on these keys then groups the photons and keeps texel order inside each group. The group is a
+    cheap prediction of what the trace kernel will do with photon k: not traced (culled exactly as
+    :func:`emit_photon` culls), reflected or refracted (the first draw of the photon's own random stream against
+    Fresnel at the texel's normal; the trace uses the exact normal under the sample, so a few photons land in the
+    other group). Each photon is still traced in full as photon k: only the order of the threads changes."""
+    t = wp.tid()
+    k = order[t]
     u = r2_point(k, scramble)
     sx = u[0] * float(light.width)
     sy = u[1] * float(light.height)
@@ -338,8 +362,7 @@ def photon_sort_keys(
                 state = wp.rand_init(seed, k)
                 if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
                     group = SORT_REFRACTED
-    keys[k] = (group << SORT_GROUP_SHIFT) | ((_spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)))
-    values[k] = k
+    keys[t] = group
 
 
 @wp.func
