@@ -30,9 +30,11 @@ import warp as wp
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world, world_project
-from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED,
+from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED,
+                     L_STORED,
                      LEDGER_ENTRIES, tally_new)
 from .kernels_cisp import march_cascade
+from .march import MARCH_HIT, screen_march_bounded
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
 
@@ -391,6 +393,41 @@ def refine_landing(
     return x, pix2
 
 
+@wp.func
+def camera_rescue(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    origin: wp.vec3,  # [m] where the photon left the specular surface
+    d: wp.vec3,  # its direction
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    entry: int,  # the cascade's entry: L_LOST_LIGHT or L_OCCLUDED
+    x_lost: wp.vec3,  # [m] where the cascade gave it up
+    pix_lost: int,  # and its camera pixel (or -1)
+):
+    """A photon the cascade lost or found occluded, marched in the camera view from where it left the
+    specular surface.
+
+    The light-view march walks on behind the light's depth buffer where the ray runs into surfaces the light
+    does not see (on the pool: the floor along the end wall in the lee of the deck, which refracted light
+    reaches and direct light does not): it crosses a false surface far below the floor or leaves the view,
+    and the reprojected end point is off the screen or behind the camera's surfaces. The photon is then lost
+    although the camera sees the floor it reaches. The camera's own depth buffer shows that floor: march the
+    ray there from its start (a crossing the camera sees along the ray is a surface the photon meets first).
+    Returns (entry, end point [m], camera pixel): ``L_STORED`` on a crossing, else the cascade's own."""
+    status, t, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, origin + d * (1.0e-4 * t_max), d,
+                                            t_max, max_steps, thickness, thickness_rel)
+    if status != MARCH_HIT:
+        return entry, x_lost, pix_lost
+    x = origin + d * (1.0e-4 * t_max + t)
+    q = world_project(camera, x)
+    pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
+    return L_STORED, x, pix
+
+
 @wp.kernel
 def trace_grid_cisp(
     light: ViewParams,
@@ -438,6 +475,9 @@ def trace_grid_cisp(
         return
     entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
                                       origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
+    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
+        entry, x_end, pix = camera_rescue(camera, cam_depth, cam_depth_bounds, origin, d, t_max, max_steps, thickness,
+                                          thickness_rel, entry, x_end, pix)
     if entry == L_STORED:
         x_end, pix = refine_landing(camera, cam_depth, cam_position, cam_normal, origin, d, x_end, pix, thickness,
                                     thickness_rel)
