@@ -101,6 +101,15 @@ def grid_corners(grid: Grid) -> int:
 
 
 @wp.func
+def texel_outside(i: int, j: int, window: wp.vec4) -> float:
+    """The share of texel (i, j)'s area outside ``window`` (x0, y0, x1, y1) [pixels]: the rest belongs to a finer
+    cascade, which samples the window exactly (as point photons leave samples inside it to that cascade)."""
+    ox = wp.max(wp.min(float(i + 1), window[2]) - wp.max(float(i), window[0]), 0.0)
+    oy = wp.max(wp.min(float(j + 1), window[3]) - wp.max(float(j), window[1]), 0.0)
+    return 1.0 - ox * oy
+
+
+@wp.func
 def grid_cell(
     c: int,  # cell
     light: ViewParams,
@@ -119,6 +128,7 @@ def grid_cell(
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
     luminance_cutoff: float,
+    skip_window: wp.vec4,
     tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2 triangles,) [W] (write)
 ):
     """Cell ``c``: its texels' flux, culled as point photons are, split by exact Fresnel into the refracted
@@ -145,12 +155,17 @@ def grid_cell(
             tri = rsm_tri[t]
             if tri < 0:
                 continue
+            keep = texel_outside(i, j, skip_window)
+            if keep <= 0.0:
+                continue  # a finer cascade's texels
             flux = rsm_flux[t]
+            dimmed = luminance(flux) < luminance_cutoff * max_lum[0]  # the texel's whole flux, as points test it
+            flux = flux * keep
             sampled += flux
             if rsm_roughness[t] > roughness_cutoff:
                 rough += flux
                 continue
-            if luminance(flux) < luminance_cutoff * max_lum[0]:
+            if dimmed:
                 dim += flux
                 continue
             lo, ld = pixel_ray_world(light, float(i) + 0.5, float(j) + 0.5)
@@ -218,7 +233,8 @@ def grid_cells(
     mat_albedo: wp.array(dtype=wp.vec3),
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
-    luminance_cutoff: float,
+    luminance_cutoff: float,  # against max_lum, scaled to this view's texels (RSMBatch.luminance_cutoff)
+    skip_window: wp.vec4,  # (x0, y0, x1, y1) this view's pixels a finer cascade covers; empty when x1 <= x0
     tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2 triangles,) [W] (write)
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate, once per block and entry)
 ):
@@ -229,7 +245,7 @@ def grid_cells(
     if c < grid.cells_x * grid.cells_y:
         rows = grid_cell(c, light, light_kind, light_pos, grid, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
                          rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum, roughness_cutoff,
-                         luminance_cutoff, tri_power)
+                         luminance_cutoff, skip_window, tri_power)
     ledger_flush(ledger, rows, lane)
 
 
