@@ -178,6 +178,31 @@ def _overlaps(tris: wp.array(dtype=wp.vec2), px: int, py: int, out: wp.array(dty
     out[(t * py + j) * px + i] = K.triangle_pixel_overlap(a, b, c, float(i), float(j))
 
 
+@wp.kernel
+def _covers(tris: wp.array(dtype=wp.vec2), px: int, py: int, out: wp.array(dtype=float)):
+    t, j, i = wp.tid()
+    a, b, c = tris[3 * t], tris[3 * t + 1], tris[3 * t + 2]
+    orient = wp.sign((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]))
+    out[(t * py + j) * px + i] = K.pixel_cover(a, b, c, orient, float(i), float(j))
+
+
+def test_pixel_cover_shortcuts_agree_with_clipping(device, rng):
+    """The splat's pixel cover (no clipping for pixels wholly outside or inside the triangle) equals the
+    clipped overlap on every pixel, for large triangles (many inside pixels), slivers and sub-pixel ones."""
+    n, size = 60, 12
+    tris = rng.uniform(-2.0, size + 2.0, (n, 3, 2))
+    tris[:10] = tris[:10] * 0.05 + 4.3
+    tris[10:20, 2] = tris[10:20, 0] + 1e-3 * (tris[10:20, 1] - tris[10:20, 0])
+    tris[20:25] = np.round(tris[20:25])  # corners on pixel corners: edges along pixel edges
+    flat = wp.array(tris.reshape(-1, 2), dtype=wp.vec2, device=device)
+    got = wp.zeros(n * size * size, dtype=float, device=device)
+    want = wp.zeros(n * size * size, dtype=float, device=device)
+    wp.launch(_covers, dim=(n, size, size), inputs=[flat, size, size, got], device=device)
+    wp.launch(_overlaps, dim=(n, size, size), inputs=[flat, size, size, want], device=device)
+    assert (got.numpy() == 1.0).sum() > 200  # the inside shortcut is taken
+    np.testing.assert_allclose(got.numpy(), want.numpy(), atol=2e-5)
+
+
 def test_pixel_triangle_overlap_against_numpy(device, rng):
     """Triangle ∩ pixel areas (either orientation, slivers, triangles inside one pixel) equal the numpy
     twin's, and add up to the triangle's area over the pixels that hold it."""
