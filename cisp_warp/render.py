@@ -181,8 +181,8 @@ class Renderer:
         self.gpu = DeviceScene(scene, self.device)
         self.raster = Rasterizer(self.gpu)
         self.gbuffer = GBuffer.allocate(cam.width, cam.height, self.device)
-        # wavefront splatting lays its grid over each whole RSM view (cascades would overlap and miss the skip)
-        fitted = self.settings.method in FITTED_METHODS and self.settings.photons.splat == "point"
+        # wavefront splatting lays its grids over the fitted cascades too (photons.wavefront: skip windows honoured)
+        fitted = self.settings.method in FITTED_METHODS
         views = self.settings.light_views if fitted else LightViewSettings(fit="scene")
         self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size, views) for light in scene.lights]
         self.direct = DirectLighting(self.gbuffer, self.device)

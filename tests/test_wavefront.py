@@ -11,14 +11,16 @@ from cisp_warp.photons import PhotonSettings
 from cisp_warp.photons import kernels_splat as K
 from cisp_warp.photons.common import LEDGER_NAMES
 from cisp_warp.photons.wavefront import pixel_triangle_overlap_np, splat_numpy
+from cisp_warp.raster.views import LightViewSettings
 from cisp_warp.render import Renderer, RenderSettings
 
 METHODS = ["cisp", "sspm"]
 
 
-def render(scene, device, method, grid, rsm=256, frame_count=1, **kw):
-    """One frame (or ``frame_count``) with ``grid``² cells per light, raw (no denoiser)."""
-    settings = RenderSettings(rsm_size=rsm, method=method, denoiser="none",
+def render(scene, device, method, grid, rsm=256, frame_count=1, fit="camera", **kw):
+    """One frame (or ``frame_count``) with ``grid``² cells per light, raw (no denoiser); light views fitted to
+    the camera (the default) or whole (``fit="scene"``)."""
+    settings = RenderSettings(rsm_size=rsm, method=method, denoiser="none", light_views=LightViewSettings(fit=fit),
                               photons=PhotonSettings(photons=grid * grid, splat="wavefront", seed=3, **kw))
     r = Renderer(scene, settings, device=device)
     for _ in range(frame_count):
@@ -102,8 +104,9 @@ def plate_scene(size=48):
 @pytest.mark.parametrize("method", METHODS)
 def test_silhouette_cells_fall_back_to_points(device, method):
     """Grid triangles with corners on the plate and on the floor (seen, or hidden under the plate) are not
-    splatted across the gap: they fall back to point deposits; triangles on the floor alone are splatted."""
-    r, a = render(plate_scene(), device, method, 64)
+    splatted across the gap: they fall back to point deposits; triangles on the floor alone are splatted (one
+    whole light view: its grid's records are the last view's)."""
+    r, a = render(plate_scene(), device, method, 64, fit="scene")
     state = r.photons.wavefront.last_view_state()
     cx, cy = state["cells_x"], state["cells_y"]
     row = cx + 1
@@ -127,10 +130,31 @@ def test_silhouette_cells_fall_back_to_points(device, method):
     assert np.isfinite(a["photon_map"]).all()
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_fitted_cascades_share_the_light_as_whole_views_do(device, method):
+    """Grids over the camera-fitted cascades (the plate scene fits two: the finer window inside the coarser
+    one, whose grid leaves the window's texels to it): the light's specular power is sampled once (as by one
+    whole view, to the texels cut by the window edges), the ledger closes, and the floor's irradiance is the
+    whole view's where both splat it."""
+    rc, ac = render(plate_scene(), device, method, 64)
+    rs, as_ = render(plate_scene(), device, method, 64, fit="scene")
+    assert all(rc.lights[0].active) and rc.lights[0].skip_windows[1][2] > 0  # two cascades, a window skipped
+    lc, ls = rc.photons.read_ledger(), rs.photons.read_ledger()
+    assert lc.closure() < 1e-5
+    whole = lc["sampled"].sum()
+    np.testing.assert_allclose(whole, ls["sampled"].sum(), rtol=2e-3)
+    ec, es = ac["photon_map"][..., 0], as_["photon_map"][..., 0]
+    floor = (np.abs(ac["position"][..., 1] + 0.5) < 1e-3) & (es > 0)
+    assert floor.sum() > 400
+    assert np.median(np.abs(ec[floor] / es[floor] - 1.0)) < 0.01
+    np.testing.assert_allclose(lc["stored"].sum(), ls["stored"].sum(), rtol=0.02)
+
+
 def test_splat_matches_its_naive_twin(device):
     """The splat kernel against the numpy twin (polygon clipping the other way round) on the same photon
-    records: photon map and every ledger part the splat books, splats, fallbacks and occlusions included."""
-    r, a = render(plate_scene(size=32), device, "cisp", 24)
+    records: photon map and every ledger part the splat books, splats, fallbacks and occlusions included (one
+    whole light view, so that the map and the ledger are the last view's alone)."""
+    r, a = render(plate_scene(size=32), device, "cisp", 24, fit="scene")
     state = r.photons.wavefront.last_view_state()
     state["image_width"] = r.view.width
     g = r.gbuffer
@@ -152,6 +176,31 @@ def _overlaps(tris: wp.array(dtype=wp.vec2), px: int, py: int, out: wp.array(dty
     t, j, i = wp.tid()
     a, b, c = tris[3 * t], tris[3 * t + 1], tris[3 * t + 2]
     out[(t * py + j) * px + i] = K.triangle_pixel_overlap(a, b, c, float(i), float(j))
+
+
+@wp.kernel
+def _covers(tris: wp.array(dtype=wp.vec2), px: int, py: int, out: wp.array(dtype=float)):
+    t, j, i = wp.tid()
+    a, b, c = tris[3 * t], tris[3 * t + 1], tris[3 * t + 2]
+    orient = wp.sign((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]))
+    out[(t * py + j) * px + i] = K.pixel_cover(a, b, c, orient, float(i), float(j))
+
+
+def test_pixel_cover_shortcuts_agree_with_clipping(device, rng):
+    """The splat's pixel cover (no clipping for pixels wholly outside or inside the triangle) equals the
+    clipped overlap on every pixel, for large triangles (many inside pixels), slivers and sub-pixel ones."""
+    n, size = 60, 12
+    tris = rng.uniform(-2.0, size + 2.0, (n, 3, 2))
+    tris[:10] = tris[:10] * 0.05 + 4.3
+    tris[10:20, 2] = tris[10:20, 0] + 1e-3 * (tris[10:20, 1] - tris[10:20, 0])
+    tris[20:25] = np.round(tris[20:25])  # corners on pixel corners: edges along pixel edges
+    flat = wp.array(tris.reshape(-1, 2), dtype=wp.vec2, device=device)
+    got = wp.zeros(n * size * size, dtype=float, device=device)
+    want = wp.zeros(n * size * size, dtype=float, device=device)
+    wp.launch(_covers, dim=(n, size, size), inputs=[flat, size, size, got], device=device)
+    wp.launch(_overlaps, dim=(n, size, size), inputs=[flat, size, size, want], device=device)
+    assert (got.numpy() == 1.0).sum() > 200  # the inside shortcut is taken
+    np.testing.assert_allclose(got.numpy(), want.numpy(), atol=2e-5)
 
 
 def test_pixel_triangle_overlap_against_numpy(device, rng):

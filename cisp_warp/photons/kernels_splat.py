@@ -90,6 +90,41 @@ def triangle_pixel_overlap(a: wp.vec2, b: wp.vec2, c: wp.vec2, px: float, py: fl
 
 
 @wp.func
+def edge_side(p: wp.vec2, q: wp.vec2, x: float, y: float) -> float:
+    """cross(q - p, (x, y) - p): > 0 on the left of pq."""
+    return (q[0] - p[0]) * (y - p[1]) - (q[1] - p[1]) * (x - p[0])
+
+
+@wp.func
+def pixel_cover(a: wp.vec2, b: wp.vec2, c: wp.vec2, orient: float, px: float, py: float) -> float:
+    """:func:`triangle_pixel_overlap` with two shortcuts from the edge functions at the pixel's four corners
+    (``orient``: +1 or -1, the triangle's winding): every corner outside one edge gives 0, every corner inside
+    all three gives the whole pixel, neither one clipped. Most pixels of a landing triangle's bounds are one or
+    the other; only those its edges cross are clipped (the clip's polygon arrays live in local memory)."""
+    inside = int(0)
+    for e in range(3):
+        p = a
+        q = b
+        if e == 1:
+            p = b
+            q = c
+        elif e == 2:
+            p = c
+            q = a
+        s0 = orient * edge_side(p, q, px, py)
+        s1 = orient * edge_side(p, q, px + 1.0, py)
+        s2 = orient * edge_side(p, q, px, py + 1.0)
+        s3 = orient * edge_side(p, q, px + 1.0, py + 1.0)
+        if s0 <= 0.0 and s1 <= 0.0 and s2 <= 0.0 and s3 <= 0.0:
+            return 0.0
+        if s0 >= 0.0 and s1 >= 0.0 and s2 >= 0.0 and s3 >= 0.0:
+            inside += 1
+    if inside == 3:
+        return 1.0
+    return triangle_pixel_overlap(a, b, c, px, py)
+
+
+@wp.func
 def landed(entry: int) -> int:
     """1 for a photon that landed on a camera surface, or on a surface off the screen."""
     if entry == L_STORED or entry == L_LOST_CAMERA:
@@ -225,9 +260,10 @@ def splat_triangle(
                         occluded = p_eff
             else:
                 inv_area = 1.0 / area
+                orient = wp.sign((b[0] - a[0]) * (cc[1] - a[1]) - (cc[0] - a[0]) * (b[1] - a[1]))
                 for j in range(wp.max(j0, 0), wp.min(j1, v.height - 1) + 1):
                     for i in range(wp.max(i0, 0), wp.min(i1, v.width - 1) + 1):
-                        o = triangle_pixel_overlap(a, b, cc, float(i), float(j))
+                        o = pixel_cover(a, b, cc, orient, float(i), float(j))
                         if o <= 0.0:
                             continue
                         share = p_eff * (o * inv_area)

@@ -30,9 +30,11 @@ import warp as wp
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world, world_project
-from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED,
+from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED,
+                     L_STORED,
                      LEDGER_ENTRIES, tally_new)
 from .kernels_cisp import march_cascade
+from .march import MARCH_HIT, screen_march_bounded
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
 
@@ -99,6 +101,15 @@ def grid_corners(grid: Grid) -> int:
 
 
 @wp.func
+def texel_outside(i: int, j: int, window: wp.vec4) -> float:
+    """The share of texel (i, j)'s area outside ``window`` (x0, y0, x1, y1) [pixels]: the rest belongs to a finer
+    cascade, which samples the window exactly (as point photons leave samples inside it to that cascade)."""
+    ox = wp.max(wp.min(float(i + 1), window[2]) - wp.max(float(i), window[0]), 0.0)
+    oy = wp.max(wp.min(float(j + 1), window[3]) - wp.max(float(j), window[1]), 0.0)
+    return 1.0 - ox * oy
+
+
+@wp.func
 def grid_cell(
     c: int,  # cell
     light: ViewParams,
@@ -117,6 +128,7 @@ def grid_cell(
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
     luminance_cutoff: float,
+    skip_window: wp.vec4,
     tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2 triangles,) [W] (write)
 ):
     """Cell ``c``: its texels' flux, culled as point photons are, split by exact Fresnel into the refracted
@@ -143,12 +155,17 @@ def grid_cell(
             tri = rsm_tri[t]
             if tri < 0:
                 continue
+            keep = texel_outside(i, j, skip_window)
+            if keep <= 0.0:
+                continue  # a finer cascade's texels
             flux = rsm_flux[t]
+            dimmed = luminance(flux) < luminance_cutoff * max_lum[0]  # the texel's whole flux, as points test it
+            flux = flux * keep
             sampled += flux
             if rsm_roughness[t] > roughness_cutoff:
                 rough += flux
                 continue
-            if luminance(flux) < luminance_cutoff * max_lum[0]:
+            if dimmed:
                 dim += flux
                 continue
             lo, ld = pixel_ray_world(light, float(i) + 0.5, float(j) + 0.5)
@@ -216,7 +233,8 @@ def grid_cells(
     mat_albedo: wp.array(dtype=wp.vec3),
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
-    luminance_cutoff: float,
+    luminance_cutoff: float,  # against max_lum, scaled to this view's texels (RSMBatch.luminance_cutoff)
+    skip_window: wp.vec4,  # (x0, y0, x1, y1) this view's pixels a finer cascade covers; empty when x1 <= x0
     tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2 triangles,) [W] (write)
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate, once per block and entry)
 ):
@@ -227,7 +245,7 @@ def grid_cells(
     if c < grid.cells_x * grid.cells_y:
         rows = grid_cell(c, light, light_kind, light_pos, grid, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
                          rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum, roughness_cutoff,
-                         luminance_cutoff, tri_power)
+                         luminance_cutoff, skip_window, tri_power)
     ledger_flush(ledger, rows, lane)
 
 
@@ -391,6 +409,41 @@ def refine_landing(
     return x, pix2
 
 
+@wp.func
+def camera_rescue(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    origin: wp.vec3,  # [m] where the photon left the specular surface
+    d: wp.vec3,  # its direction
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    entry: int,  # the cascade's entry: L_LOST_LIGHT or L_OCCLUDED
+    x_lost: wp.vec3,  # [m] where the cascade gave it up
+    pix_lost: int,  # and its camera pixel (or -1)
+):
+    """A photon the cascade lost or found occluded, marched in the camera view from where it left the
+    specular surface.
+
+    The light-view march walks on behind the light's depth buffer where the ray runs into surfaces the light
+    does not see (on the pool: the floor along the end wall in the lee of the deck, which refracted light
+    reaches and direct light does not): it crosses a false surface far below the floor or leaves the view,
+    and the reprojected end point is off the screen or behind the camera's surfaces. The photon is then lost
+    although the camera sees the floor it reaches. The camera's own depth buffer shows that floor: march the
+    ray there from its start (a crossing the camera sees along the ray is a surface the photon meets first).
+    Returns (entry, end point [m], camera pixel): ``L_STORED`` on a crossing, else the cascade's own."""
+    status, t, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, origin + d * (1.0e-4 * t_max), d,
+                                            t_max, max_steps, thickness, thickness_rel)
+    if status != MARCH_HIT:
+        return entry, x_lost, pix_lost
+    x = origin + d * (1.0e-4 * t_max + t)
+    q = world_project(camera, x)
+    pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
+    return L_STORED, x, pix
+
+
 @wp.kernel
 def trace_grid_cisp(
     light: ViewParams,
@@ -438,6 +491,9 @@ def trace_grid_cisp(
         return
     entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
                                       origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
+    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
+        entry, x_end, pix = camera_rescue(camera, cam_depth, cam_depth_bounds, origin, d, t_max, max_steps, thickness,
+                                          thickness_rel, entry, x_end, pix)
     if entry == L_STORED:
         x_end, pix = refine_landing(camera, cam_depth, cam_position, cam_normal, origin, d, x_end, pix, thickness,
                                     thickness_rel)

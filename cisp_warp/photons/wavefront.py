@@ -35,26 +35,28 @@ def grid_for(width: int, height: int, photons: int) -> tuple[int, int, int]:
 
 
 class WavefrontSplat:
-    """The grid, its records and the splat for one photon pass; allocated once, launched per view."""
+    """The grid, its records and the splat for one photon pass; allocated once, launched per view.
+
+    The grids lie over the light's RSM views as the pass emits from them: fitted to the camera (the
+    cascades of ``LightViewSettings(fit="camera")``, the renderer's default) a grid covers each active
+    cascade's window, its cells sized by that cascade's share of the light's photons, and leaves the texels
+    inside the next finer window to that cascade (:func:`~.kernels_wavefront.texel_outside`); the power outside
+    every window is booked ``outside_fitted_view`` by the pass (``PhotonPass.begin``). So the grid's cells go
+    where the camera sees their light, as point photons do. Whole views (``fit="scene"``) keep one grid each.
+    """
 
     def __init__(self, photon_pass: PhotonPass, cam):
         """``cam``: the pass's :class:`~.kernels_world.CameraBuffers` (its ``view`` is set each frame)."""
         self.p = photon_pass
         self.cam = cam
         d = photon_pass.device
-        self.grids = []
         corners, tris = 1, 1
         for lm in photon_pass.lights:
-            per = photon_pass.photons_per_view(lm)
-            views = []
+            most = photon_pass.settings.photons if lm.fitted else photon_pass.photons_per_view(lm)  # one active view
             for r in lm.rsm:
-                g = K.Grid()
-                g.width, g.height = r.width, r.height
-                g.cell, g.cells_x, g.cells_y = grid_for(r.width, r.height, per)
-                views.append(g)
+                g = self.grid(r, most)
                 corners = max(corners, (g.cells_x + 1) * (g.cells_y + 1))
                 tris = max(tris, 4 * g.cells_x * g.cells_y)
-            self.grids.append(views)
         self.rec = K.Records()
         self.rec.entry = wp.zeros(2 * corners, dtype=wp.int32, device=d)
         self.rec.pos = wp.zeros(2 * corners, dtype=wp.vec3, device=d)
@@ -63,27 +65,42 @@ class WavefrontSplat:
         self.rec.throughput = wp.zeros(2 * corners, dtype=wp.vec3, device=d)
         self.tri_power = wp.zeros(tris, dtype=wp.vec3, device=d)
         self.tri_state = wp.zeros(tris, dtype=wp.int32, device=d)
+        self.grids: list[K.Grid] = []  #: the grids of the last frame, in launch order
+
+    @staticmethod
+    def grid(r, photons: int) -> K.Grid:
+        """The grid of about ``photons`` cells over RSM view ``r``."""
+        g = K.Grid()
+        g.width, g.height = r.width, r.height
+        g.cell, g.cells_x, g.cells_y = grid_for(r.width, r.height, photons)
+        return g
 
     def photons_traced(self) -> int:
-        """Photons traced per frame over every light and view (two sheets per cell corner)."""
-        return sum(2 * (g.cells_x + 1) * (g.cells_y + 1) for views in self.grids for g in views)
+        """Photons traced in the last frame over every light and view (two sheets per cell corner)."""
+        return sum(2 * (g.cells_x + 1) * (g.cells_y + 1) for g in self.grids)
 
     def trace(self, frame: int, tracer: str, world=None) -> None:
-        """Every light view of the frame: cells, grid photons (``tracer`` "cisp" or "sspm"), splat."""
+        """Every emitting light view of the frame: cells, grid photons (``tracer`` "cisp" or "sspm"), splat."""
         p, s, dev = self.p, self.p.settings, self.p.device
+        self.grids = []
         for li, lm in enumerate(p.lights):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
             kind = int(lm.light.kind)
             sc = lm.scene
+            per = p.photons_per_view(lm)
             for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                g = self.grids[li][vi]
+                if not lm.active[vi]:
+                    continue
+                g = self.grid(r, per)
+                self.grids.append(g)
                 sp = r.specular
                 cells = g.cells_x * g.cells_y
                 corners = (g.cells_x + 1) * (g.cells_y + 1)
                 p.launch_photons(K.grid_cells, cells, inputs=[
                     params, kind, light_pos, g, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                     sc.triangle_material, sc.opacity, sc.albedo, p._max_lum_of[li], float(s.roughness_cutoff),
-                    float(s.luminance_cutoff), self.tri_power, p.ledger])
+                    float(s.luminance_cutoff * lm.texel_scale[vi]), wp.vec4(*lm.skip_windows[vi]), self.tri_power,
+                    p.ledger])
                 if tracer == "cisp":  # p is the CISP pass: its depth bounds let the march skip hitless cells
                     rsm_bounds = p.rsm_bounds[li][vi]
                     p._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
@@ -104,7 +121,7 @@ class WavefrontSplat:
 
     def last_view_state(self) -> dict[str, np.ndarray]:
         """Host copies of the last traced view's grid, records and triangles (tests, the naive twin)."""
-        g = self.grids[-1][-1]
+        g = self.grids[-1]
         corners = 2 * (g.cells_x + 1) * (g.cells_y + 1)
         tris = 4 * g.cells_x * g.cells_y
         return {"cell": g.cell, "cells_x": g.cells_x, "cells_y": g.cells_y,
