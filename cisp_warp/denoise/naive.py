@@ -242,10 +242,12 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 var_t = np.array([max(m2[q] - m1[q] ** 2, 0.0) for q in hq]) * nq / np.maximum(nq - 1, 1)
                 d2 = np.mean(d ** 2)
                 temporal = np.mean(var_t)
+                # at most the variance of Poisson counts of the window's smallest photon (variance = mean x quantum)
+                counted = min(pairs, photon * max(np.mean([m1[q] for q in hq]), np.mean(e))) if photon > 0 else pairs
                 if n < SPATIAL_VARIANCE_HISTORY:
-                    var_t = np.full(len(hq), pairs)
-                elif pairs < temporal:  # scaled down to the spatial estimate, their spread kept
-                    var_t = var_t * (pairs / temporal)
+                    var_t = np.full(len(hq), counted)
+                elif counted < temporal:  # scaled down to the spatial estimate, their spread kept
+                    var_t = var_t * (counted / temporal)
                 sigma2 = np.mean(var_t)
                 sigma2_est = sigma2
                 sigma2 = max(sigma2, (FLOAT_RESOLUTION * np.mean([m1[q] for q in hq])) ** 2)
