@@ -54,6 +54,14 @@ frame holds 0 or a few photons, so a single pixel tells little):
   b_p² = max(d_p² − k_p² σ_p² − k_p e σ_p, 0), r = max(r, b_p² (1 + 1/n) / σ_p²): a change over part of the
   window (a caustic line sweeping through) is diluted in the window's D².
 
+A caustic that moved keeps moving (a turning sun, travelling waves): the window's ratio r, where its change
+passed the full threshold k on a history shorter than ``FULL_THRESHOLD_HISTORY`` frames, is kept with the
+history (fourth component of ``hist_moments``, at most ``MAX_KEPT_RATIO``) and fades by p =
+``change_persistence`` a frame; a frame's r is at least p times the kept one. A drift too slow for one frame's
+test (a third of a pixel a frame) then no longer builds a lagging history, while a still caustic's rare false
+alarm on a long history is not kept (the history-length clamp of A-SVGF's temporal gradient, without re-traced
+samples).
+
 Reprojection: bilinear over the consistent taps of the 2x2 footprint, renormalised (SVGF's); where the whole
 4x4 footprint is consistent and the motion fractional, the mean and the moments (m1, m2) are fetched by
 Catmull-Rom instead, clamped per component to the 2x2 taps' range (no ringing, never negative): a camera pan
@@ -76,6 +84,11 @@ MAX_CHANGE_RADIUS = 3
 window_row = wp.types.vector(length=2 * MAX_CHANGE_RADIUS + 1, dtype=wp.float32)
 #: relative resolution of the float32 running means: deviations below it are rounding, never change
 FLOAT_RESOLUTION = wp.constant(1.0e-5)
+#: largest change ratio r kept for the next frame (α = 64/65 for a long history: a reset's worth), so that a
+#: kept ratio fades however large the change was (r over an underflowing σ² is 1e30)
+MAX_KEPT_RATIO = wp.constant(64.0)
+#: history length [frames] from which the change test uses its full threshold k (below: k (n/16)^¼)
+FULL_THRESHOLD_HISTORY = wp.constant(16.0)
 
 
 @wp.func
@@ -129,7 +142,7 @@ def reproject_history(
     cur_normal: wp.array(dtype=wp.vec3),
     surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
-    prev_pairs: wp.array(dtype=wp.float32),
+    prev_pairs: wp.array(dtype=wp.vec2),
     stats: wp.array(dtype=wp.vec4),
 ):
     """Fetch the history under each pixel through the motion vectors.
@@ -164,7 +177,7 @@ def reproject_history(
         surface[p] = wp.vec4(0.0)
         hist_surface[cur, p] = wp.vec4(0.0)
         prev_mean[p] = wp.vec3(0.0)
-        prev_pairs[p] = 0.0
+        prev_pairs[p] = wp.vec2(0.0)
         stats[p] = wp.vec4(0.0)
         return
     n = normal[p]
@@ -185,7 +198,7 @@ def reproject_history(
     y0 = int(fy0)
     sum_w = float(0.0)
     mean = wp.vec3(0.0)
-    moments = wp.vec3(0.0)
+    moments = wp.vec4(0.0)
     frames = float(0.0)
     lo = wp.vec3(3.0e38)  # per component: the smallest and largest mean and moments (m1, m2) of the 2x2 taps
     hi = wp.vec3(-3.0e38)
@@ -206,7 +219,7 @@ def reproject_history(
             moments4 = hist_moments[prev, q]
             moments_q = wp.vec3(moments4[0], moments4[1], moments4[2])
             mean += w * mean_q
-            moments += w * moments_q
+            moments += w * moments4
             frames += w * mean4[3]
             lo = wp.min(lo, mean_q)
             hi = wp.max(hi, mean_q)
@@ -246,11 +259,11 @@ def reproject_history(
                 mean = wp.min(wp.max(cubic, lo), hi)
                 m12 = wp.min(wp.max(cubic_m, lo_m), hi_m)
         prev_mean[p] = mean
-        prev_pairs[p] = moments[2] * inv
+        prev_pairs[p] = wp.vec2(moments[2] * inv, moments[3] * inv)
         stats[p] = wp.vec4(lum, m12[0], m12[1], frames * inv)
     else:
         prev_mean[p] = wp.vec3(0.0)
-        prev_pairs[p] = 0.0
+        prev_pairs[p] = wp.vec2(0.0)
         stats[p] = wp.vec4(lum, 0.0, 0.0, 0.0)
 
 
@@ -260,7 +273,7 @@ def accumulate(
     depth: wp.array(dtype=wp.float32),
     surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
-    prev_pairs: wp.array(dtype=wp.float32),
+    prev_pairs: wp.array(dtype=wp.vec2),
     stats: wp.array(dtype=wp.vec4),
     parity: wp.array(dtype=wp.int32),
     width: int,
@@ -269,6 +282,7 @@ def accumulate(
     max_history: float,
     change_sigmas: float,
     pixel_sigmas: float,
+    change_persistence: float,
     depth_tolerance: float,
     normal_tolerance: float,
     hist_mean: wp.array2d(dtype=wp.vec4),
@@ -383,6 +397,7 @@ def accumulate(
     c = irradiance[p]
     lum = s_p[0]
     bias2 = float(0.0)
+    kept = float(0.0)  # the window's change ratio kept for the next frame
     # s²: running mean over frames of the neighbour-difference variance (each frame's free of the caustic's
     # motion; the mean over frames free of its noise)
     pairs = var_pairs
@@ -391,20 +406,15 @@ def accumulate(
         n_new = float(1.0)
         sigma2_est = var_pairs
     else:
-        pairs = wp.lerp(prev_pairs[p], var_pairs, 1.0 / (wp.min(n_prev, max_history - 1.0) + 1.0))
+        pr = prev_pairs[p]
+        pairs = wp.lerp(pr[0], var_pairs, 1.0 / (wp.min(n_prev, max_history - 1.0) + 1.0))
         d2 = sum_d2 / with_history
         temporal = sum_var / with_history
-        # the per-frame variance Poisson counts of photons of the window's smallest irradiance give (a photon
-        # map's noise is counting noise: variance = mean × one photon's irradiance); unlike s² it holds no
-        # structure of a sharp caustic, which s² takes for noise (a caustic line a pixel or two wide)
-        counted = pairs
-        if photon > 0.0:
-            counted = wp.min(pairs, photon * wp.max(sum_m1 / with_history, mean_e))
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):
-            sum_var = counted * with_history
-            sum_var2 = counted * counted * with_history
-        elif counted < temporal:  # the pixels' variances scaled down to the spatial estimate, their spread kept
-            scale = counted / temporal
+            sum_var = pairs * with_history
+            sum_var2 = pairs * pairs * with_history
+        elif pairs < temporal:  # the pixels' variances scaled down to the spatial estimate, their spread kept
+            scale = pairs / temporal
             sum_var = sum_var * scale
             sum_var2 = sum_var2 * scale * scale
         sigma2 = sum_var / with_history
@@ -422,7 +432,7 @@ def accumulate(
         mean_d = sum_d / with_history
         # the threshold rises with the history: a false alarm costs a long history more, while a short one
         # (just reset: the caustic was moving) more often has the next change to follow
-        k = change_sigmas * wp.min(wp.pow(n_prev / 16.0, 0.25), 1.0)
+        k = change_sigmas * wp.min(wp.pow(n_prev / FULL_THRESHOLD_HISTORY, 0.25), 1.0)
         # the tests decide whether the caustic changed; once one has, the change's size is the unbiased
         # estimate (the excess over what noise gives), not the excess over the test's threshold, which would
         # keep too much of a history that is known to be wrong
@@ -431,6 +441,19 @@ def accumulate(
         r = float(0.0)
         if sigma2 > 0.0:
             r = bias2 / sigma2
+        # a caustic that moved most likely moves on: the window's change ratio is kept, fading by the factor
+        # p = change_persistence a frame, and this frame's ratio is at least what is left of it, so a drift too
+        # slow for one frame's test keeps the history short. Only a change beyond the window's full threshold
+        # (k standard errors, k = 5, not the lowered k_n of a short history: rare false alarms) is kept, not
+        # the pixel's (3, Poisson tails: frequent ones), and only below FULL_THRESHOLD_HISTORY frames of history
+        # (a still caustic's false alarm on a long history costs one cut, not a dozen frames)
+        carried = change_persistence * pr[1]
+        confirmed = float(0.0)
+        if n_prev < FULL_THRESHOLD_HISTORY and (d2 - spread - change_sigmas * se_d2 > 0.0 or \
+                mean_d * mean_d - change_sigmas * change_sigmas * spread / with_history > 0.0):
+            confirmed = r
+        kept = wp.min(wp.max(confirmed, carried), MAX_KEPT_RATIO)
+        r = wp.max(r, carried)
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):  # for the filter: the deviations, less the change found
             sigma2_est = wp.min(pairs, wp.max(temporal, wp.max(d2 - bias2, 0.0) / history_noise))
         # the pixel's own deviation, tested alone against its share of the window's variance (Poisson counts:
@@ -459,7 +482,7 @@ def accumulate(
     moments = wp.vec3(m1, m1 * m1 + own, pairs)
     sigma2_est = wp.max(sigma2_est, own * n_new / wp.max(n_new - 1.0, 1.0))
     hist_mean[cur, p] = wp.vec4(mean[0], mean[1], mean[2], n_new)
-    hist_moments[cur, p] = wp.vec4(moments[0], moments[1], moments[2], 0.0)
+    hist_moments[cur, p] = wp.vec4(moments[0], moments[1], moments[2], kept)
     mean_out[p] = mean
     variance_out[p] = sigma2_est / n_new
     frames_out[p] = n_new
