@@ -190,6 +190,13 @@ CASES: tuple[Case, ...] = (
 )
 
 
+def frozen(c: Case, frame: int) -> Case:
+    """The static twin of an animated case: its scene at ``frame``, held still (only the photons' random
+    numbers change), for the error a method reaches on the same caustic when nothing moves."""
+    return replace(c, name=f"{c.name}@{frame}", summary=f"{c.summary}, held still at frame {frame}",
+                   scene_at=lambda f, w, h: c.scene_at(frame, w, h), animated=False)
+
+
 def case(name: str) -> Case:
     for c in CASES:
         if c.name == name:

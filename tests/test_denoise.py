@@ -343,9 +343,11 @@ def test_caustic_static_converges_to_long_run_mean(device):
         err_svgf.append(np.sqrt(np.mean((res_svgf[..., 1] - truth) ** 2)) / truth.mean())
     integrated = den.integrated.numpy().reshape(H, W, 3)[..., 1]
     running_mean = raw_sum / frames
-    # few false alarms: the history is close to the plain running mean of the raw maps
+    # few false alarms: the history is close to the plain running mean of the raw maps (0.82 of the pixels here;
+    # 0.86 with change_persistence=0: a change found on a short history is kept for some frames; the error
+    # against the truth is the same, 0.051)
     print(f"pixels with at least 0.9 x {frames} frames of history: {np.mean(history(den) >= 0.9 * frames):.3f}")
-    assert np.mean(history(den) >= 0.9 * frames) > 0.85
+    assert np.mean(history(den) >= 0.9 * frames) > 0.8
     assert np.sqrt(np.mean((integrated - running_mean) ** 2)) / truth.mean() < 0.02
     # error falls with the frames, to about the running mean's own (Poisson: sqrt(truth·photon / n))
     floor = np.sqrt(np.mean(truth * photon / frames)) / truth.mean()
@@ -476,7 +478,8 @@ def test_caustic_every_setting_reaches_a_kernel(device):
                       np.zeros((H, W)), np.ones((H, W))], -1)
         g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
         frames.append((g, poisson_map(rng, truth * (1.0 + 0.5 * (t >= 3)), 2.0)))
-    changed = dict(max_history=3, change_radius=1, change_sigmas=0.5, pixel_sigmas=0.5, atrous_levels=2, noise_target=0.3,
+    changed = dict(max_history=3, change_radius=1, change_sigmas=0.5, pixel_sigmas=0.5, change_persistence=0.0,
+                   atrous_levels=2, noise_target=0.3,
                    sigma_depth=0.1, sigma_normal=4.0, sigma_luminance=0.5, depth_tolerance=0.01,
                    normal_tolerance=0.999)
     assert set(changed) == {f.name for f in fields(CausticSettings)}
@@ -493,6 +496,7 @@ def test_caustic_every_setting_reaches_a_kernel(device):
 
 def test_caustic_settings_validation():
     for bad in (dict(max_history=1), dict(change_sigmas=0.0), dict(pixel_sigmas=-1.0), dict(noise_target=0.0),
+                dict(change_persistence=1.0), dict(change_persistence=-0.1),
                 dict(atrous_levels=-1),
                 dict(sigma_luminance=0.0), dict(normal_tolerance=1.5)):
         with pytest.raises(ValueError):
@@ -576,6 +580,33 @@ def test_caustic_moving_caustic_never_worse_than_raw(device, photon):
           f"flicker {np.mean(flicker):.4f} (truth's change {np.mean(truth_change):.4f})")
     assert np.mean(err) <= np.mean(err_raw)
     assert np.mean(flicker) <= 1.5 * np.mean(truth_change)
+
+
+def test_caustic_slow_drift_keeps_the_history_short(device):
+    """A caustic drifting a third of a pixel per frame (a slowly turning sun): too slow for one frame's change
+    test, so without keeping the window's change ratio from frame to frame (change_persistence) the history
+    lags the caustic and the output is worse than the raw photon map (0.177 against 0.165 relative RMSE);
+    with it the output is no worse than raw (0.164)."""
+
+    def error(settings):
+        rng = np.random.default_rng(31)
+        g = plane(hole=False)
+        den = CausticDenoiser(W, H, device, settings)
+        out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+        err, err_raw = [], []
+        for t in range(24):
+            truth = caustic_pattern(shift=0.35 * t)
+            e = poisson_map(rng, truth, 0.2)
+            res = run_frame(den, g, e, out)[..., 1]
+            if t >= 16:
+                err.append(np.sqrt(np.mean((res - truth) ** 2)) / truth.mean())
+                err_raw.append(np.sqrt(np.mean((e[..., 1] - truth) ** 2)) / truth.mean())
+        return np.mean(err), np.mean(err_raw)
+
+    err, err_raw = error(CausticSettings())
+    err_forget, _ = error(CausticSettings(change_persistence=0.0))
+    print(f"slow drift: error {err:.4f}, without persistence {err_forget:.4f}, raw {err_raw:.4f}")
+    assert err <= err_raw < err_forget
 
 
 def test_caustic_stays_finite_after_a_history_of_vanishing_irradiance(device):

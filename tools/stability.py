@@ -45,12 +45,16 @@ PRESETS = {
     "full": dict(width=960, height=540, rsm_size=2048, photons=2_000_000, reference=200_000_000,
                  reference_pass=4_000_000, frames=24, measured=4, cases="fast_water,moving_light,camera_pan"),
 }
-FIELDS = ["case", "method", "denoiser", "photons", "energy_lost", "error", "flicker", "flicker_raw", "reference_flicker",
-          "reference_noise", "stored", "lost_light_view", "lost_camera_view", "occluded", "closure", "finite"]
+FIELDS = ["case", "method", "denoiser", "photons", "energy_lost", "error", "static_error", "error_ratio", "flicker",
+          "flicker_raw", "reference_flicker", "flicker_ratio", "reference_noise", "stored", "lost_light_view", "lost_camera_view", "occluded", "closure", "finite"]
 
 
 def fmt(v: float, digits: int = 3) -> str:
     return "–" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
+
+
+def ratio(a: float, b: float) -> float:
+    return a / b if b and math.isfinite(b) else math.nan
 
 
 def markdown(rows: list[dict], methods: list[str], header: str) -> str:
@@ -59,7 +63,9 @@ def markdown(rows: list[dict], methods: list[str], header: str) -> str:
     denoisers = list(dict.fromkeys(r["denoiser"] for r in rows))
     by = {(r["case"], r["method"], r["denoiser"]): r for r in rows}
     out = [header, "", "energy lost / relative error / flicker of the denoised caustics (– : no caustic to "
-           "compare); last column: the reference's own flicker (noise + true change)", "",
+           "compare); animated cases: e/s = error over the same case's held still (static twin, same photons, frames and "
+           "denoiser; goal <= 1.25), f/r = flicker over the reference's (goal <= 1.5); last column: the reference's "
+           "own flicker (noise + true change)", "",
            "| case | denoiser | " + " | ".join(methods) + " | reference flicker |",
            "|---|---|" + "---|" * (len(methods) + 1)]
     for c in cases:
@@ -68,7 +74,9 @@ def markdown(rows: list[dict], methods: list[str], header: str) -> str:
             cells = []
             for m in methods:
                 r = by.get((c, m, d))
-                cells.append("" if r is None else f"{fmt(r['energy_lost'], 2)} / {fmt(r['error'], 2)} / {fmt(r['flicker'], 3)}")
+                cells.append("" if r is None else f"{fmt(r['energy_lost'], 2)} / {fmt(r['error'], 3)} / {fmt(r['flicker'], 3)}"
+                             + ("" if not math.isfinite(r.get("error_ratio", math.nan)) else
+                                f" (e/s {fmt(r['error_ratio'], 2)}, f/r {fmt(r['flicker_ratio'], 2)})"))
             if any(cells):
                 out.append(f"| {c} | {d} | " + " | ".join(cells) + f" | {fmt(ref['reference_flicker'], 3)} |")
     out += ["", "| " + " | ".join(FIELDS) + " |", "|---" * len(FIELDS) + "|"]
@@ -90,6 +98,8 @@ def main(argv=None) -> int:
                    "photons then count grid cells per light)")
     p.add_argument("--denoisers", default="caustic,svgf,own",
                    help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
+    p.add_argument("--no-static", action="store_true",
+                   help="skip the static twins of the animated cases (their error held still: half the time)")
     p.add_argument("--merge", action="store_true",
                    help="keep the rows of other cases already in OUT/stability.json (same preset and device), so "
                    "that a long preset can run a few cases per command")
@@ -105,7 +115,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     from cisp_warp import evaluation as E
-    from cisp_warp.stability_scenes import CASES, case
+    from cisp_warp.stability_scenes import CASES, case, frozen
 
     device = wp.get_device(args.device)
     dev_name = E.device_name(device)
@@ -134,9 +144,16 @@ def main(argv=None) -> int:
             method, _, splat = m.partition(":")
             f = E.measure_case(c, method, reference, w, h, frames, measured, cfg["rsm_size"], cfg["photons"], device,
                                denoiser=d, splat=splat or "point")
+            static_error = math.nan
+            if c.animated and not args.no_static:  # the same caustic held still: the error nothing moving allows
+                still = frozen(c, frames - 1)
+                static_error = E.measure_case(still, method, [reference[-1]] * 2, w, h, frames, measured, cfg["rsm_size"],
+                                              cfg["photons"], device, denoiser=d, splat=splat or "point").error
             rows.append({"case": c.name, "method": m, "denoiser": d, "photons": f.photons, "energy_lost": f.energy_lost,
-                         "error": f.error, "flicker": f.flicker, "flicker_raw": f.flicker_raw,
-                         "reference_flicker": f.reference_flicker, "reference_noise": f.reference_noise,
+                         "error": f.error, "static_error": static_error, "error_ratio": ratio(f.error, static_error),
+                         "flicker": f.flicker, "flicker_raw": f.flicker_raw,
+                         "reference_flicker": f.reference_flicker,
+                         "flicker_ratio": ratio(f.flicker, f.reference_flicker), "reference_noise": f.reference_noise,
                          **{k: f.ledger[k] for k in ("stored", "lost_light_view", "lost_camera_view", "occluded")},
                          "closure": f.closure, "finite": f.finite})
             bar.update()
@@ -174,10 +191,15 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, "stability.md"), "w") as fh:
         fh.write(md)
     print(f"{header}; {wall:.0f} s")
-    print(f"{'case':<23}{'method':<16}{'denoiser':<9}{'lost':>8}{'error':>8}{'flicker':>9}{'raw':>8}{'ref':>8}")
+    print("error: relative RMSE; static: the same case held still at its last frame (same photons, frames and "
+          "denoiser), e/s their ratio (goal <= 1.25); flicker: denoised, raw photon map, reference (noise + true "
+          "change), f/r denoised over reference (goal <= 1.5)")
+    print(f"{'case':<23}{'method':<16}{'denoiser':<9}{'lost':>8}{'error':>8}{'static':>8}{'e/s':>7}{'flicker':>9}"
+          f"{'raw':>8}{'ref':>8}{'f/r':>7}")
     for r in rows:
         print(f"{r['case']:<23}{r['method']:<16}{r['denoiser']:<9}{fmt(r['energy_lost']):>8}{fmt(r['error']):>8}"
-              f"{fmt(r['flicker']):>9}{fmt(r['flicker_raw']):>8}{fmt(r['reference_flicker']):>8}")
+              f"{fmt(r['static_error']):>8}{fmt(r['error_ratio'], 2):>7}{fmt(r['flicker']):>9}{fmt(r['flicker_raw']):>8}"
+              f"{fmt(r['reference_flicker']):>8}{fmt(r['flicker_ratio'], 2):>7}")
     print(f"wrote {args.out}/stability.csv, stability.json, stability.md")
     return 0
 

@@ -11,7 +11,8 @@ by the per-frame variance, which does not shrink as frames accumulate. Here
    map's long-run mean. Where the new photons disagree with the history by more than its noise explains
    (moving water, a moving light) over the window or at the pixel alone, the history is cut back in
    proportion (the weight that minimises the blend's error for the measured bias), so an animated caustic
-   follows within a few frames;
+   follows within a few frames; a change found on a short history is kept for the next frames, fading
+   (``change_persistence``), so a slow drift does not build a lagging history;
 2. spatial (:mod:`.kernels_atrous`, gated levels): the variance of the *mean* (σ²/n, shrinking as frames
    accumulate) sets both the luminance edge stop and, per pixel, the footprint R still needed to bring the
    relative noise down to ``noise_target``; a level of spacing s acts only where R ≥ s/2, so the filter
@@ -43,6 +44,8 @@ class CausticSettings:
     #: standard errors count as change (for a history of n < 16 frames, (n/16)^¼ of it: half after a reset)
     pixel_sigmas: float = 3.0  #: a pixel's own deviation beyond this many of its standard deviations (plus
     #: a photon's worth) counts as change there, however little of the window changed
+    change_persistence: float = 0.7  #: factor by which the window's change ratio r = b²/σ², kept with the
+    #: history, fades a frame; a frame's r is at least what is left (a caustic that moved keeps moving)
     atrous_levels: int = 4  #: à-trous levels, spacings 1, 2, 4, ... pixels (0: temporal accumulation only)
     noise_target: float = 0.05  #: relative noise the spatial footprint aims at (R from Var / (4π τ² μ²))
     sigma_depth: float = 1.0  #: σ_z of the depth edge stop (in units of the depth gradient)
@@ -60,6 +63,8 @@ class CausticSettings:
             raise ValueError("atrous_levels must be >= 0")
         if self.change_sigmas <= 0.0 or self.pixel_sigmas <= 0.0:
             raise ValueError("change_sigmas and pixel_sigmas must be > 0")
+        if not 0.0 <= self.change_persistence < 1.0:
+            raise ValueError("change_persistence must lie in [0, 1)")
         if self.noise_target <= 0.0:
             raise ValueError("noise_target must be > 0")
         if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
@@ -71,12 +76,13 @@ class CausticSettings:
 class CausticDenoiser:
     """Caustics denoiser for one ``width`` x ``height`` irradiance map on ``device``.
 
-    History (2 x H*W each; row ``parity[0]`` holds the last frame, the next frame writes the other row and
-    flips ``parity`` on the device, so a captured CUDA graph replays every frame): ``hist_depth`` (float32
-    [m], 0 = no surface), ``hist_normal`` (vec3), ``hist_mean`` (vec3 [W/m²], running mean of the raw photon
-    map), ``hist_moments`` (vec3: luminance mean [W/m²], mean square, neighbour-difference variance s²), ``hist_frames`` (float32,
-    effective frames); ``parity`` (1 int32).
-    Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface), ``prev_mean``
+    History (2 x H*W vec4 each, so that a tap is one aligned 16-byte load; row ``parity[0]`` holds the last
+    frame, the next frame writes the other row and flips ``parity`` on the device, so a captured CUDA graph
+    replays every frame): ``hist_surface`` (z [m], 0 = no surface; normal), ``hist_mean`` (running mean of the
+    raw photon map [W/m²]; effective frames n), ``hist_moments`` (luminance mean [W/m²], mean square,
+    neighbour-difference variance s², 0); ``parity`` (1 int32).
+    Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface; for the à-trous
+    levels), ``surface`` (vec4: the same packed, for the change window), ``prev_mean``
     (vec3 [W/m²]), ``prev_pairs`` (float32) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
     estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
     ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
@@ -97,16 +103,15 @@ class CausticDenoiser:
         def two(dtype):
             return wp.zeros((2, n), dtype=dtype, device=d)
 
-        self.hist_depth = two(wp.float32)
-        self.hist_normal = two(wp.vec3)
-        self.hist_mean = two(wp.vec3)
-        self.hist_moments = two(wp.vec3)
-        self.hist_frames = two(wp.float32)
+        self.hist_surface = two(wp.vec4)
+        self.hist_mean = two(wp.vec4)
+        self.hist_moments = two(wp.vec4)
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.depth = one(wp.float32)
         self.normal = one(wp.vec3)
+        self.surface = one(wp.vec4)
         self.prev_mean = one(wp.vec3)
-        self.prev_pairs = one(wp.float32)
+        self.prev_pairs = one(wp.vec2)
         self.stats = one(wp.vec4)
         self.integrated = one(wp.vec3)
         self.frames = one(wp.float32)
@@ -132,7 +137,7 @@ class CausticDenoiser:
 
     def reset(self) -> None:
         """Forget all history: the next frame is treated as disoccluded everywhere."""
-        for a in (self.hist_depth, self.hist_normal, self.hist_mean, self.hist_moments, self.hist_frames):
+        for a in (self.hist_surface, self.hist_mean, self.hist_moments):
             a.zero_()
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
@@ -149,16 +154,15 @@ class CausticDenoiser:
         dim = (h, w)
         d = self.device
         wp.launch(K.reproject_history, dim=dim, device=d,
-                  inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_depth, self.hist_normal,
-                          self.hist_mean, self.hist_moments, self.hist_frames, self.parity, w, h,
-                          s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats])
+                  inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
+                          self.hist_moments, self.parity, w, h, s.depth_tolerance, s.normal_tolerance],
+                  outputs=[self.depth, self.normal, self.surface, self.prev_mean, self.prev_pairs, self.stats])
         wp.launch(K.accumulate, dim=dim, device=d,
-                  inputs=[irradiance_in, self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats,
+                  inputs=[irradiance_in, self.depth, self.surface, self.prev_mean, self.prev_pairs, self.stats,
                           self.parity, w, h,
-                          s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas,
+                          s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas, s.change_persistence,
                           s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.hist_mean, self.hist_moments, self.hist_frames, self.integrated,
+                  outputs=[self.hist_mean, self.hist_moments, self.integrated,
                            self.temporal_variance, self.frames, self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)

@@ -54,6 +54,14 @@ frame holds 0 or a few photons, so a single pixel tells little):
   b_p² = max(d_p² − k_p² σ_p² − k_p e σ_p, 0), r = max(r, b_p² (1 + 1/n) / σ_p²): a change over part of the
   window (a caustic line sweeping through) is diluted in the window's D².
 
+A caustic that moved keeps moving (a turning sun, travelling waves): the window's ratio r, where its change
+passed the full threshold k on a history shorter than ``FULL_THRESHOLD_HISTORY`` frames, is kept with the
+history (fourth component of ``hist_moments``, at most ``MAX_KEPT_RATIO``) and fades by p =
+``change_persistence`` a frame; a frame's r is at least p times the kept one. A drift too slow for one frame's
+test (a third of a pixel a frame) then no longer builds a lagging history, while a still caustic's rare false
+alarm on a long history is not kept (the history-length clamp of A-SVGF's temporal gradient, without re-traced
+samples).
+
 Reprojection: bilinear over the consistent taps of the 2x2 footprint, renormalised (SVGF's); where the whole
 4x4 footprint is consistent and the motion fractional, the mean and the moments (m1, m2) are fetched by
 Catmull-Rom instead, clamped per component to the 2x2 taps' range (no ringing, never negative): a camera pan
@@ -76,6 +84,11 @@ MAX_CHANGE_RADIUS = 3
 window_row = wp.types.vector(length=2 * MAX_CHANGE_RADIUS + 1, dtype=wp.float32)
 #: relative resolution of the float32 running means: deviations below it are rounding, never change
 FLOAT_RESOLUTION = wp.constant(1.0e-5)
+#: largest change ratio r kept for the next frame (α = 64/65 for a long history: a reset's worth), so that a
+#: kept ratio fades however large the change was (r over an underflowing σ² is 1e30)
+MAX_KEPT_RATIO = wp.constant(64.0)
+#: history length [frames] from which the change test uses its full threshold k (below: k (n/16)^¼)
+FULL_THRESHOLD_HISTORY = wp.constant(16.0)
 
 
 @wp.func
@@ -89,17 +102,25 @@ def catmull_rom_weights(t: float) -> wp.vec4:
 
 
 @wp.func
-def history_tap_ok(hist_depth: wp.array2d(dtype=wp.float32), hist_normal: wp.array2d(dtype=wp.vec3),
-                   hist_frames: wp.array2d(dtype=wp.float32), prev: int, tx: int, ty: int, width: int, height: int,
+def hist_frames_at(hist_mean: wp.array2d(dtype=wp.vec4), prev: int, q: int) -> float:
+    """Effective frames n of history texel q (the fourth component of ``hist_mean``)."""
+    m = hist_mean[prev, q]
+    return m[3]
+
+
+@wp.func
+def history_tap_ok(hist_surface: wp.array2d(dtype=wp.vec4), hist_mean: wp.array2d(dtype=wp.vec4), prev: int,
+                   tx: int, ty: int, width: int, height: int,
                    z: float, n: wp.vec3, depth_tolerance: float, normal_tolerance: float) -> bool:
     """Whether the history texel (tx, ty) is on screen, has a surface and a history, and is the same surface
     as this pixel (relative depth within ``depth_tolerance``, normal cosine at least ``normal_tolerance``)."""
     if tx < 0 or tx >= width or ty < 0 or ty >= height:
         return False
     q = ty * width + tx
-    z_q = hist_depth[prev, q]
-    return (hist_frames[prev, q] > 0.0 and z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z
-            and wp.dot(hist_normal[prev, q], n) >= normal_tolerance)
+    s_q = hist_surface[prev, q]  # one 16-byte load: (z, normal)
+    z_q = s_q[0]
+    return (z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z
+            and s_q[1] * n[0] + s_q[2] * n[1] + s_q[3] * n[2] >= normal_tolerance and hist_frames_at(hist_mean, prev, q) > 0.0)
 
 
 @wp.kernel
@@ -109,11 +130,9 @@ def reproject_history(
     normal: wp.array(dtype=wp.vec3),
     motion: wp.array(dtype=wp.vec2),
     tri_id: wp.array(dtype=wp.int32),
-    hist_depth: wp.array2d(dtype=wp.float32),
-    hist_normal: wp.array2d(dtype=wp.vec3),
-    hist_mean: wp.array2d(dtype=wp.vec3),
-    hist_moments: wp.array2d(dtype=wp.vec3),
-    hist_frames: wp.array2d(dtype=wp.float32),
+    hist_surface: wp.array2d(dtype=wp.vec4),
+    hist_mean: wp.array2d(dtype=wp.vec4),
+    hist_moments: wp.array2d(dtype=wp.vec4),
     parity: wp.array(dtype=wp.int32),
     width: int,
     height: int,
@@ -121,20 +140,22 @@ def reproject_history(
     normal_tolerance: float,
     cur_depth: wp.array(dtype=wp.float32),
     cur_normal: wp.array(dtype=wp.vec3),
+    surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
-    prev_pairs: wp.array(dtype=wp.float32),
+    prev_pairs: wp.array(dtype=wp.vec2),
     stats: wp.array(dtype=wp.vec4),
 ):
     """Fetch the history under each pixel through the motion vectors.
 
     Reads ``irradiance`` (H*W vec3 [W/m²], this frame's photon map), the G-buffer ``depth`` (float32 [m],
     0 = none), ``normal`` (vec3), ``motion`` (vec2 [pixels], previous position minus pixel centre),
-    ``tri_id`` (int32, -1 = none), and row ``parity[0]`` of the history: ``hist_depth``/``hist_normal``
-    (the G-buffer copy of the last frame; depth 0 = no surface), ``hist_mean`` (vec3 [W/m²]),
-    ``hist_moments`` (vec3: m1 [W/m²], m2 and s² [(W/m²)²]), ``hist_frames`` (float32, effective frames n).
+    ``tri_id`` (int32, -1 = none), and row ``parity[0]`` of the history (vec4 each, one aligned load per tap):
+    ``hist_surface`` (z [m], normal: the G-buffer copy of the last frame; z = 0: no surface), ``hist_mean``
+    (mean irradiance [W/m²], effective frames n), ``hist_moments`` (m1 [W/m²], m2 and s² [(W/m²)²], 0).
 
-    Writes ``cur_depth``/``cur_normal`` (this frame's G-buffer copy, depth 0 where ``tri_id < 0``; also
-    into row ``1 - parity[0]`` of ``hist_depth``/``hist_normal``), ``prev_mean`` (vec3 [W/m²], the
+    Writes ``cur_depth``/``cur_normal`` (this frame's G-buffer copy, depth 0 where ``tri_id < 0``, for the
+    à-trous levels), ``surface`` (the same packed as (z, normal) for the change window; also into row
+    ``1 - parity[0]`` of ``hist_surface``), ``prev_mean`` (vec3 [W/m²], the
     reprojected history mean), ``prev_pairs`` (float32, its s²) and ``stats`` = (luminance of E, m1, m2, n)
     of the reprojected history (vec4; n = 0: no history, disoccluded or no surface).
 
@@ -153,17 +174,18 @@ def reproject_history(
     if z <= 0.0 or tri_id[p] < 0:
         cur_depth[p] = 0.0
         cur_normal[p] = wp.vec3(0.0)
-        hist_depth[cur, p] = 0.0
-        hist_normal[cur, p] = wp.vec3(0.0)
+        surface[p] = wp.vec4(0.0)
+        hist_surface[cur, p] = wp.vec4(0.0)
         prev_mean[p] = wp.vec3(0.0)
-        prev_pairs[p] = 0.0
+        prev_pairs[p] = wp.vec2(0.0)
         stats[p] = wp.vec4(0.0)
         return
     n = normal[p]
     cur_depth[p] = z
     cur_normal[p] = n
-    hist_depth[cur, p] = z
-    hist_normal[cur, p] = n
+    packed = wp.vec4(z, n[0], n[1], n[2])
+    surface[p] = packed
+    hist_surface[cur, p] = packed
 
     m = motion[p]
     px = float(x) + m[0]
@@ -176,7 +198,7 @@ def reproject_history(
     y0 = int(fy0)
     sum_w = float(0.0)
     mean = wp.vec3(0.0)
-    moments = wp.vec3(0.0)
+    moments = wp.vec4(0.0)
     frames = float(0.0)
     lo = wp.vec3(3.0e38)  # per component: the smallest and largest mean and moments (m1, m2) of the 2x2 taps
     hi = wp.vec3(-3.0e38)
@@ -187,16 +209,18 @@ def reproject_history(
         dy = tap // 2
         tx = x0 + dx
         ty = y0 + dy
-        if history_tap_ok(hist_depth, hist_normal, hist_frames, prev, tx, ty, width, height, z, n,
+        if history_tap_ok(hist_surface, hist_mean, prev, tx, ty, width, height, z, n,
                           depth_tolerance, normal_tolerance):
             q = ty * width + tx
             w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
             sum_w += w
-            mean_q = hist_mean[prev, q]
-            moments_q = hist_moments[prev, q]
+            mean4 = hist_mean[prev, q]
+            mean_q = wp.vec3(mean4[0], mean4[1], mean4[2])
+            moments4 = hist_moments[prev, q]
+            moments_q = wp.vec3(moments4[0], moments4[1], moments4[2])
             mean += w * mean_q
-            moments += w * moments_q
-            frames += w * hist_frames[prev, q]
+            moments += w * moments4
+            frames += w * mean4[3]
             lo = wp.min(lo, mean_q)
             hi = wp.max(hi, mean_q)
             lo_m = wp.min(lo_m, wp.vec2(moments_q[0], moments_q[1]))
@@ -221,24 +245,25 @@ def reproject_history(
                 tx = x0 - 1 + i
                 ty = y0 - 1 + j
                 if all_ok:
-                    if history_tap_ok(hist_depth, hist_normal, hist_frames, prev, tx, ty, width, height, z, n,
+                    if history_tap_ok(hist_surface, hist_mean, prev, tx, ty, width, height, z, n,
                                       depth_tolerance, normal_tolerance):
                         q = ty * width + tx
                         w = wx[i] * wy[j]
-                        moments_q = hist_moments[prev, q]
-                        cubic += w * hist_mean[prev, q]
-                        cubic_m += w * wp.vec2(moments_q[0], moments_q[1])
+                        mean4 = hist_mean[prev, q]
+                        moments4 = hist_moments[prev, q]
+                        cubic += w * wp.vec3(mean4[0], mean4[1], mean4[2])
+                        cubic_m += w * wp.vec2(moments4[0], moments4[1])
                     else:
                         all_ok = False
             if all_ok:
                 mean = wp.min(wp.max(cubic, lo), hi)
                 m12 = wp.min(wp.max(cubic_m, lo_m), hi_m)
         prev_mean[p] = mean
-        prev_pairs[p] = moments[2] * inv
+        prev_pairs[p] = wp.vec2(moments[2] * inv, moments[3] * inv)
         stats[p] = wp.vec4(lum, m12[0], m12[1], frames * inv)
     else:
         prev_mean[p] = wp.vec3(0.0)
-        prev_pairs[p] = 0.0
+        prev_pairs[p] = wp.vec2(0.0)
         stats[p] = wp.vec4(lum, 0.0, 0.0, 0.0)
 
 
@@ -246,9 +271,9 @@ def reproject_history(
 def accumulate(
     irradiance: wp.array(dtype=wp.vec3),
     depth: wp.array(dtype=wp.float32),
-    normal: wp.array(dtype=wp.vec3),
+    surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
-    prev_pairs: wp.array(dtype=wp.float32),
+    prev_pairs: wp.array(dtype=wp.vec2),
     stats: wp.array(dtype=wp.vec4),
     parity: wp.array(dtype=wp.int32),
     width: int,
@@ -257,11 +282,11 @@ def accumulate(
     max_history: float,
     change_sigmas: float,
     pixel_sigmas: float,
+    change_persistence: float,
     depth_tolerance: float,
     normal_tolerance: float,
-    hist_mean: wp.array2d(dtype=wp.vec3),
-    hist_moments: wp.array2d(dtype=wp.vec3),
-    hist_frames: wp.array2d(dtype=wp.float32),
+    hist_mean: wp.array2d(dtype=wp.vec4),
+    hist_moments: wp.array2d(dtype=wp.vec4),
     mean_out: wp.array(dtype=wp.vec3),
     variance_out: wp.array(dtype=wp.float32),
     frames_out: wp.array(dtype=wp.float32),
@@ -277,8 +302,8 @@ def accumulate(
     surface when its depth is within ``depth_tolerance`` (relative) and its normal's cosine at least
     ``normal_tolerance``.
 
-    Writes the new history into row ``1 - parity[0]`` of ``hist_mean`` (vec3 [W/m²]), ``hist_moments``
-    (vec2) and ``hist_frames`` (float32), and per pixel ``mean_out`` (vec3 [W/m²], the accumulated
+    Writes the new history into row ``1 - parity[0]`` of ``hist_mean`` (vec4: mean [W/m²], n_new) and
+    ``hist_moments`` (vec4: m1, m2, s², 0), and per pixel ``mean_out`` (vec3 [W/m²], the accumulated
     estimate), ``variance_out`` (float32 [(W/m²)²], the variance of its luminance, σ² / n_new),
     ``frames_out`` (n_new) and ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous levels). 0 without
     a surface.
@@ -288,15 +313,15 @@ def accumulate(
     cur = 1 - parity[0]
     z = depth[p]
     if z <= 0.0:
-        hist_mean[cur, p] = wp.vec3(0.0)
-        hist_moments[cur, p] = wp.vec3(0.0)
-        hist_frames[cur, p] = 0.0
+        hist_mean[cur, p] = wp.vec4(0.0)
+        hist_moments[cur, p] = wp.vec4(0.0)
         mean_out[p] = wp.vec3(0.0)
         variance_out[p] = 0.0
         frames_out[p] = 0.0
         slope_out[p] = 0.0
         return
-    n = normal[p]
+    s_p0 = surface[p]
+    n = wp.vec3(s_p0[1], s_p0[2], s_p0[3])
     count = float(0.0)  # same-surface pixels of the window
     sum_e = float(0.0)
     photon = float(3.0e38)  # smallest non-zero irradiance of the window: one photon's [W/m²]
@@ -323,8 +348,10 @@ def accumulate(
             here = float(-1.0)
             if qx >= 0 and qx < width and qy >= 0 and qy < height:
                 q = qy * width + qx
-                z_q = depth[q]
-                if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(normal[q], n) >= normal_tolerance:
+                s_q = surface[q]  # (z, normal): one aligned load
+                z_q = s_q[0]
+                if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and \
+                        s_q[1] * n[0] + s_q[2] * n[1] + s_q[3] * n[2] >= normal_tolerance:
                     s = stats[q]
                     e = s[0]
                     here = e
@@ -370,6 +397,7 @@ def accumulate(
     c = irradiance[p]
     lum = s_p[0]
     bias2 = float(0.0)
+    kept = float(0.0)  # the window's change ratio kept for the next frame
     # s²: running mean over frames of the neighbour-difference variance (each frame's free of the caustic's
     # motion; the mean over frames free of its noise)
     pairs = var_pairs
@@ -378,7 +406,8 @@ def accumulate(
         n_new = float(1.0)
         sigma2_est = var_pairs
     else:
-        pairs = wp.lerp(prev_pairs[p], var_pairs, 1.0 / (wp.min(n_prev, max_history - 1.0) + 1.0))
+        pr = prev_pairs[p]
+        pairs = wp.lerp(pr[0], var_pairs, 1.0 / (wp.min(n_prev, max_history - 1.0) + 1.0))
         d2 = sum_d2 / with_history
         temporal = sum_var / with_history
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):
@@ -403,12 +432,28 @@ def accumulate(
         mean_d = sum_d / with_history
         # the threshold rises with the history: a false alarm costs a long history more, while a short one
         # (just reset: the caustic was moving) more often has the next change to follow
-        k = change_sigmas * wp.min(wp.pow(n_prev / 16.0, 0.25), 1.0)
+        k = change_sigmas * wp.min(wp.pow(n_prev / FULL_THRESHOLD_HISTORY, 0.25), 1.0)
+        # the tests decide whether the caustic changed; once one has, the change's size is the unbiased
+        # estimate (the excess over what noise gives), not the excess over the test's threshold, which would
+        # keep too much of a history that is known to be wrong
         bias2 = wp.max(wp.max(d2 - spread - k * se_d2,
                               mean_d * mean_d - k * k * spread / with_history), 0.0)
         r = float(0.0)
         if sigma2 > 0.0:
             r = bias2 / sigma2
+        # a caustic that moved most likely moves on: the window's change ratio is kept, fading by the factor
+        # p = change_persistence a frame, and this frame's ratio is at least what is left of it, so a drift too
+        # slow for one frame's test keeps the history short. Only a change beyond the window's full threshold
+        # (k standard errors, k = 5, not the lowered k_n of a short history: rare false alarms) is kept, not
+        # the pixel's (3, Poisson tails: frequent ones), and only below FULL_THRESHOLD_HISTORY frames of history
+        # (a still caustic's false alarm on a long history costs one cut, not a dozen frames)
+        carried = change_persistence * pr[1]
+        confirmed = float(0.0)
+        if n_prev < FULL_THRESHOLD_HISTORY and (d2 - spread - change_sigmas * se_d2 > 0.0 or \
+                mean_d * mean_d - change_sigmas * change_sigmas * spread / with_history > 0.0):
+            confirmed = r
+        kept = wp.min(wp.max(confirmed, carried), MAX_KEPT_RATIO)
+        r = wp.max(r, carried)
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):  # for the filter: the deviations, less the change found
             sigma2_est = wp.min(pairs, wp.max(temporal, wp.max(d2 - bias2, 0.0) / history_noise))
         # the pixel's own deviation, tested alone against its share of the window's variance (Poisson counts:
@@ -436,9 +481,8 @@ def accumulate(
     own = (1.0 - alpha) * wp.max(s_p[2] - s_p[1] * s_p[1], 0.0) + alpha * (1.0 - alpha) * wp.max(d_p * d_p - bias2, 0.0)
     moments = wp.vec3(m1, m1 * m1 + own, pairs)
     sigma2_est = wp.max(sigma2_est, own * n_new / wp.max(n_new - 1.0, 1.0))
-    hist_mean[cur, p] = mean
-    hist_moments[cur, p] = moments
-    hist_frames[cur, p] = n_new
+    hist_mean[cur, p] = wp.vec4(mean[0], mean[1], mean[2], n_new)
+    hist_moments[cur, p] = wp.vec4(moments[0], moments[1], moments[2], kept)
     mean_out[p] = mean
     variance_out[p] = sigma2_est / n_new
     frames_out[p] = n_new

@@ -115,6 +115,7 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
 SPATIAL_VARIANCE_HISTORY = 4  # as kernels_svgf.SPATIAL_VARIANCE_HISTORY
 MIN_BILINEAR_WEIGHT = 0.01  # as kernels_svgf.MIN_BILINEAR_WEIGHT
 FLOAT_RESOLUTION = 1.0e-5  # as kernels_caustic.FLOAT_RESOLUTION
+MAX_KEPT_RATIO = 64.0  # as kernels_caustic.MAX_KEPT_RATIO
 
 
 def catmull_rom_naive(t: float) -> np.ndarray:
@@ -199,15 +200,16 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
     h, w = depth.shape
     lum = irradiance @ REC709
     if history is None:
-        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 3)), "frames": np.zeros((h, w))}, \
+        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 4)), "frames": np.zeros((h, w))}, \
             np.zeros((h, w), bool)
     else:
         prev, valid = reproject_naive(depth, normal, motion.astype(np.float64), history, ("mean", "moments", "frames"),
                                       s.depth_tolerance, s.normal_tolerance, cubic={"mean": (0, 1, 2), "moments": (0, 1)})
     n_prev = np.where(valid, prev["frames"], 0.0)
     m1, m2, s2 = prev["moments"][..., 0], prev["moments"][..., 1], prev["moments"][..., 2]
+    r_prev = prev["moments"][..., 3]  # the window's change ratio kept from the last frame
     res = {"depth": np.where(depth > 0, depth, 0.0), "normal": np.where(depth[..., None] > 0, normal, 0.0),
-           "mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 3)), "frames": np.zeros((h, w)),
+           "mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 4)), "frames": np.zeros((h, w)),
            "variance": np.zeros((h, w)), "slope": depth_slope_naive(depth)}
     r = s.change_radius
     k = s.change_sigmas
@@ -231,6 +233,7 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
             photon = min([v for v in e if v > 0], default=0.0)
             n = n_prev[y, x]
             bias2 = 0.0
+            kept = 0.0
             pairs = var_pairs  # running mean over frames of the neighbour-difference variance
             if n <= 0:
                 alpha, n_new, sigma2_est = 1.0, 1.0, var_pairs
@@ -260,6 +263,12 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 kn = k * min((n / 16) ** 0.25, 1.0)  # the threshold rises with the history's length
                 bias2 = max(d2 - spread - kn * se_d2, np.mean(d) ** 2 - kn * kn * spread / len(hq), 0.0)
                 ratio = bias2 / sigma2 if sigma2 > 0 else 0.0
+                # the window's ratio is kept, fading by change_persistence a frame; this frame's at least the rest
+                carried = s.change_persistence * r_prev[y, x]
+                # full k, under 16 frames of history (kernels_caustic.FULL_THRESHOLD_HISTORY)
+                confirmed = n < 16 and (d2 - spread - k * se_d2 > 0 or np.mean(d) ** 2 - k * k * spread / len(hq) > 0)
+                kept = min(max(ratio if confirmed else 0.0, carried), MAX_KEPT_RATIO)
+                ratio = max(ratio, carried)
                 if n < SPATIAL_VARIANCE_HISTORY:
                     sigma2_est = min(pairs, max(temporal, max(d2 - bias2, 0.0) / history_noise))
                 if m1_sum > 0:  # the pixel alone, against its share of the window's variance (∝ its mean)
@@ -278,7 +287,7 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
             # blend of the history (variance v) and the new sample, less the change found
             own = ((1 - alpha) * max(m2[y, x] - m1[y, x] ** 2, 0.0)
                    + alpha * (1 - alpha) * max((lum[y, x] - m1[y, x]) ** 2 - bias2, 0.0))
-            res["moments"][y, x] = (new_m1, new_m1 ** 2 + own, pairs)
+            res["moments"][y, x] = (new_m1, new_m1 ** 2 + own, pairs, kept)
             sigma2_est = max(sigma2_est, own * n_new / max(n_new - 1, 1))
             res["frames"][y, x] = n_new
             res["variance"][y, x] = sigma2_est / n_new
