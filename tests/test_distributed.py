@@ -127,7 +127,51 @@ def test_plan_for_a_resume_renders_through_short_gaps_only():
     assert plan_chunks([5, 6, 9], 0, 1, 8) == [Chunk(5, 10)]  # a gap of 2 < warm-up: rendered through
 
 
+@pytest.mark.parametrize("todo, workers, warmup, cost", [(range(0, 240), 2, 63, 0.4), (range(10, 1210), 7, 32, 0.25),
+                                                         (range(0, 100), 3, 20, 0.0)])
+def test_plan_balances_cost_with_cheap_warmup_frames(todo, workers, warmup, cost):
+    chunks = plan_chunks(todo, todo.start, workers, warmup, warmup_cost=cost)
+    assert [c for ch in chunks for c in range(ch.start, ch.stop)] == list(todo) and len(chunks) <= workers
+    costs = [len(ch) + cost * min(warmup, ch.start - todo.start) for ch in chunks]
+    assert max(costs) <= sum(costs) / len(costs) + 1, costs  # the largest within a frame of the mean
+    dear = plan_chunks(todo, todo.start, workers, warmup)  # warm-up frames as dear as written ones
+    assert len(chunks[0]) <= len(dear[0])  # the first chunk (no warm-up) takes fewer of the frames
+    if cost == 0.0:
+        assert max(len(ch) for ch in chunks) == 34  # free warm-ups: equal frame counts
+
+
 # ---------------------------------------------------------------------------------------------- seams, in process
+
+
+@pytest.mark.parametrize("settings", [
+    RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=3)),  # the defaults
+    replace(TINY, supersample=2),  # SVGF: its first à-trous level is the history
+    RenderSettings(width=32, height=18, rsm_size=32, method="caustics_map", denoiser="svgf",
+                   photons=PhotonSettings(photons=1000, seed=3, cmap_history=3, cmap_gather="eye")),
+], ids=["caustic", "svgf", "caustics_map"])
+def test_history_frames_leave_the_history_a_full_frame_leaves(settings):
+    """A warm-up frame (render_history_frame: no shading, no AOVs, the à-trous levels no history reads left out)
+    against a full frame: the frames after them are the same, bit for bit."""
+    from cisp_warp.sequence import render_history_frame
+
+    finals = []
+    for history_only in (False, True):
+        renderer = Renderer(load_usd(POOL, time_code=0, device="cpu"), settings, device="cpu")
+        animation = Animation(renderer, POOL)
+        for code in range(0, 6):
+            animation.set_time_code(code)
+            if history_only and code < 4:
+                render_history_frame(renderer)
+            else:
+                renderer.render_frame()
+                if code >= 4:
+                    finals.append(renderer.final_image())
+                    finals[-1] = (finals[-1], renderer.caustic_irradiance.numpy().copy())
+    for (a, ca), (b, cb) in zip(finals[:2], finals[2:]):
+        assert np.array_equal(a, b) and np.array_equal(ca, cb)
+    assert np.abs(finals[0][1]).max() > 0  # a caustic to compare
+
+
 
 
 def test_chunk_after_warmup_matches_single_process_within_the_seam_tolerance(tmp_path):
@@ -280,14 +324,16 @@ def test_two_workers_equal_one_process_and_video_has_every_frame_once(shot):
 
 @needs_dask
 def test_default_denoiser_on_workers_equals_one_process(client, tmp_path):
-    """`--workers` with the default settings: the caustics denoiser, its 63-frame warm-up. A 10-frame shot is
-    one chunk from the shot's first frame (a second chunk would cost its warm-up), on a worker that rendered the
-    exposure frame first: its history restarted, the frames equal one process's bit for bit."""
+    """`--workers` with the default settings: the caustics denoiser, its 63-frame warm-up. With warm-up frames
+    at half a written frame's cost, a 10-frame shot is cut 0..6 and 7..9: the second chunk warms up from the
+    shot's first frame (history-only frames, render_history_frame), on workers that rendered the exposure frame
+    and their cost measurement first: histories restarted, the frames equal one process's bit for bit."""
     settings = RenderSettings(width=32, height=18, rsm_size=32, photons=PhotonSettings(photons=1000, seed=3))
     assert settings.denoiser == "caustic"
     codes = range(0, 10)
-    stats = render_shot(POOL, codes, str(tmp_path / "multi"), settings, device="cpu", video=False, client=client)
-    assert [r["chunk"] for r in stats.chunks] == [(0, 10)] and stats.warmup == 0
+    stats = render_shot(POOL, codes, str(tmp_path / "multi"), settings, device="cpu", video=False, client=client,
+                        warmup_cost=0.5)
+    assert [r["chunk"] for r in stats.chunks] == [(0, 7), (7, 10)] and stats.warmup == 7
     single_process(tmp_path / "one", codes, settings, exposure=None)
     for c in codes:
         assert np.array_equal(png(tmp_path / "multi", c), png(tmp_path / "one", c)), c

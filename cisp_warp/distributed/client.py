@@ -37,11 +37,13 @@ class ShotStats:
     render_seconds: float = 0.0  #: first chunk submitted -> last frame on disk
     video_seconds: float = 0.0
     write_seconds: float = 0.0  #: writer-thread time summed over workers (tone map + PNG)
+    warmup_cost: float = 1.0  #: a warm-up frame's cost in written frames, as the plan took it
     video: str | None = None
 
     def summary(self) -> str:
         fps = self.frames / self.render_seconds if self.render_seconds > 0 else 0.0
-        return (f"{self.frames} frames written ({self.warmup} warm-up frames rendered) by {len(self.workers)} workers "
+        return (f"{self.frames} frames written ({self.warmup} warm-up frames rendered, each costing "
+                f"{self.warmup_cost:.2f} of a written one) by {len(self.workers)} workers "
                 f"in {len(self.chunks)} chunks: set-up {self.setup_seconds:.1f} s, frames {self.render_seconds:.1f} s "
                 f"({fps:.2f} frames/s), tone map + PNG {self.write_seconds:.1f} s of writer threads"
                 + (f", video {self.video_seconds:.1f} s" if self.video else ""))
@@ -147,7 +149,8 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
                 scheduler: str | None = None, device: str | None = None, camera: str | None = None,
                 simulate: bool = True, exposure: float | None = None, warmup: int | None = None,
                 resume: bool = False, video: bool = True, frame_aovs: bool = False,
-                writer_threads: int | None = None, progress=None, fault=None, client=None) -> ShotStats:
+                writer_threads: int | None = None, warmup_cost: float | None = None, progress=None, fault=None,
+                client=None) -> ShotStats:
     """Render time codes ``codes`` of ``scene`` into ``out`` on Dask workers (see the module docstring).
 
     ``workers``: size of a :func:`local_cluster`, or with ``scheduler`` (the address of a running cluster) or
@@ -156,7 +159,9 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
     None = :func:`warmup_frames`; ``resume``: keep every frame on disk, render the missing ones; otherwise
     frames on disk from earlier runs are rewritten; ``video``: assemble ``final.mp4``; ``writer_threads``:
     tone-map/PNG threads per worker (default: this host's cores shared by the workers, 1 to 8);
-    ``progress``: tqdm-like factory ``progress(total=...)``.
+    ``warmup_cost``: what a warm-up frame costs in written frames, for the plan (:func:`plan_chunks`); None =
+    measured on the workers before the chunks start (:func:`~.worker.frame_costs`, the median of the workers'),
+    when there is more than one worker to plan for; ``progress``: tqdm-like factory ``progress(total=...)``.
     """
     distributed = import_engine()
     codes = range(int(codes.start), int(codes.stop))
@@ -207,16 +212,20 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
                 writer_threads = max(1, min(8, (os.cpu_count() or 2) // max(1, len(addresses))))
             job = replace(job, writer_threads=int(writer_threads))
             # every worker builds its renderer now, in parallel; the exposure then costs one frame on one of them
-            ready = [client.submit(prepare, job, workers=[a], allow_other_workers=True, pure=False)
+            measure = warmup_cost is None and job.warmup > 0 and len(addresses) > 1 and len(todo) > 1
+            ready = [client.submit(prepare, job, measure, workers=[a], allow_other_workers=True, pure=False)
                      for a in addresses]  # loose: a worker lost now must not leave its task waiting for it
             if job.exposure is None:
                 job = replace(job, exposure=client.submit(shot_exposure, job, workers=addresses, pure=False).result())
             stats.workers = client.gather(ready)
             stats.exposure = job.exposure
+            ratios = sorted(w["costs"]["ratio"] for w in stats.workers if w.get("costs"))
+            stats.warmup_cost = float(warmup_cost if warmup_cost is not None else
+                                      (ratios[len(ratios) // 2] if ratios else 1.0))
             write_manifest(out, manifest_of(job))
             stats.setup_seconds = time.perf_counter() - t0
             t1 = time.perf_counter()
-            chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup)
+            chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup, stats.warmup_cost)
             stats.chunks = run_chunks(distributed, client, job, chunks, addresses, todo, progress)
             stats.render_seconds = time.perf_counter() - t1
         finally:
