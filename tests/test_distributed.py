@@ -50,6 +50,38 @@ def png(folder, code):
     return np.asarray(Image.open(os.path.join(folder, frame_name(code))), dtype=np.int16)
 
 
+# The workers tone map on the device (cisp_warp/distributed/ldr.py), one process on the host (image_io.tonemap):
+# the same float32 operations in the same order, but numpy's float32 power (glibc's powf, < 1 ulp) and a
+# correctly rounded one differ in the last bit at times, which moves a byte by one where srgb * 255 + 0.5 lies
+# within that bit of a whole number (2 values in 750 000 in the twin test below). Frames "equal" one process's
+# when no byte differs by more than one and at most TONEMAP_FLIPS of them differ at all.
+TONEMAP_FLIPS = 1e-4
+
+
+def same_frame(a, b) -> bool:
+    d = np.abs(a - b)
+    return int(d.max()) <= 1 and np.count_nonzero(d) <= TONEMAP_FLIPS * d.size
+
+
+def test_device_tonemap_matches_box_filter_and_tonemap(device):
+    import warp as wp
+
+    from cisp_warp.distributed.ldr import filter_tonemap, filter_tonemap_naive
+
+    rng = np.random.default_rng(7)
+    for s, (h, w) in ((1, (9, 13)), (2, (150, 200)), (3, (11, 7))):
+        a = (rng.random((h * s, w * s, 3), dtype=np.float32) * rng.choice([1e-2, 1.0, 300.0, 3000.0, 1e6], size=(h * s, w * s, 3))).astype(np.float32)
+        a[0, 0, 0], a[0, -1, 1], a[-1, 0, 2], a[-1, -1, 0] = np.nan, np.inf, -np.inf, -3.0
+        for scale in (2e-3, 0.37):
+            ref = filter_tonemap_naive(a, s, scale)
+            ldr = wp.empty(h * w * 3, dtype=wp.uint8, device=device)
+            wp.launch(filter_tonemap, dim=h * w, device=device,
+                      inputs=[wp.array(a.reshape(-1, 3), dtype=wp.vec3, device=device), w * s, s, scale, ldr])
+            got = ldr.numpy().reshape(h, w, 3).astype(np.int16)
+            assert same_frame(got, ref.astype(np.int16)), (s, scale, np.count_nonzero(got != ref))
+            assert h * w < 1000 or len(np.unique(ref)) > 100  # the 8-bit range is exercised
+
+
 def final_hdr(folder, code):
     """`final` of a frame from aovs.####.exr (float16 there: both runs' frames are rounded alike, 5e-4 at most)."""
     layers = read_layers(os.path.join(folder, f"aovs.{code:04d}.exr"))
@@ -272,7 +304,7 @@ def test_caustics_map_history_is_rebuilt_exactly(tmp_path):
     report = render_chunk(job_for(tmp_path, codes, settings), Chunk(8, 12))
     assert report["warmup"] == 3
     for c in range(8, 12):
-        assert np.array_equal(png(tmp_path, c), png(tmp_path / "one", c)), c
+        assert same_frame(png(tmp_path, c), png(tmp_path / "one", c)), c
 
 
 # ---------------------------------------------------------------------------------------------- on Dask workers
@@ -311,7 +343,7 @@ def test_two_workers_equal_one_process_and_video_has_every_frame_once(shot):
     assert sorted(c for r in stats.chunks for c in r["written"]) == list(codes)
     assert stats.warmup == 0  # the gather keeps no history
     for c in codes:
-        assert np.array_equal(png(root / "multi", c), png(root / "one", c)), c
+        assert same_frame(png(root / "multi", c), png(root / "one", c)), c
     import imageio_ffmpeg
 
     video = [np.frombuffer(f, np.uint8).reshape(18, 32, 3).astype(np.int16)
@@ -336,7 +368,7 @@ def test_default_denoiser_on_workers_equals_one_process(client, tmp_path):
     assert [r["chunk"] for r in stats.chunks] == [(0, 7), (7, 10)] and stats.warmup == 7
     single_process(tmp_path / "one", codes, settings, exposure=None)
     for c in codes:
-        assert np.array_equal(png(tmp_path / "multi", c), png(tmp_path / "one", c)), c
+        assert same_frame(png(tmp_path / "multi", c), png(tmp_path / "one", c)), c
 
 
 @needs_dask
@@ -390,10 +422,12 @@ def test_bench_smoke(client):
                           "--scheduler", client.scheduler.address], capture_output=True,
                          text=True, timeout=120, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert run.returncode == 0, run.stderr[-2000:]
-    rows = [line.split("|") for line in run.stdout.splitlines() if "|" in line and line.split("|")[0].strip() in "12"]
-    assert [r[0].strip() for r in rows] == ["1", "2"]
-    assert int(rows[1][9]) > 0  # the second worker's chunk warmed up (not from the shot's start)
-    assert int(rows[1][-2]) <= SEAM_PNG  # its frames within the seam tolerance of the 1-worker (single-chunk) run
+    lines = [line.split("|") for line in run.stdout.splitlines() if "|" in line]
+    head = [h.strip() for h in next(line for line in lines if line[0].strip() == "workers")]
+    rows = [dict(zip(head, (v.strip() for v in line))) for line in lines if line[0].strip() in ("1", "2")]
+    assert [r["workers"] for r in rows] == ["1", "2"]
+    assert int(rows[1]["warm-up"]) > 0  # the second worker's chunk warmed up (not from the shot's start)
+    assert int(rows[1]["max diff"]) <= SEAM_PNG  # its frames within the seam tolerance of the 1-worker (single-chunk) run
 
 
 @needs_dask

@@ -17,15 +17,17 @@ A chunk, on its worker: the renderer and animation of the shot are built once pe
 single-process run's (see :func:`warmup_frames` for how many, and what is left). A frame's random streams
 come from the seed and its index in the shot (time code − shot start), so every frame, warm-up or not, gets
 the photons it gets in one process. Frames go to ``final.####.png`` (#### = the time code: chunks never
-collide), tone mapped and PNG-encoded by a per-worker thread pool (:class:`FrameWriter`) while the device
-renders the next frame, written to a temporary name and renamed, so a frame on disk is always complete.
+collide), filtered down and tone mapped on the device (:mod:`.ldr`), copied to pinned host memory without the
+render loop waiting, and PNG-encoded by a per-worker thread pool (:class:`FrameWriter`) while the device renders the
+next frame, written to a temporary name and renamed, so a frame on disk is always complete. A frame that is not
+written (a warm-up) renders only what the history reads (:func:`cisp_warp.sequence.render_history_frame`).
 
 Faults: a worker that dies (process killed, host lost) loses its task, and the scheduler runs the chunk
 again on another worker (Dask's ``distributed.scheduler.allowed-failures``); the re-run skips the frames
 already written in this run and warms up before its first missing one. ``resume=True`` renders only frames
 missing from ``out``. Progress over all frames is one bar fed by the frames appearing in ``out``.
 
-Modules: :mod:`.plan` (warm-up length, chunks), :mod:`.worker` (what runs on a worker: the job, the renderer
+Modules: :mod:`.plan` (warm-up length, chunks), :mod:`.ldr` (the 8-bit frame on the device, pinned readback), :mod:`.worker` (what runs on a worker: the job, the renderer
 kept per worker process, the chunk loop, the PNG writer threads), :mod:`.client` (cluster, exposure, tasks,
 progress, manifest, video, the command line's call).
 """

@@ -104,60 +104,15 @@ def worker_renderer(job: ShotJob):
 _HOST: dict = {}  # (renderer_key, slots) -> HostFrames of this worker process, kept from chunk to chunk
 
 
-def host_frames(job: ShotJob, renderer) -> "HostFrames":
-    """This worker's :class:`HostFrames` for ``job`` (``2 * writer_threads`` slots), allocated once."""
+def host_frames(job: ShotJob, renderer):
+    """This worker's :class:`~.ldr.HostFrames` for ``job`` (``2 * writer_threads`` slots), allocated once."""
+    from .ldr import HostFrames
+
     key = (job.renderer_key, 2 * max(1, job.writer_threads))
     if key not in _HOST:
         _HOST.clear()
         _HOST[key] = HostFrames(renderer, key[1])
     return _HOST[key]
-
-
-class HostFrames:
-    """Host buffers that receive ``final`` from the device without stalling the render loop.
-
-    ``slots`` buffers of the (supersampled) G-buffer's ``H*W`` vec3 [W/(m² sr)], pinned on CUDA. ``send(image)``
-    waits for a free slot (the writers hold at most ``slots`` frames: bounded memory), enqueues the copy on the
-    device's stream (asynchronous into pinned memory: the next frame's kernels queue behind it, the host does not
-    wait) with an event after it, and returns the slot; a writer thread calls ``receive(slot)`` (waits for that
-    event; an (H, W, 3) float32 view of the slot) and ``release(slot)`` when done with it. On the CPU the copy is
-    a plain memcpy, done by ``send``.
-    """
-
-    def __init__(self, renderer, slots: int):
-        import queue
-
-        import warp as wp
-
-        g = renderer.gbuffer
-        self.shape = (g.height, g.width, 3)
-        self.device = renderer.device
-        pinned = self.device.is_cuda
-        self.buffers = [wp.empty(g.width * g.height, dtype=wp.vec3, device="cpu", pinned=pinned)
-                        for _ in range(slots)]
-        self.events = [wp.Event(self.device) if pinned else None for _ in range(slots)]
-        self.free = queue.SimpleQueue()
-        for k in range(slots):
-            self.free.put(k)
-
-    def send(self, image) -> int:
-        import warp as wp
-
-        k = self.free.get()
-        wp.copy(self.buffers[k], image)
-        if self.events[k] is not None:
-            self.device.stream.record_event(self.events[k])
-        return k
-
-    def receive(self, k: int) -> np.ndarray:
-        import warp as wp
-
-        if self.events[k] is not None:
-            wp.synchronize_event(self.events[k])
-        return self.buffers[k].numpy().reshape(self.shape)
-
-    def release(self, k: int) -> None:
-        self.free.put(k)
 
 
 def restart_history(renderer, animation, index: int) -> None:
@@ -216,16 +171,17 @@ def shot_exposure(job: ShotJob) -> float:
 
 
 class FrameWriter:
-    """Tone map and write frames on ``threads`` host threads while the device renders the next one.
+    """Write frames on ``threads`` host threads while the device renders the next one.
 
-    ``submit(code, slot, aovs)`` takes a slot of ``frames`` (:class:`HostFrames`: ``final`` on its way to the host,
-    on the supersampled grid, filtered down here by ``supersample``) and host copies of the AOVs, and returns at
-    once (``frames`` bounds how many wait). Each frame is written to a hidden temporary name and renamed to
+    ``submit(code, slot, aovs)`` takes a slot of ``frames`` (:class:`~.ldr.HostFrames`: the frame's 8-bit image,
+    filtered down and tone mapped on the device, on its way to the host) and, with ``frame_aovs``, host copies of
+    the HDR layers on the supersampled grid (filtered down here by ``supersample``), and returns at once
+    (``frames`` bounds how many wait). Each frame is written to a hidden temporary name and renamed to
     ``final.####.png`` (atomic on one file system), AOVs first when asked for, so a ``final.####.png`` on disk
-    always means a complete frame. ``seconds``: thread time spent writing (tone map, filter, PNG).
+    always means a complete frame. ``seconds``: thread time spent writing.
     """
 
-    def __init__(self, job: ShotJob, threads: int, frames: HostFrames, supersample: int = 1):
+    def __init__(self, job: ShotJob, threads: int, frames, supersample: int = 1):
         self.job = job
         self.frames = frames
         self.supersample = int(supersample)
@@ -236,9 +192,9 @@ class FrameWriter:
 
     def _write(self, code: int, slot: int, aovs: dict) -> None:
         try:
-            final = self.frames.receive(slot)
+            ldr = self.frames.receive(slot)
             t0 = time.perf_counter()
-            encode_frame(self.job, code, final, aovs, self.supersample)
+            encode_frame(self.job, code, ldr, aovs, self.supersample)
             with self.lock:
                 self.seconds += time.perf_counter() - t0
         finally:
@@ -257,22 +213,21 @@ class FrameWriter:
 PNG_LEVEL = 1  #: zlib level of the frames' PNGs (lossless at every level; see the README's distributed section)
 
 
-def encode_frame(job: ShotJob, code: int, final: np.ndarray, aovs: dict, supersample: int, path: str | None = None):
-    """Filter ``final`` (H, W, 3 on the supersampled grid) down, tone map it with the shot's exposure and write
-    ``final.####.png`` (through a temporary name; ``path``: a file or file object instead, for timing)."""
+def encode_frame(job: ShotJob, code: int, ldr: np.ndarray, aovs: dict, supersample: int, path=None) -> None:
+    """Write ``final.####.png`` from ``ldr`` ((H, W, 3) uint8 sRGB) through a temporary name, after the layers of
+    ``aovs.####.exr`` when ``aovs`` holds them ((H*s, W*s, 3) float32, ``final`` among them; filtered down here);
+    ``path``: a file object instead, for timing."""
     from PIL import Image
 
-    from ..image_io import tonemap, write_layers
+    from ..image_io import write_layers
     from ..render import box_filter
 
-    final = box_filter(final, supersample)
-    if job.frame_aovs and path is None:  # layers of aovs.####.exr, as render_sequence writes them (itself atomic)
-        layers = {"final": final, **{k: box_filter(v, supersample) for k, v in aovs.items()}}
-        write_layers(os.path.join(job.out, f"aovs.{code:04d}.exr"), layers)
-    image = Image.fromarray(tonemap(final, 1.0 if job.exposure is None else job.exposure))
+    image = Image.fromarray(ldr)
     if path is not None:
         image.save(path, format="PNG", compress_level=PNG_LEVEL)
         return
+    if aovs:  # as render_sequence writes them (itself atomic)
+        write_layers(os.path.join(job.out, f"aovs.{code:04d}.exr"), {k: box_filter(v, supersample) for k, v in aovs.items()})
     tmp = os.path.join(job.out, f".{frame_name(code)}.{os.getpid()}.tmp")
     image.save(tmp, format="PNG", compress_level=PNG_LEVEL)
     os.replace(tmp, job.path(code))
@@ -282,9 +237,9 @@ def frame_costs(job: ShotJob, frames: int = 3) -> dict:
     """What a written and a warm-up frame cost on this worker, seconds each (medians over ``frames``), measured
     on the shot's first frames after one untimed frame of each kind (kernels loaded, buffers touched).
 
-    ``written``: a full frame, its copy to the host and the wait for both (as the render loop pays it when the
+    ``written``: a full frame, its 8-bit image's copy to the host and the wait for both (as the render loop pays it when the
     device is the bottleneck); ``warmup``: :func:`~cisp_warp.sequence.render_history_frame` and the wait;
-    ``encode``: one writer thread's filter, tone map and PNG of that frame (to memory); ``ratio``: what a
+    ``encode``: one writer thread's PNG of that frame (to memory); ``ratio``: what a
     warm-up frame costs in written frames, ``warmup / max(written, encode / threads)`` (the render loop goes
     no faster than its writers)."""
     import io
@@ -308,13 +263,13 @@ def frame_costs(job: ShotJob, frames: int = 3) -> dict:
             kind = "warmup"
         else:
             renderer.render_frame()
-            k = slots.send(renderer.final)
-            final = slots.receive(k)
+            k = slots.send(renderer.final, 1.0 if job.exposure is None else job.exposure)
+            ldr = slots.receive(k)
             kind = "written"
         dt = time.perf_counter() - t0
         if kind == "written":
             t1 = time.perf_counter()
-            encode_frame(job, 0, final, {}, renderer.settings.supersample, path=io.BytesIO())
+            encode_frame(job, 0, ldr, {}, renderer.settings.supersample, path=io.BytesIO())
             slots.release(k)
             if i >= 2:
                 times["encode"].append(time.perf_counter() - t1)
@@ -368,10 +323,12 @@ def render_chunk(job: ShotJob, chunk: Chunk) -> dict:
             if code in wanted and not job.done(code):
                 renderer.render_frame()
                 aovs = {}
-                if job.frame_aovs and renderer.photons is not None:  # as render_sequence writes them
-                    aovs["caustics"] = host_samples(renderer, renderer.caustic_irradiance)
-                    aovs["photon_map"] = host_samples(renderer, renderer.photons.photon_map)
-                writer.submit(code, slots.send(renderer.final), aovs)  # the frame's one host copy, queued
+                if job.frame_aovs:  # as render_sequence writes them (host copies, the loop waits: for checks)
+                    aovs["final"] = host_samples(renderer, renderer.final)
+                    if renderer.photons is not None:
+                        aovs["caustics"] = host_samples(renderer, renderer.caustic_irradiance)
+                        aovs["photon_map"] = host_samples(renderer, renderer.photons.photon_map)
+                writer.submit(code, slots.send(renderer.final, job.exposure), aovs)  # the 8-bit frame, queued
                 report["written"].append(code)
             else:
                 render_history_frame(renderer)
@@ -385,5 +342,5 @@ def render_chunk(job: ShotJob, chunk: Chunk) -> dict:
     return report
 
 
-__all__ = ["FrameWriter", "HostFrames", "ShotJob", "encode_frame", "frame_costs", "frame_name", "prepare", "render_chunk", "restart_history", "shot_exposure",
+__all__ = ["FrameWriter", "ShotJob", "encode_frame", "frame_costs", "frame_name", "prepare", "render_chunk", "restart_history", "shot_exposure",
            "worker_renderer"]
