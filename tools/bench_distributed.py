@@ -63,6 +63,9 @@ def parse_args(argv=None):
                    help="after the timed runs, measure the seam at the last run's second chunk in this process: the "
                    "caustic layer of the chunk's first 4 frames against one process's, over one process's own "
                    "frame-to-frame change (the tolerance of tests/test_distributed.py, caustic_seam_factor)")
+    p.add_argument("--costs", action="store_true",
+                   help="after the timed runs, measure a written and a warm-up frame in this process on the workers' "
+                   "device (frame_costs) and print the chunks and speed-up the plan predicts for 2, 4 and 8 workers")
     p.add_argument("--json", default=None, help="write the runs' figures to this JSON file")
     p.add_argument("--keep", default=None, metavar="FOLDER",
                    help="copy each run's frames at the last run's chunk starts (and the frame before) here")
@@ -96,6 +99,36 @@ def compare(a: str, b: str, codes) -> tuple[int, float]:
     return worst, differ / max(total, 1)
 
 
+def predict(args, settings, codes, threads: int) -> dict:
+    """frame_costs in this process on the workers' device, and the plan it gives for 2, 4 and 8 workers: the
+    largest chunk's cost in written frames and the speed-up over one worker it bounds (the frames phase)."""
+    import warp as wp
+
+    from cisp_warp.distributed import ShotJob, plan_chunks, warmup_frames
+    from cisp_warp.distributed import worker as W
+
+    device = args.device or ("cuda:0" if wp.is_cuda_available() else "cpu")
+    warmup = warmup_frames(settings) if args.warmup is None else args.warmup
+    job = ShotJob(scene=os.path.abspath(args.scene), out=tempfile.gettempdir(), settings=settings,
+                  shot_start=codes.start, shot_stop=codes.stop, warmup=warmup, device=device, writer_threads=threads)
+    costs = W.frame_costs(job, frames=5)
+    W._WORKER.clear()  # its buffers freed for the seam check
+    W._HOST.clear()
+    out = {"device": f"{wp.get_device(device).alias} ({wp.get_device(device).name})", **costs, "plans": {}}
+    print(f"frame costs on {out['device']}: written {1e3 * costs['written']:.1f} ms, warm-up {1e3 * costs['warmup']:.1f} ms, "
+          f"one writer thread's PNG {1e3 * costs['encode']:.1f} ms ({threads} threads) -> warm-up cost {costs['ratio']:.3f}",
+          flush=True)
+    for n in (2, 4, 8):
+        chunks = plan_chunks(codes, codes.start, n, warmup, costs["ratio"])
+        worst = max(len(c) + costs["ratio"] * min(warmup, c.start - codes.start) for c in chunks)
+        out["plans"][n] = {"chunks": [(c.start, c.stop) for c in chunks], "speedup": len(codes) / worst}
+        print(f"  {n} workers: chunks {', '.join(f'{c.start}..{c.stop - 1}' for c in chunks)}; predicted speed-up "
+              f"{len(codes) / worst:.2f}x (frames phase; with warm-up frames as dear as written ones "
+              f"{len(codes) / max(len(c) + min(warmup, c.start - codes.start) for c in plan_chunks(codes, codes.start, n, warmup)):.2f}x)",
+              flush=True)
+    return out
+
+
 def seam_check(args, settings, codes, start: int, stats, written: int = 4) -> dict:
     """The seam of a chunk starting at ``start`` (after the shot's warm-up), measured in this process on the
     workers' device: the denoised caustic irradiance (filtered down) of the chunk's first ``written`` frames against
@@ -117,7 +150,9 @@ def seam_check(args, settings, codes, start: int, stats, written: int = 4) -> di
     def caustics():
         return box_filter(renderer.caustic_irradiance.numpy().reshape(g.height, g.width, 3), ss)
 
-    warmup = int(stats.warmup and max(r["warmup"] for r in stats.chunks))
+    from cisp_warp.distributed import warmup_frames
+
+    warmup = min(warmup_frames(settings) if args.warmup is None else args.warmup, start - codes.start)
     t0 = time.perf_counter()
     one = {}
     for c in range(codes.start, start + written):  # one process from the shot's first frame
@@ -221,6 +256,9 @@ def main(argv=None) -> int:
         for line in lines:
             print(" | ".join(v.ljust(w) for v, w in zip(line, widths)))
         starts = sorted(r["chunk"][0] for r in rows[-1][2].chunks if r["chunk"][0] > codes.start)
+        costs = predict(args, settings, codes, threads) if args.costs else None
+        if args.seam and not starts and costs:  # one worker ran: the seam where the plan puts a second chunk
+            starts = [costs["plans"][2]["chunks"][1][0]]
         seam = seam_check(args, settings, codes, starts[0], rows[-1][2]) if args.seam and starts else None
         if args.keep:
             os.makedirs(args.keep, exist_ok=True)
@@ -233,7 +271,7 @@ def main(argv=None) -> int:
             import json
 
             data = {"scene": args.scene, "frames": [codes.start, codes.stop], "settings": repr(settings),
-                    "host_cores": os.cpu_count(), "writer_threads": threads, "seam": seam,
+                    "host_cores": os.cpu_count(), "writer_threads": threads, "seam": seam, "costs": costs,
                     "runs": [{"workers": n, "wall_seconds": wall, "table": dict(zip(head, line)),
                               "stats": {k: v for k, v in vars(stats).items()}}
                              for (n, _, stats, wall), line in zip(rows, lines)]}
