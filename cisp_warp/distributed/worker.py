@@ -252,6 +252,9 @@ def frame_costs(job: ShotJob, frames: int = 3) -> dict:
     renderer, animation = worker_renderer(job)
     slots = host_frames(job, renderer)
     times = {"written": [], "warmup": [], "encode": []}
+    from ..image_io import auto_exposure
+
+    exposure = job.exposure
     restart_history(renderer, animation, 0)
     for i in range(2 * (frames + 1)):
         animation.set_time_code(job.shot_start + i)
@@ -263,7 +266,9 @@ def frame_costs(job: ShotJob, frames: int = 3) -> dict:
             kind = "warmup"
         else:
             renderer.render_frame()
-            k = slots.send(renderer.final, 1.0 if job.exposure is None else job.exposure)
+            if exposure is None:  # the PNG's cost depends on the picture: the shot's exposure, not a white frame
+                exposure = auto_exposure(renderer.final_image())
+            k = slots.send(renderer.final, exposure)
             ldr = slots.receive(k)
             kind = "written"
         dt = time.perf_counter() - t0
