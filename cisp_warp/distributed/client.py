@@ -35,7 +35,7 @@ class ShotStats:
     exposure: float = 1.0
     setup_seconds: float = 0.0  #: cluster start, workers' renderers, exposure
     render_seconds: float = 0.0  #: first chunk submitted -> last frame on disk
-    video_seconds: float = 0.0
+    video_seconds: float = 0.0  #: MP4 assembly after the last frame (the rest overlapped the chunks)
     write_seconds: float = 0.0  #: writer-thread time summed over workers (tone map + PNG)
     warmup_cost: float = 1.0  #: a warm-up frame's cost in written frames, as the plan took it
     video: str | None = None
@@ -120,29 +120,53 @@ def write_manifest(out: str, manifest: dict) -> None:
     os.replace(tmp, os.path.join(out, MANIFEST))
 
 
+class VideoAssembler:
+    """``final.mp4`` from ``final.####.png`` in time-code order, fed while the chunks render: ``feed(ready)``
+    appends the frames from the next missing time code on for which ``ready(code)`` holds (a frame of this run on
+    disk), so the frames of the first chunk are encoded while the others render, and ``close()`` appends the rest
+    and renames the file into place (written to a temporary name; None when no video could be written)."""
+
+    def __init__(self, out: str, codes, fps: float):
+        from ..sequence import VideoWriter
+
+        self.out, self.codes, self.next = out, list(codes), 0
+        self.tmp = os.path.join(out, f".final.{os.getpid()}.tmp.mp4")
+        self.writer = VideoWriter(self.tmp, fps)
+        self.seconds = 0.0  #: spent appending frames
+
+    def feed(self, ready=lambda code: True) -> None:
+        from PIL import Image
+
+        t0 = time.perf_counter()
+        while self.next < len(self.codes) and self.writer.error is None and ready(self.codes[self.next]):
+            with Image.open(os.path.join(self.out, frame_name(self.codes[self.next]))) as im:
+                self.writer.append(np.asarray(im.convert("RGB")))
+            self.next += 1
+        self.seconds += time.perf_counter() - t0
+
+    def discard(self) -> None:
+        """Stop without a video (a chunk failed): ffmpeg closed, the temporary file removed."""
+        self.writer.close()
+        if os.path.exists(self.tmp):
+            os.remove(self.tmp)
+
+    def close(self) -> str | None:
+        try:
+            self.feed()
+        finally:
+            self.writer.close()
+        if self.writer.error is not None or not self.writer.frames:
+            if os.path.exists(self.tmp):
+                os.remove(self.tmp)
+            return None
+        path = os.path.join(self.out, "final.mp4")
+        os.replace(self.tmp, path)
+        return path
+
+
 def assemble_video(out: str, codes, fps: float) -> str | None:
-    """``final.mp4`` from ``final.####.png`` in time-code order (written to a temporary name, then renamed)."""
-    from PIL import Image
-
-    from ..sequence import VideoWriter
-
-    tmp = os.path.join(out, f".final.{os.getpid()}.tmp.mp4")
-    writer = VideoWriter(tmp, fps)
-    try:
-        for code in codes:
-            with Image.open(os.path.join(out, frame_name(code))) as im:
-                writer.append(np.asarray(im.convert("RGB")))
-            if writer.error is not None:
-                break
-    finally:
-        writer.close()
-    if writer.error is not None or not writer.frames:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        return None
-    path = os.path.join(out, "final.mp4")
-    os.replace(tmp, path)
-    return path
+    """``final.mp4`` from ``final.####.png`` in time-code order, all at once."""
+    return VideoAssembler(out, codes, fps).close()
 
 
 def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, workers: int | None = None,
@@ -197,6 +221,7 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
                              f"not {exposure:g}; drop --exposure or --resume", file=os.path.join(out, MANIFEST))
     todo = [c for c in codes if not job.done(c)]
     stats = ShotStats(exposure=job.exposure or 1.0)
+    assembler = None
     t0 = time.perf_counter()
     if todo or job.exposure is None:
         opened = []  # what this call opened and closes: a client, and a local cluster
@@ -226,7 +251,16 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
             stats.setup_seconds = time.perf_counter() - t0
             t1 = time.perf_counter()
             chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup, stats.warmup_cost)
-            stats.chunks = run_chunks(distributed, client, job, chunks, addresses, todo, progress)
+            if video:
+                from ..animation import StageClock
+
+                assembler = VideoAssembler(out, codes, StageClock(scene, camera).time_codes_per_second)
+            try:
+                stats.chunks = run_chunks(distributed, client, job, chunks, addresses, todo, progress, assembler)
+            except BaseException:
+                if assembler is not None:
+                    assembler.discard()
+                raise
             stats.render_seconds = time.perf_counter() - t1
         finally:
             for thing in opened:
@@ -242,11 +276,13 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
     stats.warmup = sum(r["warmup"] for r in stats.chunks)
     stats.write_seconds = sum(r["write_seconds"] for r in stats.chunks)
     if video:
-        from ..animation import StageClock
+        if assembler is None:  # every frame was on disk: no chunk ran
+            from ..animation import StageClock
 
+            assembler = VideoAssembler(out, codes, StageClock(scene, camera).time_codes_per_second)
         t2 = time.perf_counter()
-        stats.video = assemble_video(out, codes, StageClock(scene, camera).time_codes_per_second)
-        stats.video_seconds = time.perf_counter() - t2
+        stats.video = assembler.close()
+        stats.video_seconds = time.perf_counter() - t2  # after the last frame: what the overlap left
     return stats
 
 
@@ -294,9 +330,10 @@ def wait_for(client, opened: list, n: int, where: str, seconds: float = 120.0) -
     return opened
 
 
-def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progress) -> list[dict]:
-    """Submit one :func:`render_chunk` task per chunk and wait, the progress bar fed by the frames on disk;
-    the first task error is raised here (the other tasks cancelled). Returns the tasks' reports."""
+def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progress, video=None) -> list[dict]:
+    """Submit one :func:`render_chunk` task per chunk and wait, the progress bar and ``video``
+    (:class:`VideoAssembler`) fed by the frames on disk; the first task error is raised here (the other tasks
+    cancelled). Returns the tasks' reports."""
     futures = [client.submit(render_chunk, job, c, workers=addresses, pure=False, retries=0) for c in chunks]
     bar = progress(total=len(todo)) if (progress and todo) else None
     shown = 0
@@ -325,6 +362,8 @@ def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progr
                 now = sum(job.done(c) for c in todo)
                 bar.update(now - shown)
                 shown = now
+            if video is not None:
+                video.feed(job.done)
         reports = client.gather(futures)
     finally:
         if reports is None:  # an error or Ctrl-C: stop the other chunks
@@ -384,5 +423,5 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say, 
     return 0
 
 
-__all__ = ["MANIFEST", "MISSING_ENGINE", "ShotStats", "assemble_video", "import_engine", "local_cluster",
+__all__ = ["MANIFEST", "MISSING_ENGINE", "ShotStats", "VideoAssembler", "assemble_video", "import_engine", "local_cluster",
            "main_distributed", "render_shot"]
