@@ -5,11 +5,11 @@
 >>> stats = render_shot(..., scheduler="tcp://head:8786")  # the workers of a running cluster
 
 Plan (client side, :func:`render_shot`): the frames still to write are cut into one contiguous chunk per
-worker (:func:`plan_chunks`, balanced so that a chunk's warm-up counts against it); one exposure for the
+worker (:func:`plan_chunks`, balanced by cost: a chunk's warm-up frames count against it at their measured cost); one exposure for the
 whole shot is rendered once (the shot's first frame with a fresh history, exactly as
 :func:`cisp_warp.sequence.render_sequence` picks it) or taken from ``--exposure`` or an earlier run's
-``shot.json``; then every chunk is a Dask task (:func:`render_chunk`), and the MP4 is assembled once, after
-the last chunk, from the PNGs in time-code order.
+``shot.json``; then every chunk is a Dask task (:func:`render_chunk`), and the MP4 is assembled once, from the
+PNGs in time-code order, fed while the chunks render (:class:`~.client.VideoAssembler`).
 
 A chunk, on its worker: the renderer and animation of the shot are built once per worker process and kept
 (:func:`worker_renderer`); the temporal state is restarted (:func:`restart_history`) and the chunk renders
