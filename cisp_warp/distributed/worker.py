@@ -227,7 +227,8 @@ def encode_frame(job: ShotJob, code: int, ldr: np.ndarray, aovs: dict, supersamp
         image.save(path, format="PNG", compress_level=PNG_LEVEL)
         return
     if aovs:  # as render_sequence writes them (itself atomic)
-        write_layers(os.path.join(job.out, f"aovs.{code:04d}.exr"), {k: box_filter(v, supersample) for k, v in aovs.items()})
+        layers = {k: box_filter(v, supersample) for k, v in aovs.items()}
+        write_layers(os.path.join(job.out, f"aovs.{code:04d}.exr"), layers)
     tmp = os.path.join(job.out, f".{frame_name(code)}.{os.getpid()}.tmp")
     image.save(tmp, format="PNG", compress_level=PNG_LEVEL)
     os.replace(tmp, job.path(code))
@@ -237,23 +238,22 @@ def frame_costs(job: ShotJob, frames: int = 3) -> dict:
     """What a written and a warm-up frame cost on this worker, seconds each (medians over ``frames``), measured
     on the shot's first frames after one untimed frame of each kind (kernels loaded, buffers touched).
 
-    ``written``: a full frame, its 8-bit image's copy to the host and the wait for both (as the render loop pays it when the
-    device is the bottleneck); ``warmup``: :func:`~cisp_warp.sequence.render_history_frame` and the wait;
-    ``encode``: one writer thread's PNG of that frame (to memory); ``ratio``: what a
-    warm-up frame costs in written frames, ``warmup / max(written, encode / threads)`` (the render loop goes
-    no faster than its writers)."""
+    ``written``: a full frame, its 8-bit image's copy to the host and the wait for both (what the render loop
+    pays when the device is the bottleneck); ``warmup``: :func:`~cisp_warp.sequence.render_history_frame` and
+    the wait; ``encode``: one writer thread's PNG of that frame (to memory, at the shot's exposure); ``ratio``:
+    what a warm-up frame costs in written frames, ``warmup / max(written, encode / threads)`` (the render loop
+    goes no faster than its writers)."""
     import io
     import statistics
 
     import warp as wp
 
+    from ..image_io import auto_exposure
     from ..sequence import render_history_frame
 
     renderer, animation = worker_renderer(job)
     slots = host_frames(job, renderer)
     times = {"written": [], "warmup": [], "encode": []}
-    from ..image_io import auto_exposure
-
     exposure = job.exposure
     restart_history(renderer, animation, 0)
     for i in range(2 * (frames + 1)):
@@ -347,5 +347,5 @@ def render_chunk(job: ShotJob, chunk: Chunk) -> dict:
     return report
 
 
-__all__ = ["FrameWriter", "ShotJob", "encode_frame", "frame_costs", "frame_name", "prepare", "render_chunk", "restart_history", "shot_exposure",
-           "worker_renderer"]
+__all__ = ["FrameWriter", "ShotJob", "encode_frame", "frame_costs", "frame_name", "prepare", "render_chunk",
+           "restart_history", "shot_exposure", "worker_renderer"]
