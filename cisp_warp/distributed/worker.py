@@ -238,11 +238,11 @@ def frame_costs(job: ShotJob, frames: int = 3) -> dict:
     """What a written and a warm-up frame cost on this worker, seconds each (medians over ``frames``), measured
     on the shot's first frames after one untimed frame of each kind (kernels loaded, buffers touched).
 
-    ``written``: a full frame, its 8-bit image's copy to the host and the wait for both (what the render loop
-    pays when the device is the bottleneck); ``warmup``: :func:`~cisp_warp.sequence.render_history_frame` and
-    the wait; ``encode``: one writer thread's PNG of that frame (to memory, at the shot's exposure); ``ratio``:
-    what a warm-up frame costs in written frames, ``warmup / max(written, encode / threads)`` (the render loop
-    goes no faster than its writers)."""
+    ``written``: the animation step, a full frame, its 8-bit image's copy to the host and the wait for them (what
+    the render loop pays when the device is the bottleneck); ``warmup``: the animation step,
+    :func:`~cisp_warp.sequence.render_history_frame` and the wait; ``encode``: one writer thread's PNG of that
+    frame (to memory, at the shot's exposure); ``ratio``: what a warm-up frame costs in written frames,
+    ``warmup / max(written, encode / threads)`` (the render loop goes no faster than its writers)."""
     import io
     import statistics
 
@@ -257,9 +257,9 @@ def frame_costs(job: ShotJob, frames: int = 3) -> dict:
     exposure = job.exposure
     restart_history(renderer, animation, 0)
     for i in range(2 * (frames + 1)):
-        animation.set_time_code(job.shot_start + i)
         wp.synchronize_device(renderer.device)
         t0 = time.perf_counter()
+        animation.set_time_code(job.shot_start + i)  # both kinds pay the animation step (camera, water, BVH)
         if i % 2:
             render_history_frame(renderer)
             wp.synchronize_device(renderer.device)
