@@ -8,7 +8,7 @@ Each worker count renders the same shot (``cisp_warp.distributed.render_shot``, 
 or the first N workers of ``--scheduler``'s cluster) into its own folder. Reported per run: the set-up (cluster start, every worker's renderer, the exposure frame),
 the frames phase (first chunk submitted -> last PNG on disk), frames/s over that phase, the speed-up and
 scaling efficiency against 1 worker (frames phase, and wall-clock with the set-up), the warm-up frames rendered,
-the host time spent tone-mapping and PNG-encoding in the workers' writer threads (summed; it overlaps the
+the host time spent PNG-encoding in the workers' writer threads (summed; the tone map runs on the device; it overlaps the
 rendering) and how long the chunks waited for their writers at the end, the MP4 assembly, and how far the frames
 differ from the 1-worker run (a single chunk: the single-process frames) in 8-bit steps. On CUDA photon deposits
 are float atomics in no fixed order, so even two single-process runs differ in the last bits.
@@ -53,7 +53,7 @@ def parse_args(argv=None):
                    help="use the first N workers of a running Dask cluster instead of a local cluster per run")
     p.add_argument("--warmup", type=int, default=None, help="warm-up frames per chunk (default: from the denoiser)")
     p.add_argument("--writer-threads", type=int, default=None,
-                   help="tone-map/PNG threads per worker (default: the cores shared by the most workers, at most 8)")
+                   help="PNG threads per worker (default: the cores shared by the most workers, at most 8)")
     p.add_argument("--no-video", action="store_true", help="skip the MP4 (no imageio-ffmpeg on the machine)")
     p.add_argument("--no-compare", action="store_true", help="skip comparing the frames with the 1-worker run")
     p.add_argument("--out", default=None, help="folder for the runs' frames (default: a temporary folder, removed)")
@@ -115,17 +115,17 @@ def predict(args, settings, codes, threads: int) -> dict:
     W._WORKER.clear()  # its buffers freed for the seam check
     W._HOST.clear()
     out = {"device": f"{wp.get_device(device).alias} ({wp.get_device(device).name})", **costs, "plans": {}}
-    print(f"frame costs on {out['device']}: written {1e3 * costs['written']:.1f} ms, warm-up {1e3 * costs['warmup']:.1f} ms, "
-          f"one writer thread's PNG {1e3 * costs['encode']:.1f} ms ({threads} threads) -> warm-up cost {costs['ratio']:.3f}",
-          flush=True)
+    print(f"frame costs on {out['device']}: written {1e3 * costs['written']:.1f} ms, warm-up "
+          f"{1e3 * costs['warmup']:.1f} ms, one writer thread's PNG {1e3 * costs['encode']:.1f} ms ({threads} threads) "
+          f"-> warm-up cost {costs['ratio']:.3f}", flush=True)
     for n in (2, 4, 8):
         chunks = plan_chunks(codes, codes.start, n, warmup, costs["ratio"])
         worst = max(len(c) + costs["ratio"] * min(warmup, c.start - codes.start) for c in chunks)
+        dear = max(len(c) + min(warmup, c.start - codes.start) for c in plan_chunks(codes, codes.start, n, warmup))
         out["plans"][n] = {"chunks": [(c.start, c.stop) for c in chunks], "speedup": len(codes) / worst}
         print(f"  {n} workers: chunks {', '.join(f'{c.start}..{c.stop - 1}' for c in chunks)}; predicted speed-up "
               f"{len(codes) / worst:.2f}x (frames phase; with warm-up frames as dear as written ones "
-              f"{len(codes) / max(len(c) + min(warmup, c.start - codes.start) for c in plan_chunks(codes, codes.start, n, warmup)):.2f}x)",
-              flush=True)
+              f"{len(codes) / dear:.2f}x)", flush=True)
     return out
 
 
@@ -218,7 +218,7 @@ def main(argv=None) -> int:
                 if w.get("costs"):
                     c = w["costs"]
                     print(f"  worker {w['pid']} on {w['device']}: written frame {1e3 * c['written']:.1f} ms, warm-up frame "
-                          f"{1e3 * c['warmup']:.1f} ms, one writer thread's tone map + PNG {1e3 * c['encode']:.1f} ms "
+                          f"{1e3 * c['warmup']:.1f} ms, one writer thread's PNG {1e3 * c['encode']:.1f} ms "
                           f"-> warm-up cost {c['ratio']:.3f}", flush=True)
             for r in sorted(stats.chunks, key=lambda r: r["chunk"]):
                 a, b = r["chunk"]

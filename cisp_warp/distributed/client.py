@@ -36,16 +36,16 @@ class ShotStats:
     setup_seconds: float = 0.0  #: cluster start, workers' renderers, exposure
     render_seconds: float = 0.0  #: first chunk submitted -> last frame on disk
     video_seconds: float = 0.0  #: MP4 assembly after the last frame (the rest overlapped the chunks)
-    write_seconds: float = 0.0  #: writer-thread time summed over workers (tone map + PNG)
+    write_seconds: float = 0.0  #: writer-thread time summed over workers (PNG, EXR layers when asked for)
     warmup_cost: float = 1.0  #: a warm-up frame's cost in written frames, as the plan took it
     video: str | None = None
 
     def summary(self) -> str:
         fps = self.frames / self.render_seconds if self.render_seconds > 0 else 0.0
-        return (f"{self.frames} frames written ({self.warmup} warm-up frames rendered, each costing "
-                f"{self.warmup_cost:.2f} of a written one) by {len(self.workers)} workers "
-                f"in {len(self.chunks)} chunks: set-up {self.setup_seconds:.1f} s, frames {self.render_seconds:.1f} s "
-                f"({fps:.2f} frames/s), tone map + PNG {self.write_seconds:.1f} s of writer threads"
+        cost = f", each costing {self.warmup_cost:.2f} of a written one" if self.warmup else ""
+        return (f"{self.frames} frames written ({self.warmup} warm-up frames rendered{cost}) by {len(self.workers)} "
+                f"workers in {len(self.chunks)} chunks: set-up {self.setup_seconds:.1f} s, frames "
+                f"{self.render_seconds:.1f} s ({fps:.2f} frames/s), PNG {self.write_seconds:.1f} s of writer threads"
                 + (f", video {self.video_seconds:.1f} s" if self.video else ""))
 
 
@@ -182,7 +182,7 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
     exposure (an earlier run's from ``out/shot.json`` when resuming); ``warmup``: frames before each chunk,
     None = :func:`warmup_frames`; ``resume``: keep every frame on disk, render the missing ones; otherwise
     frames on disk from earlier runs are rewritten; ``video``: assemble ``final.mp4``; ``writer_threads``:
-    tone-map/PNG threads per worker (default: this host's cores shared by the workers, 1 to 8);
+    PNG threads per worker (default: this host's cores shared by the workers, 1 to 8);
     ``warmup_cost``: what a warm-up frame costs in written frames, for the plan (:func:`plan_chunks`); None =
     measured on the workers before the chunks start (:func:`~.worker.frame_costs`, the median of the workers'),
     when there is more than one worker to plan for; ``progress``: tqdm-like factory ``progress(total=...)``.

@@ -1,5 +1,5 @@
 """What runs on a Dask worker: the shot's job description, the renderer kept per worker process, the history
-restart, the chunk loop and the threads that tone map and write its PNGs."""
+restart, the chunk loop and the threads that write its PNGs."""
 
 from __future__ import annotations
 
