@@ -138,6 +138,20 @@ def test_caustic_seam_factor_against_the_history_weights(n, warmup):
     assert caustic_seam_factor(n, warmup) == pytest.approx(ratio, rel=1e-3)
 
 
+def test_a_shorter_caustic_warmup_is_outside_the_stated_tolerance():
+    """Why the caustics denoiser's warm-up stays N - 1: from the history weights themselves, a chunk that starts
+    fewer frames early differs from one process by more than the stated bound (9.1 at W = 25, 5.2 at 47, 4.4 at 55
+    against 3.85 at 63, N = 64), and the old tail past 63 frames still weighs 37% of one process's history."""
+    n, long = 64, 40 * 64
+    one, before = caustic_weights(long + 1, n), np.append(caustic_weights(long, n), 0.0)
+    change = np.sqrt(np.sum((one - before) ** 2))
+    bound = caustic_seam_factor(n, n - 1)
+    for warmup in (25, 47, 55):
+        chunk = np.concatenate([np.zeros(long - warmup), caustic_weights(warmup + 1, n)])
+        assert np.sqrt(np.sum((chunk - one) ** 2)) / change > 1.1 * bound, warmup
+    assert one[: long + 1 - n].sum() == pytest.approx((1 - 1 / n) ** (n - 1) * (1 - 1 / n), rel=1e-6)
+
+
 @pytest.mark.parametrize("todo, workers, warmup", [(range(0, 240), 2, 32), (range(10, 1210), 7, 32),
                                                    (range(0, 5), 4, 32), (range(0, 100), 3, 0)])
 def test_plan_covers_every_frame_once_and_balances_warmup(todo, workers, warmup):
@@ -397,6 +411,8 @@ def test_killed_worker_chunk_is_redone_without_rewriting_frames(client, tmp_path
     stats = render_shot(POOL, codes, str(tmp_path / "out"), TINY, device="cpu", warmup=2, video=False,
                         client=client, fault=(9, str(marker)))
     assert marker.exists()  # a worker process died (SIGKILL) at time code 9
+    costs = [w["costs"] for w in stats.workers]  # measured before the plan: 2 workers, a warm-up to weigh
+    assert all(c["written"] > 0 and c["warmup"] > 0 and c["ratio"] > 0 for c in costs) and stats.warmup_cost > 0
     chunk = next(r for r in stats.chunks if r["chunk"][0] <= 9 < r["chunk"][1])
     # the re-run chunk wrote only what the dead worker had not: frames from 9 on, after a 2-frame warm-up
     assert chunk["written"] == list(range(9, chunk["chunk"][1])) and chunk["warmup"] == 2
