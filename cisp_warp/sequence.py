@@ -76,6 +76,41 @@ class VideoWriter:
             self._writer = None
 
 
+def render_history_frame(renderer) -> None:
+    """A frame rendered for its temporal state only (a chunk's warm-up, not written): what the next frames'
+    histories read, nothing else.
+
+    The same steps as :meth:`~cisp_warp.render.Renderer.render_frame` up to the denoiser's history (camera and
+    light views, the photons of frame ``renderer.frame``, the temporal stage), leaving out what no later frame
+    reads: direct light, sky, shading, composite, and the à-trous levels past the one SVGF feeds back (all of
+    them for the caustics denoiser, whose history is the raw photon map's). After it the renderer's history,
+    frame number and previous camera are bit for bit those a full frame leaves (``tests/test_distributed.py``);
+    ``caustic_irradiance`` and the images are not this frame's.
+    """
+    from dataclasses import replace
+
+    from .denoise import SVGF, CausticDenoiser
+
+    g = renderer.gbuffer
+    g.render(renderer.raster, renderer.view_params, renderer.prev_view_params)
+    renderer.fitter.fit(renderer.raster, renderer.view_params, renderer.frame)
+    for lm in renderer.lights:
+        lm.render(renderer.raster)
+    photons, denoiser = renderer.photons, renderer.denoiser
+    if photons is not None:
+        photons.trace(g, renderer.view_params, renderer.frame)
+        if photons.denoise and isinstance(denoiser, (CausticDenoiser, SVGF)):
+            full = denoiser.settings
+            keep = full.feedback_level + 1 if isinstance(denoiser, SVGF) else 0  # levels the history reads
+            denoiser.settings = replace(full, atrous_levels=min(keep, full.atrous_levels))
+            try:
+                denoiser.denoise(photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, renderer.caustic_irradiance)
+            finally:
+                denoiser.settings = full
+    renderer.prev_view_params = renderer.view_params
+    renderer.frame += 1
+
+
 @dataclass
 class SequenceStats:
     """What a sequence cost: seconds per frame (render + outputs) and memory [MiB] after each frame."""
@@ -162,4 +197,4 @@ def render_sequence(renderer, animation: Animation, codes, out_dir: str, exposur
     return stats
 
 
-__all__ = ["SequenceStats", "VideoWriter", "render_sequence"]
+__all__ = ["SequenceStats", "VideoWriter", "render_history_frame", "render_sequence"]

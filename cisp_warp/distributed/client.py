@@ -35,15 +35,17 @@ class ShotStats:
     exposure: float = 1.0
     setup_seconds: float = 0.0  #: cluster start, workers' renderers, exposure
     render_seconds: float = 0.0  #: first chunk submitted -> last frame on disk
-    video_seconds: float = 0.0
-    write_seconds: float = 0.0  #: writer-thread time summed over workers (tone map + PNG)
+    video_seconds: float = 0.0  #: MP4 assembly after the last frame (the rest overlapped the chunks)
+    write_seconds: float = 0.0  #: writer-thread time summed over workers (PNG, EXR layers when asked for)
+    warmup_cost: float = 1.0  #: a warm-up frame's cost in written frames, as the plan took it
     video: str | None = None
 
     def summary(self) -> str:
         fps = self.frames / self.render_seconds if self.render_seconds > 0 else 0.0
-        return (f"{self.frames} frames written ({self.warmup} warm-up frames rendered) by {len(self.workers)} workers "
-                f"in {len(self.chunks)} chunks: set-up {self.setup_seconds:.1f} s, frames {self.render_seconds:.1f} s "
-                f"({fps:.2f} frames/s), tone map + PNG {self.write_seconds:.1f} s of writer threads"
+        cost = f", each costing {self.warmup_cost:.2f} of a written one" if self.warmup else ""
+        return (f"{self.frames} frames written ({self.warmup} warm-up frames rendered{cost}) by {len(self.workers)} "
+                f"workers in {len(self.chunks)} chunks: set-up {self.setup_seconds:.1f} s, frames "
+                f"{self.render_seconds:.1f} s ({fps:.2f} frames/s), PNG {self.write_seconds:.1f} s of writer threads"
                 + (f", video {self.video_seconds:.1f} s" if self.video else ""))
 
 
@@ -118,36 +120,61 @@ def write_manifest(out: str, manifest: dict) -> None:
     os.replace(tmp, os.path.join(out, MANIFEST))
 
 
+class VideoAssembler:
+    """``final.mp4`` from ``final.####.png`` in time-code order, fed while the chunks render: ``feed(ready)``
+    appends the frames from the next missing time code on for which ``ready(code)`` holds (a frame of this run on
+    disk), so the frames of the first chunk are encoded while the others render, and ``close()`` appends the rest
+    and renames the file into place (written to a temporary name; None when no video could be written)."""
+
+    def __init__(self, out: str, codes, fps: float):
+        from ..sequence import VideoWriter
+
+        self.out, self.codes, self.next = out, list(codes), 0
+        self.tmp = os.path.join(out, f".final.{os.getpid()}.tmp.mp4")
+        self.writer = VideoWriter(self.tmp, fps)
+        self.seconds = 0.0  #: spent appending frames
+
+    def feed(self, ready=lambda code: True) -> None:
+        from PIL import Image
+
+        t0 = time.perf_counter()
+        while self.next < len(self.codes) and self.writer.error is None and ready(self.codes[self.next]):
+            with Image.open(os.path.join(self.out, frame_name(self.codes[self.next]))) as im:
+                self.writer.append(np.asarray(im.convert("RGB")))
+            self.next += 1
+        self.seconds += time.perf_counter() - t0
+
+    def discard(self) -> None:
+        """Stop without a video (a chunk failed): ffmpeg closed, the temporary file removed."""
+        self.writer.close()
+        if os.path.exists(self.tmp):
+            os.remove(self.tmp)
+
+    def close(self) -> str | None:
+        try:
+            self.feed()
+        finally:
+            self.writer.close()
+        if self.writer.error is not None or not self.writer.frames:
+            if os.path.exists(self.tmp):
+                os.remove(self.tmp)
+            return None
+        path = os.path.join(self.out, "final.mp4")
+        os.replace(self.tmp, path)
+        return path
+
+
 def assemble_video(out: str, codes, fps: float) -> str | None:
-    """``final.mp4`` from ``final.####.png`` in time-code order (written to a temporary name, then renamed)."""
-    from PIL import Image
-
-    from ..sequence import VideoWriter
-
-    tmp = os.path.join(out, f".final.{os.getpid()}.tmp.mp4")
-    writer = VideoWriter(tmp, fps)
-    try:
-        for code in codes:
-            with Image.open(os.path.join(out, frame_name(code))) as im:
-                writer.append(np.asarray(im.convert("RGB")))
-            if writer.error is not None:
-                break
-    finally:
-        writer.close()
-    if writer.error is not None or not writer.frames:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        return None
-    path = os.path.join(out, "final.mp4")
-    os.replace(tmp, path)
-    return path
+    """``final.mp4`` from ``final.####.png`` in time-code order, all at once."""
+    return VideoAssembler(out, codes, fps).close()
 
 
 def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, workers: int | None = None,
                 scheduler: str | None = None, device: str | None = None, camera: str | None = None,
                 simulate: bool = True, exposure: float | None = None, warmup: int | None = None,
                 resume: bool = False, video: bool = True, frame_aovs: bool = False,
-                writer_threads: int | None = None, progress=None, fault=None, client=None) -> ShotStats:
+                writer_threads: int | None = None, warmup_cost: float | None = None, progress=None, fault=None,
+                client=None) -> ShotStats:
     """Render time codes ``codes`` of ``scene`` into ``out`` on Dask workers (see the module docstring).
 
     ``workers``: size of a :func:`local_cluster`, or with ``scheduler`` (the address of a running cluster) or
@@ -155,8 +182,10 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
     exposure (an earlier run's from ``out/shot.json`` when resuming); ``warmup``: frames before each chunk,
     None = :func:`warmup_frames`; ``resume``: keep every frame on disk, render the missing ones; otherwise
     frames on disk from earlier runs are rewritten; ``video``: assemble ``final.mp4``; ``writer_threads``:
-    tone-map/PNG threads per worker (default: this host's cores shared by the workers, 1 to 8);
-    ``progress``: tqdm-like factory ``progress(total=...)``.
+    PNG threads per worker (default: this host's cores shared by the workers, 1 to 8);
+    ``warmup_cost``: what a warm-up frame costs in written frames, for the plan (:func:`plan_chunks`); None =
+    measured on the workers before the chunks start (:func:`~.worker.frame_costs`, the median of the workers'),
+    when there is more than one worker to plan for; ``progress``: tqdm-like factory ``progress(total=...)``.
     """
     distributed = import_engine()
     codes = range(int(codes.start), int(codes.stop))
@@ -192,6 +221,7 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
                              f"not {exposure:g}; drop --exposure or --resume", file=os.path.join(out, MANIFEST))
     todo = [c for c in codes if not job.done(c)]
     stats = ShotStats(exposure=job.exposure or 1.0)
+    assembler = None
     t0 = time.perf_counter()
     if todo or job.exposure is None:
         opened = []  # what this call opened and closes: a client, and a local cluster
@@ -207,17 +237,30 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
                 writer_threads = max(1, min(8, (os.cpu_count() or 2) // max(1, len(addresses))))
             job = replace(job, writer_threads=int(writer_threads))
             # every worker builds its renderer now, in parallel; the exposure then costs one frame on one of them
-            ready = [client.submit(prepare, job, workers=[a], allow_other_workers=True, pure=False)
+            measure = warmup_cost is None and job.warmup > 0 and len(addresses) > 1 and len(todo) > 1
+            ready = [client.submit(prepare, job, measure, workers=[a], allow_other_workers=True, pure=False)
                      for a in addresses]  # loose: a worker lost now must not leave its task waiting for it
             if job.exposure is None:
                 job = replace(job, exposure=client.submit(shot_exposure, job, workers=addresses, pure=False).result())
             stats.workers = client.gather(ready)
             stats.exposure = job.exposure
+            ratios = sorted(w["costs"]["ratio"] for w in stats.workers if w.get("costs"))
+            stats.warmup_cost = float(warmup_cost if warmup_cost is not None else
+                                      (ratios[len(ratios) // 2] if ratios else 1.0))
             write_manifest(out, manifest_of(job))
             stats.setup_seconds = time.perf_counter() - t0
             t1 = time.perf_counter()
-            chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup)
-            stats.chunks = run_chunks(distributed, client, job, chunks, addresses, todo, progress)
+            chunks = plan_chunks(todo, job.shot_start, len(addresses), job.warmup, stats.warmup_cost)
+            if video:
+                from ..animation import StageClock
+
+                assembler = VideoAssembler(out, codes, StageClock(scene, camera).time_codes_per_second)
+            try:
+                stats.chunks = run_chunks(distributed, client, job, chunks, addresses, todo, progress, assembler)
+            except BaseException:
+                if assembler is not None:
+                    assembler.discard()
+                raise
             stats.render_seconds = time.perf_counter() - t1
         finally:
             for thing in opened:
@@ -233,11 +276,13 @@ def render_shot(scene, codes: range, out: str, settings: RenderSettings, *, work
     stats.warmup = sum(r["warmup"] for r in stats.chunks)
     stats.write_seconds = sum(r["write_seconds"] for r in stats.chunks)
     if video:
-        from ..animation import StageClock
+        if assembler is None:  # every frame was on disk: no chunk ran
+            from ..animation import StageClock
 
+            assembler = VideoAssembler(out, codes, StageClock(scene, camera).time_codes_per_second)
         t2 = time.perf_counter()
-        stats.video = assemble_video(out, codes, StageClock(scene, camera).time_codes_per_second)
-        stats.video_seconds = time.perf_counter() - t2
+        stats.video = assembler.close()
+        stats.video_seconds = time.perf_counter() - t2  # after the last frame: what the overlap left
     return stats
 
 
@@ -285,9 +330,10 @@ def wait_for(client, opened: list, n: int, where: str, seconds: float = 120.0) -
     return opened
 
 
-def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progress) -> list[dict]:
-    """Submit one :func:`render_chunk` task per chunk and wait, the progress bar fed by the frames on disk;
-    the first task error is raised here (the other tasks cancelled). Returns the tasks' reports."""
+def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progress, video=None) -> list[dict]:
+    """Submit one :func:`render_chunk` task per chunk and wait, the progress bar and ``video``
+    (:class:`VideoAssembler`) fed by the frames on disk; the first task error is raised here (the other tasks
+    cancelled). Returns the tasks' reports."""
     futures = [client.submit(render_chunk, job, c, workers=addresses, pure=False, retries=0) for c in chunks]
     bar = progress(total=len(todo)) if (progress and todo) else None
     shown = 0
@@ -316,6 +362,8 @@ def run_chunks(distributed, client, job: ShotJob, chunks, addresses, todo, progr
                 now = sum(job.done(c) for c in todo)
                 bar.update(now - shown)
                 shown = now
+            if video is not None:
+                video.feed(job.done)
         reports = client.gather(futures)
     finally:
         if reports is None:  # an error or Ctrl-C: stop the other chunks
@@ -375,5 +423,5 @@ def main_distributed(args, settings: RenderSettings, frames: range | None, say, 
     return 0
 
 
-__all__ = ["MANIFEST", "MISSING_ENGINE", "ShotStats", "assemble_video", "import_engine", "local_cluster",
+__all__ = ["MANIFEST", "MISSING_ENGINE", "ShotStats", "VideoAssembler", "assemble_video", "import_engine", "local_cluster",
            "main_distributed", "render_shot"]

@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..render import RenderSettings
 
 OUTPUT_STEP = 1.0 / 255.0  #: one step of the 8-bit output, relative to full scale: what a seam may differ by
@@ -89,50 +91,62 @@ class Chunk:
         return self.stop - self.start
 
 
-def plan_chunks(todo, shot_start: int, workers: int, warmup: int) -> list[Chunk]:
+def plan_chunks(todo, shot_start: int, workers: int, warmup: int, warmup_cost: float = 1.0) -> list[Chunk]:
     """Cut the time codes ``todo`` (to write) into at most ``max(workers, runs)`` contiguous chunks.
 
-    A chunk's cost is its frames plus its warm-up, ``min(warmup, start - shot_start)`` frames (warm-up and
-    written frames cost about the same on a device: both trace, denoise and shade; writing is overlapped).
-    The chunks minimise the largest cost (binary search on it, greedy cuts), so with ``warmup`` > 0 the
-    first chunk of a shot is longer than the others. ``runs``: stretches of consecutive codes; a run's gap
-    to the next one is rendered through (not written) when it is no longer than ``warmup``.
+    A chunk's cost, in written frames: its frames to write, plus ``warmup_cost`` for each frame it renders without
+    writing it: its warm-up, ``min(warmup, start - shot_start)`` frames, and the gaps it renders through. A
+    warm-up frame renders only what the history needs (:func:`~cisp_warp.sequence.render_history_frame`), so it
+    costs less than a written one; ``warmup_cost`` is their measured ratio (:func:`~.worker.frame_costs`), 1 = as
+    dear. The chunks minimise the largest cost (bisection on it, greedy cuts), so with ``warmup`` > 0 the first
+    chunk of a shot is longer than the others. ``runs``: stretches of consecutive codes; a run's gap to the next
+    one is rendered through (not written) when it is no longer than ``warmup``.
     """
     codes = sorted(set(int(c) for c in todo))
     if not codes:
         return []
+    r = max(float(warmup_cost), 0.0)
     spans: list[list[int]] = [[codes[0], codes[0] + 1]]
     for c in codes[1:]:
         if c - spans[-1][1] <= warmup:  # rendering through the gap is no dearer than a warm-up
             spans[-1][1] = c + 1
         else:
             spans.append([c, c + 1])
+    lo_code, wanted = codes[0], np.zeros(codes[-1] - codes[0] + 2, dtype=np.int64)
+    wanted[np.asarray(codes) - lo_code + 1] = 1
+    written = np.cumsum(wanted)  # written[c - lo_code]: codes to write before c
 
-    def warm(start: int) -> int:
-        return min(warmup, start - shot_start)
+    def cost(a: int, b: int) -> float:
+        w = int(written[b - lo_code] - written[a - lo_code])
+        return w + r * (b - a - w + min(warmup, a - shot_start))
 
-    def cut(limit: int) -> list[Chunk] | None:
-        """Greedy chunks of cost <= limit, or None where a chunk's warm-up alone reaches the limit."""
+    def cut(limit: float) -> list[Chunk] | None:
+        """Greedy chunks of cost <= limit (each as long as it may be), or None where one frame exceeds it."""
         out = []
         for a, b in spans:
             while a < b:
-                n = limit - warm(a)
-                if n < 1:
+                if cost(a, a + 1) > limit:
                     return None
-                out.append(Chunk(a, min(b, a + n)))
-                a += n
+                lo, hi = a + 1, b  # the longest chunk from a within the limit (cost grows with its end)
+                while lo < hi:
+                    mid = (lo + hi + 1) // 2
+                    lo, hi = (mid, hi) if cost(a, mid) <= limit else (lo, mid - 1)
+                out.append(Chunk(a, lo))
+                a = lo
         return out
 
     pieces = max(workers, len(spans))
-    lo, hi = 1, max(b - a + warm(a) for a, b in spans)
-    while lo < hi:  # smallest largest-cost with no more than `pieces` chunks
-        mid = (lo + hi) // 2
+    lo, hi = 0.0, max(cost(a, b) for a, b in spans)  # one chunk per run fits
+    for _ in range(64):  # smallest largest-cost with no more than `pieces` chunks
+        if hi - lo <= 1e-9 * hi:
+            break
+        mid = 0.5 * (lo + hi)
         chunks = cut(mid)
         if chunks is not None and len(chunks) <= pieces:
             hi = mid
         else:
-            lo = mid + 1
-    return cut(lo)
+            lo = mid
+    return cut(hi)
 
 
 __all__ = ["Chunk", "OUTPUT_STEP", "caustic_seam_factor", "plan_chunks", "warmup_frames"]
