@@ -16,6 +16,7 @@ import warp as wp
 
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
+from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, pixel_ray_world
 from ..scene.device import SurfaceGeometry
 
@@ -164,14 +165,21 @@ def record_absorbed(outcome: wp.array(dtype=wp.vec4), slot: int, tally: Tally):
 @wp.kernel
 def ledger_add_outcomes(
     outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
-    count: int,  # photons
+    count: int,  # records
     entries: int,  # bit mask of the entries the records may hold (entry_mask)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+    states: wp.array(dtype=CascadeState),  # (V,) the light's views (LightMaps.states, read)
+    view_index: int,  # the view whose photons wrote the records
+    light_photons: int,  # the light's photons (cascade_photons)
+    run: int,  # records per run (the trace's slots, a multiple of the block on CUDA): slot t of a run is photon t
 ):
     """The final entries of ``count`` outcome records, summed per block (:func:`ledger_add`) and added once per
     block and entry. Launched tiled with the trace's block size: on the CPU one record per block, in photon order,
-    so every entry is summed in the same order as when the trace kernel added it itself."""
+    so every entry is summed in the same order as when the trace kernel added it itself. A block whose records lie
+    past the view's photon count (slots launched for the most a fitted cascade can get) returns at once."""
     block, lane = wp.tid()
+    if (block * wp.block_dim()) % run >= cascade_photons(states[view_index], light_photons):
+        return
     t = block * wp.block_dim() + lane
     tally = tally_new()
     if t < count:
@@ -226,19 +234,27 @@ def _spread_bits(v: int) -> int:
 
 @wp.kernel
 def photon_sort_keys(
-    light: ViewParams,
-    scramble: wp.vec2i,
+    views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream
     keys: wp.array(dtype=wp.int32),  # (2N,) Morton code of each photon's texel (write, first N)
     values: wp.array(dtype=wp.int32),  # (2N,) photon index k (write, first N)
 ):
     """Keys to trace photons in texel (Morton) order: neighbouring threads then start from neighbouring
     texels and mostly travel alike, which keeps a GPU warp's memory reads and march lengths coherent.
-    Each photon is still photon k of the R2 sequence; only the order of the threads changes."""
+    Each photon is still photon k of the R2 sequence; only the order of the threads changes. Slots past the
+    view's photon count (launched with fixed dims) sort last."""
     k = wp.tid()
-    u = r2_point(k, scramble)
+    light = views[view_index]
+    u = r2_point(k, wp.vec2i(randoms[stream][0], randoms[stream][1]))
     i = wp.min(int(u[0] * float(light.width)), light.width - 1)
     j = wp.min(int(u[1] * float(light.height)), light.height - 1)
     keys[k] = _spread_bits(i) | (_spread_bits(j) << 1)
+    if k >= cascade_photons(states[view_index], light_photons):
+        keys[k] = 0x7FFFFFFF
     values[k] = k
 
 
@@ -399,8 +415,10 @@ def book_outside_window(
     rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) a pilot view's flux per texel [W] (read)
     width: int,
     count: int,  # texels
-    window: wp.vec4,  # (x0, y0, x1, y1) sampled by the cascades, in the pilot's pixels turned by ``angle``; empty when x1 <= x0
-    angle: float,  # [rad] (views.rotate_pixels)
+    windows: wp.array(dtype=wp.vec4),  # (V,) per pilot view (x0, y0, x1, y1) sampled by the cascades, in its pixels
+    # turned by ``angles``; empty when x1 <= x0 (LightMaps.outside, read)
+    angles: wp.array(dtype=wp.float32),  # (V,) [rad] (views.rotate_pixels; LightMaps.outside_angle, read)
+    view_index: int,  # this pilot view
     centre: wp.vec2,  # the pilot view's principal point [pixels]
     aspect: float,  # the pilot view's fx / fy
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
@@ -408,6 +426,8 @@ def book_outside_window(
     """Book the power of each pilot texel's area outside ``window`` as sampled and ``outside_fitted_view``
     (one thread per texel, tallied and added once per block, as the photon kernels do). Unturned windows
     cut texels exactly; a turned one is measured on 4×4 points per texel."""
+    window = windows[view_index]
+    angle = angles[view_index]
     block, lane = wp.tid()
     p = block * wp.block_dim() + lane
     tally = tally_new()
