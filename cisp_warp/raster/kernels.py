@@ -96,7 +96,7 @@ def setup_triangles(
     t = wp.tid()
     tile_count[2 * t] = 0
     tile_count[2 * t + 1] = 0
-    if (layers[t] & layer_mask) == 0 or view.far <= 0.0:  # far = 0: an inactive view (views.INACTIVE), nothing drawn
+    if (layers[t] & layer_mask) == 0 or view.far <= 0.0:  # far = 0: an inactive view (light_maps.INACTIVE_FAR), nothing drawn
         return
     a = view_point(view, points[indices[3 * t]])
     b = view_point(view, points[indices[3 * t + 1]])
@@ -298,6 +298,8 @@ def resolve_depth(
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) triangle id, -1 = none (write)
 ):
     view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
+        return
     p = wp.tid()
     tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
     depth[p] = t
@@ -373,6 +375,8 @@ def resolve_specular(
 ):
     """Specular layer (RSM specular texels, camera water layer): nearest specular surface in front of the opaque one."""
     view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
+        return
     p = wp.tid()
     tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
     od = opaque_depth[p]
@@ -422,6 +426,8 @@ def rsm_flux(
 ):
     """Flux per RSM texel: irradiance × texel area (orthographic), intensity × texel solid angle (perspective)."""
     view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
+        return
     p = wp.tid()
     if tri_id[p] < 0:
         flux[p] = wp.vec3(0.0)

@@ -377,7 +377,8 @@ class LightMaps:
 
     def render(self, raster: Rasterizer) -> None:
         """Draw the RSM views and the shadow maps. On CUDA every fitted cascade is launched (an inactive one,
-        ``far`` = 0, draws nothing and its maps come out empty): the host never waits for the fit."""
+        ``far`` = 0, draws and resolves nothing: its maps keep the values of the frame it was last active, which
+        nothing reads while it emits no photons): the host never waits for the fit."""
         active = self.host_active()
         for k, r in enumerate(self.rsm):
             if active is None or active[k]:

@@ -37,7 +37,7 @@ class Rasterizer:
         """Rasterize the triangles of ``layer`` into ``visibility`` (H*W uint64, overwritten) for the view
         ``views[view_index]`` (a device array of :class:`ViewParams`, so a view fitted on the device, or a camera
         written once per frame, is drawn without the host knowing it; ``width`` × ``height`` is its size, fixed).
-        An inactive view (``far`` = 0, ``views.INACTIVE_FAR``) draws nothing."""
+        An inactive view (``far`` = 0, ``light_maps.INACTIVE_FAR``) draws nothing."""
         d = self.scene.device
         s = self.scene
         visibility.fill_(0xFFFFFFFFFFFFFFFF)
