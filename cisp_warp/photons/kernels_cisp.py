@@ -180,7 +180,6 @@ def trace_photons(
     if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
         return
     skip_window = cascade.skip_window
-    camera = cameras[0]
     rnd = randoms[stream]
     seed = rnd[2]  # seed of this (frame, view)'s random streams
     scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
@@ -204,6 +203,7 @@ def trace_photons(
     ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
+        camera = cameras[0]  # read after the emission, where the march needs it
         trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
                      cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
                      t_max, footprint_mode, use_cascade, photon_map, tally, hits)

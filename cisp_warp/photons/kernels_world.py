@@ -182,7 +182,8 @@ def trace_sspm_photon(
     power: wp.vec3,  # [W] after the bounce
     state: wp.uint32,  # rng state
     ws: WorldScene,
-    cam: CameraBuffers,
+    cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
     roughness_cutoff: float,
     thickness: float,  # [m] depth-visibility tolerance, absolute
     thickness_rel: float,  # relative (× depth)
@@ -197,6 +198,7 @@ def trace_sspm_photon(
                                                  max_bounces, tally)
     if status != WT_LANDED:
         return
+    cam.view = cameras[0]  # read after the BVH loop: not held in registers through it (96 registers, not 128)
     entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
     if entry != L_STORED:
         book(tally, entry, power)
@@ -256,7 +258,6 @@ def trace_sspm(
     if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
         return
     skip_window = cascade.skip_window
-    cam.view = cameras[0]
     rnd = randoms[stream]
     seed = rnd[2]
     scramble = wp.vec2i(rnd[0], rnd[1])
@@ -276,7 +277,7 @@ def trace_sspm(
     ledger_add(ledger, emitted, lane, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
-        trace_sspm_photon(origin, n, d, power, state, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max,
+        trace_sspm_photon(origin, n, d, power, state, ws, cam, cameras, roughness_cutoff, thickness, thickness_rel, t_max,
                           max_bounces, footprint_mode, photon_map, tally)
     if t < n_slots:
         record_outcome(outcome, t, tally)
