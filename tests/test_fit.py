@@ -127,3 +127,23 @@ def wp_device_is_cpu(device) -> bool:
     import warp as wp
 
     return wp.get_device(device).is_cpu
+
+
+def test_fit_reductions_do_not_depend_on_the_block_size(device, monkeypatch):
+    """The fit's tile reductions over blocks of 32 threads (CPU blocks enabled) give the one-thread blocks' fit."""
+    import warp as wp
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    r = Renderer(SCENES["pool"](device), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000),
+                 device=device)
+    r.render_frame()
+    fits = []
+    for block in (1, 32):
+        r.fitter.fit_block = block
+        r.fitter.fit_device()
+        fits.append(_fitted(r))
+    for (v0, s0, o0, a0), (v1, s1, o1, a1) in zip(*fits):
+        np.testing.assert_array_equal(s0, s1)
+        np.testing.assert_array_equal(o0, o1)
+        np.testing.assert_array_equal(a0, a1)
+        np.testing.assert_array_equal(v0, v1)

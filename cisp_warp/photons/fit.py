@@ -483,6 +483,9 @@ class LightViewFitter:
         self.roughness_cutoff, self.thickness, self.thickness_rel = roughness_cutoff, thickness, thickness_rel
         self.max_bounces, self.t_max, self.seed = max_bounces, t_max, seed
         self.last_depth: list[list[np.ndarray]] = []  #: the pilots' receiver depths of the last host fit (host)
+        #: threads per block of the fit's reductions (Warp runs CPU tiles one thread per block unless
+        #: ``wp.config.enable_cpu_blocks`` is set; a test does, with blocks of 32)
+        self.fit_block = FIT_BLOCK if self.device.is_cuda else 1
 
     def fit(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
         """Draw the pilots, trace them and fit every light's cascades (on the device, or :meth:`fit_host`)."""
@@ -514,7 +517,7 @@ class LightViewFitter:
 
     def fit_device(self) -> None:
         """Fit every light's cascades to its pilots' receiver depths in three launches per light."""
-        block = FIT_BLOCK if self.device.is_cuda else 1
+        block = self.fit_block
         for i, lm in enumerate(self.lights):
             vs = lm.view_settings
             p = lm.pilot[0]
