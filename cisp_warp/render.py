@@ -20,6 +20,7 @@ import warp as wp
 
 from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings
 from .errors import SceneError
+from .frame import FrameInputs
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .photons.cisp import build_bounds
 from .photons.fit import LightViewFitter
@@ -200,15 +201,19 @@ class Renderer:
         self.view = camera_view(cam)
         self.view_params = self.view.params()
         self.prev_view_params = self.view_params
+        #: what changes per frame, as the kernels read it (this frame's and the last frame's camera, every view's
+        #: random streams): one host->device copy per frame, shared by the photon pass and the fitter
+        self.inputs = FrameInputs(self.lights, self.settings.photons.seed, self.device)
         lo, hi = scene.bounds()
         self.t_max = float(2.0 * np.linalg.norm(hi - lo)) + 1e-3  # longest screen-space ray [m]
         self.photons = None
         if self.settings.method != "none":
             cls = photon_pass_class(self.settings.method)
             self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
+            self.photons.inputs = self.inputs
         ps = self.settings.photons
         self.fitter = LightViewFitter(self.gpu, self.gbuffer, self.lights, ps.roughness_cutoff, ps.thickness,
-                                      ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed)
+                                      ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed, inputs=self.inputs)
         self.denoiser = None
         if self.settings.denoiser == "caustic":
             self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
@@ -217,6 +222,12 @@ class Renderer:
         elif self.settings.denoiser == "gather":
             self.denoiser = GaussianGather(cam.width, cam.height, self.device)
         self.frame = 0
+        #: replay one CUDA graph of the frame, frame after frame (``render_frame``); None: when it can
+        #: (``graph_capable``). Set False to launch every kernel from Python each frame.
+        self.use_graph: bool | None = None
+        self._graph = None
+        self._graph_key = None
+        self.graph_captures = 0  #: frames captured as a graph so far (a new capture when the lights change)
 
     def set_camera(self, camera: Camera) -> None:
         """Move the camera (same resolution); the previous pose is kept for motion vectors."""
@@ -242,15 +253,55 @@ class Renderer:
         self.scene.points, self.scene.normals, self.scene.time = scene.points, scene.normals, scene.time
         self.set_camera(scene.camera)
 
-    def render_frame(self, timer=None) -> None:
+    @property
+    def graph_capable(self) -> bool:
+        """Whether a frame launches the same kernels with the same arguments every frame (all per-frame values in
+        ``inputs``), so that one CUDA graph replays it: CUDA, and a method and denoiser without host state per
+        frame (cisp, sspm with point splats, or none; the caustic or SVGF denoiser, or none)."""
+        method_ok = self.settings.method == "none" or (
+            self.settings.method in ("cisp", "sspm") and self.settings.photons.splat == "point")
+        return self.device.is_cuda and method_ok and self.settings.denoiser in ("caustic", "svgf", "none")
+
+    def _steady_key(self) -> tuple:
+        """What a captured frame bakes in besides ``inputs``: the lights (a moved light re-fits its whole views on
+        the host) and whether the sky's maps are drawn."""
+        sky = None if self.sky is None else (self.sky.dynamic, self.sky._drawn)
+        return tuple(id(lm.light) for lm in self.lights) + (sky,)
+
+    def render_frame(self, timer=None, graph: bool | None = None) -> None:
         """Raster, light, trace photons, denoise and composite one frame; everything stays on the device.
 
-        ``timer``: a :class:`cisp_warp.timing.StageTimer` to time the stages (benchmarks only).
+        ``timer``: a :class:`cisp_warp.timing.StageTimer` to time the stages (benchmarks only; launches every
+        kernel). ``graph``: replay one captured CUDA graph of the frame (default ``use_graph``, else
+        ``graph_capable``): the frame's cameras and random streams are written by one host->device copy, then the
+        graph captured at the second frame (and again when the lights change) is launched; the CPU never uses one.
         """
+        self.inputs.write(self.frame, self.view_params, self.prev_view_params)
+        use = self.use_graph if graph is None else graph
+        if use is None:
+            use = True
+        if not (use and timer is None and self.graph_capable and self.frame >= 1):
+            self._launch_frame(timer)
+        else:
+            key = self._steady_key()
+            if self._graph is None or key != self._graph_key:
+                wp.capture_begin(device=self.device, force_module_load=False)
+                try:
+                    self._launch_frame(None)
+                finally:
+                    self._graph = wp.capture_end(device=self.device)
+                self._graph_key = key
+                self.graph_captures += 1
+            wp.capture_launch(self._graph)
+        self.prev_view_params = self.view_params
+        self.frame += 1
+
+    def _launch_frame(self, timer=None) -> None:
+        """Every launch of one frame, reading the cameras and random streams from ``inputs`` (written already)."""
         stage = timer.stage if timer is not None else (lambda name: nullcontext())
         g = self.gbuffer
         with stage("raster"):
-            g.render(self.raster, self.view_params, self.prev_view_params)
+            g.render(self.raster, self.inputs.cameras)
             self.fitter.fit(self.raster, self.view_params, self.frame)  # light views fitted to what the camera sees
             for lm in self.lights:
                 lm.render(self.raster)
@@ -280,12 +331,10 @@ class Renderer:
             ps = self.settings.photons
             build_bounds(g.depth, g.width, g.height, ps.thickness, 0.02, self.depth_bounds, self.device)
             wp.launch(composite, dim=n, device=self.device,
-                      inputs=[self.view_params, g.depth, self.depth_bounds, self.surface_radiance, w.depth, w.position,
+                      inputs=[self.inputs.cameras, g.depth, self.depth_bounds, self.surface_radiance, w.depth, w.position,
                               w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
-        self.prev_view_params = self.view_params
-        self.frame += 1
 
     def aovs(self, include_rsm: bool = True) -> dict[str, np.ndarray]:
         """Host copies of the frame's AOVs, images of shape (height, width[, C]), float32 / int32.

@@ -137,7 +137,7 @@ def screen_space_lookup(camera: ViewParams, depth: wp.array(dtype=wp.float32), d
 
 @wp.kernel
 def composite(
-    camera: ViewParams,
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
     depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
     depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
     radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
@@ -161,6 +161,7 @@ def composite(
     (the undistorted background, the usual screen-space fallback).
     """
     p = wp.tid()
+    camera = cameras[0]
     l = radiance[p]
     if depth[p] <= 0.0 and water_depth[p] <= 0.0:
         px = float(p % camera.width) + 0.5

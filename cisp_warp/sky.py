@@ -271,10 +271,9 @@ class SkyLighting:
         s = self.gpu
         texels = self.map_size * self.map_size
         for k, view in enumerate(self.views):
-            params = view.params()
-            raster.draw(params, LAYER_OPAQUE, self.visibility)
+            raster.draw(self.view_params, k, view.width, view.height, LAYER_OPAQUE, self.visibility)
             wp.launch(RK.resolve_depth, dim=texels, device=self.device,
-                      inputs=[params, self.visibility, s.points, s.indices,
+                      inputs=[self.view_params, k, self.visibility, s.points, s.indices,
                               self.map_depth[k * texels : (k + 1) * texels], self.tri_scratch])
         self._drawn = True
 

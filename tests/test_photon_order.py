@@ -47,7 +47,8 @@ def test_sort_groups_predict_the_trace(device):
     b = next(p.rsm_batches(r.frame - 1))
     keys = wp.zeros(n, dtype=wp.int32, device=device)
     index = wp.zeros(n, dtype=wp.int32, device=device)
-    wp.launch(C.photon_sort_keys, dim=n, device=device, inputs=[b.params, b.scramble, keys, index])
+    wp.launch(C.photon_sort_keys, dim=n, device=device, inputs=[
+        b.lights.views, b.lights.states, b.view_index, b.light_photons, p.inputs.randoms, b.stream, keys, index])
     morton = keys.numpy()[order]
     for g in np.unique(group):
         assert np.all(np.diff(morton[group == g]) >= 0)

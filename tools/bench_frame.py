@@ -2,11 +2,16 @@
 """Frame benchmark in the layout of seed 000's Table 1: per-stage ms (raster, direct, trace+store,
 denoise, shade) for several photon counts, methods and scenes; then the photons per second of each
 method's trace stage at equal photon counts. With ``--kernels``, also the per-kernel table: ms per frame
-of every kernel and copy (Warp's CUDA activity timing), and launches per frame. Prints tables with the
-device; ``--json`` writes every figure.
+of every kernel and copy (Warp's CUDA activity timing), and launches per frame. Every configuration also
+reports the wall time per frame (frames launched back to back, one synchronisation at the end: what a
+real-time loop sees, host launch overhead included); with ``--graph``, the same with the frame replayed
+as one CUDA graph (``Renderer.render_frame(graph=True)``: one host->device copy of the frame's inputs, one
+graph launch), and with ``--kernels`` the graph's kernels. Prints tables with the device; ``--json``
+writes every figure.
 
     python tools/bench_frame.py                                # 1920x1080, RSM 2048², 0.5M/1M/2M photons, CISP
     python tools/bench_frame.py --scenes cornell,pool --photons 2M --kernels
+    python tools/bench_frame.py --scenes cornell,pool --photons 2M --kernels --graph   # + CUDA graph replay
     python tools/bench_frame.py --methods cisp,sspm,caustics_map,reference
     python tools/bench_frame.py --device cpu --width 320 --height 180 --rsm-size 256 --photons 50k,100k
     python tools/bench_frame.py --smoke                        # seconds
@@ -40,6 +45,18 @@ def kernel_table(results, frames: int) -> dict[str, tuple[float, float]]:
     return {k: (v[0] / frames, v[1] / frames) for k, v in sorted(acc.items(), key=lambda kv: -kv[1][0])}
 
 
+def wall_ms(r, frames: int, device, graph: bool) -> float:
+    """Mean wall-clock ms per frame over ``frames`` frames launched back to back (one synchronisation at the end)."""
+    import time
+
+    wp.synchronize_device(device)
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        r.render_frame(graph=graph)
+    wp.synchronize_device(device)
+    return 1e3 * (time.perf_counter() - t0) / frames
+
+
 def run_config(scene_path, method, n, args, device):
     from cisp_warp.photons import PhotonSettings
     from cisp_warp.render import Renderer, RenderSettings
@@ -53,12 +70,22 @@ def run_config(scene_path, method, n, args, device):
                              splat=args.splat if method in ("cisp", "sspm") else "point")
     settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
     r = Renderer(scene, settings, device=device)
+    r.use_graph = False
     timer = None
     for frame in range(3 + args.frames):
         if frame == 3:
             timer = StageTimer(device)
         r.render_frame(timer)
     row = {"photons": n, "stages": timer.medians(), "traced": n * getattr(r.photons, "passes", 1) * len(scene.lights)}
+    row["wall_ms"] = wall_ms(r, args.frames, device, graph=False)
+    if args.graph and r.graph_capable:
+        r.render_frame(graph=True)  # captures
+        row["graph_ms"] = wall_ms(r, args.frames, device, graph=True)
+        if args.kernels:
+            wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+            for _ in range(args.frames):
+                r.render_frame(graph=True)
+            row["graph_kernels"] = kernel_table(wp.timing_end(), args.frames)
     if getattr(r.photons, "wavefront", None) is not None:
         row["traced"] = r.photons.wavefront.photons_traced()  # two sheets through every grid corner
     if args.kernels and device.is_cuda:
@@ -90,6 +117,8 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
     p.add_argument("--kernels", action="store_true",
                    help="also time every kernel (CUDA activity timing, separate frames) and count launches")
+    p.add_argument("--graph", action="store_true",
+                   help="also time the frame replayed as one CUDA graph (CUDA; cisp/sspm with point splats)")
     p.add_argument("--json", default=None, help="write every figure to this file")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, 2 frames")
     args = p.parse_args(argv)
@@ -122,18 +151,23 @@ def main(argv=None) -> int:
             for s in stages:
                 print(f"{s:<14}" + "".join(f"{row['stages'][s]:14.3f}" for row in rows))
             print(f"{'total':<14}" + "".join(f"{sum(row['stages'].values()):14.3f}" for row in rows))
-            if "kernels" in rows[0]:
-                names = list(dict.fromkeys(k for row in rows for k in row["kernels"]))
+            print(f"{'wall/frame':<14}" + "".join(f"{row['wall_ms']:14.3f}" for row in rows))
+            if "graph_ms" in rows[0]:
+                print(f"{'graph/frame':<14}" + "".join(f"{row.get('graph_ms', float('nan')):14.3f}" for row in rows))
+            for key, title in (("kernels", "launched from Python"), ("graph_kernels", "replayed as one CUDA graph")):
+                if key not in rows[0]:
+                    continue
+                names = list(dict.fromkeys(k for row in rows for k in row[key]))
                 width = max(len(k) for k in names) + 2
-                print(f"\nper kernel, ms per frame (launches per frame), mean over {args.frames} frames")
+                print(f"\nper kernel, ms per frame (launches per frame), mean over {args.frames} frames, {title}")
                 print(f"{'kernel':<{width}}" + "".join(f"{row['photons']:>18,}" for row in rows))
                 for k in names:
                     cells = []
                     for row in rows:
-                        ms, count = row["kernels"].get(k, (0.0, 0))
+                        ms, count = row[key].get(k, (0.0, 0))
                         cells.append(f"{ms:10.3f} ({count:4.0f})")
                     print(f"{k:<{width}}" + "".join(f"{c:>18}" for c in cells))
-                totals = [(sum(v[0] for v in row["kernels"].values()), sum(v[1] for v in row["kernels"].values()))
+                totals = [(sum(v[0] for v in row[key].values()), sum(v[1] for v in row[key].values()))
                           for row in rows]
                 print(f"{'sum':<{width}}" + "".join(f"{f'{ms:10.3f} ({c:4.0f})':>18}" for ms, c in totals))
             print()

@@ -30,6 +30,7 @@ def main(argv=None) -> int:
         args.width, args.height, args.rsm_size, args.frames = 64, 36, 64, 2
     wp.init()
     from cisp_warp.raster import GBuffer, LightMaps, Rasterizer, camera_view
+    from cisp_warp.raster.rasterizer import view_array
     from cisp_warp.scene import DeviceScene
     from cisp_warp.timing import StageTimer
     from cisp_warp.usd import load_usd
@@ -39,7 +40,7 @@ def main(argv=None) -> int:
     gpu = DeviceScene(scene, device)
     raster = Rasterizer(gpu)
     view = camera_view(scene.camera)
-    params = view.params()
+    cams = view_array([view, view], device)  # the camera, this frame and the last
     gbuf = GBuffer.allocate(view.width, view.height, device)
     lights = [LightMaps(gpu, light, args.rsm_size) for light in scene.lights]
     timer = StageTimer(device)
@@ -47,7 +48,7 @@ def main(argv=None) -> int:
         if frame == 3:
             timer = StageTimer(device)
         with timer.stage(f"camera G-buffer {view.width}x{view.height}"):
-            gbuf.render(raster, params, params)
+            gbuf.render(raster, cams)
         for lm in lights:
             with timer.stage(f"RSM {lm.light.safe_name} ({len(lm.rsm)} view(s) of {args.rsm_size}²)"):
                 lm.render(raster)

@@ -20,6 +20,7 @@ from ..errors import SceneError
 from ..raster import GBuffer, LightMaps
 from ..raster.views import View
 from ..scene import DeviceScene
+from ..frame import FrameInputs
 from . import common as C
 
 
@@ -111,20 +112,28 @@ class Ledger:
 
 
 class RSMBatch(NamedTuple):
-    """One RSM view's photons for one frame, as every RSM-emitting method launches them."""
+    """One RSM view's photons for one frame, as every RSM-emitting method launches them.
+
+    The view and its photon count may live only on the device (views fitted to the camera on the device): kernels
+    that take ``views[view_index]`` and ``states[view_index]`` (``LightMaps.views`` / ``states``) run ``slots``
+    threads and emit ``cascade_photons(states[view_index], light_photons)`` of them. ``params``, ``n``,
+    ``skip_window`` and ``luminance_cutoff`` are the host's copies, set for whole (not fitted) views only."""
 
     light_index: int
     view_index: int
-    lights: LightMaps  #: the light's maps (``.light``, ``.scene``)
-    params: wp.struct  #: the view's ViewParams
+    lights: LightMaps  #: the light's maps (``.light``, ``.scene``, ``.views``, ``.states``)
+    params: wp.struct  #: the view's ViewParams (whole views; None when fitted)
     rsm: object  #: the view's RSMView
-    n: int  #: photons
+    n: int  #: photons (whole views); for fitted ones the threads launched, ``slots``
     seed: int  #: seed of the photons' random streams
     scramble: wp.vec2i  #: the R2 sequence's Cranley-Patterson rotation
     order: wp.array  #: tracing order (read when the pass's ``use_order`` is set)
     light_pos: wp.vec3  #: [m]
-    skip_window: wp.vec4  #: this view's pixels a finer cascade samples (x0, y0, x1, y1); empty when x1 <= x0
+    skip_window: wp.vec4  #: this view's pixels a finer cascade samples (x0, y0, x1, y1); empty when x1 <= x0 (whole views)
     luminance_cutoff: float  #: the luminance cutoff against the light's brightest texel, scaled to this view's texels
+    slots: int  #: threads to launch: >= this view's photons (their count read on the device)
+    light_photons: int  #: the light's photons, split over its active views on the device (``cascade_photons``)
+    stream: int  #: this view's random stream in ``PhotonPass.inputs.randoms`` (the same ``seed`` and ``scramble``)
 
 
 class PhotonPass:
@@ -167,15 +176,36 @@ class PhotonPass:
         self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
         #: most blocks of the outcome pass (CUDA: each thread sums many records); None: one record per thread
         self.outcome_max_blocks = C.OUTCOME_BLOCKS_PER_SM * self.device.sm_count if self.device.is_cuda else None
+        #: the cameras and random streams the kernels read (``frame.FrameInputs``); a renderer shares its own, which
+        #: it writes once per frame before tracing (or replaying a captured frame)
+        self.inputs = FrameInputs(lights, settings.seed, self.device)
 
     def photons_per_view(self, lm: LightMaps) -> int:
         """A light's photons split evenly over its RSM views that emit this frame (every view, unless
-        they are fitted to the camera: then the active cascades)."""
+        they are fitted to the camera: then the active cascades, read back from the device: not for the frame
+        loop, which launches ``view_slots`` threads and lets the kernels count)."""
         return max(1, self.settings.photons // max(1, sum(lm.active)))
 
     def max_photons_per_view(self) -> int:
-        """The most photons one view can get (all of its light's, when one cascade alone is active)."""
-        return max((self.settings.photons if lm.fitted else self.photons_per_view(lm) for lm in self.lights), default=1)
+        """The most photon slots one view can get (all of its light's, rounded up to whole blocks on CUDA, when
+        one cascade alone is active)."""
+        return max((self._fitted_slots() if lm.fitted else self.photons_per_view(lm) for lm in self.lights), default=1)
+
+    def _fitted_slots(self) -> int:
+        """Threads launched for a fitted view on CUDA: the light's photons in whole blocks (so a block of slots
+        past the view's count is wholly past it, and its kernels return at once)."""
+        b = C.LEDGER_BLOCK
+        return (self.settings.photons + b - 1) // b * b
+
+    def view_slots(self, lm: LightMaps) -> list[int]:
+        """Threads to launch per RSM view this frame, without waiting for the device: a whole view's photons; a
+        fitted cascade's exact count on the CPU (its states are host memory), else all the light's photons (the
+        most one cascade can get; the surplus threads emit nothing)."""
+        active = lm.host_active()
+        if active is None:
+            return [self._fitted_slots()] * len(lm.rsm)
+        n = max(1, self.settings.photons // max(1, sum(active)))
+        return [n if a else 0 for a in active]
 
     def begin(self) -> None:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
@@ -191,9 +221,9 @@ class PhotonPass:
                 blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
                 wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
                                 inputs=[r.flux, n, self._max_lum_of[li]])
-            for r, window, angle in zip(lm.pilot, lm.outside_windows, lm.outside_angles):
+            for b, r in enumerate(lm.pilot):
                 self.launch_photons(C.book_outside_window, r.width * r.height,
-                                    [r.flux, r.width, r.width * r.height, wp.vec4(*window), float(angle),
+                                    [r.flux, r.width, r.width * r.height, lm.outside, lm.outside_angle, b,
                                      wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger_rows])
 
     def launch_photons(self, kernel, n: int, inputs: list) -> None:
@@ -202,18 +232,20 @@ class PhotonPass:
         blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
         wp.launch_tiled(kernel, dim=blocks, block_dim=self.ledger_block, device=self.device, inputs=inputs)
 
-    def add_outcomes(self, outcome: wp.array, n: int, entries: int) -> None:
-        """Add the final entries of ``n`` photons' outcome records (written by the trace kernel with
-        ``record_outcome``) to the ledger (:func:`~.common.ledger_add_outcomes`): on CUDA at most
+    def add_outcomes(self, outcome: wp.array, batch: RSMBatch, runs: int, entries: int) -> None:
+        """Add the final entries of ``runs`` runs of ``batch.slots`` outcome records (written by the trace kernel
+        with ``record_outcome``) to the ledger (:func:`~.common.ledger_add_outcomes`): on CUDA at most
         ``outcome_max_blocks`` blocks of ``OUTCOME_BLOCK`` threads, each thread summing every ``threads``-th
         record, each block adding once per entry; on the CPU one record per thread, in photon order (the tests
-        cap the blocks there to run the CUDA layout)."""
+        cap the blocks there to run the CUDA layout). Records past the view's photon count are skipped."""
+        n = runs * batch.slots
         block = C.OUTCOME_BLOCK if self.device.is_cuda else self.ledger_block
         blocks = max(1, (n + block - 1) // block)
         if self.outcome_max_blocks is not None:
             blocks = min(blocks, self.outcome_max_blocks)
         wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=self.device,
-                        inputs=[outcome, n, blocks * block, entries, self.ledger_rows])
+                        inputs=[outcome, n, blocks * block, entries, self.ledger_rows, batch.lights.states,
+                                batch.view_index, batch.light_photons, max(1, batch.slots)])
 
     def fold_ledger(self) -> None:
         """Sum the striped ledger into ``ledger`` and zero the stripes (one small launch; idempotent)."""
@@ -221,40 +253,52 @@ class PhotonPass:
         wp.launch_tiled(C.ledger_fold, dim=C.LEDGER_ENTRIES, block_dim=block, device=self.device,
                         inputs=[self.ledger_rows, self._ledger_entries])
 
-    def photon_order(self, params: wp.struct, lm: LightMaps, r, n: int, scramble: wp.vec2i, seed: int,
-                     skip_window: wp.vec4, max_lum: wp.array, luminance_cutoff: float) -> wp.array:
-        """The order in which to trace the ``n`` photons of RSM view ``r`` (kernels take it with ``use_order``):
-        by texel (Morton), then stably grouped by how each will march (refracted, reflected, not traced;
-        :func:`~.common.photon_group_keys`), two radix sorts over only the key bits in use."""
-        if self.use_order:
-            wp.launch(C.photon_sort_keys, dim=n, device=self.device, inputs=[params, scramble, self._sort_keys, self._order])
+    def frame_inputs(self, camera: wp.struct, frame: int) -> None:
+        """Make ``inputs`` hold ``frame``: a renderer has written them already (and while a frame is captured
+        nothing may be copied); a pass driven alone writes ``camera`` and the frame's random streams now."""
+        if self.inputs.frame != frame and not (self.device.is_cuda and self.device.is_capturing):
+            self.inputs.write(frame, camera, camera)
+
+    def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
+        """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
+        ``use_order``): by texel (Morton), then stably grouped by how each will march (refracted, reflected, not
+        traced; :func:`~.common.photon_group_keys`), two radix sorts over only the key bits in use; slots past
+        the view's photon count (on the device) last."""
+        if self.use_order and slots > 0:
+            wp.launch(C.photon_sort_keys, dim=slots, device=self.device,
+                      inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
+                              self._sort_keys, self._order])
             side = min(max(r.width, r.height), 1 << 14)
-            wp.utils.radix_sort_pairs(self._sort_keys, self._order, n, end_bit=2 * max(1, (side - 1).bit_length()))
+            wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, end_bit=2 * max(1, (side - 1).bit_length()))
             sp, sc = r.specular, lm.scene
-            wp.launch(C.photon_group_keys, dim=n, device=self.device, inputs=[
-                params, int(lm.light.kind), wp.vec3(*np.asarray(lm.light.position, np.float32)), scramble, seed,
-                sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, skip_window, sc.triangle_material,
-                sc.opacity, max_lum, float(self.settings.roughness_cutoff), float(luminance_cutoff),
+            wp.launch(C.photon_group_keys, dim=slots, device=self.device, inputs=[
+                lm.views, lm.states, view_index, self.settings.photons, int(lm.light.kind),
+                wp.vec3(*np.asarray(lm.light.position, np.float32)), self.inputs.randoms, stream,
+                sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, sc.triangle_material,
+                sc.opacity, max_lum, float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
                 self._order, self._sort_keys])
-            wp.utils.radix_sort_pairs(self._sort_keys, self._order, n, end_bit=C.SORT_GROUP_BITS)
+            wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, end_bit=C.SORT_GROUP_BITS)
         return self._order
 
     def rsm_batches(self, frame: int) -> Iterator[RSMBatch]:
         """Every light's RSM views for ``frame``, each with its photon count, random streams (the same for
-        every method: cisp, sspm and caustics_map trace the same photons) and tracing order."""
+        every method: cisp, sspm and caustics_map trace the same photons) and tracing order. Views that emit
+        nothing are left out where the host knows it (whole views, the CPU), launched empty on CUDA."""
         s = self.settings
         for li, lm in enumerate(self.lights):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
-            n = self.photons_per_view(lm)
-            for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
-                if not lm.active[vi]:
+            slots = self.view_slots(lm)
+            for vi, r in enumerate(lm.rsm):
+                if slots[vi] == 0:
                     continue
                 sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
                 scramble = wp.vec2i(sx, sy)
-                window = wp.vec4(*lm.skip_windows[vi])
-                cutoff = float(s.luminance_cutoff * lm.texel_scale[vi])
-                order = self.photon_order(params, lm, r, n, scramble, seed, window, self._max_lum_of[li], cutoff)
-                yield RSMBatch(li, vi, lm, params, r, n, seed, scramble, order, light_pos, window, cutoff)
+                params = None if lm.fitted else lm.params[vi]
+                skip = None if lm.fitted else wp.vec4(0.0)
+                stream = self.inputs.rsm_stream(li, vi)
+                yield RSMBatch(li, vi, lm, params, r, slots[vi], seed, scramble,
+                               self.photon_order(lm, vi, r, slots[vi], stream, self._max_lum_of[li]), light_pos,
+                               skip, float(s.luminance_cutoff), slots[vi], s.photons, stream)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

@@ -60,6 +60,7 @@ class CISP(PhotonPass):
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
         s = self.settings
+        self.frame_inputs(camera, frame)
         self.begin()
         self._build_bounds(gbuffer.depth, gbuffer.width, gbuffer.height, self.cam_bounds)
         if self.wavefront is not None:
@@ -71,13 +72,13 @@ class CISP(PhotonPass):
             sp = r.specular
             rsm_bounds = self.rsm_bounds[b.light_index][b.view_index]
             self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
-            self.launch_photons(K.trace_photons, b.n, inputs=[
-                b.params, int(b.lights.light.kind), b.light_pos,
+            self.launch_photons(K.trace_photons, b.slots, inputs=[
+                b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
-                sc.geometry, b.skip_window, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
-                camera, gbuffer.depth, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
-                b.n, b.seed, b.scramble, b.order, self.use_order,
+                sc.geometry, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
+                self.inputs.cameras, gbuffer.depth, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
+                b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
                 self.photon_map, self.ledger_rows, self.hits, self.outcome])
-            self.add_outcomes(self.outcome, b.n, K.CISP_FINAL_ENTRIES)
+            self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)

@@ -16,6 +16,7 @@ import warp as wp
 
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
+from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, pixel_ray_world
 from ..scene.device import SurfaceGeometry
 
@@ -210,16 +211,25 @@ def ledger_add_outcomes(
     threads: int,  # threads launched (blocks * block_dim): each sums records t, t + threads, ...
     entries: int,  # bit mask of the entries the records may hold (entry_mask)
     ledger: wp.array(dtype=wp.vec3d),  # the striped ledger, (stripes * LEDGER_ROW,) [W] RGB (accumulate)
+    states: wp.array(dtype=CascadeState),  # (V,) the light's views (LightMaps.states, read)
+    view_index: int,  # the view whose photons wrote the records
+    light_photons: int,  # the light's photons (cascade_photons)
+    run: int,  # records per run (the trace's slots): record r is photon slot r % run of its run
 ):
     """The final entries of ``count`` outcome records: each thread sums its records per entry in registers, the
     block tile-sums each entry of ``entries`` and adds it once to its ledger stripe. On CUDA a few hundred blocks
     read the records once (16 B each, coalesced); on the CPU (one thread per block, one record per thread) the
-    entries are summed in photon order, as when the trace kernel added them itself."""
+    entries are summed in photon order, as when the trace kernel added them itself. Records of slots past the
+    view's photon count (launched for the most a fitted cascade can get; never written this frame) are skipped."""
     block, lane = wp.tid()
+    n_photons = cascade_photons(states[view_index], light_photons)
     t = block * wp.block_dim() + lane
     sums = OutcomeSums()
     r = t
     while r < count:
+        if r % run >= n_photons:
+            r += threads
+            continue
         o = outcome[r]
         code = int(o[3])
         p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
@@ -276,27 +286,29 @@ def _spread_bits(v: int) -> int:
     return x
 
 
-SORT_GROUP_SHIFT = wp.constant(28)  #: bit of a sort key where its march group starts (Morton code below: 14 bits per axis)
-SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
-SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
-SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
-
-
 @wp.kernel
 def photon_sort_keys(
-    light: ViewParams,
-    scramble: wp.vec2i,
+    views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream
     keys: wp.array(dtype=wp.int32),  # (2N,) Morton code of each photon's texel (write, first N)
     values: wp.array(dtype=wp.int32),  # (2N,) photon index k (write, first N)
 ):
     """Keys to trace photons in texel (Morton) order: neighbouring threads then start from neighbouring
     texels and mostly travel alike, which keeps a GPU warp's memory reads and march lengths coherent.
-    Each photon is still photon k of the R2 sequence; only the order of the threads changes."""
+    Each photon is still photon k of the R2 sequence; only the order of the threads changes. Slots past the
+    view's photon count (launched with fixed dims) sort last."""
     k = wp.tid()
-    u = r2_point(k, scramble)
+    light = views[view_index]
+    u = r2_point(k, wp.vec2i(randoms[stream][0], randoms[stream][1]))
     i = wp.min(int(u[0] * float(light.width)), light.width - 1)
     j = wp.min(int(u[1] * float(light.height)), light.height - 1)
     keys[k] = _spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)
+    if k >= cascade_photons(states[view_index], light_photons):
+        keys[k] = 0x7FFFFFFF  # after every texel's code in the sorted key bits (all ones there): sorts last
     values[k] = k
 
 
@@ -304,27 +316,30 @@ SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (m
 SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
 SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
 SORT_GROUP_BITS = 2  #: key bits of a march group
+SORT_GROUP_LAST = wp.constant(3)  #: slots past the view's photon count (fixed launch dims): after every group
 
 
 @wp.kernel
 def photon_group_keys(
-    light: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
-    scramble: wp.vec2i,
-    seed: int,  # seed of the photons' random streams (the same as the trace kernel's)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
     rsm_position: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
-    skip_window: wp.vec4,
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
-    luminance_cutoff: float,
+    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
     order: wp.array(dtype=wp.int32),  # (2N,) photon index per thread, in texel order (read, first N)
     keys: wp.array(dtype=wp.int32),  # (2N,) march group of thread t's photon (write, first N)
 ):
@@ -335,8 +350,16 @@ def photon_group_keys(
     Fresnel at the texel's normal; the trace uses the exact normal under the sample, so a few photons land in the
     other group). Each photon is still traced in full as photon k: only the order of the threads changes."""
     t = wp.tid()
+    cascade = states[view_index]
+    if t >= cascade_photons(cascade, light_photons):  # slots past the view's photons (fixed launch dims): last
+        keys[t] = SORT_GROUP_LAST
+        return
+    light = views[view_index]
+    rnd = randoms[stream]
+    seed = rnd[2]
+    skip_window = cascade.skip_window
     k = order[t]
-    u = r2_point(k, scramble)
+    u = r2_point(k, wp.vec2i(rnd[0], rnd[1]))
     sx = u[0] * float(light.width)
     sy = u[1] * float(light.height)
     i = wp.min(int(sx), light.width - 1)
@@ -346,7 +369,7 @@ def photon_group_keys(
     tri = rsm_tri[texel]
     in_window = sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]
     if tri >= 0 and not in_window and rsm_roughness[texel] <= roughness_cutoff:
-        if luminance(rsm_flux[texel]) >= luminance_cutoff * max_lum[0]:
+        if luminance(rsm_flux[texel]) >= luminance_cutoff * cascade.texel_scale * max_lum[0]:
             group = SORT_REFLECTED
             m = triangle_material[tri]
             if mat_opacity[m] < 1.0:
@@ -522,8 +545,10 @@ def book_outside_window(
     rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) a pilot view's flux per texel [W] (read)
     width: int,
     count: int,  # texels
-    window: wp.vec4,  # (x0, y0, x1, y1) sampled by the cascades, in the pilot's pixels turned by ``angle``; empty when x1 <= x0
-    angle: float,  # [rad] (views.rotate_pixels)
+    windows: wp.array(dtype=wp.vec4),  # (V,) per pilot view (x0, y0, x1, y1) sampled by the cascades, in its pixels
+    # turned by ``angles``; empty when x1 <= x0 (LightMaps.outside, read)
+    angles: wp.array(dtype=wp.float32),  # (V,) [rad] (views.rotate_pixels; LightMaps.outside_angle, read)
+    view_index: int,  # this pilot view
     centre: wp.vec2,  # the pilot view's principal point [pixels]
     aspect: float,  # the pilot view's fx / fy
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
@@ -531,6 +556,8 @@ def book_outside_window(
     """Book the power of each pilot texel's area outside ``window`` as sampled and ``outside_fitted_view``
     (one thread per texel, tallied and added once per block, as the photon kernels do). Unturned windows
     cut texels exactly; a turned one is measured on 4×4 points per texel."""
+    window = windows[view_index]
+    angle = angles[view_index]
     block, lane = wp.tid()
     p = block * wp.block_dim() + lane
     tally = tally_new()

@@ -1,17 +1,22 @@
 """Light views fitted to the camera (DESIGN, CISP step 0): cascaded shadow maps for photons.
 
-Per frame, after the camera's G-buffer and before the lights' RSM views are drawn:
+Per frame, after the camera's G-buffer and before the lights' RSM views are drawn, all on the device:
 
 1. every light's pilot views (its whole views, ``pilot_size``²) are drawn;
 2. :func:`pilot_receivers` sends one photon per pilot texel and branch (reflected; refracted where the
    surface transmits) from the surface under the texel's centre, traces it through the scene's BVH
    (further specular bounces by Fresnel probability) and keeps the camera depth [m] where it lands on
    a surface the camera sees (the depth-visibility test of the photon stores), 0 where neither lands;
-3. the host reads those depths back (the one device->host copy of the frame, ``pilot_size``² floats
-   per whole view: a view's pose and scale are launch arguments, so the host must know them), turns each
-   whole view about its axis to fit them tightest (``views.fit_angle``) and fits nested windows to them
-   (``views.fit_windows``): one near the camera, coarser ones further out;
-4. ``LightMaps.set_windows`` moves the cascades; their RSMs are then drawn at full size.
+3. three small kernels fit the cascades to those depths (``views.fit_angle`` and ``views.fit_windows`` on the
+   device): :func:`fit_reduce_angles` reduces, per pilot view and each of ``FIT_STEPS`` turns about its axis, the
+   box of the turned useful texels (and their depth range) with Warp tiles, one block each;
+   :func:`fit_reduce_cascades` picks the tightest turn and reduces each cascade's box (texels nearer than its
+   split); :func:`fit_solve` (one thread per light) grows, clips, merges and nests the windows and writes the
+   cascades' views and states into ``LightMaps.views`` / ``states`` / ``outside`` (see ``LightMaps``);
+4. the photon and raster kernels read those arrays: the host neither waits for the fit nor knows its result.
+
+The numpy fit (:meth:`LightViewFitter.fit_host`: read the depths back, ``fit_angle``, ``fit_windows``,
+``LightMaps.set_windows``) is the naive twin; a test compares the two.
 
 Photons are then emitted from the cascades (``PhotonPass.rsm_batches``): each active cascade gets an
 equal share of the light's photons, a cascade leaves the samples inside the next finer window to it,
@@ -24,9 +29,11 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..frame import FrameInputs
 from ..optics import reflect, refract
 from ..raster import GBuffer, LightMaps, Rasterizer
-from ..raster.views import ViewParams, fit_angle, fit_windows, pixel_ray_world
+from ..raster.light_maps import INACTIVE_FAR, CascadeState
+from ..raster.views import MERGE_AREA, ViewParams, fit_angle, fit_windows, pixel_ray_world
 from ..scene import DeviceScene
 from ..scene.device import SurfaceGeometry
 from .common import surface_at_sample, tally_new
@@ -49,17 +56,21 @@ def pilot_receivers(
     rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) -1 = none (read)
     geometry: SurfaceGeometry,
     ws: WorldScene,
-    cam: CameraBuffers,
+    cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
     roughness_cutoff: float,
     thickness: float,  # [m] depth-visibility tolerance, absolute
     thickness_rel: float,  # relative (× depth)
     t_max: float,  # [m]
     max_bounces: int,
-    seed: int,
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream, the seed third (frame.FrameInputs.randoms, read)
+    stream: int,  # this pilot view's stream
     receiver_depth: wp.array(dtype=wp.float32),  # (P*P,) nearest camera depth [m] a texel's light is seen at, 0 = none (write)
 ):
     p = wp.tid()
     receiver_depth[p] = 0.0
+    cam.view = cameras[0]
+    seed = randoms[stream][2]
     tri = rsm_tri[p]
     if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
         return
@@ -100,44 +111,434 @@ def pilot_receivers(
     receiver_depth[p] = nearest
 
 
+#: turns about the pilot view's axis tried by the fit, in [0, 90°) (``views.fit_angle``'s ``steps``)
+FIT_STEPS = 18
+FIT_BLOCK = 256  #: threads per block of the fit's reductions on CUDA (one per block on the CPU)
+MAX_CASCADES = 4  #: LightViewSettings.cascades is at most this (the solve keeps windows in a mat44d)
+#: where a LightViewFitter fits unless told: True, on the device; False, the numpy twin (a host sync per frame)
+FIT_ON_DEVICE = True
+
+
+@wp.func
+def _turn(i: int, j: int, w: int, h: int, c: wp.float64, s: wp.float64, aspect: wp.float64):
+    """``views.rotate_pixels`` of the centre of texel (i, j) about the pilot image's centre (float64)."""
+    half = wp.float64(0.5)
+    dx = wp.float64(i) + half - half * wp.float64(w)
+    dy = wp.float64(j) + half - half * wp.float64(h)
+    return half * wp.float64(w) + c * dx - s * aspect * dy, half * wp.float64(h) + s * dx / aspect + c * dy
+
+
+@wp.func
+def _step_angle(k: int) -> wp.float64:
+    return wp.float64(0.5 * wp.pi) * wp.float64(k) / wp.float64(FIT_STEPS)
+
+
+@wp.func
+def _box_reduce(umin: wp.float64, umax: wp.float64, vmin: wp.float64, vmax: wp.float64) -> wp.vec4d:
+    """The block's (min u, max u, min v, max v) of its threads' boxes (Warp tiles)."""
+    a = wp.tile_min(wp.tile(umin))
+    b = wp.tile_max(wp.tile(umax))
+    c = wp.tile_min(wp.tile(vmin))
+    d = wp.tile_max(wp.tile(vmax))
+    return wp.vec4d(a[0], b[0], c[0], d[0])
+
+
+@wp.kernel
+def fit_reduce_angles(
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read)
+    width: int,  # P
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
+    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) per view and turn k < FIT_STEPS the useful texels' turned
+    # box (min u, max u, min v, max v) [pilot pixels]; at k = FIT_STEPS (min depth, max depth, count, 0) (write)
+):
+    """One block per (pilot view, turn): the box of the useful texels (receiver depth > 0) turned by that
+    angle, each thread over a strided share of the texels, reduced with Warp tiles (``views.fit_angle``)."""
+    b, k, lane = wp.tid()
+    n = width * height
+    big = wp.float64(1.0e300)
+    umin = big
+    umax = -big
+    vmin = big
+    vmax = -big
+    count = wp.float64(0.0)
+    c = wp.cos(_step_angle(k))
+    s = wp.sin(_step_angle(k))
+    aspect = aspects[b]
+    p = lane
+    while p < n:
+        z = receiver_depth[b * n + p]
+        if z > 0.0:
+            if k == FIT_STEPS:
+                umin = wp.min(umin, wp.float64(z))
+                umax = wp.max(umax, wp.float64(z))
+                count += wp.float64(1.0)
+            else:
+                u, v = _turn(p % width, p / width, width, height, c, s, aspect)
+                umin = wp.min(umin, u)
+                umax = wp.max(umax, u)
+                vmin = wp.min(vmin, v)
+                vmax = wp.max(vmax, v)
+        p += wp.block_dim()
+    box = _box_reduce(umin, umax, vmin, vmax)
+    total = wp.tile_sum(wp.tile(count))
+    if lane == 0:
+        if k == FIT_STEPS:
+            box = wp.vec4d(box[0], box[1], total[0], wp.float64(0.0))
+        boxes[b * (FIT_STEPS + 1) + k] = box
+
+
+@wp.func
+def _fitted_angle(boxes: wp.array(dtype=wp.vec4d), b: int) -> wp.float64:
+    """``views.fit_angle`` from the reduced boxes: the smallest turn unless a later one is clearly tighter."""
+    best = wp.float64(0.0)
+    if boxes[b * (FIT_STEPS + 1) + FIT_STEPS][2] == wp.float64(0.0):
+        return best
+    best_area = wp.float64(1.0e300)
+    for k in range(FIT_STEPS):
+        q = boxes[b * (FIT_STEPS + 1) + k]
+        area = (q[1] - q[0] + wp.float64(1.0)) * (q[3] - q[2] + wp.float64(1.0))
+        if area < best_area * wp.float64(0.98):
+            best = _step_angle(k)
+            best_area = area
+    return best
+
+
+@wp.func
+def _split(z_near: wp.float64, z_far: wp.float64, c: int, cascades: int) -> wp.float64:
+    """``views.cascade_splits``: the receiver depth [m] that ends cascade c (blend 0.5; the last is infinite)."""
+    if c == cascades - 1:
+        return wp.float64(1.0e300)
+    i = wp.float64(c + 1) / wp.float64(cascades)
+    zn = wp.max(z_near, wp.float64(1.0e-6))
+    log = zn * wp.pow(z_far / zn, i)
+    uni = zn + (z_far - zn) * i
+    return wp.float64(0.5) * log + wp.float64(0.5) * uni
+
+
+@wp.kernel
+def fit_reduce_cascades(
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) (read)
+    width: int,
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
+    cascades: int,
+    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) from fit_reduce_angles (read)
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) turned box of the texels nearer than each split (write)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) those texels (write)
+    angles: wp.array(dtype=wp.float64),  # (V,) the fitted turn [rad] (write)
+):
+    """One block per (pilot view, cascade): the tightest turn (``views.fit_angle``), the cascade's depth split
+    (``views.cascade_splits``) and the turned box of the useful texels it covers (``views.fit_windows``)."""
+    b, ci, lane = wp.tid()
+    n = width * height
+    angle = _fitted_angle(boxes, b)
+    zs = boxes[b * (FIT_STEPS + 1) + FIT_STEPS]
+    split = _split(zs[0], zs[1], ci, cascades)
+    c = wp.cos(angle)
+    s = wp.sin(angle)
+    aspect = aspects[b]
+    big = wp.float64(1.0e300)
+    umin = big
+    umax = -big
+    vmin = big
+    vmax = -big
+    count = wp.float64(0.0)
+    p = lane
+    while p < n:
+        z = receiver_depth[b * n + p]
+        if z > 0.0 and wp.float64(z) <= split:
+            u, v = _turn(p % width, p / width, width, height, c, s, aspect)
+            umin = wp.min(umin, u)
+            umax = wp.max(umax, u)
+            vmin = wp.min(vmin, v)
+            vmax = wp.max(vmax, v)
+            count += wp.float64(1.0)
+        p += wp.block_dim()
+    box = _box_reduce(umin, umax, vmin, vmax)
+    total = wp.tile_sum(wp.tile(count))
+    if lane == 0:
+        cascade_boxes[b * cascades + ci] = box
+        cascade_counts[b * cascades + ci] = total[0]
+        if ci == 0:
+            angles[b] = angle
+
+
+@wp.func
+def _round6(x: wp.float64) -> wp.float64:
+    """``round(x, 6)``, as the host fit keeps its windows."""
+    return wp.round(x * wp.float64(1.0e6)) / wp.float64(1.0e6)
+
+
+@wp.func
+def _area(w: wp.vec4d) -> wp.float64:
+    return (w[2] - w[0]) * (w[3] - w[1])
+
+
+@wp.func
+def _same4(a: wp.vec4d, b: wp.vec4d) -> int:
+    return int(a[0] == b[0] and a[1] == b[1] and a[2] == b[2] and a[3] == b[3])
+
+
+@wp.func
+def _f32(x: wp.float64) -> float:
+    return wp.float32(x)
+
+
+@wp.func
+def _window_params(pilot: ViewParams, angle: wp.float64, win: wp.vec4d, size: int) -> ViewParams:
+    """``views.window_view(views.rotated_view(pilot, angle), win, size)`` as kernels see it."""
+    c = wp.cos(angle)
+    s = wp.sin(angle)
+    cf = _f32(c)
+    sf = _f32(s)
+    rz = wp.mat44(cf, -sf, 0.0, 0.0, sf, cf, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+    v = ViewParams()
+    v.view_to_world = pilot.view_to_world
+    v.world_to_view = pilot.world_to_view
+    if angle != wp.float64(0.0):
+        v.view_to_world = pilot.view_to_world * rz
+        v.world_to_view = wp.transpose(rz) * pilot.world_to_view
+    sx = wp.float64(size) / (win[2] - win[0])
+    sy = wp.float64(size) / (win[3] - win[1])
+    v.fx = _f32(wp.float64(pilot.fx) * sx)
+    v.fy = _f32(wp.float64(pilot.fy) * sy)
+    v.cx = _f32((wp.float64(pilot.cx) - win[0]) * sx)
+    v.cy = _f32((wp.float64(pilot.cy) - win[1]) * sy)
+    v.near = pilot.near
+    v.far = pilot.far
+    v.width = size
+    v.height = size
+    v.orthographic = pilot.orthographic
+    return v
+
+
+@wp.func
+def _same_view(a: ViewParams, b: ViewParams) -> int:
+    same = int(a.fx == b.fx and a.fy == b.fy and a.cx == b.cx and a.cy == b.cy and a.near == b.near and a.far == b.far)
+    for i in range(4):
+        for j in range(4):
+            if a.world_to_view[i, j] != b.world_to_view[i, j]:
+                same = 0
+    return same
+
+
+@wp.kernel
+def fit_solve(
+    pilot_views: wp.array(dtype=ViewParams),  # (V,) the light's pilot views (read)
+    width: int,  # P
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
+    n_views: int,  # V
+    cascades: int,
+    margin: float,  # pilot texels around each window (plus 2% of its size)
+    rsm_size: int,
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) from fit_reduce_cascades (read)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (read)
+    angles: wp.array(dtype=wp.float64),  # (V,) (read)
+    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read the last, write)
+    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
+    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside: the coarsest window (write)
+    outside_angle: wp.array(dtype=wp.float32),  # (V,) its turn [rad] (write)
+):
+    """One thread per light: every pilot view's windows (``views.fit_windows``: grown by the margin and the turned
+    texel's half extent, clipped to the turned pilot image, merged when a finer one covers more than
+    ``MERGE_AREA`` of the next, repeats dropped), then each cascade's view and state as
+    ``LightMaps.set_windows`` writes them."""
+    n_active = int(0)
+    for b in range(n_views):
+        angle = angles[b]
+        aspect = aspects[b]
+        c = wp.cos(angle)
+        s = wp.sin(angle)
+        ca = wp.abs(c)
+        sa = wp.abs(s)
+        half_u = wp.float64(0.5) * (ca + sa * aspect)
+        half_v = wp.float64(0.5) * (sa / aspect + ca)
+        w = wp.float64(width)
+        h = wp.float64(height)
+        hw = wp.float64(0.5) * w
+        hh = wp.float64(0.5) * h
+        # the turned pilot image's box: its four corners turned about the centre
+        lo_u = wp.float64(1.0e300)
+        hi_u = -lo_u
+        lo_v = lo_u
+        hi_v = -lo_u
+        for corner in range(4):
+            px = wp.float64(0.0)
+            py = wp.float64(0.0)
+            if corner == 1 or corner == 2:
+                px = w
+            if corner >= 2:
+                py = h
+            tu = hw + c * (px - hw) - s * aspect * (py - hh)
+            tv = hh + s * (px - hw) / aspect + c * (py - hh)
+            lo_u = wp.min(lo_u, tu)
+            hi_u = wp.max(hi_u, tu)
+            lo_v = wp.min(lo_v, tv)
+            hi_v = wp.max(hi_v, tv)
+        wins = wp.mat44d()
+        n_win = int(0)
+        for ci in range(cascades):
+            if cascade_counts[b * cascades + ci] > wp.float64(0.0):
+                box = cascade_boxes[b * cascades + ci]
+                x0 = box[0] - half_u
+                x1 = box[1] + half_u
+                y0 = box[2] - half_v
+                y1 = box[3] + half_v
+                gx = wp.float64(margin) + wp.float64(0.02) * (x1 - x0)
+                gy = wp.float64(margin) + wp.float64(0.02) * (y1 - y0)
+                wins[n_win] = wp.vec4d(_round6(wp.max(x0 - gx, lo_u)), _round6(wp.max(y0 - gy, lo_v)),
+                                       _round6(wp.min(x1 + gx, hi_u)), _round6(wp.min(y1 + gy, hi_v)))
+                n_win += 1
+        # merge a finer window into the next coarser when it is not much smaller, then drop repeats
+        kept = wp.mat44d()
+        n_kept = int(0)
+        for i in range(n_win):
+            keep = int(1)
+            if i < n_win - 1:
+                keep = int(_area(wins[i]) <= wp.float64(MERGE_AREA) * _area(wins[i + 1]))
+            if keep != 0:
+                if n_kept == 0 or _same4(wins[i], kept[n_kept - 1]) == 0:
+                    kept[n_kept] = wins[i]
+                    n_kept += 1
+        c_empty = cascades - n_kept
+        if n_kept > 0:
+            last = kept[n_kept - 1]
+            outside[b] = wp.vec4(_f32(last[0]), _f32(last[1]), _f32(last[2]), _f32(last[3]))
+        else:
+            outside[b] = wp.vec4(0.0)
+        outside_angle[b] = _f32(angle)
+        for ci in range(cascades):
+            k = b * cascades + ci
+            old = views[k]
+            st = CascadeState()
+            st.texel_scale = 1.0
+            st.skip_window = wp.vec4(0.0)
+            if ci < c_empty:
+                v = old
+                v.far = INACTIVE_FAR
+                st.active = 0
+                st.changed = 1 - _same_view(v, old)
+                views[k] = v
+                states[k] = st
+                continue
+            win = kept[ci - c_empty]
+            v = _window_params(pilot_views[b], angle, win, rsm_size)
+            sx = wp.float64(rsm_size) / (win[2] - win[0])
+            sy = wp.float64(rsm_size) / (win[3] - win[1])
+            st.active = 1
+            st.texel_scale = _f32(wp.float64(1.0) / (sx * sy))
+            if ci > c_empty:
+                f = kept[ci - c_empty - 1]
+                st.skip_window = wp.vec4(_f32((f[0] - win[0]) * sx), _f32((f[1] - win[1]) * sy),
+                                         _f32((f[2] - win[0]) * sx), _f32((f[3] - win[1]) * sy))
+            st.changed = 1 - _same_view(v, old)
+            n_active += 1
+            views[k] = v
+            states[k] = st
+    for k in range(n_views * cascades):
+        st = states[k]
+        st.active_views = n_active
+        states[k] = st
+
+
 class LightViewFitter:
-    """Fits every light's cascades to the camera each frame; its pilot buffers are allocated once."""
+    """Fits every light's cascades to the camera each frame; its pilot and fit buffers are allocated once.
+
+    ``on_device`` (default): the fit runs in kernels and writes the cascades into each ``LightMaps``' device
+    arrays, no host copy. ``on_device=False``: the naive twin (:meth:`fit_host`), which reads the receiver
+    depths back and fits them in numpy."""
 
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, lights: list[LightMaps], roughness_cutoff: float,
-                 thickness: float, thickness_rel: float, max_bounces: int, t_max: float, seed: int = 0):
+                 thickness: float, thickness_rel: float, max_bounces: int, t_max: float, seed: int = 0,
+                 on_device: bool | None = None, inputs: FrameInputs | None = None):
+        """``inputs``: the renderer's per-frame cameras and random streams (``frame.FrameInputs`` over ``lights``),
+        written before :meth:`fit`; None: the fitter keeps and writes its own."""
         self.scene = scene
+        self.inputs = inputs if inputs is not None else FrameInputs(lights, seed, scene.device)
+        self.light_index = [i for i, lm in enumerate(lights) if lm.fitted]  #: each fitted light's index in ``lights``
         self.lights = [lm for lm in lights if lm.fitted]
         self.device = scene.device
+        self.on_device = FIT_ON_DEVICE if on_device is None else bool(on_device)
         self.world = world_scene(scene) if self.lights else None
         self.cam = CameraBuffers()
         self.cam.depth, self.cam.position, self.cam.normal = gbuffer.depth, gbuffer.position, gbuffer.normal
         self.cam.solid_angle = wp.zeros(1, dtype=wp.float32, device=self.device)  # not read by the pilot
-        self.receiver_depth = [[wp.zeros(r.width * r.height, dtype=wp.float32, device=self.device) for r in lm.pilot]
-                               for lm in self.lights]
+        d = self.device
+        #: per light: its pilots' receiver depths [m], (V*P*P,) float32, and one slice per pilot view
+        self.receiver_depth_all = [wp.zeros(sum(r.width * r.height for r in lm.pilot), dtype=wp.float32, device=d)
+                                   for lm in self.lights]
+        self.receiver_depth = []
+        for lm, whole in zip(self.lights, self.receiver_depth_all):
+            n = lm.pilot[0].width * lm.pilot[0].height
+            self.receiver_depth.append([whole[i * n : (i + 1) * n] for i in range(len(lm.pilot))])
+        #: per light, the fit's scratch (see fit_reduce_angles, fit_reduce_cascades)
+        self._aspects = [wp.array([r.view.fx / r.view.fy for r in lm.pilot], dtype=wp.float64, device=d)
+                         for lm in self.lights]
+        self._boxes = [wp.zeros(len(lm.pilot) * (FIT_STEPS + 1), dtype=wp.vec4d, device=d) for lm in self.lights]
+        self._cascade_boxes = [wp.zeros(len(lm.pilot) * lm.cascades, dtype=wp.vec4d, device=d) for lm in self.lights]
+        self._cascade_counts = [wp.zeros(len(lm.pilot) * lm.cascades, dtype=wp.float64, device=d) for lm in self.lights]
+        self._angles = [wp.zeros(len(lm.pilot), dtype=wp.float64, device=d) for lm in self.lights]
         self.roughness_cutoff, self.thickness, self.thickness_rel = roughness_cutoff, thickness, thickness_rel
         self.max_bounces, self.t_max, self.seed = max_bounces, t_max, seed
-        self.last_depth: list[list[np.ndarray]] = []  #: the pilots' receiver depths of the last fit (host)
+        self.last_depth: list[list[np.ndarray]] = []  #: the pilots' receiver depths of the last host fit (host)
+        #: threads per block of the fit's reductions (Warp runs CPU tiles one thread per block unless
+        #: ``wp.config.enable_cpu_blocks`` is set; a test does, with blocks of 32)
+        self.fit_block = FIT_BLOCK if self.device.is_cuda else 1
 
     def fit(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
-        """Draw the pilots, trace them, read their receiver depths back and fit every light's cascades."""
+        """Draw the pilots, trace them and fit every light's cascades (on the device, or :meth:`fit_host`)."""
         if not self.lights:
             return
+        self.trace_pilots(raster, camera, frame)
+        if self.on_device:
+            self.fit_device()
+        else:
+            self.fit_host()
+
+    def trace_pilots(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
+        """Draw the pilot views and trace their receiver depths (``receiver_depth``). The camera and the seeds are
+        read from ``inputs`` (written here when they do not hold ``frame`` yet and no graph is being captured)."""
+        if self.inputs.frame != frame and not (self.device.is_cuda and self.device.is_capturing):
+            self.inputs.write(frame, camera, camera)
         self.cam.view = camera
         for lm in self.lights:
             lm.render_pilot(raster)
-        for lm, depths in zip(self.lights, self.receiver_depth):
+        for li, lm, depths in zip(self.light_index, self.lights, self.receiver_depth):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
             for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
                 sp = r.specular
                 wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=[
                     r.view.params(), int(lm.light.kind), light_pos, sp.position, sp.normal, r.flux, sp.roughness,
-                    sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, float(self.roughness_cutoff),
-                    float(self.thickness), float(self.thickness_rel), float(self.t_max), int(self.max_bounces),
-                    int(self.seed * 7919 + frame * 131 + vi), depth])
+                    sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
+                    float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel), float(self.t_max),
+                    int(self.max_bounces), self.inputs.randoms, self.inputs.pilot_stream(li, vi), depth])
+
+    def fit_device(self) -> None:
+        """Fit every light's cascades to its pilots' receiver depths in three launches per light."""
+        block = self.fit_block
+        for i, lm in enumerate(self.lights):
+            vs = lm.view_settings
+            p = lm.pilot[0]
+            nv = len(lm.pilot)
+            wp.launch_tiled(fit_reduce_angles, dim=(nv, FIT_STEPS + 1), block_dim=block, device=self.device,
+                            inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], self._boxes[i]])
+            wp.launch_tiled(fit_reduce_cascades, dim=(nv, lm.cascades), block_dim=block, device=self.device,
+                            inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], lm.cascades,
+                                    self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i], self._angles[i]])
+            wp.launch(fit_solve, dim=1, device=self.device, inputs=[
+                lm.pilot_views, p.width, p.height, self._aspects[i], nv, lm.cascades, float(vs.margin), lm.rsm_size,
+                self._cascade_boxes[i], self._cascade_counts[i], self._angles[i], lm.views, lm.states, lm.outside,
+                lm.outside_angle])
+            lm.refresh_cascade_solid_angles()
+
+    def fit_host(self) -> None:
+        """The naive twin: read the receiver depths back (a host sync), fit in numpy, ``LightMaps.set_windows``."""
         self.last_depth = []
         for lm, depths in zip(self.lights, self.receiver_depth):
             vs = lm.view_settings
-            host = [d.numpy().reshape(r.height, r.width) for d, r in zip(depths, lm.pilot)]  # the frame's one sync
+            host = [d.numpy().reshape(r.height, r.width) for d, r in zip(depths, lm.pilot)]
             self.last_depth.append(host)
             aspects = [r.view.fx / r.view.fy for r in lm.pilot]
             angles = [fit_angle(h, k) for h, k in zip(host, aspects)]

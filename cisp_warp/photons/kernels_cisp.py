@@ -10,6 +10,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..scene.device import SurfaceGeometry
+from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
@@ -120,7 +121,9 @@ def trace_photon(
 
 @wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
 def trace_photons(
-    light: ViewParams,
+    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
+    view_index: int,  # the view these photons leave from
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,
     # RSM view of the light (flat H*W arrays)
@@ -133,26 +136,26 @@ def trace_photons(
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
-    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     mat_albedo: wp.array(dtype=wp.vec3),
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     # camera G-buffer (flat H*W arrays)
-    camera: ViewParams,
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
     cam_depth: wp.array(dtype=wp.float32),
     cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
     cam_position: wp.array(dtype=wp.vec3),
     cam_normal: wp.array(dtype=wp.vec3),
     cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
     # settings
-    n_photons: int,
-    seed: int,  # seed of this (frame, view)'s random streams
-    scramble: wp.vec2i,  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream
     order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
     use_order: int,
     roughness_cutoff: float,
-    luminance_cutoff: float,  # relative to max_lum
+    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
     max_steps: int,
     thickness: float,
     thickness_rel: float,
@@ -162,8 +165,8 @@ def trace_photons(
     # outputs
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
-    hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (-1 none), for tests and stats
-    outcome: wp.array(dtype=wp.vec4),  # (>= n_photons,) per thread: final power [W] and entry (write)
+    hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
+    outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
 ):
     """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
     ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
@@ -171,6 +174,15 @@ def trace_photons(
     added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
+    light = light_views[view_index]
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
+        return
+    skip_window = cascade.skip_window
+    rnd = randoms[stream]
+    seed = rnd[2]  # seed of this (frame, view)'s random streams
+    scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
     k = int(0)
     texel = int(-1)
     power = wp.vec3(0.0)
@@ -187,12 +199,13 @@ def trace_photons(
         texel, power, origin, n, d, state = emit_and_bounce(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
             rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
-            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
+            max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
     ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
+        camera = cameras[0]  # read after the emission, where the march needs it
         trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
                      cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
                      t_max, footprint_mode, use_cascade, photon_map, tally, hits)
-    if t < n_photons:
+    if t < n_slots:
         record_outcome(outcome, t, tally)

@@ -21,6 +21,7 @@ import warp as wp
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.kernels import spot_falloff
 from ..scene.device import SurfaceGeometry
+from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
 from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
@@ -181,7 +182,8 @@ def trace_sspm_photon(
     power: wp.vec3,  # [W] after the bounce
     state: wp.uint32,  # rng state
     ws: WorldScene,
-    cam: CameraBuffers,
+    cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
     roughness_cutoff: float,
     thickness: float,  # [m] depth-visibility tolerance, absolute
     thickness_rel: float,  # relative (× depth)
@@ -196,6 +198,7 @@ def trace_sspm_photon(
                                                  max_bounces, tally)
     if status != WT_LANDED:
         return
+    cam.view = cameras[0]  # read after the BVH loop: not held in registers through it (96 registers, not 128)
     entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
     if entry != L_STORED:
         book(tally, entry, power)
@@ -206,7 +209,9 @@ def trace_sspm_photon(
 
 @wp.kernel
 def trace_sspm(
-    light: ViewParams,
+    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
+    view_index: int,  # the view these photons leave from
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
     # RSM view of the light (flat H*W arrays, read)
@@ -217,17 +222,18 @@ def trace_sspm(
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
-    skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     ws: WorldScene,
-    cam: CameraBuffers,
-    n_photons: int,
-    seed: int,
-    scramble: wp.vec2i,
+    cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream
     order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
     use_order: int,
     roughness_cutoff: float,
-    luminance_cutoff: float,
+    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
     thickness: float,  # [m] depth-visibility tolerance, absolute
     thickness_rel: float,  # relative (× depth)
     t_max: float,
@@ -235,8 +241,8 @@ def trace_sspm(
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
-    outcome: wp.array(dtype=wp.vec4),  # (>= 2 n_photons,) per thread t: final power [W] and entry at t, absorbed
-    # power at n_photons + t (write)
+    outcome: wp.array(dtype=wp.vec4),  # (>= 2 n_slots,) per thread t: final power [W] and entry at t, absorbed
+    # power at n_slots + t (write)
 ):
     """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility. One
     thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`); the ledger is
@@ -246,6 +252,15 @@ def trace_sspm(
     without)."""
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
+    light = light_views[view_index]
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
+        return
+    skip_window = cascade.skip_window
+    rnd = randoms[stream]
+    seed = rnd[2]
+    scramble = wp.vec2i(rnd[0], rnd[1])
     texel = int(-1)
     power = wp.vec3(0.0)
     origin = wp.vec3(0.0)
@@ -258,15 +273,15 @@ def trace_sspm(
         texel, power, origin, n, d, state = emit_and_bounce(
             light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
             rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
-            max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
+            max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
     ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()
     if texel >= 0:
-        trace_sspm_photon(origin, n, d, power, state, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max,
+        trace_sspm_photon(origin, n, d, power, state, ws, cam, cameras, roughness_cutoff, thickness, thickness_rel, t_max,
                           max_bounces, footprint_mode, photon_map, tally)
-    if t < n_photons:
+    if t < n_slots:
         record_outcome(outcome, t, tally)
-        record_absorbed(outcome, n_photons + t, tally)
+        record_absorbed(outcome, n_slots + t, tally)
 
 
 @wp.func

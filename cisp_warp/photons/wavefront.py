@@ -88,7 +88,7 @@ class WavefrontSplat:
             kind = int(lm.light.kind)
             sc = lm.scene
             per = p.photons_per_view(lm)
-            for vi, (params, r) in enumerate(zip(lm.params, lm.rsm)):
+            for vi, (params, r) in enumerate(zip(lm.host_views(), lm.rsm)):  # fitted: read back
                 if not lm.active[vi]:
                     continue
                 g = self.grid(r, per)

@@ -66,6 +66,7 @@ class SSPM(_WorldPass):
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         s = self.settings
+        self.frame_inputs(camera, frame)
         self.begin()
         self.cam.view = camera
         if self.wavefront is not None:
@@ -73,13 +74,14 @@ class SSPM(_WorldPass):
             return
         for b in self.rsm_batches(frame):
             sp = b.rsm.specular
-            self.launch_photons(K.trace_sspm, b.n, inputs=[
-                b.params, int(b.lights.light.kind), b.light_pos,
-                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry, b.skip_window,
-                self._max_lum_of[b.light_index], self.world, self.cam, b.n, b.seed, b.scramble, b.order, self.use_order,
+            self.launch_photons(K.trace_sspm, b.slots, inputs=[
+                b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
+                sp.position, sp.normal, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry,
+                self._max_lum_of[b.light_index], self.world, self.cam, self.inputs.cameras, b.light_photons, b.slots,
+                self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),
                 self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows, self.outcome])
-            self.add_outcomes(self.outcome, 2 * b.n, K.SSPM_FINAL_ENTRIES)
+            self.add_outcomes(self.outcome, b, 2, K.SSPM_FINAL_ENTRIES)
 
 
 def reference_target(settings: PhotonSettings, device) -> int:

@@ -79,7 +79,8 @@ def _emit(
 
 @wp.kernel
 def setup_triangles(
-    view: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
     points: wp.array(dtype=wp.vec3),  # (V,) world positions [m] (read)
     indices: wp.array(dtype=wp.int32),  # (3T,) (read)
     layers: wp.array(dtype=wp.int32),  # (T,) layer bits (read)
@@ -91,10 +92,11 @@ def setup_triangles(
     tile_count: wp.array(dtype=wp.int32),  # (2T,) tiles touched, 0 = culled (write)
 ):
     """Near-clip each triangle of the layer into at most two, project them, count their tiles."""
+    view = views[view_index]
     t = wp.tid()
     tile_count[2 * t] = 0
     tile_count[2 * t + 1] = 0
-    if (layers[t] & layer_mask) == 0:
+    if (layers[t] & layer_mask) == 0 or view.far <= 0.0:  # far = 0: an inactive view (light_maps.INACTIVE_FAR), nothing drawn
         return
     a = view_point(view, points[indices[3 * t]])
     b = view_point(view, points[indices[3 * t + 1]])
@@ -167,7 +169,8 @@ def _shared_edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
 
 @wp.kernel
 def raster_tiles(
-    view: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
     sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
     sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
     tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
@@ -176,6 +179,7 @@ def raster_tiles(
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
 ):
     """Grid-stride over (sub-triangle, tile) work items; depth-test every covered pixel centre."""
+    view = views[view_index]
     item = wp.tid()
     total = tile_end[n_sub - 1]
     while item < total:
@@ -285,13 +289,17 @@ def facing_normal(n: wp.vec3, tri: int, d: wp.vec3, points: wp.array(dtype=wp.ve
 
 @wp.kernel
 def resolve_depth(
-    view: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read)
     points: wp.array(dtype=wp.vec3),
     indices: wp.array(dtype=wp.int32),
     depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (write)
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) triangle id, -1 = none (write)
 ):
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
+        return
     p = wp.tid()
     tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
     depth[p] = t
@@ -300,8 +308,9 @@ def resolve_depth(
 
 @wp.kernel
 def resolve_opaque(
-    view: ViewParams,
-    prev_view: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    prev_view_index: int,  # views[prev_view_index]: the previous frame's camera, for motion
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read)
     points: wp.array(dtype=wp.vec3),  # (V,) [m] (read)
     prev_points: wp.array(dtype=wp.vec3),  # (V,) previous frame [m] (read)
@@ -319,6 +328,8 @@ def resolve_opaque(
     motion: wp.array(dtype=wp.vec2),  # (H*W,) pixel offset to where this surface point was last frame (write)
 ):
     """Opaque G-buffer: every attribute of the nearest opaque surface per pixel."""
+    view = views[view_index]
+    prev_view = views[prev_view_index]
     p = wp.tid()
     tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
     tri_id[p] = tri
@@ -345,7 +356,8 @@ def resolve_opaque(
 
 @wp.kernel
 def resolve_specular(
-    view: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read)
     opaque_depth: wp.array(dtype=wp.float32),  # (H*W,) opaque layer depth, 0 = none (read)
     points: wp.array(dtype=wp.vec3),
@@ -362,6 +374,9 @@ def resolve_specular(
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
 ):
     """Specular layer (RSM specular texels, camera water layer): nearest specular surface in front of the opaque one."""
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
+        return
     p = wp.tid()
     tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
     od = opaque_depth[p]
@@ -398,7 +413,8 @@ def spot_falloff(cos_angle: float, cone_angle: float, softness: float) -> float:
 
 @wp.kernel
 def rsm_flux(
-    view: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
     light_rgb: wp.vec3,  # irradiance [W/m²] (distant) or intensity [W/sr] (point, spot), per channel
     spot_axis: wp.vec3,  # world direction of the spot axis (unused unless is_spot)
     is_spot: int,
@@ -409,6 +425,9 @@ def rsm_flux(
     flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
 ):
     """Flux per RSM texel: irradiance × texel area (orthographic), intensity × texel solid angle (perspective)."""
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
+        return
     p = wp.tid()
     if tri_id[p] < 0:
         flux[p] = wp.vec3(0.0)

@@ -37,6 +37,31 @@ from .views import (LightViewSettings, View, ViewParams, light_views, resized_vi
 EMPTY_WINDOW = (0.0, 0.0, 0.0, 0.0)
 
 
+#: a view whose ``far`` is this draws nothing (an inactive cascade: the rasterizer culls every triangle)
+INACTIVE_FAR = 0.0
+
+
+@wp.struct
+class CascadeState:
+    """What one RSM view does this frame besides its view (``LightMaps.views``); written by the fit, on the device
+    (``photons.fit``) or from the host (:meth:`LightMaps.set_windows`), read by the photon kernels."""
+
+    active: int  #: 1: emits photons this frame
+    active_views: int  #: active views of this light: its photons are split evenly over them
+    skip_window: wp.vec4  #: (x0, y0, x1, y1) in this view's pixels, sampled by the finer cascade; empty when x1 <= x0
+    texel_scale: float  #: whole-view (pilot) texels per texel of this view: scales the luminance cutoff
+    changed: int  #: 1: the view moved this frame (its texel solid angles are rewritten)
+
+
+@wp.func
+def cascade_photons(state: CascadeState, light_photons: int) -> int:
+    """Photons a view emits this frame: the light's ``light_photons`` split evenly over its active views
+    (``PhotonPass.photons_per_view`` on the device), 0 when inactive."""
+    if state.active == 0:
+        return 0
+    return wp.max(1, light_photons / wp.max(1, state.active_views))
+
+
 @wp.kernel
 def _nearest_depth(spec_depth: wp.array(dtype=wp.float32), opaque_depth: wp.array(dtype=wp.float32),
                    out: wp.array(dtype=wp.float32)):
@@ -45,13 +70,15 @@ def _nearest_depth(spec_depth: wp.array(dtype=wp.float32), opaque_depth: wp.arra
     out[p] = wp.where(d > 0.0, d, opaque_depth[p])
 
 
-@wp.kernel
-def texel_solid_angles(view: ViewParams, out: wp.array(dtype=wp.float32)):
-    """Exact solid angle [sr] of every texel of a perspective view (``View.texel_solid_angle`` on the
-    device, float64 inside: a fitted view's texels are small and the formula subtracts near-equal terms).
+@wp.func
+def _corner(x: wp.float64, y: wp.float64) -> wp.float64:
+    return wp.atan(x * y / wp.sqrt(wp.float64(1.0) + x * x + y * y))
 
-    ``out``: (H*W,) float32 (write)."""
-    p = wp.tid()
+
+@wp.func
+def texel_solid_angle(view: ViewParams, p: int) -> float:
+    """Exact solid angle [sr] of texel ``p`` of a perspective view, float64 inside (a fitted view's texels are
+    small and the formula subtracts near-equal terms)."""
     i = p % view.width
     j = p / view.width
     fx = wp.float64(view.fx)
@@ -60,16 +87,38 @@ def texel_solid_angles(view: ViewParams, out: wp.array(dtype=wp.float32)):
     x1 = (wp.float64(i + 1) - wp.float64(view.cx)) / fx
     y0 = (wp.float64(j) - wp.float64(view.cy)) / fy
     y1 = (wp.float64(j + 1) - wp.float64(view.cy)) / fy
-    out[p] = wp.float32(_corner(x1, y1) - _corner(x0, y1) - _corner(x1, y0) + _corner(x0, y0))
+    return wp.float32(_corner(x1, y1) - _corner(x0, y1) - _corner(x1, y0) + _corner(x0, y0))
 
 
-@wp.func
-def _corner(x: wp.float64, y: wp.float64) -> wp.float64:
-    return wp.atan(x * y / wp.sqrt(wp.float64(1.0) + x * x + y * y))
+@wp.kernel
+def texel_solid_angles(view: ViewParams, out: wp.array(dtype=wp.float32)):
+    """Exact solid angle [sr] of every texel of a perspective view (``View.texel_solid_angle`` on the device).
+
+    ``out``: (H*W,) float32 (write)."""
+    p = wp.tid()
+    out[p] = texel_solid_angle(view, p)
 
 
-def _view_key(v: View) -> tuple:
-    return (np.asarray(v.to_world, np.float64).tobytes(), v.fx, v.fy, v.cx, v.cy, v.width, v.height)
+@wp.kernel
+def cascade_solid_angles(views: wp.array(dtype=ViewParams), states: wp.array(dtype=CascadeState), view_index: int,
+                         out: wp.array(dtype=wp.float32)):
+    """:func:`texel_solid_angles` of ``views[view_index]``, only when the fit moved it (``states[..].changed``):
+    launched every frame with fixed dims, it costs one read per texel when the view stands still.
+
+    ``out``: (H*W,) float32 (write when changed)."""
+    if states[view_index].changed == 0:
+        return
+    view = views[view_index]
+    if view.orthographic != 0 or view.far <= INACTIVE_FAR:
+        return
+    p = wp.tid()
+    out[p] = texel_solid_angle(view, p)
+
+
+def _same_params(a: ViewParams, rec) -> bool:
+    """Whether host view ``a`` is the record ``rec`` of ``views.numpy()``, field for field (float32)."""
+    return (np.array_equal(np.asarray(a.world_to_view, np.float32).reshape(4, 4), np.asarray(rec["world_to_view"], np.float32))
+            and all(np.float32(getattr(a, f)) == np.float32(rec[f]) for f in ("fx", "fy", "cx", "cy", "near", "far")))
 
 
 class _ShadowView:
@@ -78,19 +127,58 @@ class _ShadowView:
     def __init__(self, view: View, device):
         n = view.width * view.height
         self.view, self.params = view, view.params()
+        self.views = wp.array([self.params], dtype=ViewParams, device=device)
         self.visibility = wp.zeros(n, dtype=wp.uint64, device=device)
         self.depth = wp.zeros(n, dtype=wp.float32, device=device)
         self.tri = wp.zeros(n, dtype=wp.int32, device=device)
 
+    def set_view(self, view: View) -> None:
+        self.view, self.params = view, view.params()
+        self.views.assign([self.params])
+
     def render(self, raster: Rasterizer) -> None:
         s = raster.scene
-        raster.draw(self.params, LAYER_OPAQUE | LAYER_SPECULAR, self.visibility)
-        wp.launch(K.resolve_depth, dim=self.view.width * self.view.height, device=s.device,
-                  inputs=[self.params, self.visibility, s.points, s.indices, self.depth, self.tri])
+        w, h = self.view.width, self.view.height
+        raster.draw(self.views, 0, w, h, LAYER_OPAQUE | LAYER_SPECULAR, self.visibility)
+        wp.launch(K.resolve_depth, dim=w * h, device=s.device,
+                  inputs=[self.views, 0, self.visibility, s.points, s.indices, self.depth, self.tri])
+
+
+def _params_of_record(rec) -> ViewParams:
+    """A ViewParams from one record of a ViewParams array's ``numpy()`` (a structured array)."""
+    v = ViewParams()
+    v.world_to_view = wp.mat44(*np.asarray(rec["world_to_view"], np.float32).flatten())
+    v.view_to_world = wp.mat44(*np.asarray(rec["view_to_world"], np.float32).flatten())
+    v.fx, v.fy, v.cx, v.cy = (float(rec[f]) for f in ("fx", "fy", "cx", "cy"))
+    v.near, v.far = float(rec["near"]), float(rec["far"])
+    v.width, v.height, v.orthographic = int(rec["width"]), int(rec["height"]), int(rec["orthographic"])
+    return v
+
+
+def _state(active: bool, active_views: int, skip=EMPTY_WINDOW, texel_scale: float = 1.0, changed: bool = False):
+    st = CascadeState()
+    st.active, st.active_views = int(active), int(active_views)
+    st.skip_window = wp.vec4(*(float(v) for v in skip))
+    st.texel_scale, st.changed = float(texel_scale), int(changed)
+    return st
 
 
 class LightMaps:
-    """All views of one light: RSM views (whole or fitted cascades), the fit's pilot views, shadow maps."""
+    """All views of one light: RSM views (whole or fitted cascades), the fit's pilot views, shadow maps.
+
+    What the photon passes read lives on the device, so a fit on the device needs no host copy:
+
+    ============  =======================================  ================================================
+    array         shape, dtype                             holds
+    ============  =======================================  ================================================
+    ``views``     (len(rsm),) ViewParams                   each RSM view this frame (``far`` = 0: inactive)
+    ``states``    (len(rsm),) CascadeState                 active, photon split, finer window, texel scale
+    ``pilot_views`` (len(pilot),) ViewParams               the whole views, small (static)
+    ``outside``   (len(pilot),) vec4                       each pilot's coarsest window (pilot pixels turned by
+                                                           ``outside_angle``), outside which nothing is sampled
+    ``outside_angle`` (len(pilot),) float32                that turn [rad]
+    ============  =======================================  ================================================
+    """
 
     def __init__(self, scene: DeviceScene, light: Light, rsm_size: int,
                  view_settings: LightViewSettings | None = None):
@@ -112,24 +200,69 @@ class LightMaps:
             self.pilot = []
             self.rsm = [RSMView.allocate(v, d) for v in whole]
             self.cascades = 1
+        #: host ViewParams of the RSM views: exact for whole views; for fitted ones the views they start from
+        #: (the fit writes ``views`` on the device)
         self.params = [r.view.params() for r in self.rsm]
-        #: per RSM view: emits this frame; the finer cascade's window in its pixels; texels of the whole
-        #: (pilot, or itself) view per texel, for the luminance cutoff
-        self.active = [True] * len(self.rsm)
-        self.skip_windows = [EMPTY_WINDOW] * len(self.rsm)
-        self.texel_scale = [1.0] * len(self.rsm)
-        #: per pilot view: its coarsest window, outside which nothing is sampled (pilot pixels)
-        self.outside_windows = [EMPTY_WINDOW] * len(self.pilot)
-        self.outside_angles = [0.0] * len(self.pilot)  #: the turn [rad] of those windows' frame
+        self.views = wp.array(self.params, dtype=ViewParams, device=d)
+        self.states = wp.array([_state(True, len(self.rsm)) for _ in self.rsm], dtype=CascadeState, device=d)
+        self.pilot_views = wp.array([r.view.params() for r in self.pilot] or [ViewParams()], dtype=ViewParams, device=d)
+        n_pilot = max(1, len(self.pilot))
+        self.outside = wp.zeros(n_pilot, dtype=wp.vec4, device=d)
+        self.outside_angle = wp.zeros(n_pilot, dtype=wp.float32, device=d)
         self._shadows: list[_ShadowView] = []
         self._make_shadows(whole)
+
+    # ---- host views of the device state (tests, tools: each is a device->host copy)
+
+    def _state_records(self) -> np.ndarray:
+        return self.states.numpy()
+
+    @property
+    def active(self) -> list[bool]:
+        """Per RSM view: emits this frame (whole views always; a fitted cascade read back from the device)."""
+        if not self.fitted:
+            return [True] * len(self.rsm)
+        return [bool(r["active"]) for r in self._state_records()]
+
+    @property
+    def skip_windows(self) -> list[tuple[float, float, float, float]]:
+        return [tuple(float(v) for v in r["skip_window"]) for r in self._state_records()]
+
+    @property
+    def texel_scale(self) -> list[float]:
+        return [float(r["texel_scale"]) for r in self._state_records()]
+
+    @property
+    def outside_windows(self) -> list[tuple[float, float, float, float]]:
+        return [tuple(float(v) for v in w) for w in self.outside.numpy()[: len(self.pilot)]]
+
+    @property
+    def outside_angles(self) -> list[float]:
+        return [float(a) for a in self.outside_angle.numpy()[: len(self.pilot)]]
+
+    def host_views(self) -> list[K.ViewParams]:
+        """Per RSM view, its ViewParams as the device holds them now (the fitted cascades' poses; a device->host
+        copy: for passes that take views by value, such as wavefront splatting, not for the real-time frame)."""
+        if not self.fitted:
+            return list(self.params)
+        return [_params_of_record(rec) for rec in self.views.numpy()]
+
+    def host_active(self) -> list[bool] | None:
+        """Per RSM view, whether it emits, where the host can know it without waiting for the device: always for
+        whole views, on the CPU (its arrays are host memory) for fitted ones; None on CUDA (launch every view,
+        inactive ones do nothing)."""
+        if not self.fitted:
+            return [True] * len(self.rsm)
+        if self.scene.device.is_cpu:
+            return [bool(a) for a in self.states.numpy()["active"]]
+        return None
 
     def _make_shadows(self, whole: list[View]) -> None:
         sv = shadow_view(self.scene.scene, self.light, self.rsm_size)
         views = [sv] if sv is not None else (whole if self.fitted else [])
         if len(self._shadows) == len(views):
             for s, v in zip(self._shadows, views):
-                s.view, s.params = v, v.params()
+                s.set_view(v)
         else:
             self._shadows = [_ShadowView(v, self.scene.device) for v in views]
 
@@ -154,13 +287,15 @@ class LightMaps:
                 r.view = resized_view(v, r.width, r.view.name)
             for k, r in enumerate(self.rsm):
                 r.view = window_view(whole[k // self.cascades], (0, 0, self.rsm_size, self.rsm_size), r.width, r.view.name)
-                self.active[k] = True
             self._refresh_solid_angles(self.pilot)
+            self.pilot_views.assign([r.view.params() for r in self.pilot])
+            self.states.assign([_state(True, len(self.rsm)) for _ in self.rsm])
         else:
             for r, v in zip(self.rsm, whole):
                 r.view = v
         self._refresh_solid_angles(self.rsm)
         self.params = [r.view.params() for r in self.rsm]
+        self.views.assign(self.params)
         self._make_shadows(whole)
         self.light = light
 
@@ -170,47 +305,62 @@ class LightMaps:
                 wp.launch(texel_solid_angles, dim=r.width * r.height, device=self.scene.device,
                           inputs=[r.view.params(), r.solid_angle])
 
+    def refresh_cascade_solid_angles(self) -> None:
+        """Rewrite the texel solid angles of the perspective RSM views the fit moved (device flags; fixed dims)."""
+        if self.light.kind == LightKind.DISTANT:
+            return
+        for k, r in enumerate(self.rsm):
+            wp.launch(cascade_solid_angles, dim=r.width * r.height, device=self.scene.device,
+                      inputs=[self.views, self.states, k, r.solid_angle])
+
     def set_windows(self, windows: list[list[tuple[float, float, float, float]]], angles: list[float] | None = None) -> None:
-        """Fit the cascades for this frame: ``windows[b]`` are pilot view b's windows (x0, y0, x1, y1) in the
-        pixels of that view turned by ``angles[b]`` [rad] about its axis (``views.rotated_view``; 0 when
-        None), finest first and nested (``views.fit_windows``); fewer than ``cascades`` leaves the finest
-        cascades inactive, none leaves them all inactive (nothing of b is seen). Views and texel solid
-        angles are updated on the device; nothing is allocated."""
+        """Fit the cascades for this frame from the host (the naive twin of the device fit, ``photons.fit``):
+        ``windows[b]`` are pilot view b's windows (x0, y0, x1, y1) in the pixels of that view turned by
+        ``angles[b]`` [rad] about its axis (``views.rotated_view``; 0 when None), finest first and nested
+        (``views.fit_windows``); fewer than ``cascades`` leaves the finest cascades inactive, none leaves them all
+        inactive (nothing of b is seen). Writes ``views``, ``states``, ``outside`` and ``outside_angle`` on the
+        device exactly as the device fit does (an inactive view keeps its last pose with ``far`` = 0); nothing is
+        allocated on the device."""
         if not self.fitted:
             raise ValueError("set_windows needs LightViewSettings(fit='camera')")
         angles = [0.0] * len(self.pilot) if angles is None else [float(a) for a in angles]
-        changed = []
+        old = self.views.numpy()
+        params, states, outside = [], [], []
         for b, (pilot, wins) in enumerate(zip(self.pilot, windows)):
             base = rotated_view(pilot.view, angles[b])
             c_empty = self.cascades - len(wins)
-            self.outside_windows[b] = tuple(wins[-1]) if wins else EMPTY_WINDOW
-            self.outside_angles[b] = angles[b]
+            outside.append(tuple(wins[-1]) if wins else EMPTY_WINDOW)
             for c in range(self.cascades):
                 k = b * self.cascades + c
                 r = self.rsm[k]
                 if c < c_empty:
-                    self.active[k] = False
-                    self.skip_windows[k] = EMPTY_WINDOW
+                    rec = old[k]
+                    v = _params_of_record(rec)
+                    v.far = INACTIVE_FAR
+                    params.append(v)
+                    states.append((False, EMPTY_WINDOW, 1.0, not _same_params(v, rec)))
                     continue
                 win = wins[c - c_empty]
                 view = window_view(base, win, r.width, r.view.name)
                 finer = wins[c - c_empty - 1] if c > c_empty else None
-                self.active[k] = True
                 sx, sy = r.width / (win[2] - win[0]), r.height / (win[3] - win[1])
-                self.texel_scale[k] = 1.0 / (sx * sy)  # pilot texels per cascade texel
-                self.skip_windows[k] = EMPTY_WINDOW if finer is None else (
+                skip = EMPTY_WINDOW if finer is None else (
                     (finer[0] - win[0]) * sx, (finer[1] - win[1]) * sy, (finer[2] - win[0]) * sx, (finer[3] - win[1]) * sy)
-                if _view_key(view) != _view_key(r.view):
-                    r.view = view
-                    changed.append(r)
-        self._refresh_solid_angles(changed)
-        self.params = [r.view.params() for r in self.rsm]
+                v = view.params()
+                params.append(v)
+                states.append((True, skip, 1.0 / (sx * sy), not _same_params(v, old[k])))  # pilot texels per texel
+        n_active = sum(st[0] for st in states)
+        self.views.assign(params)
+        self.states.assign([_state(a, n_active, sk, ts, ch) for a, sk, ts, ch in states])
+        self.outside.assign(np.asarray(outside, np.float32).reshape(-1, 4))
+        self.outside_angle.assign(np.asarray(angles, np.float32))
+        self.refresh_cascade_solid_angles()
 
     def shadow_maps(self) -> list[tuple[K.ViewParams, wp.array]]:
         """(view, depth of nearest surface of any layer) pairs that together cover what the light reaches."""
         if self._shadows:
             return [(s.params, s.depth) for s in self._shadows]
-        return [(p, r.shadow_depth) for p, r in zip(self.params, self.rsm)]
+        return [(p, r.shadow_depth) for p, r in zip(self.params, self.rsm)]  # whole views: host-known
 
     @property
     def shadow_view(self) -> View | None:
@@ -218,30 +368,34 @@ class LightMaps:
         sv = [s.view for s in self._shadows if s.view.orthographic]
         return sv[0] if sv else None
 
-    def _render_rsm(self, raster: Rasterizer, view: K.ViewParams, r: RSMView) -> None:
+    def _render_rsm(self, raster: Rasterizer, views: wp.array, k: int, r: RSMView) -> None:
         s = self.scene
         light = self.light
         n = r.width * r.height
         rgb = light.radiometric_rgb.astype(np.float32)
         axis = np.asarray(light.direction, dtype=np.float32)
-        raster.draw(view, LAYER_OPAQUE, r.visibility)
-        wp.launch(K.resolve_depth, dim=n, device=s.device, inputs=[view, r.visibility, s.points, s.indices, r.opaque_depth, r.opaque_tri])
-        raster.draw(view, LAYER_SPECULAR, r.specular.visibility)
-        r.specular.resolve(s, view, r.opaque_depth)
+        raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility)
+        wp.launch(K.resolve_depth, dim=n, device=s.device,
+                  inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth, r.opaque_tri])
+        raster.draw(views, k, r.width, r.height, LAYER_SPECULAR, r.specular.visibility)
+        r.specular.resolve(s, views, k, r.opaque_depth)
         wp.launch(K.rsm_flux, dim=n, device=s.device,
-                  inputs=[view, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
+                  inputs=[views, k, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
                           float(light.cone_angle), float(light.cone_softness), r.solid_angle, r.specular.tri_id, r.flux])
         wp.launch(_nearest_depth, dim=n, device=s.device, inputs=[r.specular.depth, r.opaque_depth, r.shadow_depth])
 
     def render_pilot(self, raster: Rasterizer) -> None:
         """Draw the pilot views (before the fit); nothing when the views are not fitted."""
-        for r in self.pilot:
-            self._render_rsm(raster, r.view.params(), r)
+        for k, r in enumerate(self.pilot):
+            self._render_rsm(raster, self.pilot_views, k, r)
 
     def render(self, raster: Rasterizer) -> None:
-        """Draw the active RSM views and the shadow maps."""
-        for view, r, active in zip(self.params, self.rsm, self.active):
-            if active:
-                self._render_rsm(raster, view, r)
+        """Draw the RSM views and the shadow maps. On CUDA every fitted cascade is launched (an inactive one,
+        ``far`` = 0, draws and resolves nothing: its maps keep the values of the frame it was last active, which
+        nothing reads while it emits no photons): the host never waits for the fit."""
+        active = self.host_active()
+        for k, r in enumerate(self.rsm):
+            if active is None or active[k]:
+                self._render_rsm(raster, self.views, k, r)
         for sv in self._shadows:
             sv.render(raster)

@@ -33,19 +33,29 @@ class Rasterizer:
         # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially
         self.stride = (1 << 18) if d.is_cuda else (1 << 10)
 
-    def draw(self, view: K.ViewParams, layer: int, visibility: wp.array) -> None:
-        """Rasterize the triangles of ``layer`` into ``visibility`` (H*W uint64, overwritten)."""
+    def draw(self, views: wp.array, view_index: int, width: int, height: int, layer: int, visibility: wp.array) -> None:
+        """Rasterize the triangles of ``layer`` into ``visibility`` (H*W uint64, overwritten) for the view
+        ``views[view_index]`` (a device array of :class:`ViewParams`, so a view fitted on the device, or a camera
+        written once per frame, is drawn without the host knowing it; ``width`` × ``height`` is its size, fixed).
+        An inactive view (``far`` = 0, ``light_maps.INACTIVE_FAR``) draws nothing."""
         d = self.scene.device
         s = self.scene
         visibility.fill_(0xFFFFFFFFFFFFFFFF)
-        tiles_x = (view.width + K.TILE - 1) // K.TILE
-        tiles_y = (view.height + K.TILE - 1) // K.TILE
+        tiles_x = (width + K.TILE - 1) // K.TILE
+        tiles_y = (height + K.TILE - 1) // K.TILE
         wp.launch(K.setup_triangles, dim=s.triangle_count, device=d,
-                  inputs=[view, s.points, s.indices, s.triangle_layers, int(layer), tiles_x, tiles_y,
+                  inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer), tiles_x, tiles_y,
                           self.sub_v, self.sub_bbox, self.tile_count])
         wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
         wp.launch(K.raster_tiles, dim=self.stride, device=d,
-                  inputs=[view, self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count, self.stride, visibility])
+                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                          self.stride, visibility])
+
+
+def view_array(views, device) -> wp.array:
+    """A device array of :class:`ViewParams` from host views (``View`` or ``ViewParams``), for kernels that read
+    their view from an array (set-up and tests; the frame loop keeps its arrays)."""
+    return wp.array([v.params() if isinstance(v, View) else v for v in views], dtype=K.ViewParams, device=device)
 
 
 def _pixels(shape_hw, dtype, device):
@@ -89,10 +99,10 @@ class SpecularLayer(_Buffers):
                              _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.float32, device),
                              _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device))
 
-    def resolve(self, scene: DeviceScene, view: K.ViewParams, opaque_depth: wp.array) -> None:
+    def resolve(self, scene: DeviceScene, views: wp.array, view_index: int, opaque_depth: wp.array) -> None:
         wp.launch(K.resolve_specular, dim=self.width * self.height, device=scene.device,
-                  inputs=[view, self.visibility, opaque_depth, scene.points, scene.normals, scene.indices,
-                          scene.triangle_material, scene.roughness, scene.ior,
+                  inputs=[views, int(view_index), self.visibility, opaque_depth, scene.points, scene.normals,
+                          scene.indices, scene.triangle_material, scene.roughness, scene.ior,
                           self.depth, self.position, self.normal, self.roughness, self.ior, self.tri_id])
 
 
@@ -121,16 +131,20 @@ class GBuffer(_Buffers):
                        _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device), _pixels(hw, wp.vec2, device),
                        SpecularLayer.allocate(width, height, device))
 
-    def render(self, raster: Rasterizer, view: K.ViewParams, prev_view: K.ViewParams) -> None:
-        """Fill both layers for the camera ``view``; motion is measured against ``prev_view``."""
+    def render(self, raster: Rasterizer, views, prev_view=None) -> None:
+        """Fill both layers for the camera ``views[0]``; motion is measured against ``views[1]``, the previous
+        frame's camera (``views``: (2,) device array of ViewParams, written once per frame by the renderer).
+        Host ``ViewParams`` (``view``, ``prev_view``) are accepted too, for tests and tools."""
         s = raster.scene
-        raster.draw(view, LAYER_OPAQUE, self.visibility)
+        if not isinstance(views, wp.array):
+            views = view_array([views, views if prev_view is None else prev_view], s.device)
+        raster.draw(views, 0, self.width, self.height, LAYER_OPAQUE, self.visibility)
         wp.launch(K.resolve_opaque, dim=self.width * self.height, device=s.device,
-                  inputs=[view, prev_view, self.visibility, s.points, s.prev_points, s.normals, s.indices,
+                  inputs=[views, 0, 1, self.visibility, s.points, s.prev_points, s.normals, s.indices,
                           s.triangle_material, s.albedo, s.roughness,
                           self.depth, self.position, self.normal, self.albedo, self.roughness, self.tri_id, self.motion])
-        raster.draw(view, LAYER_SPECULAR, self.water.visibility)
-        self.water.resolve(s, view, self.depth)
+        raster.draw(views, 0, self.width, self.height, LAYER_SPECULAR, self.water.visibility)
+        self.water.resolve(s, views, 0, self.depth)
 
     def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
         out = super().numpy(prefix)

@@ -1,0 +1,77 @@
+"""What changes from one frame to the next, as kernels read it: one small device buffer, one copy per frame.
+
+A steady frame launches the same kernels with the same arguments every frame, except for the camera (this
+frame's and the last) and the photons' random streams (the R2 scramble and the rng seed of every RSM view, the
+seed of every pilot view). Kernels read those from :class:`FrameInputs`' device arrays, so a frame captured once
+as a CUDA graph replays frame after frame: the host writes the next frame's values into a host mirror and copies
+the whole buffer (a few hundred bytes) before the replay.
+
+==============  =============================  ====================================================================
+array           shape, dtype                   holds
+==============  =============================  ====================================================================
+``cameras``     (2,) ViewParams                this frame's camera, then the last frame's (motion vectors)
+``randoms``     (S,) vec3i                     per stream: (scramble x, scramble y, seed) as int32 bit patterns;
+                                               stream ``rsm_stream(li, vi)`` of light li's RSM view vi
+                                               (``photons.base.frame_random``), then ``pilot_stream(li, b)`` of its
+                                               pilot view b (scramble 0, seed ``seed·7919 + frame·131 + b``)
+==============  =============================  ====================================================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .raster.views import ViewParams
+
+_ALIGN = 16
+
+
+class FrameInputs:
+    """The per-frame device inputs of one renderer (or one photon pass driven alone); allocated once."""
+
+    def __init__(self, lights, seed: int, device):
+        """``lights``: the renderer's ``LightMaps`` (their RSM and pilot view counts fix the streams)."""
+        self.device = wp.get_device(device)
+        self.seed = int(seed)
+        self._views = [(len(lm.rsm), len(lm.pilot)) for lm in lights]
+        self._base = np.cumsum([0] + [r + p for r, p in self._views]).tolist()
+        n = max(1, self._base[-1])
+        cam_bytes = 2 * wp.types.type_size_in_bytes(ViewParams)
+        self._offset = (cam_bytes + _ALIGN - 1) // _ALIGN * _ALIGN
+        nbytes = self._offset + 12 * n
+        #: the whole buffer on the device and its host mirror (pageable: a copy from it is staged at once, so the
+        #: host may overwrite it for the next frame without waiting)
+        self.buffer = wp.zeros(nbytes, dtype=wp.uint8, device=self.device)
+        self.host = wp.zeros(nbytes, dtype=wp.uint8, device="cpu")
+        self.cameras = wp.array(ptr=self.buffer.ptr, dtype=ViewParams, shape=(2,), device=self.device)
+        self.randoms = wp.array(ptr=self.buffer.ptr + self._offset, dtype=wp.vec3i, shape=(n,), device=self.device)
+        self._cameras_host = wp.array(ptr=self.host.ptr, dtype=ViewParams, shape=(2,), device="cpu")
+        self._randoms_host = self.host.numpy()[self._offset :].view(np.int32).reshape(n, 3)
+        self.frame = None  #: the frame whose values the buffer holds (None: not written yet)
+
+    def rsm_stream(self, light_index: int, view_index: int) -> int:
+        return self._base[light_index] + view_index
+
+    def pilot_stream(self, light_index: int, pilot_index: int) -> int:
+        return self._base[light_index] + self._views[light_index][0] + pilot_index
+
+    def values(self, frame: int) -> np.ndarray:
+        """The random streams of ``frame``, (S, 3) int32 (the host twin of ``randoms``)."""
+        from .photons.base import frame_random
+
+        out = np.zeros_like(self._randoms_host)
+        for li, (n_rsm, n_pilot) in enumerate(self._views):
+            for vi in range(n_rsm):
+                out[self.rsm_stream(li, vi)] = frame_random(self.seed, frame, li * 64 + vi)
+            for b in range(n_pilot):
+                out[self.pilot_stream(li, b), 2] = np.int32(self.seed * 7919 + frame * 131 + b)
+        return out
+
+    def write(self, frame: int, camera: ViewParams, prev_camera: ViewParams) -> None:
+        """Write ``frame``'s cameras and random streams to the device: one host->device copy (not while a graph
+        is being captured: the copy comes before the capture or the replay)."""
+        self._cameras_host.assign([camera, prev_camera])
+        self._randoms_host[:] = self.values(frame)
+        wp.copy(self.buffer, self.host)
+        self.frame = frame

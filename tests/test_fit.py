@@ -1,0 +1,149 @@
+"""The light views fitted on the device (``photons.fit``: Warp tile reductions and a solve kernel) against their
+naive twin, the numpy fit (``views.fit_angle`` / ``fit_windows`` / ``LightMaps.set_windows``)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from cisp_warp import analytic
+from cisp_warp.raster import LightViewSettings
+from cisp_warp.render import Renderer, RenderSettings
+from cisp_warp.usd import load_usd
+
+
+def _fitted(r):
+    """Per fitted light: (views, states, outside windows, outside angles) as host records."""
+    return [(lm.views.numpy(), lm.states.numpy(), lm.outside.numpy(), lm.outside_angle.numpy()) for lm in r.fitter.lights]
+
+
+def _assert_same_fit(dev, host, what):
+    for li, ((v0, s0, o0, a0), (v1, s1, o1, a1)) in enumerate(zip(dev, host)):
+        tag = f"{what}, light {li}"
+        np.testing.assert_array_equal(s0["active"], s1["active"], err_msg=tag)
+        np.testing.assert_array_equal(s0["active_views"], s1["active_views"], err_msg=tag)
+        np.testing.assert_allclose(a0, a1, atol=1e-6, err_msg=tag)
+        np.testing.assert_allclose(o0, o1, rtol=1e-5, atol=1e-4, err_msg=tag)  # pilot pixels
+        np.testing.assert_allclose(s0["skip_window"], s1["skip_window"], rtol=1e-5, atol=2e-3, err_msg=tag)  # texels
+        np.testing.assert_allclose(s0["texel_scale"], s1["texel_scale"], rtol=1e-5, err_msg=tag)
+        for f in ("fx", "fy", "cx", "cy"):
+            np.testing.assert_allclose(v0[f], v1[f], rtol=1e-5, atol=2e-3, err_msg=f"{tag}: {f}")
+        for f in ("near", "far", "width", "height", "orthographic"):
+            np.testing.assert_array_equal(v0[f], v1[f], err_msg=f"{tag}: {f}")
+        for f in ("world_to_view", "view_to_world"):
+            np.testing.assert_allclose(v0[f], v1[f], rtol=1e-5, atol=1e-5, err_msg=f"{tag}: {f}")
+
+
+def _closeup():
+    return analytic.wavy_water(width=32, height=32, grid=64)
+
+
+def _spot_closeup():
+    from cisp_warp.scene import Camera, Light, LightKind
+    from cisp_warp.scene.model import look_at_matrix
+
+    water = (analytic.quad(0, 0, 0, (0.5, 0, 0), (0, 0, -0.5)), 1)
+    floor = (analytic.quad(0, -0.5, 0, (2, 0, 0), (0, 0, -2)), 0)
+    cam = Camera(look_at_matrix((0.3, 0.4, 0.1), (0.2, -0.5, 0)), fov_y=math.radians(45), width=32, height=32,
+                 near=0.05, far=10)
+    light = Light(LightKind.POINT, "lamp", intensity=100.0, position=(0.1, 0.8, 0.05), direction=(0, -1, 0))
+    return analytic.build([water, floor], cam, [light])
+
+
+SCENES = {
+    "cornell": lambda device: load_usd("scenes_usd/cornell_flooded.usda", width=48, height=36, device=device),
+    "pool": lambda device: load_usd("scenes_usd/pool.usda", width=48, height=36, device=device),
+    "closeup": lambda device: _closeup(),
+    "point_closeup": lambda device: _spot_closeup(),
+}
+
+
+@pytest.mark.parametrize("scene", sorted(SCENES))
+@pytest.mark.parametrize("cascades", [1, 2])
+def test_device_fit_matches_numpy_fit(device, scene, cascades):
+    """Same receiver depths, two fits: the device's tile reductions and solve give the numpy fit's turn,
+    windows, views, states and outside windows to float tolerance, on the shipped scenes' cameras and close-ups."""
+    r = Renderer(SCENES[scene](device), RenderSettings(rsm_size=128, method="cisp", denoiser="none", photons=20_000,
+                                                       light_views=LightViewSettings(cascades=cascades)), device=device)
+    assert r.fitter.on_device
+    r.render_frame()
+    dev = _fitted(r)
+    assert any(s["active"].any() for _, s, _, _ in dev) or scene == "none"
+    r.fitter.fit_host()  # the same pilots' depths, fitted in numpy
+    _assert_same_fit(dev, _fitted(r), f"{scene}, {cascades} cascade(s)")
+
+
+def test_device_fit_forced_cascades_and_empty_pilot(device):
+    """Hand-made receiver depths (a near patch inside a far band, then nothing): the device fit nests two
+    cascades as the numpy fit does, and leaves every cascade inactive (far = 0, no photons) when nothing is seen."""
+    r = Renderer(_closeup(), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=10_000,
+                                            light_views=LightViewSettings(cascades=3)), device=device)
+    r.render_frame()
+    f = r.fitter
+    p = r.lights[0].pilot[0]
+    depth = np.zeros((p.height, p.width), np.float32)
+    depth[30:60, 10:110] = 9.0
+    depth[40:44, 50:54] = 1.0
+    depth[100:102, 5:7] = 3.0
+    for case in (depth, np.zeros_like(depth)):
+        f.receiver_depth_all[0].assign(case.reshape(-1))
+        f.fit_device()
+        dev = _fitted(r)
+        f.fit_host()
+        _assert_same_fit(dev, _fitted(r), "hand-made depths")
+    assert not any(r.lights[0].active)
+    assert (r.lights[0].views.numpy()["far"] == 0.0).all()
+
+
+@pytest.mark.parametrize("method,sort", [("cisp", False), ("sspm", False), ("cisp", True)])
+def test_fixed_launch_dims_change_nothing(device, method, sort, monkeypatch):
+    """The CUDA path, where the host does not know which cascades are active: every cascade is drawn (an inactive
+    one, far = 0, draws nothing) and traced with the light's photons in whole blocks of slots, the kernels emitting
+    ``cascade_photons`` of them (sorted: the surplus slots' keys sort last). On the CPU it gives the exact-count
+    path's photon map and ledger bit for bit."""
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.raster.light_maps import LightMaps
+
+    def frame():
+        r = Renderer(SCENES["pool"](device), RenderSettings(rsm_size=64, method=method, denoiser="none",
+                                                            photons=PhotonSettings(photons=3_000, sort_photons=sort)),
+                     device=device)
+        r.render_frame()
+        return r.photons.photon_map.numpy(), r.photons.ledger.numpy(), r
+    exact_map, exact_ledger, r = frame()
+    assert not all(all(lm.active) for lm in r.lights)  # an inactive cascade is part of the case
+    monkeypatch.setattr(LightMaps, "host_active", lambda self: None)
+    fixed_map, fixed_ledger, r = frame()
+    if wp_device_is_cpu(device):
+        np.testing.assert_array_equal(fixed_map, exact_map)
+        np.testing.assert_array_equal(fixed_ledger, exact_ledger)
+    else:  # float atomics add in another order
+        np.testing.assert_allclose(fixed_map, exact_map, rtol=1e-4, atol=1e-6 * exact_map.max())
+        np.testing.assert_allclose(fixed_ledger, exact_ledger, rtol=1e-9, atol=1e-12 * np.abs(exact_ledger).max())
+    assert r.photons.read_ledger().closure() < 1e-6
+
+
+def wp_device_is_cpu(device) -> bool:
+    import warp as wp
+
+    return wp.get_device(device).is_cpu
+
+
+def test_fit_reductions_do_not_depend_on_the_block_size(device, monkeypatch):
+    """The fit's tile reductions over blocks of 32 threads (CPU blocks enabled) give the one-thread blocks' fit."""
+    import warp as wp
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    r = Renderer(SCENES["pool"](device), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000),
+                 device=device)
+    r.render_frame()
+    fits = []
+    for block in (1, 32):
+        r.fitter.fit_block = block
+        r.fitter.fit_device()
+        fits.append(_fitted(r))
+    for (v0, s0, o0, a0), (v1, s1, o1, a1) in zip(*fits):
+        np.testing.assert_array_equal(s0, s1)
+        np.testing.assert_array_equal(o0, o1)
+        np.testing.assert_array_equal(a0, a1)
+        np.testing.assert_array_equal(v0, v1)
