@@ -14,7 +14,7 @@ import warp as wp
 
 from cisp_warp.denoise import (SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings,
                                launch_atrous_level)
-from cisp_warp.denoise.naive import atrous_level_naive, caustic_frame_naive, depth_slope_naive
+from cisp_warp.denoise.naive import atrous_level_naive, blur_variance_naive, caustic_frame_naive, depth_slope_naive
 
 W, H = 32, 24
 PLANE_NORMAL = np.array([0.3, 0.0, 1.0]) / np.hypot(0.3, 1.0)
@@ -214,7 +214,7 @@ def test_atrous_level_matches_naive_twin(device, step, conserve, gate):
     c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
                                       s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve, noise_target=gate)
     if gate is not None:  # the gate really splits the image: some pixels kept, some filtered
-        radius = guide_b.numpy()[:, 3].reshape(h, w)[g["depth"] > 0]
+        radius = blur_variance_naive(color, variance, g["depth"], gate)[1][g["depth"] > 0]
         assert np.any(2 * radius <= step) and np.any(radius >= step)
     c_warp = c_out.numpy().reshape(h, w, 3)
     np.testing.assert_allclose(c_warp, c_ref, rtol=1e-5, atol=1e-6)
@@ -592,3 +592,65 @@ def test_caustic_stays_finite_after_a_history_of_vanishing_irradiance(device):
         res = run_frame(den, g, poisson_map(rng, caustic_pattern(), 5.0), out)
         assert np.all(np.isfinite(res))
     assert res[surf].mean() > 1.0  # the bright frames are followed, not held at the vanished history
+
+
+@pytest.mark.parametrize("step,conserve,gate", [(1, True, None), (4, False, None), (16, True, None), (2, True, 0.1)])
+def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate):
+    """A level over several blocks: tiles of each sub-lattice (step² of them), aprons that cross tiles and
+    sub-lattices, a partial last tile and image sizes no multiple of the step, against the float64 twin."""
+    rng = np.random.default_rng(23 + step)
+    w, h = 45, 38
+    g = plane(w, h)
+    g["depth"][10:30, 12:33] = 1.3  # a depth edge
+    g["depth"][3:6, 3:40] = 0.0  # no surface
+    g["depth"][16:32, :16] = 0.0  # a whole tile of the step-1 level without a surface (skipped)
+    n = g["normal"] + 0.1 * rng.standard_normal((h, w, 3)).astype(np.float32)
+    g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+    color = rng.exponential(2.0, (h, w, 3)).astype(np.float32)
+    color[g["depth"] <= 0] = 0.0
+    variance = rng.exponential(1.0, (h, w)).astype(np.float32)
+    variance[g["depth"] <= 0] = 0.0
+    s = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0, conserve_energy=conserve)
+    dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
+    slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
+    scratch = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(3)]
+    c_out = wp.zeros(w * h, dtype=wp.vec3, device=device)
+    v_out = wp.zeros(w * h, dtype=wp.float32, device=device)
+    launch_atrous_level(dev["irradiance"], var_in, dev["depth"], dev["normal"], slope, w, h, step, s.sigma_depth,
+                        s.sigma_normal, s.sigma_luminance, conserve, *scratch,
+                        wp.zeros(w * h, dtype=wp.float32, device=device), c_out, v_out, noise_target=gate)
+    c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
+                                      s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve, noise_target=gate)
+    np.testing.assert_allclose(c_out.numpy().reshape(h, w, 3), c_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("feedback", [0, 2, -1])
+def test_svgf_levels_match_naive_twin(device, feedback):
+    """SVGF's chained levels (packed by filter_moments, ping-ponged packed, the last one unpacked, the feedback
+    level writing the colour history) equal the float64 twin's levels applied to the same temporal result."""
+    rng = np.random.default_rng(31)
+    w, h = 37, 29
+    g = plane(w, h)
+    g["depth"][8:20, 9:25] = 1.4
+    e = photon_map(rng, h, w, 0.3, [5.0, 3.0, 1.0])
+    base = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0)
+    temporal = SVGF(w, h, device, replace(base, atrous_levels=0, feedback_level=-1))
+    out = wp.zeros(w * h, dtype=wp.vec3, device=device)
+    color = run_frame(temporal, g, e, out).astype(np.float64)
+    variance = temporal.variance.numpy().reshape(h, w).astype(np.float64)
+    s = replace(base, atrous_levels=3, feedback_level=feedback)
+    svgf = SVGF(w, h, device, s)
+    res = run_frame(svgf, g, e, out)
+    hist = svgf.hist_color.numpy()[1].reshape(h, w, 3)  # the row the first frame writes
+    c_ref, v_ref = color, variance
+    for level in range(3):
+        c_ref, v_ref = atrous_level_naive(c_ref, v_ref, g["depth"], g["normal"], 1 << level, s.sigma_depth,
+                                          s.sigma_normal, s.sigma_luminance, s.conserve_energy)
+        if level == feedback:
+            np.testing.assert_allclose(hist, c_ref, rtol=1e-5, atol=1e-5)
+    if feedback == -1:
+        np.testing.assert_array_equal(hist, color.astype(np.float32))
+    np.testing.assert_allclose(res, c_ref, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(svgf.variance.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-6)
