@@ -2,10 +2,10 @@
 
 A level of tap spacing ``step`` couples only pixels whose coordinates agree modulo ``step``: the image is
 ``step``² interleaved sub-lattices, and on each one the level is a dense 5x5 filter. :func:`atrous_level`
-gives a block of ``BLOCK_THREADS`` threads a ``TILE`` x ``TILE`` tile of one sub-lattice and reads its
+gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one sub-lattice and reads its
 neighbourhood once into shared memory (Warp shared tiles):
 
-1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE`` x ``GUIDE``): the packed G-buffer
+1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
    ``(n, z)``, ‖∇z‖, and from the level's input (colour, Var) the 3x3 Gaussian g3x3(Var) over pixels with a
    surface (paper eq. 5), the luminance and, on gated levels, the footprint R still needed;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
@@ -37,8 +37,6 @@ import warp as wp
 
 from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, luminance
 
-# Loops stay loops: the kernel's work is spread over the block by index arithmetic, unrolling buys nothing.
-wp.set_module_options({"max_unroll": 1, "enable_backward": False})
 
 #: R of an ungated level [pixels]: larger than any step, so every gate is 1
 UNGATED_RADIUS = wp.constant(1.0e30)
@@ -48,28 +46,83 @@ FOUR_PI = wp.constant(12.566370614359172)
 #: Var of a packed pixel without a surface
 NO_SURFACE = wp.constant(-1.0)
 
-#: output tile side [sub-lattice points]; a block filters TILE² pixels of one sub-lattice
-TILE = 16
+#: output tile [sub-lattice points]: a block filters TILE_Y x TILE_X pixels of one sub-lattice. Larger tiles
+#: share their aprons among more pixels: per pixel filtered, a 16 x 32 tile reads 1.9 guides, evaluates 20.6
+#: pair weights (the least possible is 12) and sums 1.4 weights; 16 x 16: 2.25, 24.8, 1.6
+TILE_Y = 16
+TILE_X = 32
 #: threads per block (one per output pixel on CUDA; the CPU runs one lane that does them all)
-BLOCK_THREADS = TILE * TILE
-#: side of the guide region: the tile and an apron of 4 (taps of 2 whose weight sums reach 2 further)
-GUIDE = TILE + 8
-#: rows of the region whose forward pair weights are kept: tile rows − 4 ... tile rows + 1
-PAIR_ROWS = TILE + 6
-#: pixels of that region (its columns are the guide region's)
-PAIR_PIXELS = PAIR_ROWS * GUIDE
+BLOCK_THREADS = TILE_Y * TILE_X
+#: guide region: the tile and an apron of 4 (taps of 2 whose weight sums reach 2 further)
+GUIDE_Y = TILE_Y + 8
+GUIDE_X = TILE_X + 8
+GUIDE_PIXELS = GUIDE_Y * GUIDE_X
+#: rows of the region whose forward pair weights are kept: tile rows − 4 ... tile rows + 1 (all guide columns)
+PAIR_ROWS = TILE_Y + 6
+PAIR_PIXELS = PAIR_ROWS * GUIDE_X
 #: forward tap offsets per pixel: (0, 1), (0, 2), (1, −2..2), (2, −2..2); the other 12 are their mirrors
 FORWARD_TAPS = 12
-#: side of the region whose weight sums are needed: the tile and an apron of 2
-SUM_SIDE = TILE + 4
+#: region whose weight sums are needed: the tile and an apron of 2
+SUM_Y = TILE_Y + 4
+SUM_X = TILE_X + 4
 
-_GUIDE_N = wp.constant(GUIDE * GUIDE)
-_PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
-_SUM_N = wp.constant(SUM_SIDE * SUM_SIDE)
-_TILE = wp.constant(TILE)
-_GUIDE = wp.constant(GUIDE)
+# Loops stay loops (the work is spread over the block by index arithmetic, unrolling buys nothing); tiles are
+# compiled for the block the level is launched with.
+wp.set_module_options({"max_unroll": 1, "enable_backward": False, "block_dim": BLOCK_THREADS})
+
+_TILE_Y = wp.constant(TILE_Y)
+_TILE_X = wp.constant(TILE_X)
+_GUIDE_X = wp.constant(GUIDE_X)
+_GUIDE_N = wp.constant(GUIDE_PIXELS)
 _PAIR_PIXELS = wp.constant(PAIR_PIXELS)
-_SUM_SIDE = wp.constant(SUM_SIDE)
+_PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
+_SUM_X = wp.constant(SUM_X)
+_SUM_N = wp.constant(SUM_Y * SUM_X)
+
+
+# Single-instruction intrinsics on CUDA (2 ulp; the pair weight and the filter's A_pq take them), the exact
+# operations on the CPU. Their error moves a weight by ~1e-6 relative, under the 1e-5 the twin is held to.
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __expf(x);
+#else
+return expf(x);
+#endif
+""")
+def fast_exp(x: float) -> float: ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __fdividef(a, b);
+#else
+return a / b;
+#endif
+""")
+def fast_div(a: float, b: float) -> float: ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return rsqrtf(x);
+#else
+return 1.0f / sqrtf(x);
+#endif
+""")
+def fast_rsqrt(x: float) -> float: ...
+
+
+@wp.func
+def log_cosine(c: float) -> float:
+    """ln c of a cosine c in (0, 1] to ~1e-9 absolute where it matters (σ_n up to hundreds multiplies it):
+    2 atanh(t), t = (c − 1)/(c + 1) in [−1/3, 0], by its series to t¹¹ (error below 3e-8 t); ``wp.log`` below
+    c = 0.5, where c^σ_n is negligible for any σ_n worth using and which real normals rarely reach."""
+    if c < 0.5:
+        return wp.log(c)
+    t = fast_div(c - 1.0, c + 1.0)
+    t2 = t * t
+    series = 1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0 + t2 * (1.0 / 11.0)))))
+    return 2.0 * t * series
 
 
 @wp.func
@@ -105,9 +158,10 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, kern
     if n_dot <= 0.0 or gate <= 0.0:
         return 0.0
     phi_z = sigma_depth * (wp.max(gd_p[0], gd_q[0]) * dist + DEPTH_NOISE_REL * wp.max(gs_p[3], gs_q[3]))
-    phi_l = sigma_luminance * wp.sqrt(0.5 * wp.max(gd_p[1] + gd_q[1], 0.0) + VARIANCE_EPS)
-    e = sigma_normal * wp.log(n_dot) - wp.abs(gs_p[3] - gs_q[3]) / phi_z - wp.abs(gd_p[2] - gd_q[2]) / phi_l
-    return kernel_weight * wp.exp(e) * gate
+    inv_phi_l = fast_rsqrt(0.5 * wp.max(gd_p[1] + gd_q[1], 0.0) + VARIANCE_EPS) / sigma_luminance
+    e = (sigma_normal * log_cosine(n_dot) - fast_div(wp.abs(gs_p[3] - gs_q[3]), phi_z)
+         - wp.abs(gd_p[2] - gd_q[2]) * inv_phi_l)
+    return kernel_weight * fast_exp(e) * gate
 
 
 @wp.kernel
@@ -136,8 +190,8 @@ def atrous_pack(
 
 
 @wp.func
-def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE * GUIDE], guide_d: wp.tile[wp.vec4, GUIDE * GUIDE],
-                 pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], weight_sum: wp.tile[wp.float32, GUIDE * GUIDE],
+def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
+                 pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
                  lane: int, threads: int, s: float, sigma_depth: float, sigma_normal: float, sigma_luminance: float):
     """Steps 2 and 3 of :func:`atrous_level` (cooperative: every thread of the block calls it). Writes ``pair``
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
@@ -151,11 +205,11 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE * GUIDE], guide_d: wp.tile[wp.v
             f = k // _PAIR_PIXELS
             u = k - f * _PAIR_PIXELS
             tap = forward_tap(f)
-            i = u // _GUIDE
-            j = u % _GUIDE
+            i = u // _GUIDE_X
+            j = u % _GUIDE_X
             j2 = j + tap[1]
-            if j2 >= 0 and j2 < _GUIDE:  # pairs leaving the guide region are never needed
-                v = (i + tap[0]) * _GUIDE + j2
+            if j2 >= 0 and j2 < _GUIDE_X:  # pairs leaving the guide region are never needed
+                v = (i + tap[0]) * _GUIDE_X + j2
                 w = pair_weight(guide_s[u], guide_d[u], guide_s[v], guide_d[v],
                                 b3_spline(tap[0]) * b3_spline(tap[1]),
                                 s * wp.sqrt(float(tap[0] * tap[0] + tap[1] * tap[1])), s,
@@ -169,15 +223,15 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE * GUIDE], guide_d: wp.tile[wp.v
         u = int(0)
         sum_w = b3_spline(0) * b3_spline(0)
         if k < _SUM_N:
-            u = (2 + k // _SUM_SIDE) * _GUIDE + 2 + k % _SUM_SIDE
+            u = (2 + k // _SUM_X) * _GUIDE_X + 2 + k % _SUM_X
             for f in range(FORWARD_TAPS):
                 tap = forward_tap(f)
-                sum_w += pair[f * _PAIR_PIXELS + u] + pair[f * _PAIR_PIXELS + u - tap[0] * _GUIDE - tap[1]]
+                sum_w += pair[f * _PAIR_PIXELS + u] + pair[f * _PAIR_PIXELS + u - tap[0] * _GUIDE_X - tap[1]]
         wp.tile_scatter_masked(weight_sum, u, sum_w, k < _SUM_N)
 
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=(BLOCK_THREADS, 2))
 def atrous_level(
     color_variance: wp.array(dtype=wp.vec4),
     guide: wp.array(dtype=wp.vec4),
@@ -203,7 +257,8 @@ def atrous_level(
 ):
     """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
     ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
-    (TILE ty + i, TILE tx + j), i, j < TILE, i.e. pixels (a + step (TILE ty + i), b + step (TILE tx + j)).
+    (TILE_Y ty + i, TILE_X tx + j), i < TILE_Y, j < TILE_X, i.e. pixels (a + step (TILE_Y ty + i),
+    b + step (TILE_X tx + j)).
 
     Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface),
     ``guide`` (H*W vec4: n, z [m]) and ``slope`` (H*W float32 [m/pixel]). ``gated`` != 0: R from g3x3(Var)
@@ -220,8 +275,8 @@ def atrous_level(
     row0 = sub // step  # sub-lattice: pixel rows ≡ row0, columns ≡ col0 (mod step)
     col0 = sub % step
     t = block // cell
-    sy0 = (t // tiles_x) * _TILE - 4  # sub-lattice coordinates of guide element (0, 0)
-    sx0 = (t % tiles_x) * _TILE - 4
+    sy0 = (t // tiles_x) * _TILE_Y - 4  # sub-lattice coordinates of guide element (0, 0)
+    sx0 = (t % tiles_x) * _TILE_X - 4
     s = float(step)
 
     # 1. guides of the tile and an apron of 4, read once
@@ -236,8 +291,8 @@ def atrous_level(
         gd = wp.vec4(0.0)
         cv = wp.vec4(0.0)
         if k < _GUIDE_N:
-            y = row0 + step * (sy0 + k // _GUIDE)
-            x = col0 + step * (sx0 + k % _GUIDE)
+            y = row0 + step * (sy0 + k // _GUIDE_X)
+            x = col0 + step * (sx0 + k % _GUIDE_X)
             if y >= 0 and y < height and x >= 0 and x < width:
                 p = y * width + x
                 cv = color_variance[p]
@@ -263,9 +318,9 @@ def atrous_level(
                     if gated != 0:
                         radius = footprint_radius(var_blur, sum_l / sum_k, noise_target)
                     gd = wp.vec4(slope[p], var_blur, luminance(wp.vec3(cv[0], cv[1], cv[2])), radius)
-                    i = k // _GUIDE
-                    j = k % _GUIDE
-                    if i >= 4 and i < 4 + _TILE and j >= 4 and j < 4 + _TILE:
+                    i = k // _GUIDE_X
+                    j = k % _GUIDE_X
+                    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X:
                         filtered += 1
                 else:
                     cv = wp.vec4(0.0)
@@ -284,12 +339,12 @@ def atrous_level(
     # 4. the filter of the tile's pixels
         k = r * threads + lane
     # 4. the filter of the tile's pixels
-    for k in range(lane, _TILE * _TILE, threads):
-        y = row0 + step * (sy0 + 4 + k // _TILE)
-        x = col0 + step * (sx0 + 4 + k % _TILE)
+    for k in range(lane, _TILE_Y * _TILE_X, threads):
+        y = row0 + step * (sy0 + 4 + k // _TILE_X)
+        x = col0 + step * (sx0 + 4 + k % _TILE_X)
         if y < height and x < width:
             p = y * width + x
-            u = (4 + k // _TILE) * _GUIDE + 4 + k % _TILE
+            u = (4 + k // _TILE_X) * _GUIDE_X + 4 + k % _TILE_X
             cv_p = signal[u]
             c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
             v_p = cv_p[3]
@@ -303,7 +358,7 @@ def atrous_level(
                 for m in range(2 * FORWARD_TAPS):
                     f = m // 2
                     tap = forward_tap(f)
-                    off = tap[0] * _GUIDE + tap[1]
+                    off = tap[0] * _GUIDE_X + tap[1]
                     q = u + off
                     w = float(0.0)
                     if m % 2 == 0:
@@ -312,7 +367,7 @@ def atrous_level(
                         q = u - off
                         w = pair[f * _PAIR_PIXELS + q]
                     if w > 0.0:
-                        a = w / wp.where(conserve_energy != 0, wp.max(w_p, weight_sum[q]), w_p)
+                        a = fast_div(w, wp.where(conserve_energy != 0, wp.max(w_p, weight_sum[q]), w_p))
                         cv_q = signal[q]
                         sum_a += a
                         sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
@@ -347,8 +402,8 @@ def atrous_blocks(width: int, height: int, step: int) -> tuple[int, int]:
     """(blocks, tiles_x) of :func:`atrous_level` at tap spacing ``step``."""
     sub_w = (width + step - 1) // step
     sub_h = (height + step - 1) // step
-    tiles_x = (sub_w + TILE - 1) // TILE
-    tiles_y = (sub_h + TILE - 1) // TILE
+    tiles_x = (sub_w + TILE_X - 1) // TILE_X
+    tiles_y = (sub_h + TILE_Y - 1) // TILE_Y
     return tiles_y * tiles_x * step * step, tiles_x
 
 
