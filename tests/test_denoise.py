@@ -707,3 +707,25 @@ def test_gather_tiles_match_per_pixel_twin(device, radius):
         np.testing.assert_array_equal(out.numpy(), ref.numpy())
     else:
         np.testing.assert_allclose(out.numpy(), ref.numpy(), rtol=1e-6, atol=1e-7)
+
+
+def test_atrous_level_in_place_matches_naive_twin(device):
+    """Outputs aliasing the inputs (in place): the level packs its input first and still equals the twin."""
+    rng = np.random.default_rng(41)
+    w, h = 40, 21
+    g = plane(w, h)
+    color = rng.exponential(2.0, (h, w, 3)).astype(np.float32)
+    color[g["depth"] <= 0] = 0.0
+    variance = rng.exponential(1.0, (h, w)).astype(np.float32)
+    s = SVGFSettings()
+    dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
+    slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    var = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
+    scratch = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(3)]
+    launch_atrous_level(dev["irradiance"], var, dev["depth"], dev["normal"], slope, w, h, 2, s.sigma_depth,
+                        s.sigma_normal, s.sigma_luminance, True, *scratch, wp.zeros(w * h, dtype=wp.float32, device=device),
+                        dev["irradiance"], var)
+    c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], 2, s.sigma_depth, s.sigma_normal,
+                                      s.sigma_luminance, True)
+    np.testing.assert_allclose(dev["irradiance"].numpy().reshape(h, w, 3), c_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(var.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)

@@ -231,10 +231,28 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
 
 
 
+@wp.func
+def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
+                variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
+    """(colour, Var) of pixel ``p`` from the packed input or from the unpacked one; Var = NO_SURFACE without
+    a surface (depth 0), else clamped to >= 0 (as :func:`atrous_pack`)."""
+    if packed != 0:
+        return color_variance[p]
+    if depth[p] <= 0.0:
+        return wp.vec4(0.0, 0.0, 0.0, NO_SURFACE)
+    c = color_in[p]
+    return wp.vec4(c[0], c[1], c[2], wp.max(variance_in[p], 0.0))
+
+
 @wp.kernel(launch_bounds=(BLOCK_THREADS, 2))
 def atrous_level(
+    packed: int,
     color_variance: wp.array(dtype=wp.vec4),
     guide: wp.array(dtype=wp.vec4),
+    color_in: wp.array(dtype=wp.vec3),
+    variance_in: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    normal: wp.array(dtype=wp.vec3),
     slope: wp.array(dtype=wp.float32),
     width: int,
     height: int,
@@ -260,8 +278,10 @@ def atrous_level(
     (TILE_Y ty + i, TILE_X tx + j), i < TILE_Y, j < TILE_X, i.e. pixels (a + step (TILE_Y ty + i),
     b + step (TILE_X tx + j)).
 
-    Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface),
-    ``guide`` (H*W vec4: n, z [m]) and ``slope`` (H*W float32 [m/pixel]). ``gated`` != 0: R from g3x3(Var)
+    Reads, with ``packed`` != 0, the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var;
+    Var < 0 = no surface) and ``guide`` (H*W vec4: n, z [m]), else the same from ``color_in`` (H*W vec3),
+    ``variance_in`` (H*W float32), ``depth`` (H*W float32 [m], 0 = none) and ``normal`` (H*W vec3); and
+    ``slope`` (H*W float32 [m/pixel]). ``gated`` != 0: R from g3x3(Var)
     and the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``), else
     R = ``UNGATED_RADIUS``. Writes, each when its flag is set: ``color_variance_out`` (packed, the next
     level's input), ``color_out`` (H*W vec3 [W/m²]) and ``variance_out`` (H*W float32; both 0 without a
@@ -295,9 +315,13 @@ def atrous_level(
             x = col0 + step * (sx0 + k % _GUIDE_X)
             if y >= 0 and y < height and x >= 0 and x < width:
                 p = y * width + x
-                cv = color_variance[p]
+                cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
                 if cv[3] >= 0.0:
-                    gs = guide[p]
+                    if packed != 0:
+                        gs = guide[p]
+                    else:
+                        n = normal[p]
+                        gs = wp.vec4(n[0], n[1], n[2], depth[p])
                     sum_k = float(0.0)
                     sum_v = float(0.0)
                     sum_l = float(0.0)
@@ -306,7 +330,8 @@ def atrous_level(
                             qx = x + dx
                             qy = y + dy
                             if qx >= 0 and qx < width and qy >= 0 and qy < height:
-                                cv_q = color_variance[qy * width + qx]
+                                cv_q = read_signal(packed, color_variance, color_in, variance_in, depth,
+                                                   qy * width + qx)
                                 if cv_q[3] >= 0.0:
                                     kq = wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25)
                                     sum_k += kq
@@ -388,11 +413,13 @@ def atrous_level(
 _SPARE: dict = {}
 
 
-def _spare(device) -> dict:
+def spare_outputs(device) -> dict:
     """One-element stand-ins (allocated once per device) for the outputs a launch does not write."""
     key = str(device)
     if key not in _SPARE:
         _SPARE[key] = {"vec3": wp.zeros(1, dtype=wp.vec3, device=device),
+                       "vec4": wp.zeros(1, dtype=wp.vec4, device=device),
+                       "float": wp.zeros(1, dtype=wp.float32, device=device),
                        "hist": wp.zeros((2, 1), dtype=wp.vec3, device=device),
                        "parity": wp.zeros(1, dtype=wp.int32, device=device)}
     return _SPARE[key]
@@ -407,36 +434,46 @@ def atrous_blocks(width: int, height: int, step: int) -> tuple[int, int]:
     return tiles_y * tiles_x * step * step, tiles_x
 
 
-def launch_atrous(color_variance: wp.array, guide: wp.array, slope: wp.array, width: int, height: int, step: int,
-                  sigma_depth: float, sigma_normal: float, sigma_luminance: float, conserve_energy: bool,
+def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope: wp.array, width: int, height: int,
+                  step: int, sigma_depth: float, sigma_normal: float, sigma_luminance: float, conserve_energy: bool,
                   noise_target: float | None = None, color_variance_out: wp.array | None = None,
                   color_out: wp.array | None = None, variance_out: wp.array | None = None,
-                  hist_color: wp.array | None = None, parity: wp.array | None = None) -> None:
-    """Launch :func:`atrous_level` on packed input (``color_variance``, ``guide``: H*W vec4, see the module
-    docstring; ``slope``: H*W float32 [m/pixel]). ``noise_target`` (relative, e.g. 0.05): gate the level by
-    the footprint the remaining variance needs; None: ungated (SVGF). Each output given is written:
+                  hist_color: wp.array | None = None, parity: wp.array | None = None,
+                  unpacked: tuple | None = None) -> None:
+    """Launch :func:`atrous_level` on the packed input (``color_variance``, ``guide``: H*W vec4, see the module
+    docstring) or, given ``unpacked`` = (color_in, variance_in, depth, normal), on those (the packed ones then
+    None); ``slope``: H*W float32 [m/pixel]. ``noise_target`` (relative, e.g. 0.05): gate the level by the
+    footprint the remaining variance needs; None: ungated (SVGF). Each output given is written:
     ``color_variance_out`` (packed, H*W vec4), ``color_out`` + ``variance_out`` (H*W vec3 [W/m²] and float32,
-    given together), ``hist_color`` + ``parity`` (the colour history row ``1 - parity[0]``)."""
-    d = color_variance.device
+    given together), ``hist_color`` + ``parity`` (the colour history row ``1 - parity[0]``). No output may
+    alias an input (blocks read their neighbours' inputs while others write)."""
+    d = slope.device
+    spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
     gated = noise_target is not None
-    spare = _spare(d)
-    dummy4 = color_variance_out if color_variance_out is not None else color_variance
     write_public = color_out is not None
     if write_public != (variance_out is not None):
         raise ValueError("color_out and variance_out are written together")
     write_history = hist_color is not None
     if write_history and parity is None:
         raise ValueError("hist_color needs parity")
-    dummy3 = color_out if write_public else spare["vec3"]
-    dummy1 = variance_out if write_public else slope
-    hist = hist_color if write_history else spare["hist"]
-    par = parity if write_history else spare["parity"]
+    packed = unpacked is None
+    if packed:
+        color_in, variance_in, depth, normal = spare["vec3"], spare["float"], spare["float"], spare["vec3"]
+    else:
+        color_in, variance_in, depth, normal = unpacked
+        color_variance = guide = spare["vec4"]
     wp.launch_tiled(atrous_level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
-                    inputs=[color_variance, guide, slope, width, height, int(step), tiles_x, float(sigma_depth),
-                            float(sigma_normal), float(sigma_luminance), int(conserve_energy), int(gated),
-                            float(noise_target) if gated else 0.0, int(color_variance_out is not None), dummy4,
-                            int(write_public), dummy3, dummy1, int(write_history), par, hist])
+                    inputs=[int(packed), color_variance, guide, color_in, variance_in, depth, normal, slope, width,
+                            height, int(step), tiles_x, float(sigma_depth), float(sigma_normal),
+                            float(sigma_luminance), int(conserve_energy), int(gated),
+                            float(noise_target) if gated else 0.0,
+                            int(color_variance_out is not None),
+                            color_variance_out if color_variance_out is not None else spare["vec4"],
+                            int(write_public), color_out if write_public else spare["vec3"],
+                            variance_out if write_public else spare["float"], int(write_history),
+                            parity if write_history else spare["parity"],
+                            hist_color if write_history else spare["hist"]])
 
 
 def launch_atrous_level(color_in: wp.array, variance_in: wp.array, depth: wp.array, normal: wp.array,
@@ -444,17 +481,21 @@ def launch_atrous_level(color_in: wp.array, variance_in: wp.array, depth: wp.arr
                         sigma_normal: float, sigma_luminance: float, conserve_energy: bool,
                         guide_a: wp.array, guide_b: wp.array, color_variance: wp.array, weight_sum: wp.array,
                         color_out: wp.array, variance_out: wp.array, noise_target: float | None = None) -> None:
-    """One à-trous level from unpacked buffers: :func:`atrous_pack`, then :func:`atrous_level`.
+    """One à-trous level from unpacked buffers (the interface of the former three-pass level).
 
     Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (H*W float32), ``depth`` (H*W float32 [m], 0 =
     none), ``normal`` (H*W vec3), ``slope`` (H*W float32 [m/pixel]); ``step`` is the tap spacing [pixels].
-    ``noise_target`` (relative, e.g. 0.05): gated level; None: ungated (SVGF). Scratch: ``guide_a`` (H*W
-    vec4, the packed guide (n, z)) and ``color_variance`` (H*W vec4, the packed input); ``guide_b`` and
-    ``weight_sum`` are no longer used (kept for callers of the three-pass version). Writes ``color_out`` /
-    ``variance_out`` (may alias the inputs: the level reads only the packed copies).
+    ``noise_target`` (relative, e.g. 0.05): gated level; None: ungated (SVGF). Writes ``color_out`` /
+    ``variance_out``. One launch of :func:`atrous_level` on the unpacked input; where an output aliases its
+    input, :func:`atrous_pack` first copies the input into the scratch ``guide_a`` / ``color_variance`` (H*W
+    vec4). ``guide_b`` and ``weight_sum`` are no longer used.
     """
-    d = color_in.device
-    wp.launch(atrous_pack, dim=width * height, device=d, inputs=[color_in, variance_in, depth, normal],
-              outputs=[guide_a, color_variance])
-    launch_atrous(color_variance, guide_a, slope, width, height, step, sigma_depth, sigma_normal, sigma_luminance,
-                  conserve_energy, noise_target, color_out=color_out, variance_out=variance_out)
+    if color_out.ptr == color_in.ptr or variance_out.ptr == variance_in.ptr:
+        wp.launch(atrous_pack, dim=width * height, device=color_in.device,
+                  inputs=[color_in, variance_in, depth, normal], outputs=[guide_a, color_variance])
+        launch_atrous(color_variance, guide_a, slope, width, height, step, sigma_depth, sigma_normal,
+                      sigma_luminance, conserve_energy, noise_target, color_out=color_out, variance_out=variance_out)
+        return
+    launch_atrous(None, None, slope, width, height, step, sigma_depth, sigma_normal, sigma_luminance,
+                  conserve_energy, noise_target, color_out=color_out, variance_out=variance_out,
+                  unpacked=(color_in, variance_in, depth, normal))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_svgf as K
-from .kernels_atrous import launch_atrous
+from .kernels_atrous import launch_atrous, spare_outputs
 
 
 @dataclass(frozen=True)
@@ -93,6 +93,7 @@ class SVGF:
         self.guide = one(wp.vec4)
         self.color_variance = one(wp.vec4), one(wp.vec4)
         self.filtered_variance = one(wp.float32)
+        spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
     @property
     def history_length(self) -> wp.array:
