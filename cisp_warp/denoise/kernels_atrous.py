@@ -112,6 +112,21 @@ return 1.0f / sqrtf(x);
 def fast_rsqrt(x: float) -> float: ...
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float4 v = __ldg(reinterpret_cast<const float4*>(a.data) + p);
+return wp::vec4(v.x, v.y, v.z, v.w);
+#else
+return a.data[p];
+#endif
+""")
+def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
+    """``a[p]`` of a contiguous vec4 array in one 16-byte load on CUDA (Warp's own indexing issues four 4-byte
+    loads, and the level's loads are strided across a warp: each of the four touches as many sectors as one
+    16-byte load would)."""
+    ...
+
+
 @wp.func
 def log_cosine(c: float) -> float:
     """ln c of a cosine c in (0, 1] to ~1e-9 absolute where it matters (σ_n up to hundreds multiplies it):
@@ -237,7 +252,7 @@ def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: 
     """(colour, Var) of pixel ``p`` from the packed input or from the unpacked one; Var = NO_SURFACE without
     a surface (depth 0), else clamped to >= 0 (as :func:`atrous_pack`)."""
     if packed != 0:
-        return color_variance[p]
+        return load_vec4(color_variance, p)
     if depth[p] <= 0.0:
         return wp.vec4(0.0, 0.0, 0.0, NO_SURFACE)
     c = color_in[p]
@@ -303,7 +318,7 @@ def atrous_level(
     guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
     guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (‖∇z‖, g3x3 Var, l, R)
     signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
-    filtered = int(0)  # pixels of the output tile with a surface that this thread read
+    filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
     rounds = (_GUIDE_N + threads - 1) // threads
     for r in range(rounds):
         k = r * threads + lane
@@ -318,7 +333,7 @@ def atrous_level(
                 cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
                 if cv[3] >= 0.0:
                     if packed != 0:
-                        gs = guide[p]
+                        gs = load_vec4(guide, p)
                     else:
                         n = normal[p]
                         gs = wp.vec4(n[0], n[1], n[2], depth[p])
@@ -345,7 +360,7 @@ def atrous_level(
                     gd = wp.vec4(slope[p], var_blur, luminance(wp.vec3(cv[0], cv[1], cv[2])), radius)
                     i = k // _GUIDE_X
                     j = k % _GUIDE_X
-                    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X:
+                    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * radius > s:
                         filtered += 1
                 else:
                     cv = wp.vec4(0.0)
@@ -355,8 +370,8 @@ def atrous_level(
 
     pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
     weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
-    # a block whose tile has no surface (the sky, the space around the Cornell box) skips 2 and 3: step 4
-    # then reads neither table and writes zeros
+    # a block whose tile has no surface (the sky, the space around the Cornell box) or, on a gated level, only
+    # pixels that need less than half the step (converged) skips 2 and 3: step 4 reads neither table then
     if wp.tile_sum(wp.tile(filtered))[0] > 0:
         fill_weights(guide_s, guide_d, pair, weight_sum, lane, threads, s, sigma_depth, sigma_normal,
                      sigma_luminance)
@@ -376,6 +391,9 @@ def atrous_level(
             c_new = wp.vec3(0.0)
             v_new = float(0.0)
             if guide_s[u][3] > 0.0:
+                c_new = c_p
+                v_new = v_p
+            if guide_s[u][3] > 0.0 and 2.0 * guide_d[u][3] > s:  # else every gate of p is 0: A_pp = 1
                 w_p = weight_sum[u]
                 sum_a = float(0.0)  # Σ_{q≠p} A_pq
                 sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
