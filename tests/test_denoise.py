@@ -729,3 +729,10 @@ def test_atrous_level_in_place_matches_naive_twin(device):
                                       s.sigma_luminance, True)
     np.testing.assert_allclose(dev["irradiance"].numpy().reshape(h, w, 3), c_ref, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(var.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
+
+
+def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
+    """The level with real multi-lane blocks on the CPU (cooperative fibers): the barriers between the shared
+    tables' phases are where a race would show; equals the twin like the one-lane CPU block."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None)

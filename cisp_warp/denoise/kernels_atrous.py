@@ -127,6 +127,26 @@ def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
     ...
 
 
+# Per-thread writes into the level's shared tables without a barrier each (Warp's tile_scatter_masked and
+# element assignment end in __syncthreads, which cost a barrier per round of 512 items); block_sync() once a phase.
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_guide(t: wp.tile[wp.vec4, GUIDE_PIXELS], i: int, v: wp.vec4): ...
+
+
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_guide_scalar(t: wp.tile[wp.float32, GUIDE_PIXELS], i: int, v: float): ...
+
+
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_pair(t: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], i: int, v: float): ...
+
+
+@wp.func_native("WP_TILE_SYNC();")
+def block_sync():
+    """Barrier of the block (every thread must reach it); a no-op for a CPU block of one lane."""
+    ...
+
+
 @wp.func
 def log_cosine(c: float) -> float:
     """ln c of a cosine c in (0, 1] to ~1e-9 absolute where it matters (σ_n up to hundreds multiplies it):
@@ -212,38 +232,31 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
     and ``weight_sum`` (shared, W_q of the tile and an apron of 2, at their guide index)."""
     # 2. forward pair weights, once per unordered pair
-    rounds = (_PAIR_N + threads - 1) // threads
-    for r in range(rounds):
-        k = r * threads + lane
+    for k in range(lane, _PAIR_N, threads):
         w = float(0.0)
-        if k < _PAIR_N:
-            f = k // _PAIR_PIXELS
-            u = k - f * _PAIR_PIXELS
-            tap = forward_tap(f)
-            i = u // _GUIDE_X
-            j = u % _GUIDE_X
-            j2 = j + tap[1]
-            if j2 >= 0 and j2 < _GUIDE_X:  # pairs leaving the guide region are never needed
-                v = (i + tap[0]) * _GUIDE_X + j2
-                w = pair_weight(guide_s[u], guide_d[u], guide_s[v], guide_d[v],
-                                b3_spline(tap[0]) * b3_spline(tap[1]),
-                                s * wp.sqrt(float(tap[0] * tap[0] + tap[1] * tap[1])), s,
-                                sigma_depth, sigma_normal, sigma_luminance)
-        wp.tile_scatter_masked(pair, k, w, k < _PAIR_N)
+        f = k // _PAIR_PIXELS
+        u = k - f * _PAIR_PIXELS
+        tap = forward_tap(f)
+        i = u // _GUIDE_X
+        j = u % _GUIDE_X
+        j2 = j + tap[1]
+        if j2 >= 0 and j2 < _GUIDE_X:  # pairs leaving the guide region are never needed
+            v = (i + tap[0]) * _GUIDE_X + j2
+            w = pair_weight(guide_s[u], guide_d[u], guide_s[v], guide_d[v], b3_spline(tap[0]) * b3_spline(tap[1]),
+                            s * wp.sqrt(float(tap[0] * tap[0] + tap[1] * tap[1])), s,
+                            sigma_depth, sigma_normal, sigma_luminance)
+        write_pair(pair, k, w)
+    block_sync()
 
     # 3. W_q = Σ_r w_qr of the tile and an apron of 2 (centre (3/8)² included)
-    rounds = (_SUM_N + threads - 1) // threads
-    for r in range(rounds):
-        k = r * threads + lane
-        u = int(0)
+    for k in range(lane, _SUM_N, threads):
+        u = (2 + k // _SUM_X) * _GUIDE_X + 2 + k % _SUM_X
         sum_w = b3_spline(0) * b3_spline(0)
-        if k < _SUM_N:
-            u = (2 + k // _SUM_X) * _GUIDE_X + 2 + k % _SUM_X
-            for f in range(FORWARD_TAPS):
-                tap = forward_tap(f)
-                sum_w += pair[f * _PAIR_PIXELS + u] + pair[f * _PAIR_PIXELS + u - tap[0] * _GUIDE_X - tap[1]]
-        wp.tile_scatter_masked(weight_sum, u, sum_w, k < _SUM_N)
-
+        for f in range(FORWARD_TAPS):
+            tap = forward_tap(f)
+            sum_w += pair[f * _PAIR_PIXELS + u] + pair[f * _PAIR_PIXELS + u - tap[0] * _GUIDE_X - tap[1]]
+        write_guide_scalar(weight_sum, u, sum_w)
+    block_sync()
 
 
 @wp.func
@@ -319,54 +332,52 @@ def atrous_level(
     guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (‖∇z‖, g3x3 Var, l, R)
     signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
     filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
-    rounds = (_GUIDE_N + threads - 1) // threads
-    for r in range(rounds):
-        k = r * threads + lane
+    for k in range(lane, _GUIDE_N, threads):
         gs = wp.vec4(0.0)
         gd = wp.vec4(0.0)
         cv = wp.vec4(0.0)
-        if k < _GUIDE_N:
-            y = row0 + step * (sy0 + k // _GUIDE_X)
-            x = col0 + step * (sx0 + k % _GUIDE_X)
-            if y >= 0 and y < height and x >= 0 and x < width:
-                p = y * width + x
-                cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
-                if cv[3] >= 0.0:
-                    if packed != 0:
-                        gs = load_vec4(guide, p)
-                    else:
-                        n = normal[p]
-                        gs = wp.vec4(n[0], n[1], n[2], depth[p])
-                    sum_k = float(0.0)
-                    sum_v = float(0.0)
-                    sum_l = float(0.0)
-                    for dy in range(-1, 2):
-                        for dx in range(-1, 2):
-                            qx = x + dx
-                            qy = y + dy
-                            if qx >= 0 and qx < width and qy >= 0 and qy < height:
-                                cv_q = read_signal(packed, color_variance, color_in, variance_in, depth,
-                                                   qy * width + qx)
-                                if cv_q[3] >= 0.0:
-                                    kq = wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25)
-                                    sum_k += kq
-                                    sum_v += kq * cv_q[3]
-                                    if gated != 0:
-                                        sum_l += kq * luminance(wp.vec3(cv_q[0], cv_q[1], cv_q[2]))
-                    var_blur = sum_v / sum_k
-                    radius = UNGATED_RADIUS
-                    if gated != 0:
-                        radius = footprint_radius(var_blur, sum_l / sum_k, noise_target)
-                    gd = wp.vec4(slope[p], var_blur, luminance(wp.vec3(cv[0], cv[1], cv[2])), radius)
-                    i = k // _GUIDE_X
-                    j = k % _GUIDE_X
-                    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * radius > s:
-                        filtered += 1
+        y = row0 + step * (sy0 + k // _GUIDE_X)
+        x = col0 + step * (sx0 + k % _GUIDE_X)
+        if y >= 0 and y < height and x >= 0 and x < width:
+            p = y * width + x
+            cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
+            if cv[3] >= 0.0:
+                if packed != 0:
+                    gs = load_vec4(guide, p)
                 else:
-                    cv = wp.vec4(0.0)
-        wp.tile_scatter_masked(guide_s, k, gs, k < _GUIDE_N)
-        wp.tile_scatter_masked(guide_d, k, gd, k < _GUIDE_N)
-        wp.tile_scatter_masked(signal, k, cv, k < _GUIDE_N)
+                    n = normal[p]
+                    gs = wp.vec4(n[0], n[1], n[2], depth[p])
+                sum_k = float(0.0)
+                sum_v = float(0.0)
+                sum_l = float(0.0)
+                for dy in range(-1, 2):
+                    for dx in range(-1, 2):
+                        qx = x + dx
+                        qy = y + dy
+                        if qx >= 0 and qx < width and qy >= 0 and qy < height:
+                            cv_q = read_signal(packed, color_variance, color_in, variance_in, depth,
+                                               qy * width + qx)
+                            if cv_q[3] >= 0.0:
+                                kq = wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25)
+                                sum_k += kq
+                                sum_v += kq * cv_q[3]
+                                if gated != 0:
+                                    sum_l += kq * luminance(wp.vec3(cv_q[0], cv_q[1], cv_q[2]))
+                var_blur = sum_v / sum_k
+                radius = UNGATED_RADIUS
+                if gated != 0:
+                    radius = footprint_radius(var_blur, sum_l / sum_k, noise_target)
+                gd = wp.vec4(slope[p], var_blur, luminance(wp.vec3(cv[0], cv[1], cv[2])), radius)
+                i = k // _GUIDE_X
+                j = k % _GUIDE_X
+                if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * radius > s:
+                    filtered += 1
+            else:
+                cv = wp.vec4(0.0)
+        write_guide(guide_s, k, gs)
+        write_guide(guide_d, k, gd)
+        write_guide(signal, k, cv)
+    block_sync()
 
     pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
     weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
@@ -376,8 +387,6 @@ def atrous_level(
         fill_weights(guide_s, guide_d, pair, weight_sum, lane, threads, s, sigma_depth, sigma_normal,
                      sigma_luminance)
 
-    # 4. the filter of the tile's pixels
-        k = r * threads + lane
     # 4. the filter of the tile's pixels
     for k in range(lane, _TILE_Y * _TILE_X, threads):
         y = row0 + step * (sy0 + 4 + k // _TILE_X)
