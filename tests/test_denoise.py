@@ -14,6 +14,7 @@ import warp as wp
 
 from cisp_warp.denoise import (SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings,
                                launch_atrous_level)
+from cisp_warp.denoise.kernels_atrous import launch_atrous
 from cisp_warp.denoise.naive import atrous_level_naive, blur_variance_naive, caustic_frame_naive, depth_slope_naive
 
 W, H = 32, 24
@@ -596,7 +597,7 @@ def test_caustic_stays_finite_after_a_history_of_vanishing_irradiance(device):
 
 @pytest.mark.parametrize("step,conserve,gate", [(1, True, None), (4, False, None), (16, True, None), (2, True, 0.1)])
 def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate):
-    """A level over several blocks: tiles of each sub-lattice (step² of them), aprons that cross tiles and
+    """The tiled level (:func:`launch_atrous`, SVGF's) over several blocks: tiles of each sub-lattice (step² of them), aprons that cross tiles and
     sub-lattices, a partial last tile and image sizes no multiple of the step, against the float64 twin."""
     rng = np.random.default_rng(23 + step)
     w, h = 45, 38
@@ -614,12 +615,11 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate):
     dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
     slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
     var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
-    scratch = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(3)]
-    c_out = wp.zeros(w * h, dtype=wp.vec3, device=device)
-    v_out = wp.zeros(w * h, dtype=wp.float32, device=device)
-    launch_atrous_level(dev["irradiance"], var_in, dev["depth"], dev["normal"], slope, w, h, step, s.sigma_depth,
-                        s.sigma_normal, s.sigma_luminance, conserve, *scratch,
-                        wp.zeros(w * h, dtype=wp.float32, device=device), c_out, v_out, noise_target=gate)
+    c_out = wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device)  # every pixel must be written
+    v_out = wp.full(w * h, -7.0, dtype=wp.float32, device=device)
+    launch_atrous(None, None, slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
+                  noise_target=gate, color_out=c_out, variance_out=v_out,
+                  unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]))
     c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
                                       s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve, noise_target=gate)
     np.testing.assert_allclose(c_out.numpy().reshape(h, w, 3), c_ref, rtol=1e-5, atol=1e-6)

@@ -1,4 +1,7 @@
-"""The edge-avoiding à-trous wavelet level shared by SVGF and the caustics denoiser, one launch a level.
+"""The edge-avoiding à-trous wavelet level in one launch a level, read once from shared memory: SVGF's levels.
+
+(The caustics denoiser's gated levels run :func:`launch_atrous_level`, the per-pixel three-pass level of
+:mod:`.kernels_atrous_pixel`, re-exported here: measured faster there, see that module.)
 
 A level of tap spacing ``step`` couples only pixels whose coordinates agree modulo ``step``: the image is
 ``step``² interleaved sub-lattices, and on each one the level is a dense 5x5 filter. :func:`atrous_level`
@@ -26,7 +29,7 @@ that both still need a footprint of ``step`` pixels and not at all where either 
 (a pixel whose own R is below half the step keeps its value). For SVGF R = 1e30 and every gate is 1.
 Pixels without a surface (depth 0) take no part and come out 0.
 
-Between levels the image travels packed (:func:`atrous_pack` makes it): ``color_variance`` = (colour, Var),
+Between levels the image travels packed (SVGF's ``filter_moments`` packs the first): ``color_variance`` = (colour, Var),
 Var = −1 marking a pixel without a surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
 """
@@ -35,14 +38,10 @@ from __future__ import annotations
 
 import warp as wp
 
+from .kernels_atrous_pixel import UNGATED_RADIUS, footprint_radius, launch_atrous_level  # noqa: F401 (re-exported)
 from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, luminance
 
 
-#: R of an ungated level [pixels]: larger than any step, so every gate is 1
-UNGATED_RADIUS = wp.constant(1.0e30)
-#: floor of 4π τ² μ² in R's denominator [(W/m²)²], so a pixel with no signal and no variance gets R = 0
-GATE_EPS = wp.constant(1.0e-30)
-FOUR_PI = wp.constant(12.566370614359172)
 #: Var of a packed pixel without a surface
 NO_SURFACE = wp.constant(-1.0)
 
@@ -160,16 +159,84 @@ def log_cosine(c: float) -> float:
     return 2.0 * t * series
 
 
-@wp.func
-def footprint_radius(var_blur: float, mean_lum: float, noise_target: float) -> float:
-    """R [pixels]: the standard deviation of a Gaussian footprint that brings the variance of the estimate,
-    ``var_blur`` [(W/m²)²], down to (τ μ)², τ = ``noise_target`` relative, μ = ``mean_lum`` [W/m²].
+# Single-instruction intrinsics on CUDA (2 ulp; the pair weight and the filter's A_pq take them), the exact
+# operations on the CPU. Their error moves a weight by ~1e-6 relative, under the 1e-5 the twin is held to.
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __expf(x);
+#else
+return expf(x);
+#endif
+""")
+def fast_exp(x: float) -> float: ...
 
-    A normalised 2-D Gaussian of standard deviation R pixels averages independent pixel noise down by
-    Σ w² = 1 / (4π R²), so R² = Var / (4π τ² μ²). A B3 à-trous level of spacing ``step`` has a standard
-    deviation of ``step`` pixels per axis, which is what the gate compares R with.
-    """
-    return wp.sqrt(var_blur / wp.max(FOUR_PI * noise_target * noise_target * mean_lum * mean_lum, GATE_EPS))
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __fdividef(a, b);
+#else
+return a / b;
+#endif
+""")
+def fast_div(a: float, b: float) -> float: ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return rsqrtf(x);
+#else
+return 1.0f / sqrtf(x);
+#endif
+""")
+def fast_rsqrt(x: float) -> float: ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float4 v = __ldg(reinterpret_cast<const float4*>(a.data) + p);
+return wp::vec4(v.x, v.y, v.z, v.w);
+#else
+return a.data[p];
+#endif
+""")
+def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
+    """``a[p]`` of a contiguous vec4 array in one 16-byte load on CUDA (Warp's own indexing issues four 4-byte
+    loads, and the level's loads are strided across a warp: each of the four touches as many sectors as one
+    16-byte load would)."""
+    ...
+
+
+# Per-thread writes into the level's shared tables without a barrier each (Warp's tile_scatter_masked and
+# element assignment end in __syncthreads, which cost a barrier per round of 512 items); block_sync() once a phase.
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_guide(t: wp.tile[wp.vec4, GUIDE_PIXELS], i: int, v: wp.vec4): ...
+
+
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_guide_scalar(t: wp.tile[wp.float32, GUIDE_PIXELS], i: int, v: float): ...
+
+
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_pair(t: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], i: int, v: float): ...
+
+
+@wp.func_native("WP_TILE_SYNC();")
+def block_sync():
+    """Barrier of the block (every thread must reach it); a no-op for a CPU block of one lane."""
+    ...
+
+
+@wp.func
+def log_cosine(c: float) -> float:
+    """ln c of a cosine c in (0, 1] to ~1e-9 absolute where it matters (σ_n up to hundreds multiplies it):
+    2 atanh(t), t = (c − 1)/(c + 1) in [−1/3, 0], by its series to t¹¹ (error below 3e-8 t); ``wp.log`` below
+    c = 0.5, where c^σ_n is negligible for any σ_n worth using and which real normals rarely reach."""
+    if c < 0.5:
+        return wp.log(c)
+    t = fast_div(c - 1.0, c + 1.0)
+    t2 = t * t
+    series = 1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0 + t2 * (1.0 / 11.0)))))
+    return 2.0 * t * series
 
 
 @wp.func
@@ -197,31 +264,6 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, kern
     e = (sigma_normal * log_cosine(n_dot) - fast_div(wp.abs(gs_p[3] - gs_q[3]), phi_z)
          - wp.abs(gd_p[2] - gd_q[2]) * inv_phi_l)
     return kernel_weight * fast_exp(e) * gate
-
-
-@wp.kernel
-def atrous_pack(
-    color_in: wp.array(dtype=wp.vec3),
-    variance_in: wp.array(dtype=wp.float32),
-    depth: wp.array(dtype=wp.float32),
-    normal: wp.array(dtype=wp.vec3),
-    guide: wp.array(dtype=wp.vec4),
-    color_variance: wp.array(dtype=wp.vec4),
-):
-    """Pack a level's input (1-D launch over H*W pixels): reads ``color_in`` (vec3 [W/m²]), ``variance_in``
-    (float32 [(W/m²)²], luminance variance, clamped to >= 0), ``depth`` (float32 [m], 0 = none), ``normal``
-    (vec3); writes ``guide`` = (n, z) and ``color_variance`` = (colour, Var), both H*W vec4; without a surface
-    (0, 0, 0, 0) and (0, 0, 0, :data:`NO_SURFACE`)."""
-    p = wp.tid()
-    z = depth[p]
-    if z <= 0.0:
-        guide[p] = wp.vec4(0.0)
-        color_variance[p] = wp.vec4(0.0, 0.0, 0.0, NO_SURFACE)
-        return
-    n = normal[p]
-    c = color_in[p]
-    guide[p] = wp.vec4(n[0], n[1], n[2], z)
-    color_variance[p] = wp.vec4(c[0], c[1], c[2], wp.max(variance_in[p], 0.0))
 
 
 @wp.func
@@ -263,7 +305,7 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
 def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
                 variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
     """(colour, Var) of pixel ``p`` from the packed input or from the unpacked one; Var = NO_SURFACE without
-    a surface (depth 0), else clamped to >= 0 (as :func:`atrous_pack`)."""
+    a surface (depth 0), else clamped to >= 0 (as the packed input holds it)."""
     if packed != 0:
         return load_vec4(color_variance, p)
     if depth[p] <= 0.0:
@@ -501,28 +543,3 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"]])
-
-
-def launch_atrous_level(color_in: wp.array, variance_in: wp.array, depth: wp.array, normal: wp.array,
-                        slope: wp.array, width: int, height: int, step: int, sigma_depth: float,
-                        sigma_normal: float, sigma_luminance: float, conserve_energy: bool,
-                        guide_a: wp.array, guide_b: wp.array, color_variance: wp.array, weight_sum: wp.array,
-                        color_out: wp.array, variance_out: wp.array, noise_target: float | None = None) -> None:
-    """One à-trous level from unpacked buffers (the interface of the former three-pass level).
-
-    Reads ``color_in`` (H*W vec3 [W/m²]), ``variance_in`` (H*W float32), ``depth`` (H*W float32 [m], 0 =
-    none), ``normal`` (H*W vec3), ``slope`` (H*W float32 [m/pixel]); ``step`` is the tap spacing [pixels].
-    ``noise_target`` (relative, e.g. 0.05): gated level; None: ungated (SVGF). Writes ``color_out`` /
-    ``variance_out``. One launch of :func:`atrous_level` on the unpacked input; where an output aliases its
-    input, :func:`atrous_pack` first copies the input into the scratch ``guide_a`` / ``color_variance`` (H*W
-    vec4). ``guide_b`` and ``weight_sum`` are no longer used.
-    """
-    if color_out.ptr == color_in.ptr or variance_out.ptr == variance_in.ptr:
-        wp.launch(atrous_pack, dim=width * height, device=color_in.device,
-                  inputs=[color_in, variance_in, depth, normal], outputs=[guide_a, color_variance])
-        launch_atrous(color_variance, guide_a, slope, width, height, step, sigma_depth, sigma_normal,
-                      sigma_luminance, conserve_energy, noise_target, color_out=color_out, variance_out=variance_out)
-        return
-    launch_atrous(None, None, slope, width, height, step, sigma_depth, sigma_normal, sigma_luminance,
-                  conserve_energy, noise_target, color_out=color_out, variance_out=variance_out,
-                  unpacked=(color_in, variance_in, depth, normal))
