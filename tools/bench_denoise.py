@@ -114,9 +114,14 @@ def time_kernels(bench: Bench, frames: int, warmup: int) -> tuple[dict, dict]:
             wp.timing_begin(cuda_filter=wp.TIMING_KERNEL)
             bench.step()
             per = defaultdict(float)
+            seen = defaultdict(int)
             for r in wp.timing_end():
-                per[r.name.replace("forward kernel ", "")] += r.elapsed
-            per["total"] = sum(per.values())
+                name = r.name.replace("forward kernel ", "")
+                seen[name] += 1
+                per[name] += r.elapsed
+                if name.startswith("atrous_level"):  # one launch a level: each level's share too
+                    per[f"  level {seen[name] - 1}"] += r.elapsed
+            per["total"] = sum(v for k, v in per.items() if not k.startswith("  level"))
         else:
             t0 = time.perf_counter()
             bench.step()

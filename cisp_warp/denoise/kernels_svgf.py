@@ -214,14 +214,19 @@ def filter_moments(
     height: int,
     sigma_depth: float,
     sigma_normal: float,
+    integrated: wp.array(dtype=wp.vec3),
     variance_out: wp.array(dtype=wp.float32),
     slope_out: wp.array(dtype=wp.float32),
+    guide_out: wp.array(dtype=wp.vec4),
+    color_variance_out: wp.array(dtype=wp.vec4),
 ):
     """Per-pixel luminance variance (Falcor SVGFFilterMoments) and depth slope.
 
     Reads the outputs of :func:`reproject` (``moments`` vec2, ``history`` int32) and its G-buffer copy
-    (``depth`` [m], 0 = none; ``normal``). Writes ``variance_out`` (float32, luminance variance) and
-    ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous levels).
+    (``depth`` [m], 0 = none; ``normal``) and ``integrated`` (vec3 [W/m²]). Writes ``variance_out`` (float32,
+    luminance variance), ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous levels) and the first level's
+    packed input (:mod:`.kernels_atrous`): ``guide_out`` = (n, z) and ``color_variance_out`` = (colour, Var),
+    H*W vec4 each, (0, 0, 0, 0) and (0, 0, 0, -1) without a surface.
 
     With at least ``SPATIAL_VARIANCE_HISTORY`` frames the variance is temporal, E[l²] − E[l]². Below
     that, the moments are averaged over a 7x7 bilateral neighbourhood weighted by depth and normal
@@ -236,16 +241,22 @@ def filter_moments(
     if z <= 0.0:
         variance_out[p] = 0.0
         slope_out[p] = 0.0
+        guide_out[p] = wp.vec4(0.0)
+        color_variance_out[p] = wp.vec4(0.0, 0.0, 0.0, -1.0)
         return
     slope = depth_gradient_length(depth, x, y, width, height)
     slope_out[p] = slope
+    n = normal[p]
+    guide_out[p] = wp.vec4(n[0], n[1], n[2], z)
+    c = integrated[p]
     h = history[p]
     if h >= SPATIAL_VARIANCE_HISTORY:
         mo = moments[p]
-        variance_out[p] = wp.max(mo[1] - mo[0] * mo[0], 0.0)
+        var = wp.max(mo[1] - mo[0] * mo[0], 0.0)
+        variance_out[p] = var
+        color_variance_out[p] = wp.vec4(c[0], c[1], c[2], var)
         return
 
-    n = normal[p]
     sum_w = float(0.0)
     sum_m = wp.vec2(0.0)
     for dy in range(-SPATIAL_VARIANCE_RADIUS, SPATIAL_VARIANCE_RADIUS + 1):
@@ -262,7 +273,9 @@ def filter_moments(
                     sum_w += w
                     sum_m += w * moments[q]
     sum_m = sum_m / sum_w  # the centre pixel has weight 1
-    variance_out[p] = wp.max(sum_m[1] - sum_m[0] * sum_m[0], 0.0) * float(SPATIAL_VARIANCE_HISTORY) / float(h)
+    var = wp.max(sum_m[1] - sum_m[0] * sum_m[0], 0.0) * float(SPATIAL_VARIANCE_HISTORY) / float(h)
+    variance_out[p] = var
+    color_variance_out[p] = wp.vec4(c[0], c[1], c[2], var)
 
 
 @wp.kernel

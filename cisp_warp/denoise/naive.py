@@ -32,6 +32,35 @@ def depth_slope_naive(depth: np.ndarray) -> np.ndarray:
     return out
 
 
+def blur_variance_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarray,
+                        noise_target: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(g3x3(Var), R) per pixel (H, W), float64: the 3x3 Gaussian (1/4, 1/8, 1/16) of ``variance`` renormalised
+    over pixels with a surface (paper eq. 5) and the footprint R = sqrt(g3x3(Var) / (4π τ² μ²)) [pixels] a pixel
+    still needs, μ the same Gaussian's mean luminance of ``color`` and τ = ``noise_target`` (inf if None)."""
+    h, w = depth.shape
+    lum = color.astype(np.float64) @ REC709
+    var_blur = np.zeros((h, w))
+    radius = np.full((h, w), np.inf)
+    for y in range(h):
+        for x in range(w):
+            if depth[y, x] <= 0:
+                continue
+            kw, kv, kl = 0.0, 0.0, 0.0
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    yy, xx = y + dy, x + dx
+                    if 0 <= yy < h and 0 <= xx < w and depth[yy, xx] > 0:
+                        k = (0.5 if dx == 0 else 0.25) * (0.5 if dy == 0 else 0.25)
+                        kw += k
+                        kv += k * float(variance[yy, xx])
+                        kl += k * lum[yy, xx]
+            var_blur[y, x] = kv / kw
+            if noise_target is not None:
+                denom = 4.0 * np.pi * noise_target ** 2 * (kl / kw) ** 2
+                radius[y, x] = np.sqrt(var_blur[y, x] / max(denom, 1e-30))
+    return var_blur, radius
+
+
 def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarray, normal: np.ndarray,
                        step: int, sigma_depth: float, sigma_normal: float, sigma_luminance: float,
                        conserve_energy: bool, noise_target: float | None = None, slope: np.ndarray | None = None):
@@ -54,26 +83,7 @@ def atrous_level_naive(color: np.ndarray, variance: np.ndarray, depth: np.ndarra
     h, w = depth.shape
     lum = color @ REC709
     slope = depth_slope_naive(depth) if slope is None else slope.astype(np.float64)
-    # 3x3 Gaussian of the variance over pixels with a surface
-    var_blur = np.zeros((h, w))
-    radius = np.full((h, w), np.inf)
-    for y in range(h):
-        for x in range(w):
-            if depth[y, x] <= 0:
-                continue
-            kw, kv, kl = 0.0, 0.0, 0.0
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    yy, xx = y + dy, x + dx
-                    if 0 <= yy < h and 0 <= xx < w and depth[yy, xx] > 0:
-                        k = (0.5 if dx == 0 else 0.25) * (0.5 if dy == 0 else 0.25)
-                        kw += k
-                        kv += k * variance[yy, xx]
-                        kl += k * lum[yy, xx]
-            var_blur[y, x] = kv / kw
-            if noise_target is not None:
-                denom = 4.0 * np.pi * noise_target ** 2 * (kl / kw) ** 2
-                radius[y, x] = np.sqrt(var_blur[y, x] / max(denom, 1e-30))
+    var_blur, radius = blur_variance_naive(color, variance, depth, noise_target)
     def weights(y, x):
         """{(yy, xx): w_pq} over the taps q ≠ p with a surface."""
         z = depth[y, x]

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_svgf as K
-from .kernels_atrous import launch_atrous_level
+from .kernels_atrous import launch_atrous, spare_outputs
 
 
 @dataclass(frozen=True)
@@ -59,8 +59,9 @@ class SVGF:
     (int32 [frames]); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (the G-buffer copy the filters read; depth 0 without a
     surface), ``integrated`` (vec3 [W/m²], temporal accumulation), ``moments`` (vec2), ``history`` (int32),
-    ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4, per-level packed taps) and
-    ``weight_sum`` (float32), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
+    ``depth_slope`` (float32 [m/pixel]), ``guide`` (vec4: n, z [m]) and ``color_variance`` (2 x vec4: colour,
+    Var; the à-trous levels' packed input and output, ping-ponged), ``filtered_variance`` (float32: luminance
+    variance of the last level, or of filter_moments without levels).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
@@ -89,12 +90,10 @@ class SVGF:
         self.moments = one(wp.vec2)
         self.history = one(wp.int32)
         self.depth_slope = one(wp.float32)
-        self.guide_a = one(wp.vec4)
-        self.guide_b = one(wp.vec4)
-        self.color_variance = one(wp.vec4)
-        self.weight_sum = one(wp.float32)
-        self.filtered_color = one(wp.vec3), one(wp.vec3)
-        self.filtered_variance = one(wp.float32), one(wp.float32)
+        self.guide = one(wp.vec4)
+        self.color_variance = one(wp.vec4), one(wp.vec4)
+        self.filtered_variance = one(wp.float32)
+        spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
     @property
     def history_length(self) -> wp.array:
@@ -104,7 +103,7 @@ class SVGF:
     @property
     def variance(self) -> wp.array:
         """Luminance variance after the last à-trous level of the last frame, H*W float32."""
-        return self.filtered_variance[self.settings.atrous_levels % 2]
+        return self.filtered_variance
 
     def reset(self) -> None:
         """Forget all history: the next frame is treated as disoccluded everywhere."""
@@ -135,20 +134,17 @@ class SVGF:
             wp.launch(K.store_history, dim=w * h, device=d, inputs=[self.integrated, self.parity],
                       outputs=[self.hist_color])
         wp.launch(K.filter_moments, dim=dim, device=d,
-                  inputs=[self.moments, self.history, self.depth, self.normal, w, h, s.sigma_depth, s.sigma_normal],
-                  outputs=[self.filtered_variance[0], self.depth_slope])
+                  inputs=[self.moments, self.history, self.depth, self.normal, w, h, s.sigma_depth, s.sigma_normal,
+                          self.integrated],
+                  outputs=[self.filtered_variance, self.depth_slope, self.guide, self.color_variance[0]])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
-        color_src = self.integrated
         for level in range(s.atrous_levels):
-            src, dst = level % 2, (level + 1) % 2
-            color_dst = out if level == s.atrous_levels - 1 else self.filtered_color[dst]
-            launch_atrous_level(color_src, self.filtered_variance[src], self.depth, self.normal, self.depth_slope,
-                                w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance,
-                                s.conserve_energy, self.guide_a, self.guide_b, self.color_variance, self.weight_sum, color_dst,
-                                self.filtered_variance[dst])
-            if level == s.feedback_level:
-                wp.launch(K.store_history, dim=w * h, device=d, inputs=[color_dst, self.parity],
-                          outputs=[self.hist_color])
-            color_src = color_dst
+            last = level == s.atrous_levels - 1
+            feedback = level == s.feedback_level
+            launch_atrous(self.color_variance[level % 2], self.guide, self.depth_slope, w, h, 1 << level,
+                          s.sigma_depth, s.sigma_normal, s.sigma_luminance, s.conserve_energy,
+                          color_variance_out=None if last else self.color_variance[(level + 1) % 2],
+                          color_out=out if last else None, variance_out=self.filtered_variance if last else None,
+                          hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None)
         wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
