@@ -25,6 +25,103 @@ CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJEC
 
 
 @wp.func
+def march_light(
+    light: ViewParams,
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) the light view's opaque depth [m] (read)
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
+    origin: wp.vec3,  # [m] where the photon leaves the specular surface
+    d: wp.vec3,  # unit direction after the bounce
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+):
+    """Step 4 of seed 000 for one photon: march the light view's opaque depth from a hair off the surface.
+    Returns (march status, end point [m]): the crossing on ``MARCH_HIT``, else the last point inside the view."""
+    o = origin + d * (1.0e-4 * t_max)
+    status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
+                                                 thickness, thickness_rel)
+    return status, o + d * t_end
+
+
+@wp.func
+def read_again(views: wp.array(dtype=ViewParams), index: int, anchor: int) -> ViewParams:
+    """``views[index]`` read from memory once more, for a kernel that read it before a march and needs it again
+    after: ``anchor`` is any value the caller knows to be >= 0, so the index is ``index`` while the compiler cannot
+    prove the address that of the earlier read. It then loads the view again (a few L1/L2 hits) instead of keeping
+    the earlier read's fields live through the march, where CISP's trace spills them at its register bound."""
+    return views[index + wp.min(anchor, 0)]
+
+
+#: :func:`reproject_to_camera`'s answer for a photon floating in front of the camera's surfaces (not a ledger entry)
+MARCH_ON = wp.constant(-1)
+
+
+@wp.func
+def reproject_to_camera(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) the camera's opaque depth [m] (read)
+    status: int,  # what :func:`march_light` returned
+    x_end: wp.vec3,  # [m] where the light-view march ended
+    thickness: float,
+    thickness_rel: float,
+    use_cascade: int,  # 0: light view only (no camera march)
+):
+    """Step 5 of seed 000, the cascade (Fig. 7): where the light-view march that ended at ``x_end`` with ``status``
+    lands in the camera view. Returns (entry, camera pixel): ``L_STORED`` on the surface pixel ``pix`` shows,
+    ``MARCH_ON`` floating in front of the camera's surfaces (march on in the camera view: :func:`march_camera`),
+    else the ledger entry where the photon was lost (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``)."""
+    if status == MARCH_STEPS:
+        return L_STEPS, int(-1)
+    q = world_project(camera, x_end)
+    inside = q[2] > camera.near and q[0] >= 0.0 and q[1] >= 0.0 and q[0] < float(camera.width) and q[1] < float(camera.height)
+    if not inside:
+        if status == MARCH_HIT:
+            return L_LOST_CAMERA, int(-1)
+        return L_LOST_LIGHT, int(-1)
+    pix = int(q[1]) * camera.width + int(q[0])
+    zc = cam_depth[pix]
+    tol = thickness + thickness_rel * zc
+    if zc > 0.0 and q[2] > zc + tol:
+        return L_OCCLUDED, pix
+    if zc > 0.0 and q[2] >= zc - tol:
+        return L_STORED, pix
+    if use_cascade == 0:
+        return L_LOST_LIGHT, int(-1)
+    return MARCH_ON, int(-1)
+
+
+@wp.func
+def march_camera(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) the camera's opaque depth [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    x_end: wp.vec3,  # [m] where the light-view march ended, in front of the camera's surfaces
+    d: wp.vec3,  # unit direction after the bounce
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+):
+    """The cascade's second chance: march on from ``x_end`` in the camera view. Returns (entry, end point [m], steps):
+    ``L_STORED`` with the crossing, or ``L_STEPS`` / ``L_LOST_CAMERA`` with ``x_end``."""
+    status, t2, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
+                                             thickness, thickness_rel)
+    if status == MARCH_STEPS:
+        return L_STEPS, x_end, steps
+    if status != MARCH_HIT:
+        return L_LOST_CAMERA, x_end, steps
+    return L_STORED, x_end + d * t2, steps
+
+
+@wp.func
+def camera_pixel(camera: ViewParams, x: wp.vec3) -> int:
+    """The camera pixel a camera-march crossing ``x`` [m] lies in (clamped to the image)."""
+    q = world_project(camera, x)
+    return wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
+
+
+@wp.func
 def march_cascade(
     light: ViewParams,
     camera: ViewParams,
@@ -40,45 +137,21 @@ def march_cascade(
     thickness_rel: float,
     use_cascade: int,  # 0: light view only (no camera march)
 ):
-    """Steps 4-5 of seed 000 for one photon: march the light view, reproject the end point into the camera
-    view, march on there. Returns (ledger entry where the photon ends, end point [m], camera pixel): the
-    entry is ``L_STORED`` when the photon reached the surface camera pixel ``pix`` shows (validation and the
-    store are the caller's), else where it was lost (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``)."""
-    # 4. march the light view's opaque depth (start a hair off the surface)
-    o = origin + d * (1.0e-4 * t_max)
-    status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
-                                                 thickness, thickness_rel)
-    light_hit = status == MARCH_HIT
-    x_end = o + d * t_end
-    if status == MARCH_STEPS:
-        return L_STEPS, x_end, int(-1)
-    # 5. cascade: reproject into the camera view (Fig. 7)
-    q = world_project(camera, x_end)
-    inside = q[2] > camera.near and q[0] >= 0.0 and q[1] >= 0.0 and q[0] < float(camera.width) and q[1] < float(camera.height)
-    if not inside:
-        if light_hit:
-            return L_LOST_CAMERA, x_end, int(-1)
-        return L_LOST_LIGHT, x_end, int(-1)
-    pix = int(q[1]) * camera.width + int(q[0])
-    zc = cam_depth[pix]
-    tol = thickness + thickness_rel * zc
-    if zc > 0.0 and q[2] > zc + tol:
-        return L_OCCLUDED, x_end, pix
-    on_surface = zc > 0.0 and q[2] >= zc - tol
-    if not on_surface:
-        if use_cascade == 0:
-            return L_LOST_LIGHT, x_end, int(-1)
-        # floating in front of the camera's surfaces: the second chance, march on in the camera view
-        status, t2, steps2 = screen_march_bounded(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
-                                                  thickness, thickness_rel)
-        if status == MARCH_STEPS:
-            return L_STEPS, x_end, int(-1)
-        if status != MARCH_HIT:
-            return L_LOST_CAMERA, x_end, int(-1)
-        x_end = x_end + d * t2
-        q = world_project(camera, x_end)
-        pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
-    return L_STORED, x_end, pix
+    """Steps 4-5 of seed 000 for one photon: march the light view (:func:`march_light`), reproject the end point
+    into the camera view (:func:`reproject_to_camera`), march on there (:func:`march_camera`). Returns (ledger entry
+    where the photon ends, end point [m], camera pixel): the entry is ``L_STORED`` when the photon reached the
+    surface camera pixel ``pix`` shows (validation and the store are the caller's), else where it was lost
+    (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``). For callers that hold both views anyway (the wavefront grid);
+    :func:`trace_photon` runs the same steps reading each view where it needs it."""
+    status, x_end = march_light(light, rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max, max_steps, thickness,
+                                thickness_rel)
+    entry, pix = reproject_to_camera(camera, cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
+    if entry == MARCH_ON:
+        entry, x_end, steps = march_camera(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps, thickness,
+                                           thickness_rel)
+        if entry == L_STORED:
+            pix = camera_pixel(camera, x_end)
+    return entry, x_end, pix
 
 
 @wp.func
@@ -87,10 +160,11 @@ def trace_photon(
     origin: wp.vec3,  # [m] on the specular surface
     d: wp.vec3,  # unit direction after the bounce
     power: wp.vec3,  # [W] after the bounce
-    light: ViewParams,
+    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (read)
+    view_index: int,  # the view the photon left from
     rsm_opaque_depth: wp.array(dtype=wp.float32),  # (Hl*Wl,) light view's opaque depth [m] (read)
     rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
-    camera: ViewParams,
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
     cam_depth: wp.array(dtype=wp.float32),
     cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
     cam_position: wp.array(dtype=wp.vec3),
@@ -106,15 +180,23 @@ def trace_photon(
     tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored)
 ):
-    """Steps 4-7 of one emitted photon: march the light view, cascade into the camera view (:func:`march_cascade`),
-    validate, store; its final entry booked."""
-    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
-                                      origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
+    """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
+    (:func:`cascade_camera`), validate, store; its final entry booked. Each view is read from memory where it is
+    needed, so that no view is held in registers through the march of the other (the light view through the
+    camera march, the camera through the light march: 336 -> 168 B of stack at the trace's launch bound)."""
+    status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
+                                max_steps, thickness, thickness_rel)
+    entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
+    if entry == MARCH_ON:
+        entry, x_end, steps = march_camera(cameras[0], cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
+                                           thickness, thickness_rel)
+        if entry == L_STORED:
+            pix = camera_pixel(read_again(cameras, 0, steps), x_end)
     if entry != L_STORED:
         book(tally, entry, power)
         return
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
-    if deposit(camera, pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
+    if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, tally) != 0:
         hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
 
@@ -202,10 +284,9 @@ def trace_photons(
             max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
     ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()
-    if texel >= 0:
-        camera = cameras[0]  # read after the emission, where the march needs it
-        trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
-                     cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
-                     t_max, footprint_mode, use_cascade, photon_map, tally, hits)
+    if texel >= 0:  # the views are read again where each march needs them (trace_photon)
+        trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
+                     cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
+                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, tally, hits)
     if t < n_slots:
         record_outcome(outcome, t, tally)
