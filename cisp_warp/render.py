@@ -329,12 +329,23 @@ class Renderer:
                       inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.sky_irradiance,
                               self.surface_radiance])
             ps = self.settings.photons
-            build_bounds(g.depth, g.width, g.height, ps.thickness, 0.02, self.depth_bounds, self.device)
+            bounds = self._composite_bounds()
+            if bounds is self.depth_bounds:
+                build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, bounds, self.device)
             wp.launch(composite, dim=n, device=self.device,
-                      inputs=[self.inputs.cameras, g.depth, self.depth_bounds, self.surface_radiance, w.depth, w.position,
+                      inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
                               w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
+
+    def _composite_bounds(self) -> wp.array:
+        """The camera depth bounds the composite marches on: the photon pass's own (CISP builds them from this frame's
+        depth with the same thicknesses when ``thickness_rel`` is the composite's), else ``depth_bounds``, built
+        by the caller."""
+        own = getattr(self.photons, "cam_bounds", None)
+        if own is not None and float(self.settings.photons.thickness_rel) == COMPOSITE_THICKNESS_REL:
+            return own
+        return self.depth_bounds
 
     def aovs(self, include_rsm: bool = True) -> dict[str, np.ndarray]:
         """Host copies of the frame's AOVs, images of shape (height, width[, C]), float32 / int32.
@@ -374,6 +385,9 @@ class Renderer:
         g = self.gbuffer
         return box_filter(self.final.numpy().reshape(g.height, g.width, 3), self.settings.supersample)
 
+
+#: relative surface thickness of the composite's screen-space lookups (``shade.screen_space_lookup``)
+COMPOSITE_THICKNESS_REL = 0.02
 
 #: AOVs that are means over a pixel's samples when supersampling (the rest take the central sample)
 AVERAGED_AOVS = frozenset({"final", "photon_map", "caustics", "direct_irradiance", "sky_irradiance", "albedo"})

@@ -61,25 +61,25 @@ def shadow_visibility(view: ViewParams, shadow_depth: wp.array(dtype=wp.float32)
     return int(1), vis
 
 
-@wp.kernel
-def direct_light(
+@wp.func
+def _direct(
     shadow_view: ViewParams,
-    shadow_depth: wp.array(dtype=wp.float32),  # (Hs*Ws,) nearest surface depth of the shadow map [m] (read)
-    exclusive: int,  # 1: add only points inside this view (one of several cube faces)
-    kind: int,  # LightKind
-    light_rgb: wp.vec3,  # W/m² (distant) or W/sr (point, spot)
-    light_pos: wp.vec3,  # [m]
-    light_dir: wp.vec3,  # unit direction of travel (distant), spot axis
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
     cone_angle: float,
     cone_softness: float,
-    depth: wp.array(dtype=wp.float32),  # (H*W,) camera G-buffer (read)
+    depth: wp.array(dtype=wp.float32),
     position: wp.array(dtype=wp.vec3),
     normal: wp.array(dtype=wp.vec3),
-    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) direct irradiance [W/m²] on the opaque surface (accumulate)
-):
-    p = wp.tid()
+    p: int,
+) -> wp.vec3:
+    """Pixel ``p``'s direct irradiance [W/m²] from one shadow map of one light (zero where it adds nothing)."""
     if depth[p] <= 0.0:
-        return
+        return wp.vec3(0.0)
     x = position[p]
     n = normal[p]
     e = wp.vec3(0.0)
@@ -95,11 +95,37 @@ def direct_light(
             e = e * spot_falloff(wp.dot(-to_light, light_dir), cone_angle, cone_softness)
     cos_n = wp.dot(n, to_light)
     if cos_n <= 0.0:
-        return
+        return wp.vec3(0.0)
     inside, vis = shadow_visibility(shadow_view, shadow_depth, x, n, to_light)
     if exclusive != 0 and inside == 0:
-        return
-    irradiance[p] = irradiance[p] + e * (cos_n * vis)
+        return wp.vec3(0.0)
+    return e * (cos_n * vis)
+
+
+@wp.kernel
+def direct_light(
+    shadow_view: ViewParams,
+    shadow_depth: wp.array(dtype=wp.float32),  # (Hs*Ws,) nearest surface depth of the shadow map [m] (read)
+    exclusive: int,  # 1: add only points inside this view (one of several cube faces)
+    kind: int,  # LightKind
+    light_rgb: wp.vec3,  # W/m² (distant) or W/sr (point, spot)
+    light_pos: wp.vec3,  # [m]
+    light_dir: wp.vec3,  # unit direction of travel (distant), spot axis
+    cone_angle: float,
+    cone_softness: float,
+    depth: wp.array(dtype=wp.float32),  # (H*W,) camera G-buffer (read)
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    first: int,  # 1: the frame's first shadow map: write the irradiance (0 where unlit), else add to it
+    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) direct irradiance [W/m²] on the opaque surface (write or accumulate)
+):
+    p = wp.tid()
+    e = _direct(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle, cone_softness,
+                depth, position, normal, p)
+    if first != 0:
+        irradiance[p] = wp.vec3(0.0) + e  # as adding to a zeroed buffer (-0 becomes +0)
+    elif e[0] != 0.0 or e[1] != 0.0 or e[2] != 0.0:
+        irradiance[p] = irradiance[p] + e
 
 
 @wp.kernel
@@ -209,7 +235,10 @@ class DirectLighting:
         self.irradiance = wp.zeros(gbuffer.width * gbuffer.height, dtype=wp.vec3, device=device)
 
     def render(self, gbuffer: GBuffer, lights: list[LightMaps]) -> None:
-        self.irradiance.zero_()
+        """Write ``irradiance``: the first shadow map's launch writes every pixel (no memset first), the rest add."""
+        first = 1
+        if not any(lm.shadow_maps() for lm in lights):
+            self.irradiance.zero_()
         for lm in lights:
             light = lm.light
             maps = lm.shadow_maps()
@@ -220,7 +249,8 @@ class DirectLighting:
                                   wp.vec3(*np.asarray(light.position, np.float32)),
                                   wp.vec3(*np.asarray(light.direction, np.float32)),
                                   float(light.cone_angle), float(light.cone_softness),
-                                  gbuffer.depth, gbuffer.position, gbuffer.normal, self.irradiance])
+                                  gbuffer.depth, gbuffer.position, gbuffer.normal, first, self.irradiance])
+                first = 0
 
 
 __all__ = ["DirectLighting", "composite", "direct_light", "LightKind"]

@@ -76,3 +76,21 @@ def compare(f, v, device, max_steps):
         same = (f[:, 0] == v[:, 0]) & (f[:, 2] == v[:, 2])
         assert same.mean() > 0.999
         np.testing.assert_allclose(f[same, 1], v[same, 1], rtol=1e-5, atol=1e-6)
+
+
+def test_bounds_of_an_inactive_view_are_kept(device, rng):
+    """``build_bounds`` with the view array: an active view gets the bounds built without it; an inactive one
+    (``far`` = 0, a fitted cascade that emits nothing this frame) returns at once and keeps the old bounds."""
+    w, h = 70, 45
+    depth = wp.array(random_depth(rng, w, h), device=device)
+    want = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
+    build_bounds(depth, w, h, 0.02, 0.02, want, device)
+    views = [View(np.eye(4), w, h, near=0.1, far=far, fx=50.0, fy=50.0).params() for far in (100.0, 0.0)]
+    views = wp.array(views, dtype=ViewParams, device=device)
+    got = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
+    build_bounds(depth, w, h, 0.02, 0.02, got, device, views, 0)
+    np.testing.assert_array_equal(got.numpy(), want.numpy())
+    stale = np.full((bounds_size(w, h), 2), 7.0, np.float32)
+    got.assign(stale)
+    build_bounds(depth, w, h, 0.02, 0.02, got, device, views, 1)
+    np.testing.assert_array_equal(got.numpy(), stale)

@@ -179,3 +179,55 @@ def test_motion_vectors_follow_camera(device):
     f = 0.5 * 48 / math.tan(math.radians(25))
     np.testing.assert_allclose(mv[..., 0], f * 0.1 / 3.0, rtol=1e-3)
     np.testing.assert_allclose(mv[..., 1], 0.0, atol=1e-3)
+
+
+def test_resolves_leave_visibility_clear_for_the_next_draw(device):
+    """The frame draws without clearing its visibility buffers (``draw(clear=False)``): each resolve resets what it
+    read. So after a frame every buffer is clear again, and a second frame from another camera and light pose is
+    the frame a fresh renderer draws (a key left from the first would win the depth test where the second draws
+    farther or nothing)."""
+    cams = [Camera(look_at_matrix(e, (0.0, -0.5, 0.0)), fov_y=math.radians(70), near=0.02, far=10.0, width=48, height=32)
+            for e in ((0.2, 0.3, 0.9), (-0.7, 0.8, 0.6))]
+    lights = [Light(LightKind.SPOT, "spot", intensity=3.0, position=p, direction=(0, -1, 0), cone_angle=math.radians(50))
+              for p in ((0.0, 0.9, 0.0), (0.4, 0.5, -0.3))]
+    scene = make_scene(box_room(), cams[0], [lights[0]])
+    ds = DeviceScene(scene, device)
+    raster = Rasterizer(ds)
+
+    def frame(g, lm, k):
+        if lm.light is not lights[k]:
+            lm.set_light(lights[k])
+        v = camera_view(cams[k]).params()
+        g.render(raster, v, v)
+        lm.render(raster)
+        out = {f"cam_{a}": b for a, b in g.numpy().items()}
+        for r in lm.rsm:
+            out.update(r.numpy(prefix=f"{r.view.name}_"))
+        return out
+
+    g, lm = GBuffer.allocate(48, 32, device), LightMaps(ds, lights[0], 32)
+    frame(g, lm, 0)
+    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
+    buffers = [g.visibility, g.water.visibility] + [b for r in lm.rsm for b in (r.visibility, r.specular.visibility)]
+    assert all(np.all(b.numpy() == empty) for b in buffers)
+    second = frame(g, lm, 1)
+    fresh = frame(GBuffer.allocate(48, 32, device), LightMaps(ds, lights[0], 32), 1)  # moved by set_light too
+    assert second.keys() == fresh.keys()
+    for k in second:
+        np.testing.assert_array_equal(second[k], fresh[k], err_msg=k)
+    assert (second["cam_water_tri_id"] >= 0).any() and (second["cam_tri_id"] >= 0).all()
+
+
+def test_rsm_shadow_depth_is_the_nearer_layer(device):
+    """The specular resolve writes an RSM's shadow depth: the specular depth where there is a specular surface in
+    front of the opaque one, else the opaque depth (0 where neither)."""
+    light = Light(LightKind.SPOT, "spot", intensity=3.0, position=(0.0, 0.9, 0.0), direction=(0, -1, 0),
+                  cone_angle=math.radians(50))
+    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
+    ds = DeviceScene(make_scene(box_room(), cam, [light]), device)
+    lm = LightMaps(ds, light, 48)
+    lm.render(Rasterizer(ds))
+    r = lm.rsm[0]
+    spec, opaque = r.specular.depth.numpy(), r.opaque_depth.numpy()
+    assert (spec > 0).any() and ((spec == 0) & (opaque > 0)).any()
+    np.testing.assert_array_equal(r.shadow_depth.numpy(), np.where(spec > 0, spec, opaque))

@@ -79,11 +79,28 @@ def camera_pixel_solid_angle(view: View) -> np.ndarray:
     return view.texel_solid_angle().astype(np.float32).reshape(-1)
 
 
+#: key bits per pass of the CUB radix sort behind ``wp.utils.radix_sort_pairs`` on CUDA (onesweep, 4-byte keys)
+SORT_PASS_BITS = 8
+
+
+def morton_sort_bits(side: int) -> tuple[int, int]:
+    """(begin_bit, end_bit) of the Morton keys of a view of ``side`` texels to sort photons by: the key's top bits
+    in an even number of radix passes. CUB sorts ping-pong between the keys and their second half; after an odd
+    number of passes the result lies in the second half and Warp copies keys and values back (two device copies a
+    sort). A 2048² view's 22-bit keys take 3 passes; their top 16 bits take 2, and the 6 bits left out only order
+    photons within 8x8-texel blocks (which keep their R2 order, as coherent for the trace)."""
+    end = 2 * max(1, (side - 1).bit_length())
+    passes = -(-end // SORT_PASS_BITS)
+    if passes % 2 == 1 and passes > 1:
+        passes -= 1
+    return max(0, end - passes * SORT_PASS_BITS), end
+
+
 class Ledger:
     """Where the photons' power went in one frame, per RGB channel [W]."""
 
     def __init__(self, values: np.ndarray):
-        self.values = np.asarray(values, dtype=np.float64).reshape(C.LEDGER_ENTRIES, 3)
+        self.values = np.array(values, dtype=np.float64).reshape(C.LEDGER_ENTRIES, 3)  # a copy: not a device view
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.values[C.LEDGER_NAMES.index(name)]
@@ -153,27 +170,47 @@ class PhotonPass:
         self.lights = lights
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
-        #: (3 * LEDGER_ENTRIES,) float64: the frame's ledger, power [W] per entry and RGB channel, once folded
-        self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
-        self._ledger_entries = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,),
-                                        device=self.device)  # (LEDGER_ENTRIES,) vec3d alias of ``ledger``
+        # the frame's accumulators, zeroed together by one memset in begin(): the striped ledger, the ledger, and
+        # each light's brightest texel; views of one float64 buffer (``_accumulators``), in this order
+        self.ledger_stripes = C.LEDGER_STRIPES if self.device.is_cuda else 1
+        n_rows = self.ledger_stripes * C.LEDGER_ROW
+        n_lum = max(1, (len(lights) + 1) // 2)  # float64 words holding the float32 maxima
+        self._accumulators = wp.zeros(3 * n_rows + 3 * C.LEDGER_ENTRIES + n_lum, dtype=wp.float64, device=self.device)
+        base = self._accumulators.ptr
         #: (stripes * LEDGER_ROW,) vec3d: the striped ledger the photon kernels add to (block b: stripe b % stripes),
         #: summed into ``ledger`` by :meth:`fold_ledger`. One stripe on the CPU: entries added in photon order
-        self.ledger_stripes = C.LEDGER_STRIPES if self.device.is_cuda else 1
-        self.ledger_rows = wp.zeros(self.ledger_stripes * C.LEDGER_ROW, dtype=wp.vec3d, device=self.device)
-        self.max_lum = wp.zeros(len(lights), dtype=wp.float32, device=self.device)
+        self.ledger_rows = wp.array(ptr=base, dtype=wp.vec3d, shape=(n_rows,), device=self.device)
+        #: (3 * LEDGER_ENTRIES,) float64: the frame's ledger, power [W] per entry and RGB channel, once folded
+        self.ledger = wp.array(ptr=base + 24 * n_rows, dtype=wp.float64, shape=(3 * C.LEDGER_ENTRIES,),
+                               device=self.device)
+        self._ledger_entries = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,),
+                                        device=self.device)  # (LEDGER_ENTRIES,) vec3d alias of ``ledger``
+        #: (lights,) float32: each light's brightest whole-view texel luminance [W] this frame (max_luminance)
+        self.max_lum = wp.array(ptr=base + 24 * n_rows + 24 * C.LEDGER_ENTRIES, dtype=wp.float32,
+                                shape=(len(lights),), device=self.device)
+        for alias in (self.ledger_rows, self.ledger, self._ledger_entries, self.max_lum):
+            alias._owner = self._accumulators  # views of it (host copies via numpy() too) keep the memory alive
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
         self.t_max = float(t_max)
         self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
         sort = settings.sort_photons if settings.sort_photons is not None else self.device.is_cuda
         self.use_order = 1 if sort else 0
-        n_sort = 2 * self.max_photons_per_view() if sort and settings.splat == "point" else 1  # a grid needs no order
-        self._sort_keys = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
-        self._order = wp.zeros(n_sort, dtype=wp.int32, device=self.device)
+        n_max = self.max_photons_per_view() if sort and settings.splat == "point" else 0  # a grid needs no order
         #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU
         #: tiles one thread per block unless ``wp.config.enable_cpu_blocks`` is set (a test does, to check the sums)
         self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
+        #: (2 * max photons,) int32: Morton keys and texel order (the radix sort's two halves), then march groups
+        self._sort_keys = wp.zeros(max(1, 2 * n_max), dtype=wp.int32, device=self.device)
+        self._order = wp.zeros(max(1, 2 * n_max), dtype=wp.int32, device=self.device)
+        #: (max photons,) int32: the photons grouped by march (photon_order's result, the trace's ``order``)
+        self._grouped = wp.zeros(max(1, n_max), dtype=wp.int32, device=self.device)
+        #: blocks of the group partition (photon_group_keys / photon_group_scatter) and their counts per group
+        self.group_block = C.SORT_GROUP_BLOCK if self.device.is_cuda else 1
+        n_blocks = max(1, (n_max + self.group_block - 1) // self.group_block)
+        self._group_counts = wp.zeros(C.SORT_GROUPS * n_blocks, dtype=wp.int32, device=self.device)
+        self._group_offsets = wp.zeros(C.SORT_GROUPS * n_blocks, dtype=wp.int32, device=self.device)
+        self._group_views = {}  # blocks -> (counts, offsets) views of the first SORT_GROUPS * blocks entries
         #: most blocks of the outcome pass (CUDA: each thread sums many records); None: one record per thread
         self.outcome_max_blocks = C.OUTCOME_BLOCKS_PER_SM * self.device.sm_count if self.device.is_cuda else None
         #: the cameras and random streams the kernels read (``frame.FrameInputs``); a renderer shares its own, which
@@ -211,9 +248,7 @@ class PhotonPass:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
-        self.ledger.zero_()
-        self.ledger_rows.zero_()
-        self.max_lum.zero_()
+        self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
         for li, lm in enumerate(self.lights):
             for r in lm.whole_rsm:
                 n = r.width * r.height
@@ -261,23 +296,34 @@ class PhotonPass:
 
     def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
         """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
-        ``use_order``): by texel (Morton), then stably grouped by how each will march (refracted, reflected, not
-        traced; :func:`~.common.photon_group_keys`), two radix sorts over only the key bits in use; slots past
-        the view's photon count (on the device) last."""
+        ``use_order``): by texel (Morton: a radix sort over the key's top bits, :func:`morton_sort_bits`), then
+        stably grouped by how each will march (refracted, reflected, not traced; :func:`~.common.photon_group_keys`
+        counts each group per block, a scan of the counts places the blocks, :func:`~.common.photon_group_scatter`
+        writes the grouped order into ``_grouped``: no second sort, no device copies); slots past the view's photon
+        count (on the device) last."""
         if self.use_order and slots > 0:
             wp.launch(C.photon_sort_keys, dim=slots, device=self.device,
                       inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
                               self._sort_keys, self._order])
             side = min(max(r.width, r.height), 1 << 14)
-            wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, end_bit=2 * max(1, (side - 1).bit_length()))
+            begin, end = morton_sort_bits(side)
+            wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
             sp, sc = r.specular, lm.scene
-            wp.launch(C.photon_group_keys, dim=slots, device=self.device, inputs=[
+            blocks = (slots + self.group_block - 1) // self.group_block
+            if blocks not in self._group_views:  # CUDA launches fixed slots: one pair of views, made at the first frame
+                n = C.SORT_GROUPS * blocks
+                self._group_views[blocks] = (self._group_counts[:n], self._group_offsets[:n])
+            counts, offsets = self._group_views[blocks]
+            wp.launch_tiled(C.photon_group_keys, dim=blocks, block_dim=self.group_block, device=self.device, inputs=[
                 lm.views, lm.states, view_index, self.settings.photons, int(lm.light.kind),
                 wp.vec3(*np.asarray(lm.light.position, np.float32)), self.inputs.randoms, stream,
                 sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, sc.triangle_material,
                 sc.opacity, max_lum, float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
-                self._order, self._sort_keys])
-            wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, end_bit=C.SORT_GROUP_BITS)
+                self._order, slots, self._sort_keys, counts])
+            wp.utils.array_scan(counts, offsets, inclusive=False)
+            wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=self.group_block, device=self.device,
+                            inputs=[self._sort_keys, self._order, slots, offsets, self._grouped])
+            return self._grouped
         return self._order
 
     def rsm_batches(self, frame: int) -> Iterator[RSMBatch]:

@@ -15,13 +15,16 @@ __all__ = ["CISP", "Ledger", "PhotonSettings", "camera_pixel_solid_angle", "fram
 
 
 def build_bounds(depth: wp.array, width: int, height: int, thickness: float, thickness_rel: float, bounds: wp.array,
-                 device) -> None:
-    """Fill ``bounds`` (``march.bounds_size``) with the fine and coarse depth bounds of ``depth``."""
+                 device, views: wp.array | None = None, view_index: int = 0) -> None:
+    """Fill ``bounds`` (``march.bounds_size``) with the fine and coarse depth bounds of ``depth``. ``views``: the
+    light views ``depth`` belongs to, ``views[view_index]`` (device array): when that view is inactive this frame
+    (a fitted cascade with ``far`` = 0, launched on CUDA with fixed dims) the kernels return at once and the bounds
+    keep their last values, which nothing marches; None: always build (the camera)."""
     fx, fy = M.bounds_shape(width, height, M.BOUNDS_CELL)
     cx, cy = M.bounds_shape(width, height, M.BOUNDS_COARSE)
     wp.launch(M.depth_bounds, dim=fx * fy, device=device,
-              inputs=[depth, width, height, float(thickness), float(thickness_rel), bounds])
-    wp.launch(M.coarsen_bounds, dim=cx * cy, device=device, inputs=[width, height, bounds])
+              inputs=[views, int(view_index), depth, width, height, float(thickness), float(thickness_rel), bounds])
+    wp.launch(M.coarsen_bounds, dim=cx * cy, device=device, inputs=[views, int(view_index), width, height, bounds])
 
 
 class CISP(PhotonPass):
@@ -54,8 +57,10 @@ class CISP(PhotonPass):
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
 
-    def _build_bounds(self, depth: wp.array, width: int, height: int, bounds: wp.array) -> None:
-        build_bounds(depth, width, height, self.settings.thickness, self.settings.thickness_rel, bounds, self.device)
+    def _build_bounds(self, depth: wp.array, width: int, height: int, bounds: wp.array, views: wp.array | None = None,
+                      view_index: int = 0) -> None:
+        build_bounds(depth, width, height, self.settings.thickness, self.settings.thickness_rel, bounds, self.device,
+                     views, view_index)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
@@ -71,7 +76,7 @@ class CISP(PhotonPass):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
             rsm_bounds = self.rsm_bounds[b.light_index][b.view_index]
-            self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
+            self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds, b.lights.views, b.view_index)
             self.launch_photons(K.trace_photons, b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,

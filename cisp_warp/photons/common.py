@@ -315,21 +315,34 @@ def photon_sort_keys(
 SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
 SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
 SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
-SORT_GROUP_BITS = 2  #: key bits of a march group
 SORT_GROUP_LAST = wp.constant(3)  #: slots past the view's photon count (fixed launch dims): after every group
 
 
-@wp.kernel
-def photon_group_keys(
-    views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
-    states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
+SORT_GROUPS = 4  #: march groups including SORT_GROUP_LAST: the partition's block counts per group
+SORT_GROUP_BLOCK = 256  #: threads per block of the group partition on CUDA (< 2^SORT_COUNT_BITS)
+SORT_COUNT_BITS = wp.constant(10)  #: bits of one group's count in a packed block count (blocks of <= 1023 threads)
+
+
+@wp.func
+def _group_count_bit(group: int) -> int:
+    """A photon of ``group`` as a packed count: 1 in the group's field for the first three groups (SORT_COUNT_BITS
+    each); 0 for SORT_GROUP_LAST (counted as the rest) and for padding lanes (group -1)."""
+    if group < 0 or group >= SORT_GROUP_LAST:
+        return 0
+    return 1 << (SORT_COUNT_BITS * group)
+
+
+@wp.func
+def _march_group(
+    views: wp.array(dtype=ViewParams),
+    states: wp.array(dtype=CascadeState),
     view_index: int,
-    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,  # [m]
-    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
-    stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
-    rsm_position: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
+    light_photons: int,
+    light_kind: int,
+    light_pos: wp.vec3,
+    randoms: wp.array(dtype=wp.vec3i),
+    stream: int,
+    rsm_position: wp.array(dtype=wp.vec3),
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
@@ -337,23 +350,16 @@ def photon_group_keys(
     rsm_tri: wp.array(dtype=wp.int32),
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
-    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    max_lum: wp.array(dtype=wp.float32),
     roughness_cutoff: float,
-    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
-    order: wp.array(dtype=wp.int32),  # (2N,) photon index per thread, in texel order (read, first N)
-    keys: wp.array(dtype=wp.int32),  # (2N,) march group of thread t's photon (write, first N)
-):
-    """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent);
-    a stable sort on these keys then groups the photons and keeps texel order inside each group. The group is a
-    cheap prediction of what the trace kernel will do with photon k: not traced (culled exactly as
-    :func:`emit_photon` culls), reflected or refracted (the first draw of the photon's own random stream against
-    Fresnel at the texel's normal; the trace uses the exact normal under the sample, so a few photons land in the
-    other group). Each photon is still traced in full as photon k: only the order of the threads changes."""
-    t = wp.tid()
+    luminance_cutoff: float,
+    order: wp.array(dtype=wp.int32),
+    t: int,
+) -> int:
+    """The march group of thread ``t``'s photon (see :func:`photon_group_keys`)."""
     cascade = states[view_index]
     if t >= cascade_photons(cascade, light_photons):  # slots past the view's photons (fixed launch dims): last
-        keys[t] = SORT_GROUP_LAST
-        return
+        return SORT_GROUP_LAST
     light = views[view_index]
     rnd = randoms[stream]
     seed = rnd[2]
@@ -385,7 +391,90 @@ def photon_group_keys(
                 state = wp.rand_init(seed, k)
                 if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
                     group = SORT_REFRACTED
-    keys[t] = group
+    return group
+
+
+@wp.kernel
+def photon_group_keys(
+    views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
+    rsm_position: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    roughness_cutoff: float,
+    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
+    order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read, first N)
+    n_slots: int,  # N: threads to group (the launch is whole blocks; lanes past N are padding)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, first N)
+    block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) photons per (group, block), group-major (write)
+):
+    """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent),
+    and how many of each group each block holds; :func:`photon_group_scatter` then groups the photons stably, so
+    texel order holds inside each group. The group is a cheap prediction of what the trace kernel will do with
+    photon k: not traced (culled exactly as :func:`emit_photon` culls), reflected or refracted (the first draw of
+    the photon's own random stream against Fresnel at the texel's normal; the trace uses the exact normal under the
+    sample, so a few photons land in the other group). Each photon is still traced in full as photon k: only the
+    order of the threads changes. Launched tiled; a block's counts are one packed tile sum."""
+    block, lane = wp.tid()
+    bd = wp.block_dim()
+    t = block * bd + lane
+    group = int(-1)
+    if t < n_slots:
+        group = _march_group(views, states, view_index, light_photons, light_kind, light_pos, randoms, stream,
+                             rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri, triangle_material,
+                             mat_opacity, max_lum, roughness_cutoff, luminance_cutoff, order, t)
+        keys[t] = group
+    packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
+    if lane == 0:
+        blocks = block_counts.shape[0] / SORT_GROUPS
+        c = packed[0]
+        mask = (1 << SORT_COUNT_BITS) - 1
+        rest = wp.min(n_slots - block * bd, bd)
+        for g in range(SORT_GROUPS - 1):
+            n_g = (c >> (SORT_COUNT_BITS * g)) & mask
+            block_counts[g * blocks + block] = n_g
+            rest -= n_g
+        block_counts[(SORT_GROUPS - 1) * blocks + block] = rest
+
+
+@wp.kernel
+def photon_group_scatter(
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group per thread (photon_group_keys, read)
+    order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read)
+    n_slots: int,  # N
+    offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) exclusive scan of the block counts (read)
+    grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first N)
+):
+    """A stable partition of the photons by march group (the stable sort on the 2-bit group keys, without a radix
+    sort's passes and copies): thread t's photon goes to its group's offset for its block plus the photons of its
+    group before it in the block (an exclusive tile scan of packed counts). Same blocks as photon_group_keys."""
+    block, lane = wp.tid()
+    t = block * wp.block_dim() + lane
+    group = int(-1)
+    if t < n_slots:
+        group = keys[t]
+    before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
+    if t < n_slots:
+        rank = int(0)
+        if group == SORT_GROUP_LAST:  # the lanes before this one, less those of the other groups
+            rank = lane
+            for g in range(SORT_GROUPS - 1):
+                rank -= (before >> (SORT_COUNT_BITS * g)) & ((1 << SORT_COUNT_BITS) - 1)
+        else:
+            rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
+        grouped[offsets[group * (offsets.shape[0] / SORT_GROUPS) + block] + rank] = order[t]
 
 
 @wp.func

@@ -330,8 +330,19 @@ def bounds_size(width: int, height: int) -> int:
     return fx * fy + cx * cy
 
 
+@wp.func
+def view_inactive(views: wp.array(dtype=ViewParams), view_index: int) -> bool:
+    """Whether ``views[view_index]`` is an inactive cascade (``far`` = 0: nothing drawn, nothing marched); never for
+    an empty ``views`` (a depth buffer that is always in use, such as the camera's)."""
+    if views.shape[0] == 0:
+        return False
+    return views[view_index].far <= 0.0
+
+
 @wp.kernel
 def depth_bounds(
+    views: wp.array(dtype=ViewParams),  # (V,) the view the depth buffer belongs to (read; empty: always active)
+    view_index: int,  # an inactive views[view_index] (far = 0) keeps its bounds: nothing marches it this frame
     depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
     width: int,
     height: int,
@@ -344,6 +355,8 @@ def depth_bounds(
     ray whose depth over a stretch of steps stays in front of the first or behind the second cannot hit in
     that cell, so :func:`screen_march_bounded` skips those steps. :func:`coarsen_bounds` then fills the
     coarse cells."""
+    if view_inactive(views, view_index):
+        return
     c = wp.tid()
     cw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
     i0 = (c % cw) * BOUNDS_CELL
@@ -368,11 +381,15 @@ def depth_bounds(
 
 @wp.kernel
 def coarsen_bounds(
+    views: wp.array(dtype=ViewParams),  # (V,) as for depth_bounds (read; empty: always active)
+    view_index: int,
     width: int,
     height: int,
     bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) fine cells (read), then coarse cells (write)
 ):
     """Coarse cell = min and max over its (BOUNDS_COARSE / BOUNDS_CELL)² fine cells."""
+    if view_inactive(views, view_index):
+        return
     c = wp.tid()
     fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
     fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL

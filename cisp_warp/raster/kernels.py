@@ -17,7 +17,8 @@ import warp as wp
 from .views import ViewParams, pixel_ray_world, view_point, view_project
 
 TILE = 8  #: tile edge [pixels] of one raster work item
-EMPTY_KEY = wp.constant(wp.uint64(0xFFFFFFFFFFFFFFFF))  #: visibility value of a pixel no triangle covers
+EMPTY_KEY_VALUE = 0xFFFFFFFFFFFFFFFF  #: visibility value of a pixel no triangle covers
+EMPTY_KEY = wp.constant(wp.uint64(EMPTY_KEY_VALUE))
 DEPTH_STEPS = wp.constant(4294967040.0)  # largest float32 below 2^32: the quantised depth fits 32 bits
 
 
@@ -176,9 +177,14 @@ def raster_tiles(
     tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
     n_sub: int,
     stride: int,
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
 ):
-    """Grid-stride over (sub-triangle, tile) work items; depth-test every covered pixel centre."""
+    """Grid-stride over (sub-triangle, tile) work items; depth-test every covered pixel centre, into the buffer of
+    each layer the triangle belongs to (two layers drawn in one pass share the set-up, scan and tile walk)."""
     view = views[view_index]
     item = wp.tid()
     total = tile_end[n_sub - 1]
@@ -207,6 +213,9 @@ def raster_tiles(
         c = sub_v[3 * s + 2]
         inv_area = 1.0 / _edge(a, b, c[0], c[1])
         tri = wp.uint64(s / 2)
+        tri_layers = layers[s / 2]
+        to_a = (tri_layers & mask) != 0
+        to_b = (tri_layers & mask_b) != 0
         i_lo = wp.max(tx * TILE, box[0])
         i_hi = wp.min(tx * TILE + TILE - 1, box[2])
         j_lo = wp.max(ty * TILE, box[1])
@@ -226,8 +235,20 @@ def raster_tiles(
                     if depth > 0.0 and depth <= view.far:
                         q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
                         key = (q << wp.uint64(32)) | tri
-                        wp.atomic_min(visibility, j * view.width + i, key)
+                        if to_a:
+                            wp.atomic_min(visibility, j * view.width + i, key)
+                        if to_b:
+                            wp.atomic_min(visibility_b, j * view.width + i, key)
         item += stride
+
+
+@wp.func
+def take_key(visibility: wp.array(dtype=wp.uint64), p: int) -> wp.uint64:
+    """Pixel ``p``'s visibility key, and the pixel reset to EMPTY_KEY: a resolve leaves its visibility buffer clear for
+    the next draw, which then writes only the pixels it covers (no fill of the whole buffer per draw)."""
+    key = visibility[p]
+    visibility[p] = EMPTY_KEY
+    return key
 
 
 @wp.func
@@ -291,17 +312,19 @@ def facing_normal(n: wp.vec3, tri: int, d: wp.vec3, points: wp.array(dtype=wp.ve
 def resolve_depth(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
     view_index: int,
-    visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read)
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read, then reset to EMPTY_KEY for the next draw)
     points: wp.array(dtype=wp.vec3),
     indices: wp.array(dtype=wp.int32),
     depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (write)
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) triangle id, -1 = none (write)
 ):
+    """Depth and triangle of the nearest surface per pixel. Resets the visibility it read, so the next draw into it
+    needs no clear (``Rasterizer.draw(clear=False)``); an inactive view drew nothing and leaves it as it was."""
     view = views[view_index]
     if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
         return
     p = wp.tid()
-    tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
+    tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
     depth[p] = t
     tri_id[p] = tri
 
@@ -311,7 +334,7 @@ def resolve_opaque(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
     view_index: int,
     prev_view_index: int,  # views[prev_view_index]: the previous frame's camera, for motion
-    visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read)
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) (read, then reset to EMPTY_KEY for the next draw)
     points: wp.array(dtype=wp.vec3),  # (V,) [m] (read)
     prev_points: wp.array(dtype=wp.vec3),  # (V,) previous frame [m] (read)
     normals: wp.array(dtype=wp.vec3),
@@ -327,11 +350,11 @@ def resolve_opaque(
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) (write)
     motion: wp.array(dtype=wp.vec2),  # (H*W,) pixel offset to where this surface point was last frame (write)
 ):
-    """Opaque G-buffer: every attribute of the nearest opaque surface per pixel."""
+    """Opaque G-buffer: every attribute of the nearest opaque surface per pixel (visibility reset as it is read)."""
     view = views[view_index]
     prev_view = views[prev_view_index]
     p = wp.tid()
-    tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
+    tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
     tri_id[p] = tri
     depth[p] = t
     if tri < 0:
@@ -358,7 +381,7 @@ def resolve_opaque(
 def resolve_specular(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
     view_index: int,
-    visibility: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read)
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read, then reset to EMPTY_KEY for the next draw)
     opaque_depth: wp.array(dtype=wp.float32),  # (H*W,) opaque layer depth, 0 = none (read)
     points: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
@@ -372,17 +395,22 @@ def resolve_specular(
     roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
     ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
+    nearest_depth: wp.array(dtype=wp.float32),  # (H*W,) depth of the nearest surface of either layer [m], 0 = none
+    # (write; an empty array: not wanted)
 ):
-    """Specular layer (RSM specular texels, camera water layer): nearest specular surface in front of the opaque one."""
+    """Specular layer (RSM specular texels, camera water layer): nearest specular surface in front of the opaque one
+    (visibility reset as it is read); and, where wanted, the nearest surface of either layer (an RSM's shadow depth)."""
     view = views[view_index]
     if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
         return
     p = wp.tid()
-    tri, t, x, bary, d = triangle_hit(view, visibility[p], p, points, indices)
+    tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
     od = opaque_depth[p]
     if tri >= 0 and od > 0.0 and t > od * 1.00001:  # behind an opaque surface (a mirror is both layers)
         tri = -1
     tri_id[p] = tri
+    if nearest_depth.shape[0] > 0:
+        nearest_depth[p] = wp.where(tri >= 0 and t > 0.0, t, od)
     if tri < 0:
         depth[p] = 0.0
         position[p] = wp.vec3(0.0)

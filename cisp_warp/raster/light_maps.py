@@ -30,7 +30,7 @@ from ..errors import SceneError
 from ..scene.device import DeviceScene
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR, Light, LightKind
 from . import kernels as K
-from .rasterizer import Rasterizer, RSMView
+from .rasterizer import Rasterizer, RSMView, visibility_buffer
 from .views import (LightViewSettings, View, ViewParams, light_views, resized_view, rotated_view, shadow_view,
                     window_view)
 
@@ -60,14 +60,6 @@ def cascade_photons(state: CascadeState, light_photons: int) -> int:
     if state.active == 0:
         return 0
     return wp.max(1, light_photons / wp.max(1, state.active_views))
-
-
-@wp.kernel
-def _nearest_depth(spec_depth: wp.array(dtype=wp.float32), opaque_depth: wp.array(dtype=wp.float32),
-                   out: wp.array(dtype=wp.float32)):
-    p = wp.tid()
-    d = spec_depth[p]
-    out[p] = wp.where(d > 0.0, d, opaque_depth[p])
 
 
 @wp.func
@@ -128,7 +120,7 @@ class _ShadowView:
         n = view.width * view.height
         self.view, self.params = view, view.params()
         self.views = wp.array([self.params], dtype=ViewParams, device=device)
-        self.visibility = wp.zeros(n, dtype=wp.uint64, device=device)
+        self.visibility = visibility_buffer(n, device)
         self.depth = wp.zeros(n, dtype=wp.float32, device=device)
         self.tri = wp.zeros(n, dtype=wp.int32, device=device)
 
@@ -139,7 +131,7 @@ class _ShadowView:
     def render(self, raster: Rasterizer) -> None:
         s = raster.scene
         w, h = self.view.width, self.view.height
-        raster.draw(self.views, 0, w, h, LAYER_OPAQUE | LAYER_SPECULAR, self.visibility)
+        raster.draw(self.views, 0, w, h, LAYER_OPAQUE | LAYER_SPECULAR, self.visibility, clear=False)
         wp.launch(K.resolve_depth, dim=w * h, device=s.device,
                   inputs=[self.views, 0, self.visibility, s.points, s.indices, self.depth, self.tri])
 
@@ -374,15 +366,14 @@ class LightMaps:
         n = r.width * r.height
         rgb = light.radiometric_rgb.astype(np.float32)
         axis = np.asarray(light.direction, dtype=np.float32)
-        raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility)
+        raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility, clear=False,
+                    layer_b=LAYER_SPECULAR, visibility_b=r.specular.visibility)  # both layers in one pass
         wp.launch(K.resolve_depth, dim=n, device=s.device,
                   inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth, r.opaque_tri])
-        raster.draw(views, k, r.width, r.height, LAYER_SPECULAR, r.specular.visibility)
-        r.specular.resolve(s, views, k, r.opaque_depth)
+        r.specular.resolve(s, views, k, r.opaque_depth, r.shadow_depth)  # with the nearest depth of both layers
         wp.launch(K.rsm_flux, dim=n, device=s.device,
                   inputs=[views, k, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
                           float(light.cone_angle), float(light.cone_softness), r.solid_angle, r.specular.tri_id, r.flux])
-        wp.launch(_nearest_depth, dim=n, device=s.device, inputs=[r.specular.depth, r.opaque_depth, r.shadow_depth])
 
     def render_pilot(self, raster: Rasterizer) -> None:
         """Draw the pilot views (before the fit); nothing when the views are not fitted."""

@@ -33,23 +33,33 @@ class Rasterizer:
         # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially
         self.stride = (1 << 18) if d.is_cuda else (1 << 10)
 
-    def draw(self, views: wp.array, view_index: int, width: int, height: int, layer: int, visibility: wp.array) -> None:
-        """Rasterize the triangles of ``layer`` into ``visibility`` (H*W uint64, overwritten) for the view
-        ``views[view_index]`` (a device array of :class:`ViewParams`, so a view fitted on the device, or a camera
-        written once per frame, is drawn without the host knowing it; ``width`` × ``height`` is its size, fixed).
-        An inactive view (``far`` = 0, ``light_maps.INACTIVE_FAR``) draws nothing."""
+    def draw(self, views: wp.array, view_index: int, width: int, height: int, layer: int, visibility: wp.array,
+             clear: bool = True, layer_b: int = 0, visibility_b: wp.array | None = None) -> None:
+        """Rasterize the triangles of ``layer`` into ``visibility`` (H*W uint64) for the view ``views[view_index]`` (a
+        device array of :class:`ViewParams`, so a view fitted on the device, or a camera written once per frame, is
+        drawn without the host knowing it; ``width`` × ``height`` is its size, fixed). An inactive view (``far`` = 0,
+        ``light_maps.INACTIVE_FAR``) draws nothing. ``layer_b``, ``visibility_b``: a second layer drawn in the same
+        pass into its own buffer (one set-up, scan and tile walk for both; a triangle in both layers is drawn into
+        both). ``clear``: fill the buffers with ``EMPTY_KEY`` first; False when they are clear already: the resolve
+        kernels reset every pixel they read (``kernels.take_key``), so a buffer made by :func:`visibility_buffer`
+        and always resolved after its draw needs no fill per frame."""
         d = self.scene.device
         s = self.scene
-        visibility.fill_(0xFFFFFFFFFFFFFFFF)
+        if visibility_b is None:
+            layer_b, visibility_b = 0, visibility
+        if clear:
+            visibility.fill_(K.EMPTY_KEY_VALUE)
+            if layer_b != 0:
+                visibility_b.fill_(K.EMPTY_KEY_VALUE)
         tiles_x = (width + K.TILE - 1) // K.TILE
         tiles_y = (height + K.TILE - 1) // K.TILE
         wp.launch(K.setup_triangles, dim=s.triangle_count, device=d,
-                  inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer), tiles_x, tiles_y,
-                          self.sub_v, self.sub_bbox, self.tile_count])
+                  inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer | layer_b), tiles_x,
+                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count])
         wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
         wp.launch(K.raster_tiles, dim=self.stride, device=d,
                   inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                          self.stride, visibility])
+                          self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
 
 
 def view_array(views, device) -> wp.array:
@@ -60,6 +70,12 @@ def view_array(views, device) -> wp.array:
 
 def _pixels(shape_hw, dtype, device):
     return wp.zeros(shape_hw[0] * shape_hw[1], dtype=dtype, device=device)
+
+
+def visibility_buffer(n: int, device) -> wp.array:
+    """(n,) uint64 visibility buffer, clear (every pixel ``EMPTY_KEY``): filled once here; a resolve kernel leaves it
+    clear again after reading it, so the frame draws into it with ``Rasterizer.draw(clear=False)``."""
+    return wp.full(n, K.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device)
 
 
 class _Buffers:
@@ -95,15 +111,18 @@ class SpecularLayer(_Buffers):
     @staticmethod
     def allocate(width: int, height: int, device) -> "SpecularLayer":
         hw = (height, width)
-        return SpecularLayer(width, height, _pixels(hw, wp.uint64, device), _pixels(hw, wp.float32, device),
+        return SpecularLayer(width, height, visibility_buffer(width * height, device), _pixels(hw, wp.float32, device),
                              _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.float32, device),
                              _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device))
 
-    def resolve(self, scene: DeviceScene, views: wp.array, view_index: int, opaque_depth: wp.array) -> None:
+    def resolve(self, scene: DeviceScene, views: wp.array, view_index: int, opaque_depth: wp.array,
+                nearest_depth: wp.array | None = None) -> None:
+        """Resolve the layer drawn into ``visibility`` (and clear it); ``nearest_depth``: also write the depth of the
+        nearest surface of either layer there ((H*W,) float32 [m], 0 = none), e.g. an RSM's shadow depth."""
         wp.launch(K.resolve_specular, dim=self.width * self.height, device=scene.device,
                   inputs=[views, int(view_index), self.visibility, opaque_depth, scene.points, scene.normals,
                           scene.indices, scene.triangle_material, scene.roughness, scene.ior,
-                          self.depth, self.position, self.normal, self.roughness, self.ior, self.tri_id])
+                          self.depth, self.position, self.normal, self.roughness, self.ior, self.tri_id, nearest_depth])
 
 
 @dataclass
@@ -126,7 +145,7 @@ class GBuffer(_Buffers):
     def allocate(width: int, height: int, device) -> "GBuffer":
         check_memory(width * height * 160, f"a {width}x{height} G-buffer", device)
         hw = (height, width)
-        return GBuffer(width, height, _pixels(hw, wp.uint64, device), _pixels(hw, wp.float32, device),
+        return GBuffer(width, height, visibility_buffer(width * height, device), _pixels(hw, wp.float32, device),
                        _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device),
                        _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device), _pixels(hw, wp.vec2, device),
                        SpecularLayer.allocate(width, height, device))
@@ -138,12 +157,12 @@ class GBuffer(_Buffers):
         s = raster.scene
         if not isinstance(views, wp.array):
             views = view_array([views, views if prev_view is None else prev_view], s.device)
-        raster.draw(views, 0, self.width, self.height, LAYER_OPAQUE, self.visibility)
+        raster.draw(views, 0, self.width, self.height, LAYER_OPAQUE, self.visibility, clear=False,
+                    layer_b=LAYER_SPECULAR, visibility_b=self.water.visibility)  # both layers in one pass
         wp.launch(K.resolve_opaque, dim=self.width * self.height, device=s.device,
                   inputs=[views, 0, 1, self.visibility, s.points, s.prev_points, s.normals, s.indices,
                           s.triangle_material, s.albedo, s.roughness,
                           self.depth, self.position, self.normal, self.albedo, self.roughness, self.tri_id, self.motion])
-        raster.draw(views, 0, self.width, self.height, LAYER_SPECULAR, self.water.visibility)
         self.water.resolve(s, views, 0, self.depth)
 
     def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
@@ -175,7 +194,7 @@ class RSMView(_Buffers):
         check_memory(w * h * 96, f"a {w}x{h} reflective shadow map", device)
         hw = (h, w)
         sa = view.texel_solid_angle().astype(np.float32).reshape(-1) if not view.orthographic else np.zeros(w * h, np.float32)
-        return RSMView(view, w, h, _pixels(hw, wp.uint64, device), _pixels(hw, wp.float32, device),
+        return RSMView(view, w, h, visibility_buffer(w * h, device), _pixels(hw, wp.float32, device),
                        _pixels(hw, wp.int32, device), _pixels(hw, wp.float32, device),
                        SpecularLayer.allocate(w, h, device), _pixels(hw, wp.vec3, device),
                        wp.array(sa, dtype=wp.float32, device=device))
