@@ -7,7 +7,7 @@ import pytest
 import trimesh
 import warp as wp
 
-from cisp_warp.raster import GBuffer, LightMaps, Rasterizer, View, camera_view, light_views, raycast_view
+from cisp_warp.raster import GBuffer, LightMaps, Rasterizer, View, ViewParams, camera_view, light_views, raycast_view
 from cisp_warp.scene import LAYER_OPAQUE, LAYER_SPECULAR, Camera, DeviceScene, Light, LightKind, Material, Scene
 from cisp_warp.scene.model import look_at_matrix
 
@@ -231,3 +231,30 @@ def test_rsm_shadow_depth_is_the_nearer_layer(device):
     spec, opaque = r.specular.depth.numpy(), r.opaque_depth.numpy()
     assert (spec > 0).any() and ((spec == 0) & (opaque > 0)).any()
     np.testing.assert_array_equal(r.shadow_depth.numpy(), np.where(spec > 0, spec, opaque))
+
+
+def test_two_layers_in_one_pass_draw_as_two_passes(device):
+    """``draw(layer_b=..., visibility_b=...)`` (both layers of a view in one set-up and tile walk, as the frame draws
+    them) fills each buffer exactly as its own draw does; a triangle in both layers lands in both."""
+    cam = Camera(look_at_matrix((-0.8, 0.7, 0.8), (0.4, -0.8, -0.2)), fov_y=math.radians(70), near=0.02, far=10.0,
+                 width=64, height=40)
+    scene = make_scene(box_room(), cam)
+    ds = DeviceScene(scene, device)
+    layers = ds.triangle_layers.numpy()
+    layers[::7] |= LAYER_OPAQUE | LAYER_SPECULAR  # some triangles in both layers (a mirror is both)
+    ds.triangle_layers.assign(layers)
+    raster = Rasterizer(ds)
+    views = wp.array([camera_view(cam).params()], dtype=ViewParams, device=device)
+    n = 64 * 40
+    single = [wp.zeros(n, dtype=wp.uint64, device=device) for _ in range(2)]
+    raster.draw(views, 0, 64, 40, LAYER_OPAQUE, single[0])
+    raster.draw(views, 0, 64, 40, LAYER_SPECULAR, single[1])
+    pair = [wp.zeros(n, dtype=wp.uint64, device=device) for _ in range(2)]
+    raster.draw(views, 0, 64, 40, LAYER_OPAQUE, pair[0], layer_b=LAYER_SPECULAR, visibility_b=pair[1])
+    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
+    for a, b in zip(single, pair):
+        assert (a.numpy() != empty).any()
+        np.testing.assert_array_equal(a.numpy(), b.numpy())
+    dual = np.flatnonzero(layers == (LAYER_OPAQUE | LAYER_SPECULAR))
+    for b in pair:  # the triangles of both layers show in both buffers
+        assert np.isin(b.numpy() & np.uint64(0xFFFFFFFF), dual).any()
