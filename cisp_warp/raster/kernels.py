@@ -245,10 +245,22 @@ def raster_tiles(
 @wp.func
 def take_key(visibility: wp.array(dtype=wp.uint64), p: int) -> wp.uint64:
     """Pixel ``p``'s visibility key, and the pixel reset to EMPTY_KEY: a resolve leaves its visibility buffer clear for
-    the next draw, which then writes only the pixels it covers (no fill of the whole buffer per draw)."""
+    the next draw, which then writes only the pixels it covers (no fill of the whole buffer per draw; a pixel no
+    triangle covered is clear already and is not written)."""
     key = visibility[p]
-    visibility[p] = EMPTY_KEY
+    if key != EMPTY_KEY:
+        visibility[p] = EMPTY_KEY
     return key
+
+
+@wp.func
+def still_empty(key: wp.uint64, tri_id: wp.array(dtype=wp.int32), p: int) -> bool:
+    """Whether pixel ``p`` has no surface this frame (``key``) and had none when it was last resolved (``tri_id[p]``
+    = -1): every attribute a resolve writes for an empty pixel is a constant, so they hold those values already and
+    the resolve may skip the pixel's writes (sky, and the camera's water layer away from the water, every frame).
+    Only for a resolve whose ``tri_id`` belongs to its attribute arrays alone (not ``resolve_depth``: the sky's maps
+    share one triangle scratch)."""
+    return key == EMPTY_KEY and tri_id[p] < 0
 
 
 @wp.func
@@ -354,7 +366,10 @@ def resolve_opaque(
     view = views[view_index]
     prev_view = views[prev_view_index]
     p = wp.tid()
-    tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
+    key = take_key(visibility, p)
+    if still_empty(key, tri_id, p):
+        return
+    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
     tri_id[p] = tri
     depth[p] = t
     if tri < 0:
@@ -404,8 +419,13 @@ def resolve_specular(
     if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
         return
     p = wp.tid()
-    tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
+    key = take_key(visibility, p)
     od = opaque_depth[p]
+    if still_empty(key, tri_id, p):
+        if nearest_depth.shape[0] > 0:
+            nearest_depth[p] = od
+        return
+    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
     if tri >= 0 and od > 0.0 and t > od * 1.00001:  # behind an opaque surface (a mirror is both layers)
         tri = -1
     tri_id[p] = tri
