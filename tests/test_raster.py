@@ -7,6 +7,7 @@ import pytest
 import trimesh
 import warp as wp
 
+from cisp_warp.raster import kernels as RK
 from cisp_warp.raster import GBuffer, LightMaps, Rasterizer, View, ViewParams, camera_view, light_views, raycast_view
 from cisp_warp.scene import LAYER_OPAQUE, LAYER_SPECULAR, Camera, DeviceScene, Light, LightKind, Material, Scene
 from cisp_warp.scene.model import look_at_matrix
@@ -263,3 +264,25 @@ def test_two_layers_in_one_pass_draw_as_two_passes(device):
     dual = np.flatnonzero(layers == (LAYER_OPAQUE | LAYER_SPECULAR))
     for b in pair:  # the triangles of both layers show in both buffers
         assert np.isin(b.numpy() & np.uint64(0xFFFFFFFF), dual).any()
+
+
+def test_rsm_resolve_flux_is_the_flux_pass(device):
+    """The RSM's fused resolve writes per texel the flux ``rsm_flux`` (the separate pass, its twin) computes from the
+    resolved specular layer, for a spot light (falloff), a point light's cube faces and a distant light."""
+    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
+    lights = [Light(LightKind.SPOT, "spot", intensity=3.0, position=(0.0, 0.9, 0.0), direction=(0, -1, 0),
+                    cone_angle=math.radians(40), cone_softness=0.3),
+              Light(LightKind.POINT, "bulb", intensity=2.0, position=(0.1, 0.2, 0.0)),
+              Light(LightKind.DISTANT, "sun", intensity=500.0, direction=(0.3, -1.0, 0.1))]
+    for light in lights:
+        ds = DeviceScene(make_scene(box_room()[1:], cam, [light]), device)  # no room: the sun reaches the water
+        lm = LightMaps(ds, light, 40)
+        lm.render(Rasterizer(ds))
+        for k, r in enumerate(lm.rsm):
+            twin = wp.zeros_like(r.flux)
+            wp.launch(RK.rsm_flux, dim=r.width * r.height, device=device,
+                      inputs=[lm.views, k, wp.vec3(*light.radiometric_rgb.astype(np.float32)),
+                              wp.vec3(*np.asarray(light.direction, np.float32)), int(light.kind == LightKind.SPOT),
+                              float(light.cone_angle), float(light.cone_softness), r.solid_angle, r.specular.tri_id, twin])
+            np.testing.assert_array_equal(r.flux.numpy(), twin.numpy())
+        assert any((r.flux.numpy() > 0).any() for r in lm.rsm)

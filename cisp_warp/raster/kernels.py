@@ -392,6 +392,56 @@ def resolve_opaque(
     motion[p] = wp.vec2(q[0] - (float(p % view.width) + 0.5), q[1] - (float(p / view.width) + 0.5))
 
 
+@wp.func
+def specular_texel(
+    view: ViewParams,
+    p: int,
+    visibility: wp.array(dtype=wp.uint64),
+    opaque_depth: wp.array(dtype=wp.float32),
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+) -> int:
+    """Resolve pixel ``p`` of a specular layer (see :func:`resolve_specular`). Returns its triangle (-1 none), or -2
+    when the pixel was empty and stays empty (nothing written but ``nearest_depth``)."""
+    key = take_key(visibility, p)
+    od = opaque_depth[p]
+    if still_empty(key, tri_id, p):
+        if nearest_depth.shape[0] > 0:
+            nearest_depth[p] = od
+        return -2
+    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
+    if tri >= 0 and od > 0.0 and t > od * 1.00001:  # behind an opaque surface (a mirror is both layers)
+        tri = -1
+    tri_id[p] = tri
+    if nearest_depth.shape[0] > 0:
+        nearest_depth[p] = wp.where(tri >= 0 and t > 0.0, t, od)
+    if tri < 0:
+        depth[p] = 0.0
+        position[p] = wp.vec3(0.0)
+        normal[p] = wp.vec3(0.0)
+        roughness[p] = 0.0
+        ior[p] = 1.0
+        return -1
+    depth[p] = t
+    position[p] = x
+    normal[p] = interp_normal(tri, bary, normals, indices)
+    m = triangle_material[tri]
+    roughness[p] = mat_roughness[m]
+    ior[p] = mat_ior[m]
+    return tri
+
+
 @wp.kernel
 def resolve_specular(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -419,31 +469,8 @@ def resolve_specular(
     if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
         return
     p = wp.tid()
-    key = take_key(visibility, p)
-    od = opaque_depth[p]
-    if still_empty(key, tri_id, p):
-        if nearest_depth.shape[0] > 0:
-            nearest_depth[p] = od
-        return
-    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
-    if tri >= 0 and od > 0.0 and t > od * 1.00001:  # behind an opaque surface (a mirror is both layers)
-        tri = -1
-    tri_id[p] = tri
-    if nearest_depth.shape[0] > 0:
-        nearest_depth[p] = wp.where(tri >= 0 and t > 0.0, t, od)
-    if tri < 0:
-        depth[p] = 0.0
-        position[p] = wp.vec3(0.0)
-        normal[p] = wp.vec3(0.0)
-        roughness[p] = 0.0
-        ior[p] = 1.0
-        return
-    depth[p] = t
-    position[p] = x
-    normal[p] = interp_normal(tri, bary, normals, indices)
-    m = triangle_material[tri]
-    roughness[p] = mat_roughness[m]
-    ior[p] = mat_ior[m]
+    specular_texel(view, p, visibility, opaque_depth, points, normals, indices, triangle_material, mat_roughness,
+                   mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
 
 
 @wp.func
@@ -459,6 +486,28 @@ def spot_falloff(cos_angle: float, cone_angle: float, softness: float) -> float:
     return s * s * (3.0 - 2.0 * s)
 
 
+@wp.func
+def texel_flux(
+    view: ViewParams,
+    p: int,
+    light_rgb: wp.vec3,
+    spot_axis: wp.vec3,
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),
+) -> wp.vec3:
+    """Flux [W] the light sends through RSM texel ``p`` onto a surface: irradiance × texel area (orthographic),
+    intensity × texel solid angle (perspective), times the spot's falloff."""
+    if view.orthographic != 0:
+        return light_rgb / (view.fx * view.fy)
+    scale = texel_solid_angle[p]
+    if is_spot != 0:
+        o, d = pixel_ray_world(view, float(p % view.width) + 0.5, float(p / view.width) + 0.5)
+        scale = scale * spot_falloff(wp.dot(wp.normalize(d), spot_axis), cone_angle, cone_softness)
+    return light_rgb * scale
+
+
 @wp.kernel
 def rsm_flux(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -472,7 +521,7 @@ def rsm_flux(
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) specular layer (read)
     flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
 ):
-    """Flux per RSM texel: irradiance × texel area (orthographic), intensity × texel solid angle (perspective)."""
+    """Flux per RSM texel of a resolved specular layer (the twin of :func:`resolve_rsm_specular`'s flux)."""
     view = views[view_index]
     if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
         return
@@ -480,11 +529,45 @@ def rsm_flux(
     if tri_id[p] < 0:
         flux[p] = wp.vec3(0.0)
         return
-    if view.orthographic != 0:
-        flux[p] = light_rgb / (view.fx * view.fy)
+    flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness, texel_solid_angle)
+
+
+@wp.kernel
+def resolve_rsm_specular(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read, then reset to EMPTY_KEY for the next draw)
+    opaque_depth: wp.array(dtype=wp.float32),  # (H*W,) opaque layer depth, 0 = none (read)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    light_rgb: wp.vec3,  # irradiance [W/m²] (distant) or intensity [W/sr] (point, spot), per channel
+    spot_axis: wp.vec3,  # world direction of the spot axis (unused unless is_spot)
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) [sr], perspective views (read)
+    depth: wp.array(dtype=wp.float32),  # (H*W,) [m], 0 = none or hidden behind opaque (write)
+    position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write)
+    normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write)
+    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
+    nearest_depth: wp.array(dtype=wp.float32),  # (H*W,) the RSM's shadow depth [m], 0 = none (write)
+    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
+):
+    """An RSM view's specular layer (:func:`resolve_specular`), its shadow depth and its flux per texel
+    (:func:`rsm_flux`) in one pass: the texel's triangle is known where its flux is computed."""
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn, its maps are not read
         return
-    scale = texel_solid_angle[p]
-    if is_spot != 0:
-        o, d = pixel_ray_world(view, float(p % view.width) + 0.5, float(p / view.width) + 0.5)
-        scale = scale * spot_falloff(wp.dot(wp.normalize(d), spot_axis), cone_angle, cone_softness)
-    flux[p] = light_rgb * scale
+    p = wp.tid()
+    tri = specular_texel(view, p, visibility, opaque_depth, points, normals, indices, triangle_material, mat_roughness,
+                         mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
+    if tri == -1:
+        flux[p] = wp.vec3(0.0)
+    elif tri >= 0:  # (-2: empty as before, its flux is zero already)
+        flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness, texel_solid_angle)

@@ -370,10 +370,12 @@ class LightMaps:
                     layer_b=LAYER_SPECULAR, visibility_b=r.specular.visibility)  # both layers in one pass
         wp.launch(K.resolve_depth, dim=n, device=s.device,
                   inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth, r.opaque_tri])
-        r.specular.resolve(s, views, k, r.opaque_depth, r.shadow_depth)  # with the nearest depth of both layers
-        wp.launch(K.rsm_flux, dim=n, device=s.device,
-                  inputs=[views, k, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
-                          float(light.cone_angle), float(light.cone_softness), r.solid_angle, r.specular.tri_id, r.flux])
+        sp = r.specular  # its layer, the shadow depth (nearest of both layers) and the flux per texel, in one pass
+        wp.launch(K.resolve_rsm_specular, dim=n, device=s.device,
+                  inputs=[views, k, sp.visibility, r.opaque_depth, s.points, s.normals, s.indices, s.triangle_material,
+                          s.roughness, s.ior, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
+                          float(light.cone_angle), float(light.cone_softness), r.solid_angle,
+                          sp.depth, sp.position, sp.normal, sp.roughness, sp.ior, sp.tri_id, r.shadow_depth, r.flux])
 
     def render_pilot(self, raster: Rasterizer) -> None:
         """Draw the pilot views (before the fit); nothing when the views are not fitted."""
