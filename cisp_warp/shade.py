@@ -14,7 +14,7 @@ import warp as wp
 
 from .optics import fresnel_dielectric, reflect, refract
 from .photons.march import MARCH_HIT, screen_march_bounded
-from .raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
+from .raster.views import ViewParams, pixel_ray_world, read_again, view_eye_world, world_project
 from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
@@ -145,16 +145,19 @@ def surface_radiance(
 
 
 @wp.func
-def screen_space_lookup(camera: ViewParams, depth: wp.array(dtype=wp.float32), depth_bounds: wp.array(dtype=wp.vec2),
-                        radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int,
-                        thickness: float):
-    """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer.
+def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
+                        depth_bounds: wp.array(dtype=wp.vec2), radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3,
+                        t_max: float, max_steps: int, thickness: float):
+    """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer (the camera
+    ``cameras[0]``, read where the march needs it and again after it, ``anchor`` >= 0: see ``views.read_again``).
 
     Returns (found, radiance); not found when the ray leaves the image or runs out of steps.
     """
-    status, t, steps = screen_march_bounded(camera, depth, depth_bounds, o, d, t_max, max_steps, thickness, 0.02)
+    status, t, steps = screen_march_bounded(read_again(cameras, 0, anchor), depth, depth_bounds, o, d, t_max, max_steps,
+                                            thickness, 0.02)
     if status != MARCH_HIT:
         return int(0), wp.vec3(0.0)
+    camera = read_again(cameras, 0, steps)
     q = world_project(camera, o + d * t)
     i = wp.clamp(int(q[0]), 0, camera.width - 1)
     j = wp.clamp(int(q[1]), 0, camera.height - 1)
@@ -214,13 +217,15 @@ def composite(
         l = wp.vec3(0.0)
         if f > 0.0:
             dr = reflect(d_in, n)
-            found, lr = screen_space_lookup(camera, depth, depth_bounds, radiance, x, dr, t_max, max_steps, thickness)
+            found, lr = screen_space_lookup(cameras, p, depth, depth_bounds, radiance, x, dr, t_max, max_steps,
+                                            thickness)
             if found == 0:
                 lr = sky_radiance(sky, dr)
             l = l + lr * f
         if f < 1.0:
             dt = refract(d_in, n, eta)
-            found, lt = screen_space_lookup(camera, depth, depth_bounds, radiance, x, dt, t_max, max_steps, thickness)
+            found, lt = screen_space_lookup(cameras, p + 1, depth, depth_bounds, radiance, x, dt, t_max, max_steps,
+                                            thickness)
             if found == 0:  # the refracted ray leaves the screen or goes behind a surface: the opaque
                 lt = radiance[p]  # surface behind this pixel stands in (undistorted), never black
             l = l + lt * ((1.0 - f) / (eta * eta))

@@ -11,7 +11,7 @@ import warp as wp
 
 from ..scene.device import SurfaceGeometry
 from ..raster.light_maps import CascadeState, cascade_photons
-from ..raster.views import ViewParams, world_project
+from ..raster.views import ViewParams, read_again, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
@@ -42,15 +42,6 @@ def march_light(
     status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
                                                  thickness, thickness_rel)
     return status, o + d * t_end
-
-
-@wp.func
-def read_again(views: wp.array(dtype=ViewParams), index: int, anchor: int) -> ViewParams:
-    """``views[index]`` read from memory once more, for a kernel that read it before a march and needs it again
-    after: ``anchor`` is any value the caller knows to be >= 0, so the index is ``index`` while the compiler cannot
-    prove the address that of the earlier read. It then loads the view again (a few L1/L2 hits) instead of keeping
-    the earlier read's fields live through the march, where CISP's trace spills them at its register bound."""
-    return views[index + wp.min(anchor, 0)]
 
 
 #: :func:`reproject_to_camera`'s answer for a photon floating in front of the camera's surfaces (not a ledger entry)

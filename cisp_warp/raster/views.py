@@ -90,6 +90,16 @@ def view_eye_world(view: ViewParams, p_world: wp.vec3) -> wp.vec3:
     return wp.normalize(wp.transform_point(view.view_to_world, wp.vec3(0.0, 0.0, 0.0)) - p_world)
 
 
+@wp.func
+def read_again(views: wp.array(dtype=ViewParams), index: int, anchor: int) -> ViewParams:
+    """``views[index]`` read from memory once more, for a kernel that read it before a march and needs it again
+    after: ``anchor`` is any value the caller knows to be >= 0, so the index is ``index`` while the compiler cannot
+    prove the address that of the earlier read. It then loads the view again (a few L1/L2 hits) instead of keeping
+    the earlier read's fields live through the march, where CISP's trace and the composite spill them at their
+    register bounds."""
+    return views[index + wp.min(anchor, 0)]
+
+
 @dataclass(frozen=True)
 class View:
     """Host-side description of a view; ``params`` builds the kernel struct."""
