@@ -8,6 +8,7 @@ same compiler's cubin.
 
     python tools/regcount.py                      # the photon kernels (cisp, sspm, reference, caustics_map, wavefront)
     python tools/regcount.py --kernels trace_sspm  # only kernels whose name contains one of these words
+    python tools/regcount.py --modules cisp_warp.shade,cisp_warp.raster.kernels  # any module (blocks as launched)
 """
 
 from __future__ import annotations
@@ -34,6 +35,12 @@ PHOTON_MODULES = (
     ("cisp_warp.photons.kernels_world", 128),
     ("cisp_warp.photons.kernels_cmap", 128),
     ("cisp_warp.photons.kernels_wavefront", 128),
+)
+#: other modules of the frame (``--modules`` names them; plain ``wp.launch`` blocks of 256)
+FRAME_MODULES = (
+    ("cisp_warp.photons.common", 128),
+    ("cisp_warp.raster.kernels", 256),
+    ("cisp_warp.shade", 256),
 )
 
 
@@ -99,7 +106,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--arch", type=int, default=90, help="SM architecture (90: H100/H200)")
     ap.add_argument("--modules", default=",".join(m for m, _ in PHOTON_MODULES),
-                    help="comma-separated module names (launched in blocks of 128)")
+                    help="comma-separated module names (blocks as in PHOTON_MODULES / FRAME_MODULES, else 128)")
     ap.add_argument("--kernels", default="", help="comma-separated words; only kernels whose name contains one")
     args = ap.parse_args(argv)
 
@@ -108,7 +115,7 @@ def main(argv=None) -> int:
     wp.config.quiet = True
     wp.init()
     words = [w for w in args.kernels.split(",") if w]
-    block_of = dict(PHOTON_MODULES)
+    block_of = dict(PHOTON_MODULES + FRAME_MODULES)
     print(f"sm_{args.arch}, Warp {wp.__version__}: registers per thread / stack frame bytes")
     with tempfile.TemporaryDirectory() as tmp:
         for name in [m for m in args.modules.split(",") if m]:
