@@ -22,8 +22,11 @@ def build_bounds(depth: wp.array, width: int, height: int, thickness: float, thi
     keep their last values, which nothing marches; None: always build (the camera)."""
     fx, fy = M.bounds_shape(width, height, M.BOUNDS_CELL)
     cx, cy = M.bounds_shape(width, height, M.BOUNDS_COARSE)
-    wp.launch(M.depth_bounds, dim=fx * fy, device=device,
-              inputs=[views, int(view_index), depth, width, height, float(thickness), float(thickness_rel), bounds])
+    inputs = [views, int(view_index), depth, width, height, float(thickness), float(thickness_rel), bounds]
+    if wp.get_device(device).is_cuda:  # a block per cell; the CPU runs its twin, one cell per thread
+        wp.launch_tiled(M.depth_bounds_tiled, dim=fx * fy, block_dim=M.BOUNDS_BLOCK, device=device, inputs=inputs)
+    else:
+        wp.launch(M.depth_bounds, dim=fx * fy, device=device, inputs=inputs)
     wp.launch(M.coarsen_bounds, dim=cx * cy, device=device, inputs=[views, int(view_index), width, height, bounds])
 
 
