@@ -9,6 +9,7 @@ from cisp_warp import analytic
 from cisp_warp.analytic import footprint_area, wall_mask, wall_scene
 from cisp_warp.optics import fresnel_dielectric_np
 from cisp_warp.photons import PhotonSettings
+from cisp_warp.photons.common import L_STORED
 from cisp_warp.render import Renderer, RenderSettings
 
 def render(scene, device, photons, rsm=256, **kw):
@@ -102,3 +103,22 @@ def test_sinusoidal_caustic_lands_on_the_analytic_ray_map(device):
     assert rel < 0.1, f"profile differs by {rel:.3f} (relative L2)"
     print(f"sinusoid profile relative L2 {rel:.4f}")
 
+
+
+def test_hits_are_recorded_only_when_asked(device):
+    """The frame loop records no landing points (``record_hits`` off: ``hits`` untouched); asked for, every stored
+    photon has its landing pixel and point there, every other -1, and the same frame's photon map is unchanged."""
+    scene, _ = flat_water(30.0)
+    settings = RenderSettings(rsm_size=64, photons=PhotonSettings(photons=20_000, seed=3))
+    off = Renderer(scene, settings, device=device)
+    off.render_frame()
+    assert not off.photons.hits.numpy().any()
+    on = Renderer(flat_water(30.0)[0], settings, device=device)
+    on.photons.record_hits = True
+    on.render_frame()
+    hits, outcome = on.photons.hits.numpy(), on.photons.outcome.numpy()
+    n = on.photons.photons_per_view(on.lights[0])
+    stored = outcome[:n, 3] == int(L_STORED)  # no sort on the CPU: thread t traces photon t
+    assert stored.sum() > 1000
+    assert np.all(hits[:n][stored, 3] >= 0) and np.all(hits[:n][~stored, 3] == -1)
+    np.testing.assert_array_equal(on.photons.photon_map.numpy(), off.photons.photon_map.numpy())

@@ -39,7 +39,10 @@ class CISP(PhotonPass):
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
         n_hits = self.max_photons_per_view() if settings.splat == "point" else 1  # the grid keeps its own records
+        #: (N,) each photon's landing point [m] and camera pixel (-1: not stored) of the last view traced, written only
+        #: while ``record_hits`` is set (tests, statistics): the frame loop does not pay 16 B a photon for them
         self.hits = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
+        self.record_hits = False
         #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_photons)
         self.outcome = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
         self.wavefront = None
@@ -88,5 +91,5 @@ class CISP(PhotonPass):
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                self.photon_map, self.ledger_rows, self.hits, self.outcome])
+                self.photon_map, self.ledger_rows, self.hits if self.record_hits else None, self.outcome])
             self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)

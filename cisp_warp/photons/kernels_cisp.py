@@ -169,7 +169,7 @@ def trace_photon(
     use_cascade: int,  # 0: light view only (no camera march), for comparisons
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
-    hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored)
+    hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
 ):
     """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
     (:func:`cascade_camera`), validate, store; its final entry booked. Each view is read from memory where it is
@@ -189,7 +189,8 @@ def trace_photon(
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, tally) != 0:
-        hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
+        if hits.shape[0] > 0:
+            hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
 
 
 @wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
@@ -239,6 +240,7 @@ def trace_photons(
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
+    # (write; an empty array: not recorded, as in the frame loop)
     outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
 ):
     """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
@@ -266,7 +268,8 @@ def trace_photons(
     emitted = tally_new()
     if t < n_photons:
         k = photon_index(order, use_order, t)
-        hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
+        if hits.shape[0] > 0:
+            hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
         # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
         # Fresnel as a probability (power unchanged); metals reflect with their albedo
         texel, power, origin, n, d, state = emit_and_bounce(
