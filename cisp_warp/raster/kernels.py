@@ -328,7 +328,7 @@ def resolve_depth(
     points: wp.array(dtype=wp.vec3),
     indices: wp.array(dtype=wp.int32),
     depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (write)
-    tri_id: wp.array(dtype=wp.int32),  # (H*W,) triangle id, -1 = none (write)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) triangle id, -1 = none (write; an empty array: not wanted)
 ):
     """Depth and triangle of the nearest surface per pixel. Resets the visibility it read, so the next draw into it
     needs no clear (``Rasterizer.draw(clear=False)``); an inactive view drew nothing and leaves it as it was."""
@@ -338,7 +338,8 @@ def resolve_depth(
     p = wp.tid()
     tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
     depth[p] = t
-    tri_id[p] = tri
+    if tri_id.shape[0] > 0:
+        tri_id[p] = tri
 
 
 @wp.kernel

@@ -122,7 +122,6 @@ class _ShadowView:
         self.views = wp.array([self.params], dtype=ViewParams, device=device)
         self.visibility = visibility_buffer(n, device)
         self.depth = wp.zeros(n, dtype=wp.float32, device=device)
-        self.tri = wp.zeros(n, dtype=wp.int32, device=device)
 
     def set_view(self, view: View) -> None:
         self.view, self.params = view, view.params()
@@ -133,7 +132,7 @@ class _ShadowView:
         w, h = self.view.width, self.view.height
         raster.draw(self.views, 0, w, h, LAYER_OPAQUE | LAYER_SPECULAR, self.visibility, clear=False)
         wp.launch(K.resolve_depth, dim=w * h, device=s.device,
-                  inputs=[self.views, 0, self.visibility, s.points, s.indices, self.depth, self.tri])
+                  inputs=[self.views, 0, self.visibility, s.points, s.indices, self.depth, None])  # depth only
 
 
 def _params_of_record(rec) -> ViewParams:
