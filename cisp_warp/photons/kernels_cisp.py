@@ -172,9 +172,10 @@ def trace_photon(
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
 ):
     """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
-    (:func:`cascade_camera`), validate, store; its final entry booked. Each view is read from memory where it is
-    needed, so that no view is held in registers through the march of the other (the light view through the
-    camera march, the camera through the light march: 336 -> 168 B of stack at the trace's launch bound)."""
+    (:func:`reproject_to_camera`, :func:`march_camera`), validate, store; its final entry booked. Each view is read
+    from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
+    registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
+    (sm_90, ``tools/regcount.py``)."""
     status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
                                 max_steps, thickness, thickness_rel)
     entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
