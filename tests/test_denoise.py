@@ -40,9 +40,13 @@ def upload(g, device):
             for k, v in g.items()}
 
 
-def run_frame(svgf, g_np, irradiance, out):
+def run_frame(svgf, g_np, irradiance, out, photon_m2=None):
     g = upload(dict(g_np, irradiance=irradiance.astype(np.float32)), svgf.device)
-    svgf.denoise(g["irradiance"], g["depth"], g["normal"], g["motion"], g["tri_id"], out)
+    if photon_m2 is None:
+        svgf.denoise(g["irradiance"], g["depth"], g["normal"], g["motion"], g["tri_id"], out)
+    else:
+        m2 = wp.array(np.ascontiguousarray(photon_m2, np.float32).reshape(-1), dtype=wp.float32, device=svgf.device)
+        svgf.denoise(g["irradiance"], g["depth"], g["normal"], g["motion"], g["tri_id"], out, m2)
     return out.numpy().reshape(svgf.height, svgf.width, 3)
 
 
@@ -54,6 +58,11 @@ def poisson_map(rng, truth, photon):
     """A photon map whose pixels hold Poisson counts of photons of irradiance ``photon`` [W/m²] with mean
     ``truth`` (H, W) [W/m²]: the sparse, integer-valued noise of a real photon map (grey)."""
     return (rng.poisson(truth / photon) * photon)[..., None] * np.ones(3, np.float32)
+
+
+def poisson_m2(e, photon):
+    """The ``photon_m2`` of :func:`poisson_map`'s map ``e``: k photons of luminance ``photon`` hold k photon²."""
+    return e[..., 1] * photon
 
 
 def caustic_pattern(w=W, h=H, shift=0.0):
@@ -319,11 +328,13 @@ def test_caustic_constant_stays_constant(device):
     assert np.all(history(den)[~surf] == 0)
 
 
-def test_caustic_static_converges_to_long_run_mean(device):
+@pytest.mark.parametrize("with_m2", [False, True])
+def test_caustic_static_converges_to_long_run_mean(device, with_m2):
     """A still caustic under fresh photon noise every frame: the accumulated estimate is the running mean of
     the raw photon maps (no change is detected), the error against the true irradiance falls like 1/sqrt(n),
     the spatial filter gives way as the estimate converges, and SVGF, which feeds filtered output back,
-    stays far behind."""
+    stays far behind. With the photons' Σ e² (``with_m2``), which lowers the variance estimate on the bands'
+    flanks, the same holds."""
     rng = np.random.default_rng(21)
     g = plane(hole=False)
     truth = caustic_pattern()
@@ -338,7 +349,7 @@ def test_caustic_static_converges_to_long_run_mean(device):
     for k in range(1, frames + 1):
         e = poisson_map(rng, truth, photon)
         raw_sum += e[..., 1]
-        res = run_frame(den, g, e, out)
+        res = run_frame(den, g, e, out, poisson_m2(e, photon) if with_m2 else None)
         res_svgf = run_frame(svgf, g, e, out_svgf)
         err.append(np.sqrt(np.mean((res[..., 1] - truth) ** 2)) / truth.mean())
         err_svgf.append(np.sqrt(np.mean((res_svgf[..., 1] - truth) ** 2)) / truth.mean())
@@ -364,10 +375,11 @@ def test_caustic_static_converges_to_long_run_mean(device):
     assert err[-1] < 0.5 * err_svgf[-1]
 
 
-@pytest.mark.parametrize("noisy", [False, True])
-def test_caustic_follows_a_step_change(device, noisy):
+@pytest.mark.parametrize("noisy,with_m2", [(False, False), (True, False), (True, True)])
+def test_caustic_follows_a_step_change(device, noisy, with_m2):
     """The caustic doubles after 24 still frames: within 3 frames the estimate is the new level (the history
-    is cut back where the new photons disagree with it), where a plain running mean would still be at 1.1x."""
+    is cut back where the new photons disagree with it), where a plain running mean would still be at 1.1x;
+    with the photons' Σ e² given too (``with_m2``)."""
     rng = np.random.default_rng(4)
     g = plane(hole=False)
     truth = caustic_pattern()
@@ -379,7 +391,8 @@ def test_caustic_follows_a_step_change(device, noisy):
         return poisson_map(rng, tr, 0.25) if noisy else np.repeat(tr[..., None], 3, -1).astype(np.float32)
 
     for t in range(27):
-        res = run_frame(den, g, frame(t), out)
+        e = frame(t)
+        res = run_frame(den, g, e, out, poisson_m2(e, 0.25) if with_m2 else None)
     bright = truth > 10.0
     integrated = den.integrated.numpy().reshape(H, W, 3)[..., 1]
     ratio = integrated[bright].mean() / (2.0 * truth[bright].mean())
@@ -439,9 +452,10 @@ def test_caustic_conserves_energy(device):
     np.testing.assert_allclose(integrated.reshape(-1, 3).sum(0), in_sum / 12, rtol=0.03)
 
 
-def test_caustic_matches_naive_twin(device):
-    """Three frames (a box with a depth edge, noisy normals, a hole, fractional camera motion, sparse photons)
-    against the float64 twin written from the equations."""
+@pytest.mark.parametrize("with_m2", [False, True])
+def test_caustic_matches_naive_twin(device, with_m2):
+    """Three frames (a box with a depth edge, noisy normals, a hole, fractional camera motion, sparse photons;
+    with the photons' Σ e² or without) against the float64 twin written from the equations."""
     rng = np.random.default_rng(17)
     w, h = 20, 14
     s = CausticSettings(atrous_levels=3, noise_target=0.1)
@@ -457,8 +471,9 @@ def test_caustic_matches_naive_twin(device):
         g["motion"][:] = (0.3 * (t > 0), -0.2 * (t > 0))
         e = poisson_map(rng, truth, 4.0)
         e[g["depth"] <= 0] = 0.0
-        res = run_frame(den, g, e, out)
-        ref, hist = caustic_frame_naive(e, g["depth"], g["normal"], g["motion"], hist, s)
+        m2 = poisson_m2(e, 4.0) if with_m2 else None
+        res = run_frame(den, g, e, out, m2)
+        ref, hist = caustic_frame_naive(e, g["depth"], g["normal"], g["motion"], hist, s, m2)
         np.testing.assert_allclose(history(den), hist["frames"], rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(den.variance.numpy().reshape(h, w), hist["variance"], rtol=1e-4, atol=1e-6)
         np.testing.assert_allclose(res, ref, rtol=1e-5, atol=1e-5 * truth.max())
@@ -478,8 +493,9 @@ def test_caustic_every_setting_reaches_a_kernel(device):
         n = np.stack([PLANE_NORMAL[0] + tilt + 0.05 * np.sin(np.arange(W) * 0.7)[None, :].repeat(H, 0),
                       np.zeros((H, W)), np.ones((H, W))], -1)
         g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
-        frames.append((g, poisson_map(rng, truth * (1.0 + 0.5 * (t >= 3)), 2.0)))
-    changed = dict(max_history=3, change_radius=1, change_sigmas=0.5, pixel_sigmas=0.5, change_persistence=0.0,
+        e = poisson_map(rng, truth * (1.0 + 0.5 * (t >= 3)), 2.0)
+        frames.append((g, e, poisson_m2(e, 2.0)))
+    changed = dict(use_photon_m2=False, max_history=3, change_radius=1, change_sigmas=0.5, pixel_sigmas=0.5, change_persistence=0.0,
                    atrous_levels=2, noise_target=0.3,
                    sigma_depth=0.1, sigma_normal=4.0, sigma_luminance=0.5, depth_tolerance=0.01,
                    normal_tolerance=0.999)
@@ -488,7 +504,7 @@ def test_caustic_every_setting_reaches_a_kernel(device):
     def sequence(settings):
         den = CausticDenoiser(W, H, device, settings)
         out = wp.zeros(W * H, dtype=wp.vec3, device=device)
-        return np.stack([run_frame(den, g, e, out).copy() for g, e in frames])
+        return np.stack([run_frame(den, g, e, out, m2).copy() for g, e, m2 in frames])
 
     base = sequence(CausticSettings())
     for name, value in changed.items():
@@ -556,8 +572,8 @@ def test_caustic_camera_pan_keeps_the_caustic_sharp(device):
     assert err < 1.5 * floor and err_out < 0.5 * err_raw
 
 
-@pytest.mark.parametrize("photon", [0.05, 0.5])
-def test_caustic_moving_caustic_never_worse_than_raw(device, photon):
+@pytest.mark.parametrize("photon,with_m2", [(0.05, False), (0.5, False), (0.5, True)])
+def test_caustic_moving_caustic_never_worse_than_raw(device, photon, with_m2):
     """A caustic sweeping across a still floor a pixel per frame (a moving light: the motion vectors are
     zero): over the last frames the output is no further from the truth than the raw photon map, and it
     follows the caustic (no more than 1.5x the truth's own frame-to-frame change as flicker)."""
@@ -570,14 +586,14 @@ def test_caustic_moving_caustic_never_worse_than_raw(device, photon):
     for t in range(16):
         truth = caustic_pattern(shift=1.0 * t)
         e = poisson_map(rng, truth, photon)
-        res = run_frame(den, g, e, out)[..., 1].copy()
+        res = run_frame(den, g, e, out, poisson_m2(e, photon) if with_m2 else None)[..., 1].copy()
         if t >= 10:
             err.append(np.sqrt(np.mean((res - truth) ** 2)) / truth.mean())
             err_raw.append(np.sqrt(np.mean((e[..., 1] - truth) ** 2)) / truth.mean())
             flicker.append(np.abs(res - prev).sum() / res.sum())
             truth_change.append(np.abs(truth - prev_truth).sum() / truth.sum())
         prev, prev_truth = res, truth
-    print(f"moving caustic, {photon} W/m² per photon: error {np.mean(err):.4f} (raw {np.mean(err_raw):.4f}), "
+    print(f"moving caustic, {photon} W/m² per photon{' (photon_m2)' if with_m2 else ''}: error {np.mean(err):.4f} (raw {np.mean(err_raw):.4f}), "
           f"flicker {np.mean(flicker):.4f} (truth's change {np.mean(truth_change):.4f})")
     assert np.mean(err) <= np.mean(err_raw)
     assert np.mean(flicker) <= 1.5 * np.mean(truth_change)
@@ -624,6 +640,34 @@ def test_caustic_stays_finite_after_a_history_of_vanishing_irradiance(device):
         res = run_frame(den, g, poisson_map(rng, caustic_pattern(), 5.0), out)
         assert np.all(np.isfinite(res))
     assert res[surf].mean() > 1.0  # the bright frames are followed, not held at the vanished history
+
+
+def test_caustic_photon_m2_of_zero_is_no_information(device):
+    """``photon_m2`` = 0 where no photon landed: a window without any leaves the variance estimate to the photon
+    map alone (bit for bit the run without it, with photons or without), and frames with no photons after a
+    history of them, then photons again, stay finite and are followed."""
+    rng = np.random.default_rng(6)
+    g = plane()
+    surf = g["depth"] > 0
+    truth = caustic_pattern()
+    outs = {}
+    for mode in ("none", "zeros", "m2"):
+        den = CausticDenoiser(W, H, device)
+        out = wp.zeros(W * H, dtype=wp.vec3, device=device)
+        rng = np.random.default_rng(6)
+        seq = []
+        for t in range(14):
+            e = poisson_map(rng, truth, 0.5) if not 6 <= t < 10 else np.zeros((H, W, 3), np.float32)
+            m2 = {"none": None, "zeros": np.zeros((H, W), np.float32), "m2": poisson_m2(e, 0.5)}[mode]
+            res = run_frame(den, g, e, out, m2).copy()
+            assert np.all(np.isfinite(res)) and np.all(np.isfinite(den.variance.numpy()))
+            seq.append(res)
+        outs[mode] = np.stack(seq)
+    assert np.array_equal(outs["zeros"], outs["none"])
+    dark = outs["m2"][6:10]  # no photons for four frames: the history is cut back towards zero, not held
+    assert dark[-1][surf].mean() < 0.2 * truth.mean()
+    back = outs["m2"][-1][..., 1]  # four frames after the photons came back
+    assert abs(back[surf].mean() / truth[surf].mean() - 1.0) < 0.1
 
 
 @pytest.mark.parametrize("step,conserve,gate", [(1, True, None), (4, False, None), (16, True, None), (2, True, 0.1)])

@@ -21,7 +21,11 @@ frame holds 0 or a few photons, so a single pixel tells little):
   squared second difference of three same-surface neighbours in a row of the window, along rows or columns,
   whichever is smaller: E[(E_a − 2E_b + E_c)²] = 6σ² + (μ_a − 2μ_b + μ_c)², and the caustic's curvature adds
   far less than its slope did to first differences (3x too large a σ² on the stability suite's water, which
-  hid most changes); s² never counts the caustic's motion as noise. The history's pooled temporal variance,
+  hid most changes); s² never counts the caustic's motion as noise. Where the photon pass keeps ``photon_m2``
+  (P_q = Σ e² of the photons stored in pixel q this frame: the variance of a sum of independent photons), each
+  frame's estimate is at most the window's mean Σ P_q / N, which holds the photons' noise alone, none of the
+  caustic's curvature (a window without photons, P = 0, keeps the differences' estimate, 0 as well there). The
+  history's pooled temporal variance,
   v_q = (m2 − m1²) n/(n − 1), Σ v_q / N, is used where the history has ``SPATIAL_VARIANCE_HISTORY`` frames or
   more, scaled down to s² where that is smaller (the pixels' spread kept): it is free of the caustic's
   structure for a still caustic, while a moving one inflates it. At least
@@ -270,6 +274,7 @@ def reproject_history(
 @wp.kernel
 def accumulate(
     irradiance: wp.array(dtype=wp.vec3),
+    photon_m2: wp.array(dtype=wp.float32),
     depth: wp.array(dtype=wp.float32),
     surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
@@ -294,7 +299,8 @@ def accumulate(
 ):
     """Reactive temporal accumulation (module docstring).
 
-    Reads ``irradiance`` (H*W vec3 [W/m²]), this frame's G-buffer copy ``depth`` ([m], 0 = none) and
+    Reads ``irradiance`` (H*W vec3 [W/m²]), ``photon_m2`` (H*W float32 [(W/m²)²], Σ luminance(e)² of the
+    frame's photons per pixel; None: not kept, the variance from the frames alone), this frame's G-buffer copy ``depth`` ([m], 0 = none) and
     ``normal`` from :func:`reproject_history`, with its ``prev_mean`` (vec3 [W/m²]) and ``stats``
     (vec4: luminance of E, m1, m2, n). ``radius``: half width of the change-detection window [pixels];
     ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
@@ -324,6 +330,8 @@ def accumulate(
     n = wp.vec3(s_p0[1], s_p0[2], s_p0[3])
     count = float(0.0)  # same-surface pixels of the window
     sum_e = float(0.0)
+    sum_p2 = float(0.0)  # Σ photon_m2: the window's Monte-Carlo variance this frame, summed
+    keep_p2 = photon_m2.shape[0] > 0
     photon = float(3.0e38)  # smallest non-zero irradiance of the window: one photon's [W/m²]
     with_history = float(0.0)  # ... of which have a history
     sum_d = float(0.0)  # Σ (E − M)
@@ -357,6 +365,8 @@ def accumulate(
                     here = e
                     count += 1.0
                     sum_e += e
+                    if keep_p2:
+                        sum_p2 += photon_m2[q]
                     if e > 0.0:
                         photon = wp.min(photon, e)
                     if left >= 0.0 and left2 >= 0.0:
@@ -392,6 +402,8 @@ def accumulate(
         var_pairs = sum_dh / pairs_h / 6.0
     elif pairs_v > 0.0:
         var_pairs = sum_dv / pairs_v / 6.0
+    if sum_p2 > 0.0:  # at most the photons' own variance: the differences still hold the caustic's curvature
+        var_pairs = wp.min(var_pairs, sum_p2 / count)
     s_p = stats[p]
     n_prev = s_p[3]
     c = irradiance[p]

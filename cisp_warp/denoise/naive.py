@@ -197,11 +197,12 @@ def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, h
 
 
 def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
-                           history: dict | None, settings) -> dict:
+                           history: dict | None, settings, photon_m2: np.ndarray | None = None) -> dict:
     """The caustics denoiser's temporal stage (:mod:`cisp_warp.denoise.kernels_caustic`, equations in its
     docstring) for one frame, in float64. ``irradiance`` (H, W, 3) [W/m²]; ``depth`` (H, W) [m] (0 = none);
     ``normal`` (H, W, 3); ``motion`` (H, W, 2) [pixels]; ``history``: the previous call's result (None: none).
-    ``settings``: a :class:`cisp_warp.denoise.CausticSettings`. Returns dict(depth, normal, mean (H, W, 3),
+    ``settings``: a :class:`cisp_warp.denoise.CausticSettings`; ``photon_m2`` (H, W) [(W/m²)²]: Σ luminance(e)²
+    of the frame's photons per pixel, or None (read only with ``settings.use_photon_m2``). Returns dict(depth, normal, mean (H, W, 3),
     moments (H, W, 3): m1, m2, s², frames, variance (variance of the accumulated luminance), slope) for the next call."""
     s = settings
     depth = depth.astype(np.float64)
@@ -240,6 +241,10 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
             dv = [(lum[q] - 2 * lum[q[0] - 1, q[1]] + lum[q[0] - 2, q[1]]) ** 2 for q in qs
                   if (q[0] - 1, q[1]) in qset and (q[0] - 2, q[1]) in qset]
             var_pairs = min([np.mean(dd) for dd in (dh, dv) if dd], default=0.0) / 6
+            if s.use_photon_m2 and photon_m2 is not None:  # at most the photons' own variance, where they left any
+                p2 = np.mean([float(photon_m2[q]) for q in qs])
+                if p2 > 0:
+                    var_pairs = min(var_pairs, p2)
             photon = min([v for v in e if v > 0], default=0.0)
             n = n_prev[y, x]
             bias2 = 0.0
@@ -305,12 +310,12 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
 
 
 def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
-                        history: dict | None, settings) -> tuple[np.ndarray, dict]:
-    """One frame of the caustics denoiser: :func:`caustic_temporal_naive`, then ``settings.atrous_levels``
-    gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output (H, W, 3) [W/m²], the
-    history for the next call)."""
+                        history: dict | None, settings, photon_m2: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """One frame of the caustics denoiser: :func:`caustic_temporal_naive` (``photon_m2`` as there), then
+    ``settings.atrous_levels`` gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output
+    (H, W, 3) [W/m²], the history for the next call)."""
     s = settings
-    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s)
+    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s, photon_m2)
     color, variance = t["mean"], t["variance"]
     for level in range(s.atrous_levels):
         color, variance = atrous_level_naive(color, variance, t["depth"], t["normal"], 1 << level, s.sigma_depth,

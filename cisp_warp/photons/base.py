@@ -3,6 +3,8 @@
 Every method hands back the same thing, so that they compare pixel for pixel:
 
 * ``photon_map``: (H*W,) vec3 irradiance [W/m²] on the camera's opaque G-buffer, per pixel, raw;
+* ``photon_m2``: (H*W,) float32 Σ luminance(e)² [(W/m²)²] of the photons stored in each pixel, the frame's own
+  Monte-Carlo variance of its luminance, for the denoiser; kept by the point stores (cisp, sspm), else None;
 * ``ledger``: where the power went (:class:`Ledger`), closing to the sampled power;
 * ``trace(gbuffer, camera_params, frame)``: fill both for one frame, all on the device.
 """
@@ -153,6 +155,9 @@ class PhotonPass:
         self.lights = lights
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        #: (H*W,) float32 Σ luminance(e)² [(W/m²)²] of the photons stored per pixel (common.deposit), zeroed with the
+        #: photon map; allocated by the methods that keep it (:meth:`keep_photon_m2`), else None
+        self.photon_m2 = None
         #: (3 * LEDGER_ENTRIES,) float64: the frame's ledger, power [W] per entry and RGB channel, once folded
         self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
         self._ledger_entries = wp.array(ptr=self.ledger.ptr, dtype=wp.vec3d, shape=(C.LEDGER_ENTRIES,),
@@ -179,6 +184,11 @@ class PhotonPass:
         #: the cameras and random streams the kernels read (``frame.FrameInputs``); a renderer shares its own, which
         #: it writes once per frame before tracing (or replaying a captured frame)
         self.inputs = FrameInputs(lights, settings.seed, self.device)
+
+    def keep_photon_m2(self, n: int) -> None:
+        """Allocate ``photon_m2`` for ``n`` camera pixels: a method whose photons are stored by ``common.deposit``
+        as points calls this once at set-up."""
+        self.photon_m2 = wp.zeros(n, dtype=wp.float32, device=self.device)
 
     def photons_per_view(self, lm: LightMaps) -> int:
         """A light's photons split evenly over its RSM views that emit this frame (every view, unless
@@ -211,6 +221,8 @@ class PhotonPass:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
+        if self.photon_m2 is not None:
+            self.photon_m2.zero_()
         self.ledger.zero_()
         self.ledger_rows.zero_()
         self.max_lum.zero_()

@@ -103,6 +103,7 @@ def trace_photon(
     footprint_mode: int,
     use_cascade: int,  # 0: light view only (no camera march), for comparisons
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
     tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored)
 ):
@@ -115,7 +116,7 @@ def trace_photon(
         return
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(camera, pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
-               photon_map, tally) != 0:
+               photon_map, photon_m2, tally) != 0:
         hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
 
 
@@ -164,6 +165,7 @@ def trace_photons(
     use_cascade: int,  # 0: light view only (no camera march), for comparisons
     # outputs
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
     outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
@@ -206,6 +208,6 @@ def trace_photons(
         camera = cameras[0]  # read after the emission, where the march needs it
         trace_photon(k, origin, d, power, light, rsm_opaque_depth, rsm_depth_bounds, camera, cam_depth,
                      cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel,
-                     t_max, footprint_mode, use_cascade, photon_map, tally, hits)
+                     t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits)
     if t < n_slots:
         record_outcome(outcome, t, tally)
