@@ -83,10 +83,11 @@ class CausticDenoiser:
     frame, the next frame writes the other row and flips ``parity`` on the device, so a captured CUDA graph
     replays every frame): ``hist_surface`` (z [m], 0 = no surface; normal), ``hist_mean`` (running mean of the
     raw photon map [W/m²]; effective frames n), ``hist_moments`` (luminance mean [W/m²], mean square,
-    neighbour-difference variance s², 0); ``parity`` (1 int32).
+    neighbour-difference variance s², kept change ratio), ``hist_photon_var`` (float32 [(W/m²)²], running mean
+    of the window's ``photon_m2``; 0 without it); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface; for the à-trous
     levels), ``surface`` (vec4: the same packed, for the change window), ``prev_mean``
-    (vec3 [W/m²]), ``prev_pairs`` (float32) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
+    (vec3 [W/m²]), ``prev_pairs`` (vec3) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
     estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
     ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
     accumulated luminance), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
@@ -109,12 +110,13 @@ class CausticDenoiser:
         self.hist_surface = two(wp.vec4)
         self.hist_mean = two(wp.vec4)
         self.hist_moments = two(wp.vec4)
+        self.hist_photon_var = two(wp.float32)
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.depth = one(wp.float32)
         self.normal = one(wp.vec3)
         self.surface = one(wp.vec4)
         self.prev_mean = one(wp.vec3)
-        self.prev_pairs = one(wp.vec2)
+        self.prev_pairs = one(wp.vec3)
         self.stats = one(wp.vec4)
         self.integrated = one(wp.vec3)
         self.frames = one(wp.float32)
@@ -140,7 +142,7 @@ class CausticDenoiser:
 
     def reset(self) -> None:
         """Forget all history: the next frame is treated as disoccluded everywhere."""
-        for a in (self.hist_surface, self.hist_mean, self.hist_moments):
+        for a in (self.hist_surface, self.hist_mean, self.hist_moments, self.hist_photon_var):
             a.zero_()
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
@@ -159,7 +161,8 @@ class CausticDenoiser:
         d = self.device
         wp.launch(K.reproject_history, dim=dim, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
-                          self.hist_moments, self.parity, w, h, s.depth_tolerance, s.normal_tolerance],
+                          self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,
+                          s.normal_tolerance],
                   outputs=[self.depth, self.normal, self.surface, self.prev_mean, self.prev_pairs, self.stats])
         m2 = photon_m2 if s.use_photon_m2 else None
         wp.launch(K.accumulate, dim=dim, device=d,
@@ -167,7 +170,7 @@ class CausticDenoiser:
                           self.parity, w, h,
                           s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas, s.change_persistence,
                           s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.hist_mean, self.hist_moments, self.integrated,
+                  outputs=[self.hist_mean, self.hist_moments, self.hist_photon_var, self.integrated,
                            self.temporal_variance, self.frames, self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
