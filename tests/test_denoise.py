@@ -498,7 +498,8 @@ def test_caustic_every_setting_reaches_a_kernel(device):
         g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
         e = poisson_map(rng, truth * (1.0 + 0.5 * (t >= 3)), 2.0)
         frames.append((g, e, poisson_m2(e, 2.0)))
-    changed = dict(use_photon_m2=False, max_history=3, change_radius=1, change_sigmas=0.5, pixel_sigmas=0.5, change_persistence=0.0,
+    changed = dict(use_photon_m2=False,
+                   max_history=3, change_radius=1, change_sigmas=0.5, pixel_sigmas=0.5, change_persistence=0.0,
                    atrous_levels=2, noise_target=0.3,
                    sigma_depth=0.1, sigma_normal=4.0, sigma_luminance=0.5, depth_tolerance=0.01,
                    normal_tolerance=0.999)
@@ -596,7 +597,8 @@ def test_caustic_moving_caustic_never_worse_than_raw(device, photon, with_m2):
             flicker.append(np.abs(res - prev).sum() / res.sum())
             truth_change.append(np.abs(truth - prev_truth).sum() / truth.sum())
         prev, prev_truth = res, truth
-    print(f"moving caustic, {photon} W/m² per photon{' (photon_m2)' if with_m2 else ''}: error {np.mean(err):.4f} (raw {np.mean(err_raw):.4f}), "
+    print(f"moving caustic, {photon} W/m² per photon{' (photon_m2)' if with_m2 else ''}: "
+          f"error {np.mean(err):.4f} (raw {np.mean(err_raw):.4f}), "
           f"flicker {np.mean(flicker):.4f} (truth's change {np.mean(truth_change):.4f})")
     assert np.mean(err) <= np.mean(err_raw)
     assert np.mean(flicker) <= 1.5 * np.mean(truth_change)

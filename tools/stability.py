@@ -99,7 +99,8 @@ def main(argv=None) -> int:
     p.add_argument("--denoisers", default="caustic,svgf,own",
                    help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
     p.add_argument("--photons", type=int, default=None,
-                   help="photons per light per frame of the methods (default: the preset's; the reference keeps its own)")
+                   help="photons per light per frame of the methods (default: the preset's; the reference keeps "
+                   "its own)")
     p.add_argument("--no-static", action="store_true",
                    help="skip the static twins of the animated cases (their error held still: half the time)")
     p.add_argument("--merge", action="store_true",

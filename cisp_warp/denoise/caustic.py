@@ -12,8 +12,9 @@ by the per-frame variance, which does not shrink as frames accumulate. Here
    where the photon pass keeps it, capped by the photons' Σ e² per pixel (``photon_m2``). Where the new
    photons disagree with the history by more than its noise explains (moving water, a moving light) over the
    window or at the pixel alone, the history is cut back in proportion (the weight that minimises the blend's
-   error for the measured bias), so an animated caustic follows within a few frames; a change found on a short history is kept for the next frames, fading
-   (``change_persistence``), so a slow drift does not build a lagging history;
+   error for the measured bias), so an animated caustic follows within a few frames; a change found on a
+   short history is kept for the next frames, fading (``change_persistence``), so a slow drift does not build
+   a lagging history;
 2. spatial (:mod:`.kernels_atrous`, gated levels): the variance of the *mean* (σ²/n, shrinking as frames
    accumulate) sets both the luminance edge stop and, per pixel, the footprint R still needed to bring the
    relative noise down to ``noise_target``; a level of spacing s acts only where R ≥ s/2, so the filter
@@ -152,8 +153,8 @@ class CausticDenoiser:
         Reads ``irradiance_in`` (H*W vec3 [W/m²], the raw photon map), ``photon_m2`` (H*W float32 [(W/m²)²], the
         photon pass's Σ luminance(e)² per pixel, or None; read only with ``use_photon_m2``) and the camera
         G-buffer: ``depth`` (H*W float32 [m], 0 = none), ``normal`` (H*W vec3), ``motion`` (H*W vec2 [pixels],
-        previous position minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out`` (H*W vec3 [W/m²]; 0 where
-        there is no surface). Nothing is allocated, read back or swapped on the host.
+        previous position minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out`` (H*W vec3
+        [W/m²]; 0 where there is no surface). Nothing is allocated, read back or swapped on the host.
         """
         s = self.settings
         w, h = self.width, self.height

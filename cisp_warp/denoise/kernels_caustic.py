@@ -165,9 +165,9 @@ def reproject_history(
 
     Writes ``cur_depth``/``cur_normal`` (this frame's G-buffer copy, depth 0 where ``tri_id < 0``, for the
     à-trous levels), ``surface`` (the same packed as (z, normal) for the change window; also into row
-    ``1 - parity[0]`` of ``hist_surface``), ``prev_mean`` (vec3 [W/m²], the
-    reprojected history mean), ``prev_pairs`` (vec3: its s², kept change ratio and p²) and ``stats`` = (luminance of E, m1, m2, n)
-    of the reprojected history (vec4; n = 0: no history, disoccluded or no surface).
+    ``1 - parity[0]`` of ``hist_surface``), ``prev_mean`` (vec3 [W/m²], the reprojected history mean),
+    ``prev_pairs`` (vec3: its s², kept change ratio and p²) and ``stats`` = (luminance of E, m1, m2, n) of the
+    reprojected history (vec4; n = 0: no history, disoccluded or no surface).
 
     A tap of the 2x2 bilinear footprint is consistent when it is on screen, has a surface, its depth is
     within ``depth_tolerance`` (relative) of this pixel's and its normal's cosine to this one's is at least
@@ -309,10 +309,10 @@ def accumulate(
     """Reactive temporal accumulation (module docstring).
 
     Reads ``irradiance`` (H*W vec3 [W/m²]), ``photon_m2`` (H*W float32 [(W/m²)²], Σ luminance(e)² of the
-    frame's photons per pixel; None: not kept, the variance from the frames alone), this frame's G-buffer copy ``depth`` ([m], 0 = none) and
-    ``normal`` from :func:`reproject_history`, with its ``prev_mean`` (vec3 [W/m²]) and ``stats``
-    (vec4: luminance of E, m1, m2, n). ``radius``: half width of the change-detection window [pixels];
-    ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
+    frame's photons per pixel; None: not kept, the variance from the frames alone), this frame's G-buffer copy
+    ``depth`` ([m], 0 = none) and ``normal`` from :func:`reproject_history`, with its ``prev_mean`` (vec3
+    [W/m²]), ``prev_pairs`` (vec3: s², kept change ratio, p²) and ``stats`` (vec4: luminance of E, m1, m2, n).
+    ``radius``: half width of the change-detection window [pixels]; ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
     ``change_sigmas`` (k): how many of their standard errors the deviations must exceed to count as change; a window pixel q is the same
     surface when its depth is within ``depth_tolerance`` (relative) and its normal's cosine at least
     ``normal_tolerance``.

@@ -202,9 +202,9 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
     docstring) for one frame, in float64. ``irradiance`` (H, W, 3) [W/m²]; ``depth`` (H, W) [m] (0 = none);
     ``normal`` (H, W, 3); ``motion`` (H, W, 2) [pixels]; ``history``: the previous call's result (None: none).
     ``settings``: a :class:`cisp_warp.denoise.CausticSettings`; ``photon_m2`` (H, W) [(W/m²)²]: Σ luminance(e)²
-    of the frame's photons per pixel, or None (read only with ``settings.use_photon_m2``). Returns dict(depth, normal, mean (H, W, 3),
-    moments (H, W, 4): m1, m2, s², kept change ratio, frames, photon_var (the running mean of the window's photon_m2),
-    variance (variance of the accumulated luminance), slope) for the next call."""
+    of the frame's photons per pixel, or None (read only with ``settings.use_photon_m2``). Returns dict(depth,
+    normal, mean (H, W, 3), moments (H, W, 4): m1, m2, s², kept change ratio, frames, photon_var (the running
+    mean of the window's photon_m2), variance (variance of the accumulated luminance), slope) for the next call."""
     s = settings
     depth = depth.astype(np.float64)
     normal = normal.astype(np.float64)

@@ -155,8 +155,8 @@ class PhotonPass:
         self.lights = lights
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
-        #: (H*W,) float32 Σ luminance(e)² [(W/m²)²] of the photons stored per pixel (common.deposit), zeroed with the
-        #: photon map; allocated by the methods that keep it (:meth:`keep_photon_m2`), else None
+        #: (H*W,) float32 Σ luminance(e)² [(W/m²)²] of the photons stored per pixel (common.deposit), zeroed with
+        #: the photon map; allocated by the methods that keep it (:meth:`keep_photon_m2`), else None
         self.photon_m2 = None
         #: (3 * LEDGER_ENTRIES,) float64: the frame's ledger, power [W] per entry and RGB channel, once folded
         self.ledger = wp.zeros(3 * C.LEDGER_ENTRIES, dtype=wp.float64, device=self.device)
