@@ -316,7 +316,10 @@ class Renderer:
             with stage("denoise"):
                 if not self.photons.denoise:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
-                elif isinstance(self.denoiser, (CausticDenoiser, SVGF)):
+                elif isinstance(self.denoiser, CausticDenoiser):
+                    self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
+                                          self.caustic_irradiance, self.photons.photon_m2)
+                elif isinstance(self.denoiser, SVGF):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)

@@ -104,7 +104,11 @@ def render_history_frame(renderer) -> None:
             keep = full.feedback_level + 1 if isinstance(denoiser, SVGF) else 0  # levels the history reads
             denoiser.settings = replace(full, atrous_levels=min(keep, full.atrous_levels))
             try:
-                denoiser.denoise(photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, renderer.caustic_irradiance)
+                frame_in = (photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, renderer.caustic_irradiance)
+                if isinstance(denoiser, CausticDenoiser):
+                    denoiser.denoise(*frame_in, photons.photon_m2)
+                else:
+                    denoiser.denoise(*frame_in)
             finally:
                 denoiser.settings = full
     renderer.prev_view_params = renderer.view_params

@@ -122,3 +122,40 @@ def test_hits_are_recorded_only_when_asked(device):
     assert stored.sum() > 1000
     assert np.all(hits[:n][stored, 3] >= 0) and np.all(hits[:n][~stored, 3] == -1)
     np.testing.assert_array_equal(on.photons.photon_map.numpy(), off.photons.photon_map.numpy())
+
+
+@pytest.mark.parametrize("method", ["cisp", "sspm"])
+def test_photon_m2_is_the_sum_of_squared_deposits(device, method):
+    """``photon_m2`` holds Σ luminance(e)² of each pixel's deposits. Flat water under the sun: every photon carries
+    the same power, so a pixel that stores k photons of irradiance e holds E = k e and photon_m2 = k e²: the ratio
+    luminance(E)² / photon_m2 is a whole number, k, and for CISP the count of its hit records in that pixel; no
+    photon, no m2. The reference and caustics mapping keep none (they do not store points per frame)."""
+    scene, _ = flat_water(30.0)
+    r = Renderer(scene, RenderSettings(rsm_size=128, method=method, denoiser="none",
+                                       photons=PhotonSettings(photons=60_000, seed=3)), device=device)
+    r.photons.record_hits = method == "cisp"
+    r.render_frame()
+    lum = r.photons.photon_map.numpy().astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+    m2 = r.photons.photon_m2.numpy().astype(np.float64)
+    stored = lum > 0
+    assert stored.sum() > 1000
+    assert np.all(m2[~stored] == 0.0) and np.all(m2[stored] > 0.0)
+    k = lum[stored] ** 2 / m2[stored]
+    assert k.max() > 3.0  # several photons share a pixel
+    np.testing.assert_allclose(k, np.round(k), atol=2e-3 * k.max())
+    if method == "cisp":
+        hits = r.photons.hits.numpy()
+        pix = hits[:, 3][hits[:, 3] >= 0].astype(np.int64)
+        count = np.bincount(pix, minlength=lum.size)
+        np.testing.assert_array_equal(np.round(k).astype(np.int64), count[stored])
+    r.render_frame()  # cleared each frame: the same frame count, not twice
+    np.testing.assert_allclose(r.photons.photon_m2.numpy().sum(), m2.sum(), rtol=0.05)
+
+
+def test_photon_m2_is_kept_by_point_stores_only(device):
+    scene, _ = flat_water(0.0)
+    for method, kept in (("cisp", True), ("sspm", True), ("caustics_map", False), ("reference", False)):
+        r = Renderer(scene, RenderSettings(rsm_size=64, method=method, denoiser="none",
+                                           photons=PhotonSettings(photons=2_000, reference_photons=4_000)),
+                     device=device)
+        assert (r.photons.photon_m2 is not None) == kept, method

@@ -78,6 +78,8 @@ class Bench:
         rng = np.random.default_rng(seed)
         maps = [(g["photon_map"] * (2.0 * (rng.random((h, w)) < 0.5))[..., None]).astype(np.float32) for _ in range(variants)]
         self.maps = [wp.array(m.reshape(-1, 3), dtype=wp.vec3, device=device) for m in maps]
+        # the photon pass's Σ luminance(e)² per pixel: each lit pixel holds one photon (grey, so luminance = e)
+        self.m2s = [wp.array((m[..., 1] ** 2).reshape(-1), dtype=wp.float32, device=device) for m in maps]
         self.depth = wp.array(g["depth"].reshape(-1), dtype=wp.float32, device=device)
         self.normal = wp.array(g["normal"].reshape(-1, 3), dtype=wp.vec3, device=device)
         self.tri_id = wp.array(g["tri_id"].reshape(-1), dtype=wp.int32, device=device)
@@ -97,6 +99,9 @@ class Bench:
         e = self.maps[self.frame % len(self.maps)]
         if self.name == "gather":
             self.den.apply(e, self.depth, self.normal, self.tri_id, self.out)
+        elif self.name == "caustic":
+            self.den.denoise(e, self.depth, self.normal, self.motion, self.tri_id, self.out,
+                             self.m2s[self.frame % len(self.m2s)])
         else:
             self.den.denoise(e, self.depth, self.normal, self.motion, self.tri_id, self.out)
         self.frame += 1

@@ -98,6 +98,9 @@ def main(argv=None) -> int:
                    "photons then count grid cells per light)")
     p.add_argument("--denoisers", default="caustic,svgf,own",
                    help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
+    p.add_argument("--photons", type=int, default=None,
+                   help="photons per light per frame of the methods (default: the preset's; the reference keeps "
+                   "its own)")
     p.add_argument("--no-static", action="store_true",
                    help="skip the static twins of the animated cases (their error held still: half the time)")
     p.add_argument("--merge", action="store_true",
@@ -106,7 +109,11 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.smoke:
         args.preset = "smoke"
-    cfg = PRESETS[args.preset]
+    cfg = dict(PRESETS[args.preset])
+    if args.photons is not None:
+        if args.photons < 1:
+            raise SystemExit(f"--photons must be a positive integer, got {args.photons}")
+        cfg["photons"] = args.photons
 
     import warp as wp
 

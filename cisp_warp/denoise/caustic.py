@@ -8,11 +8,13 @@ by the per-frame variance, which does not shrink as frames accumulate. Here
 1. temporal (:mod:`.kernels_caustic`): the history is the running mean of the raw irradiance, reprojected
    through the motion vectors with SVGF's depth/normal consistency tests (Catmull-Rom where the 4x4
    footprint is one surface, so a camera pan does not blur it); a static caustic converges to the photon
-   map's long-run mean. Where the new photons disagree with the history by more than its noise explains
-   (moving water, a moving light) over the window or at the pixel alone, the history is cut back in
-   proportion (the weight that minimises the blend's error for the measured bias), so an animated caustic
-   follows within a few frames; a change found on a short history is kept for the next frames, fading
-   (``change_persistence``), so a slow drift does not build a lagging history;
+   map's long-run mean. The frame's own noise is estimated from the photon map (neighbour differences) and,
+   where the photon pass keeps it, capped by the photons' Σ e² per pixel (``photon_m2``). Where the new
+   photons disagree with the history by more than its noise explains (moving water, a moving light) over the
+   window or at the pixel alone, the history is cut back in proportion (the weight that minimises the blend's
+   error for the measured bias), so an animated caustic follows within a few frames; a change found on a
+   short history is kept for the next frames, fading (``change_persistence``), so a slow drift does not build
+   a lagging history;
 2. spatial (:mod:`.kernels_atrous`, gated levels): the variance of the *mean* (σ²/n, shrinking as frames
    accumulate) sets both the luminance edge stop and, per pixel, the footprint R still needed to bring the
    relative noise down to ``noise_target``; a level of spacing s acts only where R ≥ s/2, so the filter
@@ -53,6 +55,8 @@ class CausticSettings:
     sigma_luminance: float = 2.0  #: σ_l, luminance edge stop in standard deviations of the mean
     depth_tolerance: float = 0.1  #: reprojection and change window: largest relative depth difference
     normal_tolerance: float = 0.9  #: reprojection and change window: smallest cosine between normals
+    use_photon_m2: bool = True  #: cap each frame's variance estimate by the photons' own, Σ e² per pixel (the
+    #: photon pass's ``photon_m2``), where :meth:`CausticDenoiser.denoise` is given it
 
     def __post_init__(self):
         if self.max_history < 2:
@@ -80,10 +84,11 @@ class CausticDenoiser:
     frame, the next frame writes the other row and flips ``parity`` on the device, so a captured CUDA graph
     replays every frame): ``hist_surface`` (z [m], 0 = no surface; normal), ``hist_mean`` (running mean of the
     raw photon map [W/m²]; effective frames n), ``hist_moments`` (luminance mean [W/m²], mean square,
-    neighbour-difference variance s², 0); ``parity`` (1 int32).
+    neighbour-difference variance s², kept change ratio), ``hist_photon_var`` (float32 [(W/m²)²], running mean
+    of the window's ``photon_m2``; 0 without it); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface; for the à-trous
     levels), ``surface`` (vec4: the same packed, for the change window), ``prev_mean``
-    (vec3 [W/m²]), ``prev_pairs`` (float32) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
+    (vec3 [W/m²]), ``prev_pairs`` (vec3) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
     estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
     ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
     accumulated luminance), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
@@ -106,12 +111,13 @@ class CausticDenoiser:
         self.hist_surface = two(wp.vec4)
         self.hist_mean = two(wp.vec4)
         self.hist_moments = two(wp.vec4)
+        self.hist_photon_var = two(wp.float32)
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.depth = one(wp.float32)
         self.normal = one(wp.vec3)
         self.surface = one(wp.vec4)
         self.prev_mean = one(wp.vec3)
-        self.prev_pairs = one(wp.vec2)
+        self.prev_pairs = one(wp.vec3)
         self.stats = one(wp.vec4)
         self.integrated = one(wp.vec3)
         self.frames = one(wp.float32)
@@ -137,17 +143,18 @@ class CausticDenoiser:
 
     def reset(self) -> None:
         """Forget all history: the next frame is treated as disoccluded everywhere."""
-        for a in (self.hist_surface, self.hist_mean, self.hist_moments):
+        for a in (self.hist_surface, self.hist_mean, self.hist_moments, self.hist_photon_var):
             a.zero_()
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
-                tri_id: wp.array, out: wp.array) -> None:
+                tri_id: wp.array, out: wp.array, photon_m2: wp.array | None = None) -> None:
         """Denoise one frame.
 
-        Reads ``irradiance_in`` (H*W vec3 [W/m²], the raw photon map) and the camera G-buffer: ``depth``
-        (H*W float32 [m], 0 = none), ``normal`` (H*W vec3), ``motion`` (H*W vec2 [pixels], previous position
-        minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out`` (H*W vec3 [W/m²]; 0 where
-        there is no surface). Nothing is allocated, read back or swapped on the host.
+        Reads ``irradiance_in`` (H*W vec3 [W/m²], the raw photon map), ``photon_m2`` (H*W float32 [(W/m²)²], the
+        photon pass's Σ luminance(e)² per pixel, or None; read only with ``use_photon_m2``) and the camera
+        G-buffer: ``depth`` (H*W float32 [m], 0 = none), ``normal`` (H*W vec3), ``motion`` (H*W vec2 [pixels],
+        previous position minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out`` (H*W vec3
+        [W/m²]; 0 where there is no surface). Nothing is allocated, read back or swapped on the host.
         """
         s = self.settings
         w, h = self.width, self.height
@@ -155,14 +162,16 @@ class CausticDenoiser:
         d = self.device
         wp.launch(K.reproject_history, dim=dim, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
-                          self.hist_moments, self.parity, w, h, s.depth_tolerance, s.normal_tolerance],
+                          self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,
+                          s.normal_tolerance],
                   outputs=[self.depth, self.normal, self.surface, self.prev_mean, self.prev_pairs, self.stats])
+        m2 = photon_m2 if s.use_photon_m2 else None
         wp.launch(K.accumulate, dim=dim, device=d,
-                  inputs=[irradiance_in, self.depth, self.surface, self.prev_mean, self.prev_pairs, self.stats,
+                  inputs=[irradiance_in, m2, self.depth, self.surface, self.prev_mean, self.prev_pairs, self.stats,
                           self.parity, w, h,
                           s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas, s.change_persistence,
                           s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.hist_mean, self.hist_moments, self.integrated,
+                  outputs=[self.hist_mean, self.hist_moments, self.hist_photon_var, self.integrated,
                            self.temporal_variance, self.frames, self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)

@@ -21,7 +21,15 @@ frame holds 0 or a few photons, so a single pixel tells little):
   squared second difference of three same-surface neighbours in a row of the window, along rows or columns,
   whichever is smaller: E[(E_a − 2E_b + E_c)²] = 6σ² + (μ_a − 2μ_b + μ_c)², and the caustic's curvature adds
   far less than its slope did to first differences (3x too large a σ² on the stability suite's water, which
-  hid most changes); s² never counts the caustic's motion as noise. The history's pooled temporal variance,
+  hid most changes); s² never counts the caustic's motion as noise. Where the photon pass keeps ``photon_m2``
+  (P_q = Σ e² of the photons stored in pixel q this frame: the variance of a sum of independent photons), s² is
+  at most p², the running mean over frames (the same weights) of the window's mean Σ P_q / N, which holds the
+  photons' noise alone, none of the caustic's curvature. The two running means are compared, not each frame's
+  (the smaller of two noisy estimates is biased low: s² at 0.80 of the truth on Poisson maps, against 0.94,
+  and false changes cut still histories). Independent photons make p² an upper bound: emission from a
+  low-discrepancy sequence leaves far less noise (CISP and SSPM on the stability suite's water: 0.08 p²), so
+  the cap acts where the curvature is large (focus lines), and p² = 0 (no photon yet) caps nothing. The
+  history's pooled temporal variance,
   v_q = (m2 − m1²) n/(n − 1), Σ v_q / N, is used where the history has ``SPATIAL_VARIANCE_HISTORY`` frames or
   more, scaled down to s² where that is smaller (the pixels' spread kept): it is free of the caustic's
   structure for a still caustic, while a moving one inflates it. At least
@@ -133,6 +141,7 @@ def reproject_history(
     hist_surface: wp.array2d(dtype=wp.vec4),
     hist_mean: wp.array2d(dtype=wp.vec4),
     hist_moments: wp.array2d(dtype=wp.vec4),
+    hist_photon_var: wp.array2d(dtype=wp.float32),
     parity: wp.array(dtype=wp.int32),
     width: int,
     height: int,
@@ -142,7 +151,7 @@ def reproject_history(
     cur_normal: wp.array(dtype=wp.vec3),
     surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
-    prev_pairs: wp.array(dtype=wp.vec2),
+    prev_pairs: wp.array(dtype=wp.vec3),
     stats: wp.array(dtype=wp.vec4),
 ):
     """Fetch the history under each pixel through the motion vectors.
@@ -151,20 +160,21 @@ def reproject_history(
     0 = none), ``normal`` (vec3), ``motion`` (vec2 [pixels], previous position minus pixel centre),
     ``tri_id`` (int32, -1 = none), and row ``parity[0]`` of the history (vec4 each, one aligned load per tap):
     ``hist_surface`` (z [m], normal: the G-buffer copy of the last frame; z = 0: no surface), ``hist_mean``
-    (mean irradiance [W/m²], effective frames n), ``hist_moments`` (m1 [W/m²], m2 and s² [(W/m²)²], 0).
+    (mean irradiance [W/m²], effective frames n), ``hist_moments`` (m1 [W/m²], m2 and s² [(W/m²)²], kept
+    change ratio) and ``hist_photon_var`` (float32 [(W/m²)²], p²: the running mean of the window's photon_m2).
 
     Writes ``cur_depth``/``cur_normal`` (this frame's G-buffer copy, depth 0 where ``tri_id < 0``, for the
     à-trous levels), ``surface`` (the same packed as (z, normal) for the change window; also into row
-    ``1 - parity[0]`` of ``hist_surface``), ``prev_mean`` (vec3 [W/m²], the
-    reprojected history mean), ``prev_pairs`` (float32, its s²) and ``stats`` = (luminance of E, m1, m2, n)
-    of the reprojected history (vec4; n = 0: no history, disoccluded or no surface).
+    ``1 - parity[0]`` of ``hist_surface``), ``prev_mean`` (vec3 [W/m²], the reprojected history mean),
+    ``prev_pairs`` (vec3: its s², kept change ratio and p²) and ``stats`` = (luminance of E, m1, m2, n) of the
+    reprojected history (vec4; n = 0: no history, disoccluded or no surface).
 
     A tap of the 2x2 bilinear footprint is consistent when it is on screen, has a surface, its depth is
     within ``depth_tolerance`` (relative) of this pixel's and its normal's cosine to this one's is at least
     ``normal_tolerance`` (as SVGF's reprojection); the consistent taps are renormalised, and fewer than
     ``MIN_BILINEAR_WEIGHT`` of the footprint means disoccluded. Where all 16 taps of the 4x4 footprint are
     consistent and the motion is fractional, the mean and (m1, m2) take the Catmull-Rom value instead, clamped
-    per component to the range of the 2x2 taps (module docstring); s² and n stay bilinear.
+    per component to the range of the 2x2 taps (module docstring); s², p² and n stay bilinear.
     """
     y, x = wp.tid()
     p = y * width + x
@@ -177,7 +187,7 @@ def reproject_history(
         surface[p] = wp.vec4(0.0)
         hist_surface[cur, p] = wp.vec4(0.0)
         prev_mean[p] = wp.vec3(0.0)
-        prev_pairs[p] = wp.vec2(0.0)
+        prev_pairs[p] = wp.vec3(0.0)
         stats[p] = wp.vec4(0.0)
         return
     n = normal[p]
@@ -199,6 +209,7 @@ def reproject_history(
     sum_w = float(0.0)
     mean = wp.vec3(0.0)
     moments = wp.vec4(0.0)
+    photon_var = float(0.0)
     frames = float(0.0)
     lo = wp.vec3(3.0e38)  # per component: the smallest and largest mean and moments (m1, m2) of the 2x2 taps
     hi = wp.vec3(-3.0e38)
@@ -220,6 +231,7 @@ def reproject_history(
             moments_q = wp.vec3(moments4[0], moments4[1], moments4[2])
             mean += w * mean_q
             moments += w * moments4
+            photon_var += w * hist_photon_var[prev, q]
             frames += w * mean4[3]
             lo = wp.min(lo, mean_q)
             hi = wp.max(hi, mean_q)
@@ -259,21 +271,22 @@ def reproject_history(
                 mean = wp.min(wp.max(cubic, lo), hi)
                 m12 = wp.min(wp.max(cubic_m, lo_m), hi_m)
         prev_mean[p] = mean
-        prev_pairs[p] = wp.vec2(moments[2] * inv, moments[3] * inv)
+        prev_pairs[p] = wp.vec3(moments[2] * inv, moments[3] * inv, photon_var * inv)
         stats[p] = wp.vec4(lum, m12[0], m12[1], frames * inv)
     else:
         prev_mean[p] = wp.vec3(0.0)
-        prev_pairs[p] = wp.vec2(0.0)
+        prev_pairs[p] = wp.vec3(0.0)
         stats[p] = wp.vec4(lum, 0.0, 0.0, 0.0)
 
 
 @wp.kernel
 def accumulate(
     irradiance: wp.array(dtype=wp.vec3),
+    photon_m2: wp.array(dtype=wp.float32),
     depth: wp.array(dtype=wp.float32),
     surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
-    prev_pairs: wp.array(dtype=wp.vec2),
+    prev_pairs: wp.array(dtype=wp.vec3),
     stats: wp.array(dtype=wp.vec4),
     parity: wp.array(dtype=wp.int32),
     width: int,
@@ -287,6 +300,7 @@ def accumulate(
     normal_tolerance: float,
     hist_mean: wp.array2d(dtype=wp.vec4),
     hist_moments: wp.array2d(dtype=wp.vec4),
+    hist_photon_var: wp.array2d(dtype=wp.float32),
     mean_out: wp.array(dtype=wp.vec3),
     variance_out: wp.array(dtype=wp.float32),
     frames_out: wp.array(dtype=wp.float32),
@@ -294,16 +308,18 @@ def accumulate(
 ):
     """Reactive temporal accumulation (module docstring).
 
-    Reads ``irradiance`` (H*W vec3 [W/m²]), this frame's G-buffer copy ``depth`` ([m], 0 = none) and
-    ``normal`` from :func:`reproject_history`, with its ``prev_mean`` (vec3 [W/m²]) and ``stats``
-    (vec4: luminance of E, m1, m2, n). ``radius``: half width of the change-detection window [pixels];
-    ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
+    Reads ``irradiance`` (H*W vec3 [W/m²]), ``photon_m2`` (H*W float32 [(W/m²)²], Σ luminance(e)² of the
+    frame's photons per pixel; None: not kept, the variance from the frames alone), this frame's G-buffer copy
+    ``depth`` ([m], 0 = none) and ``normal`` from :func:`reproject_history`, with its ``prev_mean`` (vec3
+    [W/m²]), ``prev_pairs`` (vec3: s², kept change ratio, p²) and ``stats`` (vec4: luminance of E, m1, m2, n).
+    ``radius``: half width of the change-detection window [pixels]; ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
     ``change_sigmas`` (k): how many of their standard errors the deviations must exceed to count as change; a window pixel q is the same
     surface when its depth is within ``depth_tolerance`` (relative) and its normal's cosine at least
     ``normal_tolerance``.
 
     Writes the new history into row ``1 - parity[0]`` of ``hist_mean`` (vec4: mean [W/m²], n_new) and
-    ``hist_moments`` (vec4: m1, m2, s², 0), and per pixel ``mean_out`` (vec3 [W/m²], the accumulated
+    ``hist_moments`` (vec4: m1, m2, s², kept change ratio) and ``hist_photon_var`` (p², 0 without photon_m2),
+    and per pixel ``mean_out`` (vec3 [W/m²], the accumulated
     estimate), ``variance_out`` (float32 [(W/m²)²], the variance of its luminance, σ² / n_new),
     ``frames_out`` (n_new) and ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous levels). 0 without
     a surface.
@@ -315,6 +331,7 @@ def accumulate(
     if z <= 0.0:
         hist_mean[cur, p] = wp.vec4(0.0)
         hist_moments[cur, p] = wp.vec4(0.0)
+        hist_photon_var[cur, p] = 0.0
         mean_out[p] = wp.vec3(0.0)
         variance_out[p] = 0.0
         frames_out[p] = 0.0
@@ -324,6 +341,8 @@ def accumulate(
     n = wp.vec3(s_p0[1], s_p0[2], s_p0[3])
     count = float(0.0)  # same-surface pixels of the window
     sum_e = float(0.0)
+    sum_p2 = float(0.0)  # Σ photon_m2: the window's Monte-Carlo variance this frame, summed
+    keep_p2 = photon_m2.shape[0] > 0
     photon = float(3.0e38)  # smallest non-zero irradiance of the window: one photon's [W/m²]
     with_history = float(0.0)  # ... of which have a history
     sum_d = float(0.0)  # Σ (E − M)
@@ -357,6 +376,8 @@ def accumulate(
                     here = e
                     count += 1.0
                     sum_e += e
+                    if keep_p2:
+                        sum_p2 += photon_m2[q]
                     if e > 0.0:
                         photon = wp.min(photon, e)
                     if left >= 0.0 and left2 >= 0.0:
@@ -401,20 +422,28 @@ def accumulate(
     # s²: running mean over frames of the neighbour-difference variance (each frame's free of the caustic's
     # motion; the mean over frames free of its noise)
     pairs = var_pairs
+    photon_var = sum_p2 / count  # p²: the photons' own variance, the window's mean photon_m2 (0: not kept)
     if n_prev <= 0.0:  # disoccluded: the new frame alone, its variance from its neighbour differences
         alpha = float(1.0)
         n_new = float(1.0)
         sigma2_est = var_pairs
+        if photon_var > 0.0:
+            sigma2_est = wp.min(var_pairs, photon_var)
     else:
         pr = prev_pairs[p]
-        pairs = wp.lerp(pr[0], var_pairs, 1.0 / (wp.min(n_prev, max_history - 1.0) + 1.0))
+        blend = 1.0 / (wp.min(n_prev, max_history - 1.0) + 1.0)
+        pairs = wp.lerp(pr[0], var_pairs, blend)
+        photon_var = wp.lerp(pr[2], photon_var, blend)
+        s2 = pairs  # s², at most p² where the photons' variance is known (the running means compared)
+        if photon_var > 0.0:
+            s2 = wp.min(pairs, photon_var)
         d2 = sum_d2 / with_history
         temporal = sum_var / with_history
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):
-            sum_var = pairs * with_history
-            sum_var2 = pairs * pairs * with_history
-        elif pairs < temporal:  # the pixels' variances scaled down to the spatial estimate, their spread kept
-            scale = pairs / temporal
+            sum_var = s2 * with_history
+            sum_var2 = s2 * s2 * with_history
+        elif s2 < temporal:  # the pixels' variances scaled down to the spatial estimate, their spread kept
+            scale = s2 / temporal
             sum_var = sum_var * scale
             sum_var2 = sum_var2 * scale * scale
         sigma2 = sum_var / with_history
@@ -455,7 +484,7 @@ def accumulate(
         kept = wp.min(wp.max(confirmed, carried), MAX_KEPT_RATIO)
         r = wp.max(r, carried)
         if n_prev < float(SPATIAL_VARIANCE_HISTORY):  # for the filter: the deviations, less the change found
-            sigma2_est = wp.min(pairs, wp.max(temporal, wp.max(d2 - bias2, 0.0) / history_noise))
+            sigma2_est = wp.min(s2, wp.max(temporal, wp.max(d2 - bias2, 0.0) / history_noise))
         # the pixel's own deviation, tested alone against its share of the window's variance (Poisson counts:
         # in proportion to its mean, the new value standing in where larger, so one photon in a dark pixel is
         # no change): the window's test dilutes a change that covers only part of it
@@ -483,6 +512,7 @@ def accumulate(
     sigma2_est = wp.max(sigma2_est, own * n_new / wp.max(n_new - 1.0, 1.0))
     hist_mean[cur, p] = wp.vec4(mean[0], mean[1], mean[2], n_new)
     hist_moments[cur, p] = wp.vec4(moments[0], moments[1], moments[2], kept)
+    hist_photon_var[cur, p] = photon_var
     mean_out[p] = mean
     variance_out[p] = sigma2_est / n_new
     frames_out[p] = n_new

@@ -197,12 +197,14 @@ def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, h
 
 
 def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
-                           history: dict | None, settings) -> dict:
+                           history: dict | None, settings, photon_m2: np.ndarray | None = None) -> dict:
     """The caustics denoiser's temporal stage (:mod:`cisp_warp.denoise.kernels_caustic`, equations in its
     docstring) for one frame, in float64. ``irradiance`` (H, W, 3) [W/m²]; ``depth`` (H, W) [m] (0 = none);
     ``normal`` (H, W, 3); ``motion`` (H, W, 2) [pixels]; ``history``: the previous call's result (None: none).
-    ``settings``: a :class:`cisp_warp.denoise.CausticSettings`. Returns dict(depth, normal, mean (H, W, 3),
-    moments (H, W, 3): m1, m2, s², frames, variance (variance of the accumulated luminance), slope) for the next call."""
+    ``settings``: a :class:`cisp_warp.denoise.CausticSettings`; ``photon_m2`` (H, W) [(W/m²)²]: Σ luminance(e)²
+    of the frame's photons per pixel, or None (read only with ``settings.use_photon_m2``). Returns dict(depth,
+    normal, mean (H, W, 3), moments (H, W, 4): m1, m2, s², kept change ratio, frames, photon_var (the running
+    mean of the window's photon_m2), variance (variance of the accumulated luminance), slope) for the next call."""
     s = settings
     depth = depth.astype(np.float64)
     normal = normal.astype(np.float64)
@@ -210,17 +212,18 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
     h, w = depth.shape
     lum = irradiance @ REC709
     if history is None:
-        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 4)), "frames": np.zeros((h, w))}, \
-            np.zeros((h, w), bool)
+        prev, valid = {"mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 4)), "frames": np.zeros((h, w)),
+                       "photon_var": np.zeros((h, w))}, np.zeros((h, w), bool)
     else:
-        prev, valid = reproject_naive(depth, normal, motion.astype(np.float64), history, ("mean", "moments", "frames"),
+        prev, valid = reproject_naive(depth, normal, motion.astype(np.float64), history,
+                                      ("mean", "moments", "frames", "photon_var"),
                                       s.depth_tolerance, s.normal_tolerance, cubic={"mean": (0, 1, 2), "moments": (0, 1)})
     n_prev = np.where(valid, prev["frames"], 0.0)
     m1, m2, s2 = prev["moments"][..., 0], prev["moments"][..., 1], prev["moments"][..., 2]
     r_prev = prev["moments"][..., 3]  # the window's change ratio kept from the last frame
     res = {"depth": np.where(depth > 0, depth, 0.0), "normal": np.where(depth[..., None] > 0, normal, 0.0),
            "mean": np.zeros((h, w, 3)), "moments": np.zeros((h, w, 4)), "frames": np.zeros((h, w)),
-           "variance": np.zeros((h, w)), "slope": depth_slope_naive(depth)}
+           "photon_var": np.zeros((h, w)), "variance": np.zeros((h, w)), "slope": depth_slope_naive(depth)}
     r = s.change_radius
     k = s.change_sigmas
     for y in range(h):
@@ -240,15 +243,19 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
             dv = [(lum[q] - 2 * lum[q[0] - 1, q[1]] + lum[q[0] - 2, q[1]]) ** 2 for q in qs
                   if (q[0] - 1, q[1]) in qset and (q[0] - 2, q[1]) in qset]
             var_pairs = min([np.mean(dd) for dd in (dh, dv) if dd], default=0.0) / 6
+            # the photons' own variance: the window's mean Σ e² (0 where not given)
+            p2 = np.mean([float(photon_m2[q]) for q in qs]) if s.use_photon_m2 and photon_m2 is not None else 0.0
             photon = min([v for v in e if v > 0], default=0.0)
             n = n_prev[y, x]
             bias2 = 0.0
             kept = 0.0
             pairs = var_pairs  # running mean over frames of the neighbour-difference variance
             if n <= 0:
-                alpha, n_new, sigma2_est = 1.0, 1.0, var_pairs
+                alpha, n_new, sigma2_est = 1.0, 1.0, (min(var_pairs, p2) if p2 > 0 else var_pairs)
             else:
                 pairs = s2[y, x] + (var_pairs - s2[y, x]) / (min(n, s.max_history - 1) + 1)
+                p2 = prev["photon_var"][y, x] + (p2 - prev["photon_var"][y, x]) / (min(n, s.max_history - 1) + 1)
+                capped = min(pairs, p2) if p2 > 0 else pairs  # s², at most the running mean of the photons' own
                 hq = [q for q in qs if n_prev[q] > 0]
                 d = np.array([lum[q] - m1[q] for q in hq])
                 nq = np.array([n_prev[q] for q in hq])
@@ -256,9 +263,9 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 d2 = np.mean(d ** 2)
                 temporal = np.mean(var_t)
                 if n < SPATIAL_VARIANCE_HISTORY:
-                    var_t = np.full(len(hq), pairs)
-                elif pairs < temporal:  # scaled down to the spatial estimate, their spread kept
-                    var_t = var_t * (pairs / temporal)
+                    var_t = np.full(len(hq), capped)
+                elif capped < temporal:  # scaled down to the spatial estimate, their spread kept
+                    var_t = var_t * (capped / temporal)
                 sigma2 = np.mean(var_t)
                 sigma2_est = sigma2
                 sigma2 = max(sigma2, (FLOAT_RESOLUTION * np.mean([m1[q] for q in hq])) ** 2)
@@ -280,7 +287,7 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                 kept = min(max(ratio if confirmed else 0.0, carried), MAX_KEPT_RATIO)
                 ratio = max(ratio, carried)
                 if n < SPATIAL_VARIANCE_HISTORY:
-                    sigma2_est = min(pairs, max(temporal, max(d2 - bias2, 0.0) / history_noise))
+                    sigma2_est = min(capped, max(temporal, max(d2 - bias2, 0.0) / history_noise))
                 if m1_sum > 0:  # the pixel alone, against its share of the window's variance (∝ its mean)
                     kp = s.pixel_sigmas
                     var_p = sigma2 * max(m1[y, x], lum[y, x]) * len(hq) / m1_sum * (1 + 1 / n)
@@ -300,17 +307,18 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
             res["moments"][y, x] = (new_m1, new_m1 ** 2 + own, pairs, kept)
             sigma2_est = max(sigma2_est, own * n_new / max(n_new - 1, 1))
             res["frames"][y, x] = n_new
+            res["photon_var"][y, x] = p2
             res["variance"][y, x] = sigma2_est / n_new
     return res
 
 
 def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
-                        history: dict | None, settings) -> tuple[np.ndarray, dict]:
-    """One frame of the caustics denoiser: :func:`caustic_temporal_naive`, then ``settings.atrous_levels``
-    gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output (H, W, 3) [W/m²], the
-    history for the next call)."""
+                        history: dict | None, settings, photon_m2: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """One frame of the caustics denoiser: :func:`caustic_temporal_naive` (``photon_m2`` as there), then
+    ``settings.atrous_levels`` gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output
+    (H, W, 3) [W/m²], the history for the next call)."""
     s = settings
-    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s)
+    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s, photon_m2)
     color, variance = t["mean"], t["variance"]
     for level in range(s.atrous_levels):
         color, variance = atrous_level_naive(color, variance, t["depth"], t["normal"], 1 << level, s.sigma_depth,

@@ -3,6 +3,8 @@
 Every method hands back the same thing, so that they compare pixel for pixel:
 
 * ``photon_map``: (H*W,) vec3 irradiance [W/m²] on the camera's opaque G-buffer, per pixel, raw;
+* ``photon_m2``: (H*W,) float32 Σ luminance(e)² [(W/m²)²] of the photons stored in each pixel, the frame's own
+  Monte-Carlo variance of its luminance, for the denoiser; kept by the point stores (cisp, sspm), else None;
 * ``ledger``: where the power went (:class:`Ledger`), closing to the sampled power;
 * ``trace(gbuffer, camera_params, frame)``: fill both for one frame, all on the device.
 """
@@ -170,6 +172,9 @@ class PhotonPass:
         self.lights = lights
         n = gbuffer.width * gbuffer.height
         self.photon_map = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        #: (H*W,) float32 Σ luminance(e)² [(W/m²)²] of the photons stored per pixel (common.deposit), zeroed with
+        #: the photon map; allocated by the methods that keep it (:meth:`keep_photon_m2`), else None
+        self.photon_m2 = None
         # the frame's accumulators, zeroed together by one memset in begin(): the striped ledger, the ledger, and
         # each light's brightest texel; views of one float64 buffer (``_accumulators``), in this order
         self.ledger_stripes = C.LEDGER_STRIPES if self.device.is_cuda else 1
@@ -217,6 +222,11 @@ class PhotonPass:
         #: it writes once per frame before tracing (or replaying a captured frame)
         self.inputs = FrameInputs(lights, settings.seed, self.device)
 
+    def keep_photon_m2(self, n: int) -> None:
+        """Allocate ``photon_m2`` for ``n`` camera pixels: a method whose photons are stored by ``common.deposit``
+        as points calls this once at set-up."""
+        self.photon_m2 = wp.zeros(n, dtype=wp.float32, device=self.device)
+
     def photons_per_view(self, lm: LightMaps) -> int:
         """A light's photons split evenly over its RSM views that emit this frame (every view, unless
         they are fitted to the camera: then the active cascades, read back from the device: not for the frame
@@ -249,6 +259,8 @@ class PhotonPass:
         luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
         self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
+        if self.photon_m2 is not None:
+            self.photon_m2.zero_()
         for li, lm in enumerate(self.lights):
             for r in lm.whole_rsm:
                 n = r.width * r.height

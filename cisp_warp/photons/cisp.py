@@ -46,6 +46,8 @@ class CISP(PhotonPass):
         #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_photons)
         self.outcome = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
         self.wavefront = None
+        if settings.splat == "point":
+            self.keep_photon_m2(gbuffer.width * gbuffer.height)
         if settings.splat == "wavefront":
             from .kernels_world import CameraBuffers
             from .wavefront import WavefrontSplat
@@ -91,5 +93,5 @@ class CISP(PhotonPass):
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                self.photon_map, self.ledger_rows, self.hits if self.record_hits else None, self.outcome])
+                self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None, self.outcome])
             self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)

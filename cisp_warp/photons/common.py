@@ -7,7 +7,8 @@ from a light's RSM, the specular bounce and the store into the camera's photon m
   carries texel power × texels / N, so N photons carry the texels' total flux whatever N is.
 * **Bounce:** exact Fresnel as a probability (power unchanged) at a dielectric; a metal reflects with
   its albedo and the rest is booked as absorbed.
-* **Store:** irradiance = power / the world-space footprint of the receiving camera pixel.
+* **Store:** irradiance = power / the world-space footprint of the receiving camera pixel; beside it the sum of
+  the stored photons' squared luminance per pixel (``photon_m2``), the frame's own Monte-Carlo variance.
 """
 
 from __future__ import annotations
@@ -779,8 +780,12 @@ def pixel_footprint(camera: ViewParams, pixel_solid_angle: float, x: wp.vec3, n:
 def deposit(camera: ViewParams, pix: int, d: wp.vec3, power: wp.vec3,
             cam_depth: wp.array(dtype=wp.float32), cam_position: wp.array(dtype=wp.vec3),
             cam_normal: wp.array(dtype=wp.vec3), cam_solid_angle: wp.array(dtype=wp.float32),
-            footprint_mode: int, photon_map: wp.array(dtype=wp.vec3), tally: wp.ref[Tally]) -> int:
-    """Validate a photon arriving along ``d`` at camera pixel ``pix`` and add its irradiance; 1 if stored."""
+            footprint_mode: int, photon_map: wp.array(dtype=wp.vec3), photon_m2: wp.array(dtype=wp.float32),
+            tally: wp.ref[Tally]) -> int:
+    """Validate a photon arriving along ``d`` at camera pixel ``pix`` and add its irradiance e to ``photon_map``
+    and, unless ``photon_m2`` is empty (None), luminance(e)² to ``photon_m2`` ((H*W,) float32 [(W/m²)²], accumulate):
+    the frame's own Monte-Carlo variance of the pixel's luminance, since the map is a sum of independent photons'
+    e (Var Σ e_i ≈ Σ e_i², high by the pixel's squared mean over the photons, negligible). 1 if stored."""
     nr = cam_normal[pix]
     if wp.dot(-d, nr) < 0.0 or cam_depth[pix] <= 0.0:
         book(tally, L_REJECTED, power)
@@ -790,5 +795,8 @@ def deposit(camera: ViewParams, pix: int, d: wp.vec3, power: wp.vec3,
     if footprint_mode == FOOTPRINT_PAPER:
         e = e * wp.dot(-d, nr)
     wp.atomic_add(photon_map, pix, e)
+    if photon_m2.shape[0] > 0:
+        l = luminance(e)
+        wp.atomic_add(photon_m2, pix, l * l)
     book(tally, L_STORED, power)
     return 1

@@ -168,6 +168,7 @@ def trace_photon(
     footprint_mode: int,
     use_cascade: int,  # 0: light view only (no camera march), for comparisons
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
     tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
 ):
@@ -189,7 +190,7 @@ def trace_photon(
         return
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
-               photon_map, tally) != 0:
+               photon_map, photon_m2, tally) != 0:
         if hits.shape[0] > 0:
             hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
 
@@ -239,6 +240,7 @@ def trace_photons(
     use_cascade: int,  # 0: light view only (no camera march), for comparisons
     # outputs
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
     # (write; an empty array: not recorded, as in the frame loop)
@@ -282,6 +284,6 @@ def trace_photons(
     if texel >= 0:  # the views are read again where each march needs them (trace_photon)
         trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
                      cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
-                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, tally, hits)
+                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits)
     if t < n_slots:
         record_outcome(outcome, t, tally)

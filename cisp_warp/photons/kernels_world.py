@@ -191,6 +191,7 @@ def trace_sspm_photon(
     max_bounces: int,
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
     tally: wp.ref[Tally],  # this thread's ledger share: further absorption and the final entry (accumulate)
 ):
     """Seed 003 after the first bounce: traced through the BVH, stored by depth visibility."""
@@ -204,7 +205,7 @@ def trace_sspm_photon(
         book(tally, entry, power)
         return
     deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
-            photon_map, tally)
+            photon_map, photon_m2, tally)
 
 
 @wp.kernel
@@ -240,6 +241,7 @@ def trace_sspm(
     max_bounces: int,
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     outcome: wp.array(dtype=wp.vec4),  # (>= 2 n_slots,) per thread t: final power [W] and entry at t, absorbed
     # power at n_slots + t (write)
@@ -278,7 +280,7 @@ def trace_sspm(
     tally = tally_new()
     if texel >= 0:
         trace_sspm_photon(origin, n, d, power, state, ws, cam, cameras, roughness_cutoff, thickness, thickness_rel, t_max,
-                          max_bounces, footprint_mode, photon_map, tally)
+                          max_bounces, footprint_mode, photon_map, photon_m2, tally)
     if t < n_slots:
         record_outcome(outcome, t, tally)
         record_absorbed(outcome, n_slots + t, tally)
@@ -327,6 +329,7 @@ def trace_reference_photon(
     footprint_mode: int,
     landing_offset: int,  # first slot of this view's photons in the landing arrays
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] of this pass (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of this pass (accumulate; None: not kept)
     landing_pos: wp.array(dtype=wp.vec3),  # (P,) where each photon landed [m], FAR_AWAY if nowhere (write)
     landing_normal: wp.array(dtype=wp.vec3),  # (P,) receiver normal (write)
     landing_power: wp.array(dtype=wp.vec3),  # (P,) [W] (write)
@@ -394,7 +397,7 @@ def trace_reference_photon(
         book(tally, L_REJECTED, power)
         return
     deposit(cam.view, pix, d, power, cam.depth, cam.position, cam.normal, cam.solid_angle, footprint_mode,
-            photon_map, tally)
+            photon_map, photon_m2, tally)
 
 
 @wp.kernel
@@ -417,6 +420,7 @@ def trace_reference(
     footprint_mode: int,
     landing_offset: int,  # first slot of this view's photons in the landing arrays
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] of this pass (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of this pass (accumulate; None: not kept)
     landing_pos: wp.array(dtype=wp.vec3),  # (P,) where each photon landed [m], FAR_AWAY if nowhere (write)
     landing_normal: wp.array(dtype=wp.vec3),  # (P,) receiver normal (write)
     landing_power: wp.array(dtype=wp.vec3),  # (P,) [W] (write)
@@ -430,7 +434,7 @@ def trace_reference(
     if t < n_photons:
         trace_reference_photon(t, light, light_kind, light_rgb, light_pos, spot_axis, cone_angle, cone_softness, ws,
                                cam, n_photons, seed, scramble, roughness_cutoff, t_max, max_bounces, footprint_mode,
-                               landing_offset, photon_map, landing_pos, landing_normal, landing_power, tally)
+                               landing_offset, photon_map, photon_m2, landing_pos, landing_normal, landing_power, tally)
     ledger_add(ledger, tally, block, ALL_ENTRIES)
 
 

@@ -55,6 +55,8 @@ class SSPM(_WorldPass):
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
         self.wavefront = None
+        if settings.splat == "point":
+            self.keep_photon_m2(gbuffer.width * gbuffer.height)
         if settings.splat == "wavefront":
             from .wavefront import WavefrontSplat
 
@@ -80,7 +82,8 @@ class SSPM(_WorldPass):
                 self._max_lum_of[b.light_index], self.world, self.cam, self.inputs.cameras, b.light_photons, b.slots,
                 self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),
-                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.ledger_rows, self.outcome])
+                self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.photon_m2, self.ledger_rows,
+                self.outcome])
             self.add_outcomes(self.outcome, b, 2, K.SSPM_FINAL_ENTRIES)
 
 
@@ -177,7 +180,7 @@ class Reference(_WorldPass):
                         wp.vec3(*np.asarray(light.direction, np.float32)),
                         float(light.cone_angle), float(light.cone_softness),
                         self.world, self.cam, n, rng_seed, wp.vec2i(sx, sy), float(s.roughness_cutoff), self.t_max,
-                        int(s.max_bounces), self.footprint_mode, self.offsets[li][vi], self.pass_map,
+                        int(s.max_bounces), self.footprint_mode, self.offsets[li][vi], self.pass_map, None,
                         self.landing_pos, self.landing_normal, self.landing_power, self.ledger_rows])
             wp.launch(K.accumulate_pass, dim=self.pass_map.shape[0], device=d,
                       inputs=[self.pass_map, self.total, self.total_sq])
