@@ -327,13 +327,33 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
 def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
                 variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
     """(colour, Var) of pixel ``p`` from the packed input or from the unpacked one; Var = NO_SURFACE without
-    a surface (depth 0), else clamped to >= 0 (as the packed input holds it)."""
+    a surface (depth 0), else clamped to >= 0 (as the packed input holds it). The unpacked loads do not wait
+    for the depth test (loads behind a branch on an earlier load's value are issued one after the other)."""
     if packed != 0:
         return load_vec4(color_variance, p)
-    if depth[p] <= 0.0:
-        return wp.vec4(0.0, 0.0, 0.0, NO_SURFACE)
+    z = depth[p]
     c = color_in[p]
-    return wp.vec4(c[0], c[1], c[2], wp.max(variance_in[p], 0.0))
+    v = variance_in[p]
+    return wp.where(z > 0.0, wp.vec4(c[0], c[1], c[2], wp.max(v, 0.0)), wp.vec4(0.0, 0.0, 0.0, NO_SURFACE))
+
+
+@wp.func
+def gaussian_sums(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
+                  variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), x: int, y: int,
+                  width: int, height: int) -> wp.vec3:
+    """(Σ k, Σ k Var, Σ k l) of the 3x3 Gaussian (1/4, 1/8, 1/16) at pixel (x, y) over the pixels with a surface.
+    Neighbours are clamped into the image and read unconditionally, masked after: the nine loads are in flight
+    together (a load behind a branch on another's value waits for it)."""
+    sums = wp.vec3(0.0)
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            qx = wp.clamp(x + dx, 0, width - 1)
+            qy = wp.clamp(y + dy, 0, height - 1)
+            cv_q = read_signal(packed, color_variance, color_in, variance_in, depth, qy * width + qx)
+            inside = qx == x + dx and qy == y + dy and cv_q[3] >= 0.0
+            kq = wp.where(inside, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
+            sums += kq * wp.vec3(1.0, wp.max(cv_q[3], 0.0), luminance(wp.vec3(cv_q[0], cv_q[1], cv_q[2])))
+    return sums
 
 
 @wp.func
@@ -343,26 +363,15 @@ def blur_variance(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
     """(g3x3(Var), R) of pixel (x, y), which has a surface: the 3x3 Gaussian (1/4, 1/8, 1/16) renormalised over
     pixels with a surface (paper eq. 5) and, ``gated``, the footprint R of the same Gaussian's variance and mean
     luminance (:func:`footprint_radius`, relative ``noise_target``); R = ``UNGATED_RADIUS`` otherwise."""
-    sum_k = float(0.0)
-    sum_v = float(0.0)
-    sum_l = float(0.0)
-    for dy in range(-1, 2):
-        for dx in range(-1, 2):
-            qx = x + dx
-            qy = y + dy
-            if qx >= 0 and qx < width and qy >= 0 and qy < height:
-                cv_q = read_signal(packed, color_variance, color_in, variance_in, depth, qy * width + qx)
-                if cv_q[3] >= 0.0:
-                    kq = wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25)
-                    sum_k += kq
-                    sum_v += kq * cv_q[3]
-                    if gated != 0:
-                        sum_l += kq * luminance(wp.vec3(cv_q[0], cv_q[1], cv_q[2]))
-    var_blur = sum_v / sum_k
-    radius = UNGATED_RADIUS
+    sums = wp.vec3(0.0)
+    if packed != 0:  # one branch outside the unrolled loop, not one per neighbour
+        sums = gaussian_sums(1, color_variance, color_in, variance_in, depth, x, y, width, height)
+    else:
+        sums = gaussian_sums(0, color_variance, color_in, variance_in, depth, x, y, width, height)
+    var_blur = sums[1] / sums[0]
     if gated != 0:
-        radius = footprint_radius(var_blur, sum_l / sum_k, noise_target)
-    return wp.vec2(var_blur, radius)
+        return wp.vec2(var_blur, footprint_radius(var_blur, sums[2] / sums[0], noise_target))
+    return wp.vec2(var_blur, UNGATED_RADIUS)
 
 
 @wp.kernel
@@ -383,7 +392,7 @@ def atrous_guide(
     color_variance_out: wp.array(dtype=wp.vec4),
     guide_out: wp.array(dtype=wp.vec4),
 ):
-    """The per-pixel guides of a level that its 3x3 neighbourhood gives, dense over ``dim=(height, width)``, so
+    """The per-pixel guides of a level that its 3x3 neighbourhood gives, dense over ``dim=height * width``, so
     that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered ones.
 
     Reads the level's input as :func:`atrous_level` does (``packed`` != 0: ``color_variance``; else
@@ -392,8 +401,9 @@ def atrous_guide(
     packed input ``color_variance_out`` (colour, Var; Var = NO_SURFACE without a surface) and ``guide_out``
     (n, z) that the level then reads instead.
     """
-    y, x = wp.tid()
-    p = y * width + x
+    p = wp.tid()
+    y = p // width
+    x = p - y * width
     cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
     if write_packed != 0:
         color_variance_out[p] = cv
@@ -409,7 +419,31 @@ def atrous_guide(
     aux[p] = wp.vec4(slope[p], b[0], b[1], 0.0)
 
 
-@wp.kernel(launch_bounds=(BLOCK_THREADS, 2))
+@wp.func
+def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
+                signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
+                s: float, sigma_depth: float, inv_sigma_luminance: float) -> int:
+    """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
+    guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns 1 if the
+    point is a pixel of the output tile that some gate lets be filtered."""
+    surface = inside and cv[3] >= 0.0
+    if not surface:
+        write_guide(guide_s, k, wp.vec4(0.0))
+        write_guide(guide_d, k, wp.vec4(0.0))
+        write_guide(signal, k, wp.vec4(0.0))
+        return 0
+    write_guide(guide_s, k, gs)
+    write_guide(guide_d, k, wp.vec4(sigma_depth * ax[0], 0.5 * ax[1],
+                                    luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance, ax[2]))
+    write_guide(signal, k, cv)
+    i = k // _GUIDE_X
+    j = k - i * _GUIDE_X
+    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * ax[2] > s:
+        return 1
+    return 0
+
+
+@wp.kernel(launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
 def atrous_level(
     color_variance: wp.array(dtype=wp.vec4),
     guide: wp.array(dtype=wp.vec4),
@@ -460,29 +494,27 @@ def atrous_level(
     guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
     signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
     filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
-    for k in range(lane, _GUIDE_N, threads):
-        gs = wp.vec4(0.0)
-        gd = wp.vec4(0.0)
-        cv = wp.vec4(0.0)
-        y = row0 + step * (sy0 + k // _GUIDE_X)
-        x = col0 + step * (sx0 + k % _GUIDE_X)
-        if y >= 0 and y < height and x >= 0 and x < width:
-            p = y * width + x
-            cv = load_vec4(color_variance, p)
-            if cv[3] >= 0.0:
-                gs = load_vec4(guide, p)
-                guides = load_vec4(aux, p)
-                gd = wp.vec4(sigma_depth * guides[0], 0.5 * guides[1],
-                             luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance, guides[2])
-                i = k // _GUIDE_X
-                j = k % _GUIDE_X
-                if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * guides[2] > s:
-                    filtered += 1
-            else:
-                cv = wp.vec4(0.0)
-        write_guide(guide_s, k, gs)
-        write_guide(guide_d, k, gd)
-        write_guide(signal, k, cv)
+    for k0 in range(lane, _GUIDE_N, 2 * threads):
+        # two guide points a round, their six loads issued before any is used (the round is one memory latency)
+        k1 = k0 + threads
+        y0 = row0 + step * (sy0 + k0 // _GUIDE_X)
+        x0 = col0 + step * (sx0 + k0 % _GUIDE_X)
+        y1 = row0 + step * (sy0 + k1 // _GUIDE_X)
+        x1 = col0 + step * (sx0 + k1 % _GUIDE_X)
+        in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
+        in1 = k1 < _GUIDE_N and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
+        p0 = wp.where(in0, y0 * width + x0, 0)
+        p1 = wp.where(in1, y1 * width + x1, 0)
+        cv0 = load_vec4(color_variance, p0)
+        cv1 = load_vec4(color_variance, p1)
+        gs0 = load_vec4(guide, p0)
+        gs1 = load_vec4(guide, p1)
+        ax0 = load_vec4(aux, p0)
+        ax1 = load_vec4(aux, p1)
+        filtered += store_guide(guide_s, guide_d, signal, k0, in0, cv0, gs0, ax0, s, sigma_depth, inv_sigma_luminance)
+        if k1 < _GUIDE_N:
+            filtered += store_guide(guide_s, guide_d, signal, k1, in1, cv1, gs1, ax1, s, sigma_depth,
+                                    inv_sigma_luminance)
     block_sync()
 
     pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
@@ -599,7 +631,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         color_in, variance_in, depth, normal = unpacked
         color_variance = cv_out = pack_into[0]
         guide = guide_out = pack_into[1]
-    wp.launch(atrous_guide, dim=(height, width), device=d,
+    wp.launch(atrous_guide, dim=height * width, device=d,
               inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
                       height, int(gated), float(noise_target) if gated else 0.0, aux, int(unpacked is not None),
                       cv_out, guide_out])
