@@ -158,6 +158,19 @@ def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
     ...
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+reinterpret_cast<float4*>(a.data)[p] = make_float4(v[0], v[1], v[2], v[3]);
+#else
+a.data[p] = v;
+#endif
+""")
+def store_vec4(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec4):
+    """``a[p] = v`` of a contiguous vec4 array in one 16-byte store on CUDA (Warp's own issues four 4-byte
+    stores: four partial writes of each sector)."""
+    ...
+
+
 # Per-thread writes into the level's shared tables without a barrier each (Warp's tile_scatter_masked and
 # element assignment end in __syncthreads, which cost a barrier per round of 512 items); block_sync() once a phase.
 @wp.func_native("t.data(wp::tile_coord(i)) = v;")
@@ -288,7 +301,8 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
     two_over_step = 2.0 / s
     # 2. forward pair weights, once per unordered pair; an item is a pixel u and three of its forward taps,
     # items ordered by tap group so that a warp's threads take the same branch
-    for k in range(lane, _ITEM_N, threads):
+    k = lane
+    while k < _ITEM_N:
         g = k // _PAIR_PIXELS
         u = k - g * _PAIR_PIXELS
         j = u % _GUIDE_X
@@ -311,15 +325,18 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
             write_pair(pair, 9 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 9, active, s, two_over_step, depth_eps, sigma_normal, gated))
             write_pair(pair, 10 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 10, active, s, two_over_step, depth_eps, sigma_normal, gated))
             write_pair(pair, 11 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 11, active, s, two_over_step, depth_eps, sigma_normal, gated))
+        k += threads
     block_sync()
 
     # 3. 1 / W_q, W_q = Σ_r w_qr of the tile and an apron of 2 (centre (3/8)² included)
-    for k in range(lane, _SUM_N, threads):
+    k = lane
+    while k < _SUM_N:
         u = (2 + k // _SUM_X) * _GUIDE_X + 2 + k % _SUM_X
         sum_w = CENTRE_WEIGHT
         for f in range(FORWARD_TAPS):
             sum_w += read_pair(pair, f * _PAIR_PIXELS + u) + read_pair(pair, f * _PAIR_PIXELS + u - forward_offset(f))
         write_guide_scalar(inv_weight_sum, u, fast_rcp(sum_w))
+        k += threads
     block_sync()
 
 
@@ -387,42 +404,49 @@ def atrous_guide(
     height: int,
     gated: int,
     noise_target: float,
+    sigma_depth: float,
+    inv_sigma_luminance: float,
     aux: wp.array(dtype=wp.vec4),
     write_packed: int,
     color_variance_out: wp.array(dtype=wp.vec4),
     guide_out: wp.array(dtype=wp.vec4),
 ):
-    """The per-pixel guides of a level that its 3x3 neighbourhood gives, dense over ``dim=height * width``, so
-    that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered ones.
+    """The per-pixel guides of a level that its input's 3x3 neighbourhood gives, dense over
+    ``dim=height * width``, so that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered
+    ones.
 
     Reads the level's input as :func:`atrous_level` does (``packed`` != 0: ``color_variance``; else
     ``color_in``, ``variance_in``, ``depth``, ``normal``) and ``slope`` (H*W float32 [m/pixel]). Writes ``aux``
-    (H*W vec4: ‖∇z‖, g3x3(Var), R, 0; 0 without a surface) and, with ``write_packed`` (unpacked input only), the
-    packed input ``color_variance_out`` (colour, Var; Var = NO_SURFACE without a surface) and ``guide_out``
-    (n, z) that the level then reads instead.
+    (H*W vec4: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R, the scaled terms :func:`pair_weight` takes, with
+    ``sigma_depth`` = σ_z and ``inv_sigma_luminance`` = 1/σ_l; 0 without a surface) and, with ``write_packed``
+    (unpacked input only), the packed input ``color_variance_out`` (colour, Var; Var = NO_SURFACE without a
+    surface) and ``guide_out`` (n, z) that the level then reads instead. ``gated`` != 0: R from g3x3(Var) and
+    the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``), else
+    ``UNGATED_RADIUS``.
     """
     p = wp.tid()
     y = p // width
     x = p - y * width
     cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
     if write_packed != 0:
-        color_variance_out[p] = cv
+        store_vec4(color_variance_out, p, cv)
         if cv[3] >= 0.0:
             n = normal[p]
-            guide_out[p] = wp.vec4(n[0], n[1], n[2], depth[p])
+            store_vec4(guide_out, p, wp.vec4(n[0], n[1], n[2], depth[p]))
         else:
-            guide_out[p] = wp.vec4(0.0)
+            store_vec4(guide_out, p, wp.vec4(0.0))
     if cv[3] < 0.0:
-        aux[p] = wp.vec4(0.0)
+        store_vec4(aux, p, wp.vec4(0.0))
         return
     b = blur_variance(packed, color_variance, color_in, variance_in, depth, x, y, width, height, gated, noise_target)
-    aux[p] = wp.vec4(slope[p], b[0], b[1], 0.0)
+    store_vec4(aux, p, wp.vec4(sigma_depth * slope[p], 0.5 * b[0], luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance,
+                               b[1]))
 
 
 @wp.func
 def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                 signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
-                s: float, sigma_depth: float, inv_sigma_luminance: float) -> int:
+                s: float) -> int:
     """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
     guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns 1 if the
     point is a pixel of the output tile that some gate lets be filtered."""
@@ -433,12 +457,11 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
         write_guide(signal, k, wp.vec4(0.0))
         return 0
     write_guide(guide_s, k, gs)
-    write_guide(guide_d, k, wp.vec4(sigma_depth * ax[0], 0.5 * ax[1],
-                                    luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance, ax[2]))
+    write_guide(guide_d, k, ax)
     write_guide(signal, k, cv)
     i = k // _GUIDE_X
     j = k - i * _GUIDE_X
-    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * ax[2] > s:
+    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * ax[3] > s:
         return 1
     return 0
 
@@ -472,8 +495,9 @@ def atrous_level(
     b + step (TILE_X tx + j)).
 
     Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) and
-    ``guide`` (H*W vec4: n, z [m]), and ``aux`` (H*W vec4 of :func:`atrous_guide` for this input: ‖∇z‖ [m/pixel],
-    g3x3(Var), R). ``gated`` != 0: the gates act (R from ``aux``), else every gate is 1. Writes, each when its
+    ``guide`` (H*W vec4: n, z [m]), and ``aux`` (H*W vec4 of :func:`atrous_guide` for this input, with the same
+    ``sigma_depth`` and σ_l: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R). ``gated`` != 0: the gates act (R from
+    ``aux``), else every gate is 1. Writes, each when its
     flag is set: ``color_variance_out`` (packed, the next level's input), ``color_out`` (H*W vec3 [W/m²]) and
     ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
     (2 x H*W vec3, the colour history). The outputs must not alias the inputs.
@@ -511,10 +535,9 @@ def atrous_level(
         gs1 = load_vec4(guide, p1)
         ax0 = load_vec4(aux, p0)
         ax1 = load_vec4(aux, p1)
-        filtered += store_guide(guide_s, guide_d, signal, k0, in0, cv0, gs0, ax0, s, sigma_depth, inv_sigma_luminance)
+        filtered += store_guide(guide_s, guide_d, signal, k0, in0, cv0, gs0, ax0, s)
         if k1 < _GUIDE_N:
-            filtered += store_guide(guide_s, guide_d, signal, k1, in1, cv1, gs1, ax1, s, sigma_depth,
-                                    inv_sigma_luminance)
+            filtered += store_guide(guide_s, guide_d, signal, k1, in1, cv1, gs1, ax1, s)
     block_sync()
 
     pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
@@ -526,7 +549,8 @@ def atrous_level(
                      sigma_normal, gated)
 
     # 4. the filter of the tile's pixels
-    for k in range(lane, _TILE_Y * _TILE_X, threads):
+    k = lane
+    while k < _TILE_Y * _TILE_X:
         y = row0 + step * (sy0 + 4 + k // _TILE_X)
         x = col0 + step * (sx0 + 4 + k % _TILE_X)
         if y < height and x < width:
@@ -564,12 +588,13 @@ def atrous_level(
                 c_new = c_p + sum_dc
                 v_new = sum_av + a_centre * a_centre * v_p
             if write_packed != 0:
-                color_variance_out[p] = wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE))
+                store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
             if write_public != 0:
                 color_out[p] = c_new
                 variance_out[p] = v_new
             if write_history != 0:
                 hist_color[1 - parity[0], p] = c_new
+        k += threads
 
 
 _SPARE: dict = {}
@@ -633,7 +658,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         guide = guide_out = pack_into[1]
     wp.launch(atrous_guide, dim=height * width, device=d,
               inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
-                      height, int(gated), float(noise_target) if gated else 0.0, aux, int(unpacked is not None),
+                      height, int(gated), float(noise_target) if gated else 0.0, float(sigma_depth),
+                      1.0 / float(sigma_luminance), aux, int(unpacked is not None),
                       cv_out, guide_out])
     wp.launch_tiled(atrous_level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, float(sigma_depth),
