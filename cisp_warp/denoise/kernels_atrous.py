@@ -59,10 +59,13 @@ BLOCK_THREADS = TILE_Y * TILE_X
 #: guide region: the tile and an apron of 4 (taps of 2 whose weight sums reach 2 further)
 GUIDE_Y = TILE_Y + 8
 GUIDE_X = TILE_X + 8
-GUIDE_PIXELS = GUIDE_Y * GUIDE_X
+#: row pitch of the shared guide and pair tables: the guide region's columns and 2 empty (no surface) columns
+#: on either side, so that no tap of a guide leaves its row and no pair needs a column test
+GUIDE_PITCH = GUIDE_X + 4
+GUIDE_PIXELS = GUIDE_Y * GUIDE_PITCH
 #: rows of the region whose forward pair weights are kept: tile rows − 4 ... tile rows + 1 (all guide columns)
 PAIR_ROWS = TILE_Y + 6
-PAIR_PIXELS = PAIR_ROWS * GUIDE_X
+PAIR_PIXELS = PAIR_ROWS * GUIDE_PITCH
 #: forward tap offsets per pixel: (0, 1), (0, 2), (1, −2..2), (2, −2..2); the other 12 are their mirrors
 FORWARD_TAPS = 12
 #: forward taps a thread evaluates per item of step 2 (with the pixel's guides held in registers; 3 spill)
@@ -79,10 +82,12 @@ wp.set_module_options({"max_unroll": FORWARD_TAPS, "enable_backward": False, "bl
 _TILE_Y = wp.constant(TILE_Y)
 _TILE_X = wp.constant(TILE_X)
 _GUIDE_X = wp.constant(GUIDE_X)
+_PITCH = wp.constant(GUIDE_PITCH)
 _GUIDE_N = wp.constant(GUIDE_PIXELS)
 _PAIR_PIXELS = wp.constant(PAIR_PIXELS)
 _PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
-_ITEM_N = wp.constant(FORWARD_TAPS // TAPS_PER_ITEM * PAIR_PIXELS)
+_PAIR_POINTS = wp.constant(PAIR_ROWS * GUIDE_X)
+_ITEM_N = wp.constant(FORWARD_TAPS // TAPS_PER_ITEM * PAIR_ROWS * GUIDE_X)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: W_p's own term h(0)² = (3/8)²
@@ -232,9 +237,9 @@ def forward_tap(f: int) -> wp.vec2i:
 
 @wp.func
 def forward_offset(f: int) -> int:
-    """Index offset of forward tap ``f`` in the guide region (row-major, ``GUIDE_X`` wide)."""
+    """Index offset of forward tap ``f`` in the shared tables (row-major, ``GUIDE_PITCH`` wide)."""
     tap = forward_tap(f)
-    return tap[0] * _GUIDE_X + tap[1]
+    return tap[0] * _PITCH + tap[1]
 
 
 @wp.func
@@ -258,19 +263,20 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, kern
                 two_over_step: float, depth_eps: float, sigma_normal: float, gated: int) -> float:
     """w_pq of the module docstring, symmetric in p and q, from the guides ``gs`` = (n, z) and ``gd`` =
     (σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R); ``dist`` = ‖p − q‖ [pixels], ``depth_eps`` = σ_z ε_z.
-    p must have a surface; 0 unless q has one too.
+    p must have a surface; 0 unless q has one too (a pixel without one has the guide 0, so n_p·n_q = 0).
 
-    φ_z enters twice, in 1/φ_z and, above c = 0.5, in ln c = 2 atanh((c − 1)/(c + 1)): both divisions come from
-    one reciprocal, r = 1 / ((c + 1) φ_z). (Every branch returns: a value assigned in two branches of a loop's
-    body stays live across iterations in Warp's generated code and spills.)"""
+    φ_z enters twice, in 1/φ_z and, for c = n_p·n_q ≥ 0.5, in ln c = 2 atanh((c − 1)/(c + 1)): both divisions
+    come from one reciprocal, r = 1 / ((c + 1) φ_z). Below c = 0.5 (a normal edge, or q without a surface) the
+    rare branch takes ``wp.log``. (Every branch returns: a value assigned in two branches of a loop's body stays
+    live across iterations in Warp's generated code and spills.)"""
     c = gs_p[0] * gs_q[0] + gs_p[1] * gs_q[1] + gs_p[2] * gs_q[2]
     gate = wp.where(gated != 0, wp.clamp(wp.min(gd_p[3], gd_q[3]) * two_over_step - 1.0, 0.0, 1.0), 1.0)
-    if gs_q[3] <= 0.0 or c <= 0.0 or gate <= 0.0:
-        return 0.0
     phi_z = wp.max(gd_p[0], gd_q[0]) * dist + depth_eps * wp.max(gs_p[3], gs_q[3])
     dz = wp.abs(gs_p[3] - gs_q[3])
     e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(wp.max(gd_p[1] + gd_q[1], 0.0) + VARIANCE_EPS)
     if c < 0.5:
+        if gs_q[3] <= 0.0 or c <= 0.0 or gate <= 0.0:
+            return 0.0
         return kernel_weight * fast_exp(sigma_normal * wp.log(c) - fast_div(dz, phi_z) - e_l) * gate
     den = c + 1.0
     r = fast_rcp(den * phi_z)
@@ -279,12 +285,10 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, kern
 
 @wp.func
 def forward_pair(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], gs_p: wp.vec4,
-                 gd_p: wp.vec4, u: int, j: int, f: int, active: bool, s: float, two_over_step: float,
-                 depth_eps: float, sigma_normal: float, gated: int) -> float:
-    """w(u, u + forward tap ``f``): 0 where the tap leaves the guide region or p is not ``active`` (no surface,
-    or a closed gate); ``j`` = u's guide column."""
-    j2 = j + forward_tap(f)[1]
-    if (not active) or j2 < 0 or j2 >= _GUIDE_X:
+                 gd_p: wp.vec4, u: int, f: int, active: bool, s: float, two_over_step: float, depth_eps: float,
+                 sigma_normal: float, gated: int) -> float:
+    """w(u, u + forward tap ``f``); 0 where p is not ``active`` (no surface, or a closed gate)."""
+    if not active:
         return 0.0
     v = u + forward_offset(f)
     return pair_weight(gs_p, gd_p, read_guide(guide_s, v), read_guide(guide_d, v), forward_kernel(f),
@@ -303,35 +307,36 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
     # items ordered by tap group so that a warp's threads take the same branch
     k = lane
     while k < _ITEM_N:
-        g = k // _PAIR_PIXELS
-        u = k - g * _PAIR_PIXELS
-        j = u % _GUIDE_X
+        g = k // _PAIR_POINTS
+        r = k - g * _PAIR_POINTS
+        i = r // _GUIDE_X
+        u = i * _PITCH + r - i * _GUIDE_X + 2
         gs_p = read_guide(guide_s, u)
         gd_p = read_guide(guide_d, u)
         active = gs_p[3] > 0.0 and (gated == 0 or gd_p[3] * two_over_step > 1.0)
         if g == 0:
-            write_pair(pair, 0 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 0, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 1 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 1, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 2 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 2, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 0 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 0, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 1 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 1, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 2 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 2, active, s, two_over_step, depth_eps, sigma_normal, gated))
         elif g == 1:
-            write_pair(pair, 3 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 3, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 4 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 4, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 5 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 5, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 3 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 3, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 4 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 4, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 5 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 5, active, s, two_over_step, depth_eps, sigma_normal, gated))
         elif g == 2:
-            write_pair(pair, 6 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 6, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 7 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 7, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 8 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 8, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 6 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 6, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 7 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 7, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 8 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 8, active, s, two_over_step, depth_eps, sigma_normal, gated))
         else:
-            write_pair(pair, 9 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 9, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 10 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 10, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 11 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, j, 11, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 9 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 9, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 10 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 10, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 11 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 11, active, s, two_over_step, depth_eps, sigma_normal, gated))
         k += threads
     block_sync()
 
     # 3. 1 / W_q, W_q = Σ_r w_qr of the tile and an apron of 2 (centre (3/8)² included)
     k = lane
     while k < _SUM_N:
-        u = (2 + k // _SUM_X) * _GUIDE_X + 2 + k % _SUM_X
+        u = (2 + k // _SUM_X) * _PITCH + 4 + k % _SUM_X
         sum_w = CENTRE_WEIGHT
         for f in range(FORWARD_TAPS):
             sum_w += read_pair(pair, f * _PAIR_PIXELS + u) + read_pair(pair, f * _PAIR_PIXELS + u - forward_offset(f))
@@ -459,8 +464,8 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
     write_guide(guide_s, k, gs)
     write_guide(guide_d, k, ax)
     write_guide(signal, k, cv)
-    i = k // _GUIDE_X
-    j = k - i * _GUIDE_X
+    i = k // _PITCH
+    j = k - i * _PITCH - 2
     if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * ax[3] > s:
         return 1
     return 0
@@ -519,14 +524,19 @@ def atrous_level(
     signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
     filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
     for k0 in range(lane, _GUIDE_N, 2 * threads):
-        # two guide points a round, their six loads issued before any is used (the round is one memory latency)
+        # two table entries a round, their six loads issued before any is used (the round is one memory latency);
+        # entries in the empty columns are written 0
         k1 = k0 + threads
-        y0 = row0 + step * (sy0 + k0 // _GUIDE_X)
-        x0 = col0 + step * (sx0 + k0 % _GUIDE_X)
-        y1 = row0 + step * (sy0 + k1 // _GUIDE_X)
-        x1 = col0 + step * (sx0 + k1 % _GUIDE_X)
-        in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
-        in1 = k1 < _GUIDE_N and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
+        i0 = k0 // _PITCH
+        j0 = k0 - i0 * _PITCH - 2
+        i1 = k1 // _PITCH
+        j1 = k1 - i1 * _PITCH - 2
+        y0 = row0 + step * (sy0 + i0)
+        x0 = col0 + step * (sx0 + j0)
+        y1 = row0 + step * (sy0 + i1)
+        x1 = col0 + step * (sx0 + j1)
+        in0 = j0 >= 0 and j0 < _GUIDE_X and y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
+        in1 = k1 < _GUIDE_N and j1 >= 0 and j1 < _GUIDE_X and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
         p0 = wp.where(in0, y0 * width + x0, 0)
         p1 = wp.where(in1, y1 * width + x1, 0)
         cv0 = load_vec4(color_variance, p0)
@@ -555,7 +565,7 @@ def atrous_level(
         x = col0 + step * (sx0 + 4 + k % _TILE_X)
         if y < height and x < width:
             p = y * width + x
-            u = (4 + k // _TILE_X) * _GUIDE_X + 4 + k % _TILE_X
+            u = (4 + k // _TILE_X) * _PITCH + 6 + k % _TILE_X
             cv_p = read_guide(signal, u)
             c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
             v_p = cv_p[3]
