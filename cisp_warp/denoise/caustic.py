@@ -84,9 +84,13 @@ class CausticDenoiser:
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface; for the à-trous
     levels), ``surface`` (vec4: the same packed, for the change window), ``prev_mean``
     (vec3 [W/m²]), ``prev_pairs`` (float32) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
-    estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
-    ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
-    accumulated luminance), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
+    estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``temporal_variance`` (float32
+    [(W/m²)²], variance of the accumulated luminance), and the à-trous levels' scratch: with ``levels="tiled"``
+    (the default, :func:`.kernels_atrous.launch_atrous`) ``packed`` (2 x vec4: colour, Var, ping-ponged),
+    ``guide`` (vec4: n, z), ``level_guides`` (vec4, the guide pass's output), ``filtered_variance`` (float32);
+    with ``levels="pixel"`` (:func:`.kernels_atrous_pixel.launch_atrous_level`, three launches a level)
+    ``guide_a``/``guide_b``/``color_variance`` (vec4), ``weight_sum`` (float32), ``filtered_color`` (2 x vec3),
+    ``filtered_variance`` (2 x float32). Both give the same output (one naive twin).
     """
 
     def __init__(self, width: int, height: int, device, settings: CausticSettings = CausticSettings(),

@@ -1,25 +1,31 @@
-"""The edge-avoiding à-trous wavelet level in one launch a level, read once from shared memory.
+"""The edge-avoiding à-trous wavelet level, tiled: a dense guide pass and one tiled launch a level, the level's
+neighbourhood read once into shared memory. SVGF's levels and the caustics denoiser's gated levels.
 
-(:mod:`.kernels_atrous_pixel` holds the per-pixel three-pass form of the same level, kept as the reference the
-tiled one was first measured against; both have one naive twin.)
+(:mod:`.kernels_atrous_pixel` holds the per-pixel three-pass form of the same level, the caustics denoiser's
+``levels="pixel"``; both have one naive twin.)
 
 A level of tap spacing ``step`` couples only pixels whose coordinates agree modulo ``step``: the image is
-``step``² interleaved sub-lattices, and on each one the level is a dense 5x5 filter. :func:`atrous_level`
-gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one sub-lattice and reads its
-neighbourhood once into shared memory (Warp shared tiles):
+``step``² interleaved sub-lattices, and on each one the level is a dense 5x5 filter. A level is two launches:
+
+0. :func:`atrous_guide`, dense over the pixels: from the level's input (colour, Var) and ‖∇z‖ it writes the
+   per-pixel terms every pair weight takes (σ_z ‖∇z‖, the 3x3 Gaussian g3x3(Var) over pixels with a surface,
+   paper eq. 5, the luminance, and on gated levels the footprint R still needed). Its 3x3 neighbourhoods lie
+   on other sub-lattices than the pixel's, so the level itself would read them nine scattered loads a guide;
+   here they are read once, neighbours in the same cache lines. (It also packs an unpacked input.)
+
+:func:`atrous_level` then gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one
+sub-lattice, in shared memory (Warp shared tiles):
 
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
-   ``(n, z)``, ‖∇z‖, and from the level's input (colour, Var) the luminance, the 3x3 Gaussian g3x3(Var) over
-   pixels with a surface (paper eq. 5) and, on gated levels, the footprint R still needed. g3x3 and R come
-   from :func:`atrous_guide`, a dense per-pixel pass over the level's input launched before the level (its
-   3x3 neighbourhoods lie on other sub-lattices, so the level itself would read them scattered), or, without
-   that pass, from nine reads of the input per guide;
+   ``(n, z)``, the guide pass's terms and the input (colour, Var), three 16-byte loads a point, two points a
+   thread issued together;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
-   per pixel, three at a time with the offsets known to the compiler) and kept in shared memory;
+   per pixel, three at a time with the pixel's guides in registers and the offsets, kernel weights and
+   distances known to the compiler) and kept in shared memory;
 3. 1 / W_q, W_q = Σ_r w_qr, for the tile plus its apron of 2 (sums of the shared pair weights);
-4. the filter of the tile's pixels from the same pair weights:
+4. the filter of the tile's pixels from the same pair weights, branch-free over the 24 taps:
    c'_p = c_p + Σ_{q≠p} A_pq (c_q − c_p), Var'_p = Σ_q A_pq² Var_q, with
-   A_pq = w_pq / max(W_p, W_q) (energy-conserving) or w_pq / W_p (the paper's gather).
+   A_pq = w_pq min(1/W_p, 1/W_q) = w_pq / max(W_p, W_q) (energy-conserving) or w_pq / W_p (the paper's gather).
 
 w_pq (Schied et al. 2017, eqs. 3-5, made symmetric in p and q) is evaluated as one exponential:
 
@@ -36,6 +42,11 @@ Between levels the image travels packed (SVGF's ``filter_moments`` packs the fir
 first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1 marking a pixel without a
 surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
+
+Costs (H100, 1920x1080, docs/perf_notes.md section 8): SVGF's 5 levels 1.13 ms on the Cornell box, 1.65 ms on the
+pool. Per pixel a level evaluates 20.6 pair weights (~45 instructions each on the common path), 24 filter taps
+(~13) and reads 1.9 guides; it runs at about half the issue rate, the rest being the block's phases waiting on
+memory and barriers with two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
 """
 
 from __future__ import annotations
