@@ -453,14 +453,15 @@ def test_caustic_conserves_energy(device):
     np.testing.assert_allclose(integrated.reshape(-1, 3).sum(0), in_sum / 12, rtol=0.03)
 
 
-@pytest.mark.parametrize("with_m2", [False, True])
-def test_caustic_matches_naive_twin(device, with_m2):
+@pytest.mark.parametrize("levels,with_m2", [("tiled", False), ("tiled", True), ("pixel", False), ("pixel", True)])
+def test_caustic_matches_naive_twin(device, levels, with_m2):
     """Three frames (a box with a depth edge, noisy normals, a hole, fractional camera motion, sparse photons;
-    with the photons' Σ e² or without) against the float64 twin written from the equations."""
+    with the photons' Σ e² or without) against the float64 twin written from the equations; the gated levels
+    tiled (the default) or per pixel."""
     rng = np.random.default_rng(17)
     w, h = 20, 14
     s = CausticSettings(atrous_levels=3, noise_target=0.1)
-    den = CausticDenoiser(w, h, device, s)
+    den = CausticDenoiser(w, h, device, s, levels=levels)
     out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     hist = None
     truth = caustic_pattern(w, h)
@@ -725,9 +726,10 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate):
     var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
     c_out = wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device)  # every pixel must be written
     v_out = wp.full(w * h, -7.0, dtype=wp.float32, device=device)
+    scratch = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(3)]
     launch_atrous(None, None, slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
-                  noise_target=gate, color_out=c_out, variance_out=v_out,
-                  unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]))
+                  scratch[0], noise_target=gate, color_out=c_out, variance_out=v_out,
+                  unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=scratch[1:])
     c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
                                       s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve, noise_target=gate)
     np.testing.assert_allclose(c_out.numpy().reshape(h, w, 3), c_ref, rtol=1e-5, atol=1e-6)
@@ -766,7 +768,7 @@ def test_svgf_levels_match_naive_twin(device, feedback):
 
 def test_atrous_fast_math_helpers(device):
     """The pair weight's ln cos (series above 0.5) and its CUDA intrinsics against numpy in float64."""
-    from cisp_warp.denoise.kernels_atrous import fast_div, fast_exp, fast_rsqrt, log_cosine
+    from cisp_warp.denoise.kernels_atrous import fast_div, fast_exp, fast_rcp, fast_rsqrt, log_cosine
 
     @wp.kernel
     def helpers(c: wp.array(dtype=float), out: wp.array2d(dtype=float)):
@@ -775,9 +777,10 @@ def test_atrous_fast_math_helpers(device):
         out[i, 1] = fast_exp(-30.0 * c[i])
         out[i, 2] = fast_div(c[i], 3.0)
         out[i, 3] = fast_rsqrt(c[i])
+        out[i, 4] = fast_rcp(c[i])
 
     c = np.concatenate([np.linspace(1e-3, 1.0, 997), 1.0 - np.logspace(-7, -1, 50)]).astype(np.float32)
-    out = wp.zeros((c.size, 4), dtype=float, device=device)
+    out = wp.zeros((c.size, 5), dtype=float, device=device)
     wp.launch(helpers, dim=c.size, inputs=[wp.array(c, dtype=float, device=device)], outputs=[out], device=device)
     r = out.numpy().astype(np.float64)
     c64 = c.astype(np.float64)
@@ -785,6 +788,7 @@ def test_atrous_fast_math_helpers(device):
     np.testing.assert_allclose(r[:, 1], np.exp(-30.0 * c64), rtol=3e-6)
     np.testing.assert_allclose(r[:, 2], c64 / 3.0, rtol=1e-6)
     np.testing.assert_allclose(r[:, 3], 1.0 / np.sqrt(c64), rtol=1e-6)
+    np.testing.assert_allclose(r[:, 4], 1.0 / c64, rtol=1e-6)
 
 
 @pytest.mark.parametrize("radius", [1, 3])

@@ -87,12 +87,14 @@ class Bench:
         self.out = wp.zeros(w * h, dtype=wp.vec3, device=device)
         if name == "caustic":
             self.den = D.CausticDenoiser(w, h, device)
+        elif name == "caustic_pixel":  # the gated levels per pixel (three launches a level) instead of tiled
+            self.den = D.CausticDenoiser(w, h, device, levels="pixel")
         elif name == "svgf":
             self.den = D.SVGF(w, h, device)
         elif name == "gather":
             self.den = D.GaussianGather(w, h, device)
         else:
-            raise SystemExit(f"unknown denoiser {name!r}: caustic, svgf, gather")
+            raise SystemExit(f"unknown denoiser {name!r}: caustic, caustic_pixel, svgf, gather")
         self.frame = 0
 
     def step(self) -> None:
@@ -124,7 +126,7 @@ def time_kernels(bench: Bench, frames: int, warmup: int) -> tuple[dict, dict]:
                 name = r.name.replace("forward kernel ", "")
                 seen[name] += 1
                 per[name] += r.elapsed
-                if name.startswith("atrous_level"):  # one launch a level: each level's share too
+                if name.startswith(("atrous_level", "atrous_guide")):  # one of each a level: each level's share too
                     per[f"  level {seen[name] - 1}"] += r.elapsed
             per["total"] = sum(v for k, v in per.items() if not k.startswith("  level"))
         else:
@@ -168,7 +170,8 @@ def main(argv=None) -> int:
     p.add_argument("--gbuffer", action="append", default=[], help="AOV folder or .npz (repeatable)")
     p.add_argument("--pack", nargs=2, metavar=("FOLDER", "OUT_NPZ"), help="write a compact .npz of an AOV folder and exit")
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
-    p.add_argument("--denoisers", default="caustic,svgf,gather", help="comma-separated")
+    p.add_argument("--denoisers", default="caustic,svgf,gather",
+                   help="comma-separated: caustic, caustic_pixel (its levels per pixel), svgf, gather")
     p.add_argument("--frames", type=int, default=24, help="frames per denoiser")
     p.add_argument("--warmup", type=int, default=16, help="frames before the steady-state median")
     p.add_argument("--check", action="store_true", help="also compare the device's output with the CPU's on a crop")

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_caustic as K
-from .kernels_atrous import launch_atrous_level
+from .kernels_atrous import launch_atrous, launch_atrous_level, spare_outputs
 from .kernels_svgf import flip_parity
 
 
@@ -89,12 +89,20 @@ class CausticDenoiser:
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface; for the à-trous
     levels), ``surface`` (vec4: the same packed, for the change window), ``prev_mean``
     (vec3 [W/m²]), ``prev_pairs`` (vec3) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
-    estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``guide_a``/``guide_b``/``color_variance`` (vec4) and
-    ``weight_sum`` (float32) of the à-trous levels, ``temporal_variance`` (float32 [(W/m²)²], variance of the
-    accumulated luminance), ``filtered_color`` (2 x vec3), ``filtered_variance`` (2 x float32).
+    estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``temporal_variance`` (float32
+    [(W/m²)²], variance of the accumulated luminance), and the à-trous levels' scratch: with ``levels="tiled"``
+    (the default, :func:`.kernels_atrous.launch_atrous`) ``packed`` (2 x vec4: colour, Var, ping-ponged),
+    ``guide`` (vec4: n, z), ``level_guides`` (vec4, the guide pass's output), ``filtered_variance`` (float32);
+    with ``levels="pixel"`` (:func:`.kernels_atrous_pixel.launch_atrous_level`, three launches a level)
+    ``guide_a``/``guide_b``/``color_variance`` (vec4), ``weight_sum`` (float32), ``filtered_color`` (2 x vec3),
+    ``filtered_variance`` (2 x float32). Both give the same output (one naive twin).
     """
 
-    def __init__(self, width: int, height: int, device, settings: CausticSettings = CausticSettings()):
+    def __init__(self, width: int, height: int, device, settings: CausticSettings = CausticSettings(),
+                 levels: str = "tiled"):
+        if levels not in ("tiled", "pixel"):
+            raise ValueError(f"levels must be 'tiled' or 'pixel', got {levels!r}")
+        self.levels = levels
         self.width = width
         self.height = height
         self.device = wp.get_device(device)
@@ -123,12 +131,19 @@ class CausticDenoiser:
         self.frames = one(wp.float32)
         self.temporal_variance = one(wp.float32)
         self.depth_slope = one(wp.float32)
-        self.guide_a = one(wp.vec4)
-        self.guide_b = one(wp.vec4)
-        self.color_variance = one(wp.vec4)
-        self.weight_sum = one(wp.float32)
-        self.filtered_color = one(wp.vec3), one(wp.vec3)
-        self.filtered_variance = one(wp.float32), one(wp.float32)
+        if levels == "tiled":
+            self.packed = one(wp.vec4), one(wp.vec4)
+            self.guide = one(wp.vec4)
+            self.level_guides = one(wp.vec4)
+            self.filtered_variance = one(wp.float32)
+            spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
+        else:
+            self.guide_a = one(wp.vec4)
+            self.guide_b = one(wp.vec4)
+            self.color_variance = one(wp.vec4)
+            self.weight_sum = one(wp.float32)
+            self.filtered_color = one(wp.vec3), one(wp.vec3)
+            self.filtered_variance = one(wp.float32), one(wp.float32)
 
     @property
     def history_length(self) -> wp.array:
@@ -175,6 +190,32 @@ class CausticDenoiser:
                            self.temporal_variance, self.frames, self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
+        if self.levels == "tiled":
+            self._tiled_levels(out)
+        else:
+            self._pixel_levels(out)
+        wp.launch(flip_parity, dim=1, device=d, inputs=[self.parity])
+
+    def _tiled_levels(self, out: wp.array) -> None:
+        """The gated levels as tiled launches (:func:`.kernels_atrous.launch_atrous`): the first level's guide pass
+        packs the accumulated estimate, levels ping-pong it packed, the last one writes ``out``."""
+        s = self.settings
+        w, h = self.width, self.height
+        for level in range(s.atrous_levels):
+            last = level == s.atrous_levels - 1
+            source = {} if level > 0 else dict(unpacked=(self.integrated, self.temporal_variance, self.depth, self.normal),
+                                               pack_into=(self.packed[0], self.guide))
+            launch_atrous(self.packed[level % 2] if level > 0 else None, self.guide if level > 0 else None,
+                          self.depth_slope, w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True,
+                          self.level_guides, noise_target=s.noise_target,
+                          color_variance_out=None if last else self.packed[(level + 1) % 2],
+                          color_out=out if last else None, variance_out=self.filtered_variance if last else None,
+                          **source)
+
+    def _pixel_levels(self, out: wp.array) -> None:
+        """The gated levels as per-pixel launches (:func:`.kernels_atrous_pixel.launch_atrous_level`)."""
+        s = self.settings
+        w, h = self.width, self.height
         color_src, variance_src = self.integrated, self.temporal_variance
         for level in range(s.atrous_levels):
             dst = level % 2
@@ -184,4 +225,3 @@ class CausticDenoiser:
                                 self.guide_a, self.guide_b, self.color_variance, self.weight_sum, color_dst, self.filtered_variance[dst],
                                 noise_target=s.noise_target)
             color_src, variance_src = color_dst, self.filtered_variance[dst]
-        wp.launch(flip_parity, dim=1, device=d, inputs=[self.parity])

@@ -1,22 +1,31 @@
-"""The edge-avoiding à-trous wavelet level in one launch a level, read once from shared memory: SVGF's levels.
+"""The edge-avoiding à-trous wavelet level, tiled: a dense guide pass and one tiled launch a level, the level's
+neighbourhood read once into shared memory. SVGF's levels and the caustics denoiser's gated levels.
 
-(The caustics denoiser's gated levels run :func:`launch_atrous_level`, the per-pixel three-pass level of
-:mod:`.kernels_atrous_pixel`, re-exported here: measured faster there, see that module.)
+(:mod:`.kernels_atrous_pixel` holds the per-pixel three-pass form of the same level, the caustics denoiser's
+``levels="pixel"``; both have one naive twin.)
 
 A level of tap spacing ``step`` couples only pixels whose coordinates agree modulo ``step``: the image is
-``step``² interleaved sub-lattices, and on each one the level is a dense 5x5 filter. :func:`atrous_level`
-gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one sub-lattice and reads its
-neighbourhood once into shared memory (Warp shared tiles):
+``step``² interleaved sub-lattices, and on each one the level is a dense 5x5 filter. A level is two launches:
+
+0. :func:`atrous_guide`, dense over the pixels: from the level's input (colour, Var) and ‖∇z‖ it writes the
+   per-pixel terms every pair weight takes (σ_z ‖∇z‖, the 3x3 Gaussian g3x3(Var) over pixels with a surface,
+   paper eq. 5, the luminance, and on gated levels the footprint R still needed). Its 3x3 neighbourhoods lie
+   on other sub-lattices than the pixel's, so the level itself would read them nine scattered loads a guide;
+   here they are read once, neighbours in the same cache lines. (It also packs an unpacked input.)
+
+:func:`atrous_level` then gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one
+sub-lattice, in shared memory (Warp shared tiles):
 
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
-   ``(n, z)``, ‖∇z‖, and from the level's input (colour, Var) the 3x3 Gaussian g3x3(Var) over pixels with a
-   surface (paper eq. 5), the luminance and, on gated levels, the footprint R still needed;
+   ``(n, z)``, the guide pass's terms and the input (colour, Var), three 16-byte loads a point, two points a
+   thread issued together;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
-   per pixel) and kept in shared memory;
-3. W_q = Σ_r w_qr for the tile plus its apron of 2 (sums of the shared pair weights);
-4. the filter of the tile's pixels from the same pair weights:
+   per pixel, three at a time with the pixel's guides in registers and the offsets, kernel weights and
+   distances known to the compiler) and kept in shared memory;
+3. 1 / W_q, W_q = Σ_r w_qr, for the tile plus its apron of 2 (sums of the shared pair weights);
+4. the filter of the tile's pixels from the same pair weights, branch-free over the 24 taps:
    c'_p = c_p + Σ_{q≠p} A_pq (c_q − c_p), Var'_p = Σ_q A_pq² Var_q, with
-   A_pq = w_pq / max(W_p, W_q) (energy-conserving) or w_pq / W_p (the paper's gather).
+   A_pq = w_pq min(1/W_p, 1/W_q) = w_pq / max(W_p, W_q) (energy-conserving) or w_pq / W_p (the paper's gather).
 
 w_pq (Schied et al. 2017, eqs. 3-5, made symmetric in p and q) is evaluated as one exponential:
 
@@ -29,9 +38,15 @@ that both still need a footprint of ``step`` pixels and not at all where either 
 (a pixel whose own R is below half the step keeps its value). For SVGF R = 1e30 and every gate is 1.
 Pixels without a surface (depth 0) take no part and come out 0.
 
-Between levels the image travels packed (SVGF's ``filter_moments`` packs the first): ``color_variance`` = (colour, Var),
-Var = −1 marking a pixel without a surface, and the static guide ``guide`` = (n, z). The naive twin is
+Between levels the image travels packed (SVGF's ``filter_moments`` packs the first; the caustics denoiser's
+first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1 marking a pixel without a
+surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
+
+Costs (H100, 1920x1080, docs/perf_notes.md section 9): SVGF's 5 levels 1.13 ms on the Cornell box, 1.65 ms on the
+pool. Per pixel a level evaluates 20.6 pair weights (~45 instructions each on the common path), 24 filter taps
+(~13) and reads 1.9 guides; it runs at about half the issue rate, the rest being the block's phases waiting on
+memory and barriers with two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
 """
 
 from __future__ import annotations
@@ -55,35 +70,49 @@ BLOCK_THREADS = TILE_Y * TILE_X
 #: guide region: the tile and an apron of 4 (taps of 2 whose weight sums reach 2 further)
 GUIDE_Y = TILE_Y + 8
 GUIDE_X = TILE_X + 8
-GUIDE_PIXELS = GUIDE_Y * GUIDE_X
+#: row pitch of the shared guide and pair tables: the guide region's columns and 2 empty (no surface) columns
+#: on either side, so that no tap of a guide leaves its row and no pair needs a column test
+GUIDE_PITCH = GUIDE_X + 4
+GUIDE_PIXELS = GUIDE_Y * GUIDE_PITCH
 #: rows of the region whose forward pair weights are kept: tile rows − 4 ... tile rows + 1 (all guide columns)
 PAIR_ROWS = TILE_Y + 6
-PAIR_PIXELS = PAIR_ROWS * GUIDE_X
+PAIR_PIXELS = PAIR_ROWS * GUIDE_PITCH
 #: forward tap offsets per pixel: (0, 1), (0, 2), (1, −2..2), (2, −2..2); the other 12 are their mirrors
 FORWARD_TAPS = 12
+#: forward taps a thread evaluates per item of step 2 (with the pixel's guides held in registers; 3 spill)
+TAPS_PER_ITEM = 3
 #: region whose weight sums are needed: the tile and an apron of 2
 SUM_Y = TILE_Y + 4
 SUM_X = TILE_X + 4
 
-# Loops stay loops (the work is spread over the block by index arithmetic, unrolling buys nothing); tiles are
-# compiled for the block the level is launched with.
-wp.set_module_options({"max_unroll": 1, "enable_backward": False, "block_dim": BLOCK_THREADS})
+# Constant-range loops (the 12 forward taps, the 3x3 Gaussian) are unrolled, so every tap's offset, kernel
+# weight and distance is a constant; the loops that spread work over the block are not (their range is not
+# constant). Tiles are compiled for the block the level is launched with.
+wp.set_module_options({"max_unroll": FORWARD_TAPS, "enable_backward": False, "block_dim": BLOCK_THREADS})
 
 _TILE_Y = wp.constant(TILE_Y)
 _TILE_X = wp.constant(TILE_X)
 _GUIDE_X = wp.constant(GUIDE_X)
+_PITCH = wp.constant(GUIDE_PITCH)
 _GUIDE_N = wp.constant(GUIDE_PIXELS)
 _PAIR_PIXELS = wp.constant(PAIR_PIXELS)
 _PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
+_PAIR_POINTS = wp.constant(PAIR_ROWS * GUIDE_X)
+_ITEM_N = wp.constant(FORWARD_TAPS // TAPS_PER_ITEM * PAIR_ROWS * GUIDE_X)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
+#: W_p's own term h(0)² = (3/8)²
+CENTRE_WEIGHT = wp.constant(0.140625)
 
 
-# Single-instruction intrinsics on CUDA (2 ulp; the pair weight and the filter's A_pq take them), the exact
-# operations on the CPU. Their error moves a weight by ~1e-6 relative, under the 1e-5 the twin is held to.
+# Single-instruction intrinsics on CUDA (the approximate exp2, reciprocal and reciprocal square root, 2 ulp, with
+# subnormals flushed to 0: no fix-up instructions around them), the exact operations on the CPU. Their error
+# moves a weight by ~1e-6 relative, under the 1e-5 the twin is held to.
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
-return __expf(x);
+float y;
+asm("ex2.approx.ftz.f32 %0, %1;" : "=f"(y) : "f"(x * 1.4426950408889634f));
+return y;
 #else
 return expf(x);
 #endif
@@ -93,7 +122,9 @@ def fast_exp(x: float) -> float: ...
 
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
-return __fdividef(a, b);
+float r;
+asm("rcp.approx.ftz.f32 %0, %1;" : "=f"(r) : "f"(b));
+return a * r;
 #else
 return a / b;
 #endif
@@ -103,7 +134,24 @@ def fast_div(a: float, b: float) -> float: ...
 
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
-return rsqrtf(x);
+float r;
+asm("rcp.approx.ftz.f32 %0, %1;" : "=f"(r) : "f"(x));
+return r;
+#else
+return 1.0f / x;
+#endif
+""")
+def fast_rcp(x: float) -> float:
+    """1 / x to 1 ulp on CUDA (the reciprocal instruction alone: the correctly rounded one calls a slow path,
+    whose calling convention spills the level's registers)."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+float r;
+asm("rsqrt.approx.ftz.f32 %0, %1;" : "=f"(r) : "f"(x));
+return r;
 #else
 return 1.0f / sqrtf(x);
 #endif
@@ -126,6 +174,19 @@ def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
     ...
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+reinterpret_cast<float4*>(a.data)[p] = make_float4(v[0], v[1], v[2], v[3]);
+#else
+a.data[p] = v;
+#endif
+""")
+def store_vec4(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec4):
+    """``a[p] = v`` of a contiguous vec4 array in one 16-byte store on CUDA (Warp's own issues four 4-byte
+    stores: four partial writes of each sector)."""
+    ...
+
+
 # Per-thread writes into the level's shared tables without a barrier each (Warp's tile_scatter_masked and
 # element assignment end in __syncthreads, which cost a barrier per round of 512 items); block_sync() once a phase.
 @wp.func_native("t.data(wp::tile_coord(i)) = v;")
@@ -140,6 +201,19 @@ def write_guide_scalar(t: wp.tile[wp.float32, GUIDE_PIXELS], i: int, v: float): 
 def write_pair(t: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], i: int, v: float): ...
 
 
+# ... and reads without Warp's negative-index wrap (a compare and a select per read)
+@wp.func_native("return t.data(wp::tile_coord(i));")
+def read_guide(t: wp.tile[wp.vec4, GUIDE_PIXELS], i: int) -> wp.vec4: ...
+
+
+@wp.func_native("return t.data(wp::tile_coord(i));")
+def read_guide_scalar(t: wp.tile[wp.float32, GUIDE_PIXELS], i: int) -> float: ...
+
+
+@wp.func_native("return t.data(wp::tile_coord(i));")
+def read_pair(t: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], i: int) -> float: ...
+
+
 @wp.func_native("WP_TILE_SYNC();")
 def block_sync():
     """Barrier of the block (every thread must reach it); a no-op for a CPU block of one lane."""
@@ -147,16 +221,20 @@ def block_sync():
 
 
 @wp.func
+def log_series(t: float) -> float:
+    """2 atanh(t) = ln((1 + t)/(1 − t)) for t in [−1/3, 0] by its series to t¹¹ (error below 3e-8 |t|)."""
+    t2 = t * t
+    return 2.0 * t * (1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0 + t2 * (1.0 / 11.0))))))
+
+
+@wp.func
 def log_cosine(c: float) -> float:
     """ln c of a cosine c in (0, 1] to ~1e-9 absolute where it matters (σ_n up to hundreds multiplies it):
-    2 atanh(t), t = (c − 1)/(c + 1) in [−1/3, 0], by its series to t¹¹ (error below 3e-8 t); ``wp.log`` below
-    c = 0.5, where c^σ_n is negligible for any σ_n worth using and which real normals rarely reach."""
+    2 atanh(t), t = (c − 1)/(c + 1) in [−1/3, 0] (:func:`log_series`); ``wp.log`` below c = 0.5, where c^σ_n
+    is negligible for any σ_n worth using and which real normals rarely reach."""
     if c < 0.5:
         return wp.log(c)
-    t = fast_div(c - 1.0, c + 1.0)
-    t2 = t * t
-    series = 1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0 + t2 * (1.0 / 11.0)))))
-    return 2.0 * t * series
+    return log_series(fast_div(c - 1.0, c + 1.0))
 
 
 @wp.func
@@ -169,55 +247,112 @@ def forward_tap(f: int) -> wp.vec2i:
 
 
 @wp.func
+def forward_offset(f: int) -> int:
+    """Index offset of forward tap ``f`` in the shared tables (row-major, ``GUIDE_PITCH`` wide)."""
+    tap = forward_tap(f)
+    return tap[0] * _PITCH + tap[1]
+
+
+@wp.func
+def forward_kernel(f: int) -> float:
+    """h(dy) h(dx) of forward tap ``f`` (B3 spline)."""
+    tap = forward_tap(f)
+    return b3_spline(tap[0]) * b3_spline(tap[1])
+
+
+@wp.func
+def forward_distance(f: int) -> float:
+    """‖(dy, dx)‖ of forward tap ``f`` [taps], as a literal so that a constant ``f`` folds it."""
+    tap = forward_tap(f)
+    d2 = tap[0] * tap[0] + tap[1] * tap[1]
+    return wp.where(d2 == 1, 1.0, wp.where(d2 == 2, 1.4142135623730951, wp.where(d2 == 4, 2.0, wp.where(
+        d2 == 5, 2.23606797749979, 2.8284271247461903))))
+
+
+@wp.func
 def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, kernel_weight: float, dist: float,
-                step: float, sigma_depth: float, sigma_normal: float, sigma_luminance: float) -> float:
+                two_over_step: float, depth_eps: float, sigma_normal: float, gated: int) -> float:
     """w_pq of the module docstring, symmetric in p and q, from the guides ``gs`` = (n, z) and ``gd`` =
-    (‖∇z‖, g3x3(Var), luminance, R); ``dist`` = ‖p − q‖ [pixels]; 0 unless both have a surface."""
-    if gs_p[3] <= 0.0 or gs_q[3] <= 0.0:
+    (σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R); ``dist`` = ‖p − q‖ [pixels], ``depth_eps`` = σ_z ε_z.
+    p must have a surface; 0 unless q has one too (a pixel without one has the guide 0, so n_p·n_q = 0).
+
+    φ_z enters twice, in 1/φ_z and, for c = n_p·n_q ≥ 0.5, in ln c = 2 atanh((c − 1)/(c + 1)): both divisions
+    come from one reciprocal, r = 1 / ((c + 1) φ_z). Below c = 0.5 (a normal edge, or q without a surface) the
+    rare branch takes ``wp.log``. (Every branch returns: a value assigned in two branches of a loop's body stays
+    live across iterations in Warp's generated code and spills.)"""
+    c = gs_p[0] * gs_q[0] + gs_p[1] * gs_q[1] + gs_p[2] * gs_q[2]
+    gate = wp.where(gated != 0, wp.clamp(wp.min(gd_p[3], gd_q[3]) * two_over_step - 1.0, 0.0, 1.0), 1.0)
+    phi_z = wp.max(gd_p[0], gd_q[0]) * dist + depth_eps * wp.max(gs_p[3], gs_q[3])
+    dz = wp.abs(gs_p[3] - gs_q[3])
+    e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(wp.max(gd_p[1] + gd_q[1], 0.0) + VARIANCE_EPS)
+    if c < 0.5:
+        if gs_q[3] <= 0.0 or c <= 0.0 or gate <= 0.0:
+            return 0.0
+        return kernel_weight * fast_exp(sigma_normal * wp.log(c) - fast_div(dz, phi_z) - e_l) * gate
+    den = c + 1.0
+    r = fast_rcp(den * phi_z)
+    return kernel_weight * fast_exp(sigma_normal * log_series((c - 1.0) * phi_z * r) - dz * den * r - e_l) * gate
+
+
+@wp.func
+def forward_pair(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], gs_p: wp.vec4,
+                 gd_p: wp.vec4, u: int, f: int, active: bool, s: float, two_over_step: float, depth_eps: float,
+                 sigma_normal: float, gated: int) -> float:
+    """w(u, u + forward tap ``f``); 0 where p is not ``active`` (no surface, or a closed gate)."""
+    if not active:
         return 0.0
-    n_dot = gs_p[0] * gs_q[0] + gs_p[1] * gs_q[1] + gs_p[2] * gs_q[2]
-    gate = wp.clamp(2.0 * wp.min(gd_p[3], gd_q[3]) / step - 1.0, 0.0, 1.0)
-    if n_dot <= 0.0 or gate <= 0.0:
-        return 0.0
-    phi_z = sigma_depth * (wp.max(gd_p[0], gd_q[0]) * dist + DEPTH_NOISE_REL * wp.max(gs_p[3], gs_q[3]))
-    inv_phi_l = fast_rsqrt(0.5 * wp.max(gd_p[1] + gd_q[1], 0.0) + VARIANCE_EPS) / sigma_luminance
-    e = (sigma_normal * log_cosine(n_dot) - fast_div(wp.abs(gs_p[3] - gs_q[3]), phi_z)
-         - wp.abs(gd_p[2] - gd_q[2]) * inv_phi_l)
-    return kernel_weight * fast_exp(e) * gate
+    v = u + forward_offset(f)
+    return pair_weight(gs_p, gd_p, read_guide(guide_s, v), read_guide(guide_d, v), forward_kernel(f),
+                       s * forward_distance(f), two_over_step, depth_eps, sigma_normal, gated)
 
 
 @wp.func
 def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
-                 pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
-                 lane: int, threads: int, s: float, sigma_depth: float, sigma_normal: float, sigma_luminance: float):
+                 pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
+                 lane: int, threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int):
     """Steps 2 and 3 of :func:`atrous_level` (cooperative: every thread of the block calls it). Writes ``pair``
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
-    and ``weight_sum`` (shared, W_q of the tile and an apron of 2, at their guide index)."""
-    # 2. forward pair weights, once per unordered pair
-    for k in range(lane, _PAIR_N, threads):
-        w = float(0.0)
-        f = k // _PAIR_PIXELS
-        u = k - f * _PAIR_PIXELS
-        tap = forward_tap(f)
-        i = u // _GUIDE_X
-        j = u % _GUIDE_X
-        j2 = j + tap[1]
-        if j2 >= 0 and j2 < _GUIDE_X:  # pairs leaving the guide region are never needed
-            v = (i + tap[0]) * _GUIDE_X + j2
-            w = pair_weight(guide_s[u], guide_d[u], guide_s[v], guide_d[v], b3_spline(tap[0]) * b3_spline(tap[1]),
-                            s * wp.sqrt(float(tap[0] * tap[0] + tap[1] * tap[1])), s,
-                            sigma_depth, sigma_normal, sigma_luminance)
-        write_pair(pair, k, w)
+    and ``inv_weight_sum`` (shared, 1 / W_q of the tile and an apron of 2, at their guide index)."""
+    two_over_step = 2.0 / s
+    # 2. forward pair weights, once per unordered pair; an item is a pixel u and three of its forward taps,
+    # items ordered by tap group so that a warp's threads take the same branch
+    k = lane
+    while k < _ITEM_N:
+        g = k // _PAIR_POINTS
+        r = k - g * _PAIR_POINTS
+        i = r // _GUIDE_X
+        u = i * _PITCH + r - i * _GUIDE_X + 2
+        gs_p = read_guide(guide_s, u)
+        gd_p = read_guide(guide_d, u)
+        active = gs_p[3] > 0.0 and (gated == 0 or gd_p[3] * two_over_step > 1.0)
+        if g == 0:
+            write_pair(pair, 0 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 0, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 1 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 1, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 2 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 2, active, s, two_over_step, depth_eps, sigma_normal, gated))
+        elif g == 1:
+            write_pair(pair, 3 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 3, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 4 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 4, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 5 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 5, active, s, two_over_step, depth_eps, sigma_normal, gated))
+        elif g == 2:
+            write_pair(pair, 6 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 6, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 7 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 7, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 8 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 8, active, s, two_over_step, depth_eps, sigma_normal, gated))
+        else:
+            write_pair(pair, 9 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 9, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 10 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 10, active, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, 11 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 11, active, s, two_over_step, depth_eps, sigma_normal, gated))
+        k += threads
     block_sync()
 
-    # 3. W_q = Σ_r w_qr of the tile and an apron of 2 (centre (3/8)² included)
-    for k in range(lane, _SUM_N, threads):
-        u = (2 + k // _SUM_X) * _GUIDE_X + 2 + k % _SUM_X
-        sum_w = b3_spline(0) * b3_spline(0)
+    # 3. 1 / W_q, W_q = Σ_r w_qr of the tile and an apron of 2 (centre (3/8)² included)
+    k = lane
+    while k < _SUM_N:
+        u = (2 + k // _SUM_X) * _PITCH + 4 + k % _SUM_X
+        sum_w = CENTRE_WEIGHT
         for f in range(FORWARD_TAPS):
-            tap = forward_tap(f)
-            sum_w += pair[f * _PAIR_PIXELS + u] + pair[f * _PAIR_PIXELS + u - tap[0] * _GUIDE_X - tap[1]]
-        write_guide_scalar(weight_sum, u, sum_w)
+            sum_w += read_pair(pair, f * _PAIR_PIXELS + u) + read_pair(pair, f * _PAIR_PIXELS + u - forward_offset(f))
+        write_guide_scalar(inv_weight_sum, u, fast_rcp(sum_w))
+        k += threads
     block_sync()
 
 
@@ -225,20 +360,57 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
 def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
                 variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
     """(colour, Var) of pixel ``p`` from the packed input or from the unpacked one; Var = NO_SURFACE without
-    a surface (depth 0), else clamped to >= 0 (as the packed input holds it)."""
+    a surface (depth 0), else clamped to >= 0 (as the packed input holds it). The unpacked loads do not wait
+    for the depth test (loads behind a branch on an earlier load's value are issued one after the other)."""
     if packed != 0:
         return load_vec4(color_variance, p)
-    if depth[p] <= 0.0:
-        return wp.vec4(0.0, 0.0, 0.0, NO_SURFACE)
+    z = depth[p]
     c = color_in[p]
-    return wp.vec4(c[0], c[1], c[2], wp.max(variance_in[p], 0.0))
+    v = variance_in[p]
+    return wp.where(z > 0.0, wp.vec4(c[0], c[1], c[2], wp.max(v, 0.0)), wp.vec4(0.0, 0.0, 0.0, NO_SURFACE))
 
 
-@wp.kernel(launch_bounds=(BLOCK_THREADS, 2))
-def atrous_level(
+@wp.func
+def gaussian_sums(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
+                  variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), x: int, y: int,
+                  width: int, height: int) -> wp.vec3:
+    """(Σ k, Σ k Var, Σ k l) of the 3x3 Gaussian (1/4, 1/8, 1/16) at pixel (x, y) over the pixels with a surface.
+    Neighbours are clamped into the image and read unconditionally, masked after: the nine loads are in flight
+    together (a load behind a branch on another's value waits for it)."""
+    sums = wp.vec3(0.0)
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            qx = wp.clamp(x + dx, 0, width - 1)
+            qy = wp.clamp(y + dy, 0, height - 1)
+            cv_q = read_signal(packed, color_variance, color_in, variance_in, depth, qy * width + qx)
+            inside = qx == x + dx and qy == y + dy and cv_q[3] >= 0.0
+            kq = wp.where(inside, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
+            sums += kq * wp.vec3(1.0, wp.max(cv_q[3], 0.0), luminance(wp.vec3(cv_q[0], cv_q[1], cv_q[2])))
+    return sums
+
+
+@wp.func
+def blur_variance(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
+                  variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), x: int, y: int,
+                  width: int, height: int, gated: int, noise_target: float) -> wp.vec2:
+    """(g3x3(Var), R) of pixel (x, y), which has a surface: the 3x3 Gaussian (1/4, 1/8, 1/16) renormalised over
+    pixels with a surface (paper eq. 5) and, ``gated``, the footprint R of the same Gaussian's variance and mean
+    luminance (:func:`footprint_radius`, relative ``noise_target``); R = ``UNGATED_RADIUS`` otherwise."""
+    sums = wp.vec3(0.0)
+    if packed != 0:  # one branch outside the unrolled loop, not one per neighbour
+        sums = gaussian_sums(1, color_variance, color_in, variance_in, depth, x, y, width, height)
+    else:
+        sums = gaussian_sums(0, color_variance, color_in, variance_in, depth, x, y, width, height)
+    var_blur = sums[1] / sums[0]
+    if gated != 0:
+        return wp.vec2(var_blur, footprint_radius(var_blur, sums[2] / sums[0], noise_target))
+    return wp.vec2(var_blur, UNGATED_RADIUS)
+
+
+@wp.kernel
+def atrous_guide(
     packed: int,
     color_variance: wp.array(dtype=wp.vec4),
-    guide: wp.array(dtype=wp.vec4),
     color_in: wp.array(dtype=wp.vec3),
     variance_in: wp.array(dtype=wp.float32),
     depth: wp.array(dtype=wp.float32),
@@ -246,14 +418,84 @@ def atrous_level(
     slope: wp.array(dtype=wp.float32),
     width: int,
     height: int,
+    gated: int,
+    noise_target: float,
+    sigma_depth: float,
+    inv_sigma_luminance: float,
+    aux: wp.array(dtype=wp.vec4),
+    write_packed: int,
+    color_variance_out: wp.array(dtype=wp.vec4),
+    guide_out: wp.array(dtype=wp.vec4),
+):
+    """The per-pixel guides of a level that its input's 3x3 neighbourhood gives, dense over
+    ``dim=height * width``, so that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered
+    ones.
+
+    Reads the level's input as :func:`atrous_level` does (``packed`` != 0: ``color_variance``; else
+    ``color_in``, ``variance_in``, ``depth``, ``normal``) and ``slope`` (H*W float32 [m/pixel]). Writes ``aux``
+    (H*W vec4: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R, the scaled terms :func:`pair_weight` takes, with
+    ``sigma_depth`` = σ_z and ``inv_sigma_luminance`` = 1/σ_l; 0 without a surface) and, with ``write_packed``
+    (unpacked input only), the packed input ``color_variance_out`` (colour, Var; Var = NO_SURFACE without a
+    surface) and ``guide_out`` (n, z) that the level then reads instead. ``gated`` != 0: R from g3x3(Var) and
+    the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``), else
+    ``UNGATED_RADIUS``.
+    """
+    p = wp.tid()
+    y = p // width
+    x = p - y * width
+    cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
+    if write_packed != 0:
+        store_vec4(color_variance_out, p, cv)
+        if cv[3] >= 0.0:
+            n = normal[p]
+            store_vec4(guide_out, p, wp.vec4(n[0], n[1], n[2], depth[p]))
+        else:
+            store_vec4(guide_out, p, wp.vec4(0.0))
+    if cv[3] < 0.0:
+        store_vec4(aux, p, wp.vec4(0.0))
+        return
+    b = blur_variance(packed, color_variance, color_in, variance_in, depth, x, y, width, height, gated, noise_target)
+    store_vec4(aux, p, wp.vec4(sigma_depth * slope[p], 0.5 * b[0], luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance,
+                               b[1]))
+
+
+@wp.func
+def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
+                signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
+                s: float) -> int:
+    """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
+    guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns 1 if the
+    point is a pixel of the output tile that some gate lets be filtered."""
+    surface = inside and cv[3] >= 0.0
+    if not surface:
+        write_guide(guide_s, k, wp.vec4(0.0))
+        write_guide(guide_d, k, wp.vec4(0.0))
+        write_guide(signal, k, wp.vec4(0.0))
+        return 0
+    write_guide(guide_s, k, gs)
+    write_guide(guide_d, k, ax)
+    write_guide(signal, k, cv)
+    i = k // _PITCH
+    j = k - i * _PITCH - 2
+    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * ax[3] > s:
+        return 1
+    return 0
+
+
+@wp.kernel(launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
+def atrous_level(
+    color_variance: wp.array(dtype=wp.vec4),
+    guide: wp.array(dtype=wp.vec4),
+    aux: wp.array(dtype=wp.vec4),
+    width: int,
+    height: int,
     step: int,
     tiles_x: int,
     sigma_depth: float,
     sigma_normal: float,
-    sigma_luminance: float,
+    inv_sigma_luminance: float,
     conserve_energy: int,
     gated: int,
-    noise_target: float,
     write_packed: int,
     color_variance_out: wp.array(dtype=wp.vec4),
     write_public: int,
@@ -268,15 +510,13 @@ def atrous_level(
     (TILE_Y ty + i, TILE_X tx + j), i < TILE_Y, j < TILE_X, i.e. pixels (a + step (TILE_Y ty + i),
     b + step (TILE_X tx + j)).
 
-    Reads, with ``packed`` != 0, the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var;
-    Var < 0 = no surface) and ``guide`` (H*W vec4: n, z [m]), else the same from ``color_in`` (H*W vec3),
-    ``variance_in`` (H*W float32), ``depth`` (H*W float32 [m], 0 = none) and ``normal`` (H*W vec3); and
-    ``slope`` (H*W float32 [m/pixel]). ``gated`` != 0: R from g3x3(Var)
-    and the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``), else
-    R = ``UNGATED_RADIUS``. Writes, each when its flag is set: ``color_variance_out`` (packed, the next
-    level's input), ``color_out`` (H*W vec3 [W/m²]) and ``variance_out`` (H*W float32; both 0 without a
-    surface), and row ``1 - parity[0]`` of ``hist_color`` (2 x H*W vec3, the colour history). The outputs
-    must not alias the inputs.
+    Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) and
+    ``guide`` (H*W vec4: n, z [m]), and ``aux`` (H*W vec4 of :func:`atrous_guide` for this input, with the same
+    ``sigma_depth`` and σ_l: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R). ``gated`` != 0: the gates act (R from
+    ``aux``), else every gate is 1. Writes, each when its
+    flag is set: ``color_variance_out`` (packed, the next level's input), ``color_out`` (H*W vec3 [W/m²]) and
+    ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
+    (2 x H*W vec3, the colour history). The outputs must not alias the inputs.
     """
     block, lane = wp.tid()
     threads = wp.block_dim()
@@ -291,119 +531,98 @@ def atrous_level(
 
     # 1. guides of the tile and an apron of 4, read once
     guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
-    guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (‖∇z‖, g3x3 Var, l, R)
+    guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
     signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
     filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
-    for k in range(lane, _GUIDE_N, threads):
-        gs = wp.vec4(0.0)
-        gd = wp.vec4(0.0)
-        cv = wp.vec4(0.0)
-        y = row0 + step * (sy0 + k // _GUIDE_X)
-        x = col0 + step * (sx0 + k % _GUIDE_X)
-        if y >= 0 and y < height and x >= 0 and x < width:
-            p = y * width + x
-            cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
-            if cv[3] >= 0.0:
-                if packed != 0:
-                    gs = load_vec4(guide, p)
-                else:
-                    n = normal[p]
-                    gs = wp.vec4(n[0], n[1], n[2], depth[p])
-                sum_k = float(0.0)
-                sum_v = float(0.0)
-                sum_l = float(0.0)
-                for dy in range(-1, 2):
-                    for dx in range(-1, 2):
-                        qx = x + dx
-                        qy = y + dy
-                        if qx >= 0 and qx < width and qy >= 0 and qy < height:
-                            cv_q = read_signal(packed, color_variance, color_in, variance_in, depth,
-                                               qy * width + qx)
-                            if cv_q[3] >= 0.0:
-                                kq = wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25)
-                                sum_k += kq
-                                sum_v += kq * cv_q[3]
-                                if gated != 0:
-                                    sum_l += kq * luminance(wp.vec3(cv_q[0], cv_q[1], cv_q[2]))
-                var_blur = sum_v / sum_k
-                radius = UNGATED_RADIUS
-                if gated != 0:
-                    radius = footprint_radius(var_blur, sum_l / sum_k, noise_target)
-                gd = wp.vec4(slope[p], var_blur, luminance(wp.vec3(cv[0], cv[1], cv[2])), radius)
-                i = k // _GUIDE_X
-                j = k % _GUIDE_X
-                if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * radius > s:
-                    filtered += 1
-            else:
-                cv = wp.vec4(0.0)
-        write_guide(guide_s, k, gs)
-        write_guide(guide_d, k, gd)
-        write_guide(signal, k, cv)
+    for k0 in range(lane, _GUIDE_N, 2 * threads):
+        # two table entries a round, their six loads issued before any is used (the round is one memory latency);
+        # entries in the empty columns are written 0
+        k1 = k0 + threads
+        i0 = k0 // _PITCH
+        j0 = k0 - i0 * _PITCH - 2
+        i1 = k1 // _PITCH
+        j1 = k1 - i1 * _PITCH - 2
+        y0 = row0 + step * (sy0 + i0)
+        x0 = col0 + step * (sx0 + j0)
+        y1 = row0 + step * (sy0 + i1)
+        x1 = col0 + step * (sx0 + j1)
+        in0 = j0 >= 0 and j0 < _GUIDE_X and y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
+        in1 = k1 < _GUIDE_N and j1 >= 0 and j1 < _GUIDE_X and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
+        p0 = wp.where(in0, y0 * width + x0, 0)
+        p1 = wp.where(in1, y1 * width + x1, 0)
+        cv0 = load_vec4(color_variance, p0)
+        cv1 = load_vec4(color_variance, p1)
+        gs0 = load_vec4(guide, p0)
+        gs1 = load_vec4(guide, p1)
+        ax0 = load_vec4(aux, p0)
+        ax1 = load_vec4(aux, p1)
+        filtered += store_guide(guide_s, guide_d, signal, k0, in0, cv0, gs0, ax0, s)
+        if k1 < _GUIDE_N:
+            filtered += store_guide(guide_s, guide_d, signal, k1, in1, cv1, gs1, ax1, s)
     block_sync()
 
     pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
-    weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
+    inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
     # a block whose tile has no surface (the sky, the space around the Cornell box) or, on a gated level, only
     # pixels that need less than half the step (converged) skips 2 and 3: step 4 reads neither table then
     if wp.tile_sum(wp.tile(filtered))[0] > 0:
-        fill_weights(guide_s, guide_d, pair, weight_sum, lane, threads, s, sigma_depth, sigma_normal,
-                     sigma_luminance)
+        fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, sigma_depth * DEPTH_NOISE_REL,
+                     sigma_normal, gated)
 
     # 4. the filter of the tile's pixels
-    for k in range(lane, _TILE_Y * _TILE_X, threads):
+    k = lane
+    while k < _TILE_Y * _TILE_X:
         y = row0 + step * (sy0 + 4 + k // _TILE_X)
         x = col0 + step * (sx0 + 4 + k % _TILE_X)
         if y < height and x < width:
             p = y * width + x
-            u = (4 + k // _TILE_X) * _GUIDE_X + 4 + k % _TILE_X
-            cv_p = signal[u]
+            u = (4 + k // _TILE_X) * _PITCH + 6 + k % _TILE_X
+            cv_p = read_guide(signal, u)
             c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
             v_p = cv_p[3]
+            surface = read_guide(guide_s, u)[3] > 0.0
             c_new = wp.vec3(0.0)
             v_new = float(0.0)
-            if guide_s[u][3] > 0.0:
+            if surface:
                 c_new = c_p
                 v_new = v_p
-            if guide_s[u][3] > 0.0 and 2.0 * guide_d[u][3] > s:  # else every gate of p is 0: A_pp = 1
-                w_p = weight_sum[u]
+            if surface and 2.0 * read_guide(guide_d, u)[3] > s:  # else every gate of p is 0: A_pp = 1
+                iw_p = read_guide_scalar(inv_weight_sum, u)
                 sum_a = float(0.0)  # Σ_{q≠p} A_pq
                 sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
-                sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q
-                for m in range(2 * FORWARD_TAPS):
-                    f = m // 2
-                    tap = forward_tap(f)
-                    off = tap[0] * _GUIDE_X + tap[1]
+                sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q (w_pq = 0 where q has no surface: no branch)
+                for f in range(FORWARD_TAPS):
+                    off = forward_offset(f)
                     q = u + off
-                    w = float(0.0)
-                    if m % 2 == 0:
-                        w = pair[f * _PAIR_PIXELS + u]
-                    else:
-                        q = u - off
-                        w = pair[f * _PAIR_PIXELS + q]
-                    if w > 0.0:
-                        a = fast_div(w, wp.where(conserve_energy != 0, wp.max(w_p, weight_sum[q]), w_p))
-                        cv_q = signal[q]
-                        sum_a += a
-                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
-                        sum_av += a * a * cv_q[3]
+                    a = read_pair(pair, f * _PAIR_PIXELS + u) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
+                    cv_q = read_guide(signal, q)
+                    sum_a += a
+                    sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                    sum_av += a * a * cv_q[3]
+                    q = u - off
+                    a = read_pair(pair, f * _PAIR_PIXELS + q) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
+                    cv_q = read_guide(signal, q)
+                    sum_a += a
+                    sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                    sum_av += a * a * cv_q[3]
                 a_centre = 1.0 - sum_a
                 c_new = c_p + sum_dc
                 v_new = sum_av + a_centre * a_centre * v_p
             if write_packed != 0:
-                color_variance_out[p] = wp.vec4(c_new[0], c_new[1], c_new[2],
-                                                wp.where(guide_s[u][3] > 0.0, v_new, NO_SURFACE))
+                store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
             if write_public != 0:
                 color_out[p] = c_new
                 variance_out[p] = v_new
             if write_history != 0:
                 hist_color[1 - parity[0], p] = c_new
+        k += threads
 
 
 _SPARE: dict = {}
 
 
 def spare_outputs(device) -> dict:
-    """One-element stand-ins (allocated once per device) for the outputs a launch does not write."""
+    """One-element stand-ins (allocated once per device) for the buffers a launch does not use."""
     key = str(device)
     if key not in _SPARE:
         _SPARE[key] = {"vec3": wp.zeros(1, dtype=wp.vec3, device=device),
@@ -425,17 +644,20 @@ def atrous_blocks(width: int, height: int, step: int) -> tuple[int, int]:
 
 def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope: wp.array, width: int, height: int,
                   step: int, sigma_depth: float, sigma_normal: float, sigma_luminance: float, conserve_energy: bool,
-                  noise_target: float | None = None, color_variance_out: wp.array | None = None,
+                  aux: wp.array, noise_target: float | None = None, color_variance_out: wp.array | None = None,
                   color_out: wp.array | None = None, variance_out: wp.array | None = None,
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
-                  unpacked: tuple | None = None) -> None:
-    """Launch :func:`atrous_level` on the packed input (``color_variance``, ``guide``: H*W vec4, see the module
-    docstring) or, given ``unpacked`` = (color_in, variance_in, depth, normal), on those (the packed ones then
-    None); ``slope``: H*W float32 [m/pixel]. ``noise_target`` (relative, e.g. 0.05): gate the level by the
-    footprint the remaining variance needs; None: ungated (SVGF). Each output given is written:
+                  unpacked: tuple | None = None, pack_into: tuple | None = None) -> None:
+    """One level: :func:`atrous_guide`, then :func:`atrous_level`.
+
+    Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
+    (color_in, variance_in, depth, normal) and ``pack_into`` = (color_variance, guide) (H*W vec4 scratch each,
+    the packed ones then None), unpacked, packed there by the guide pass; ``slope``: H*W float32 [m/pixel];
+    ``aux``: H*W vec4 scratch (the guide pass's output). ``noise_target`` (relative, e.g. 0.05): gate the level
+    by the footprint the remaining variance needs; None: ungated (SVGF). Each output given is written:
     ``color_variance_out`` (packed, H*W vec4), ``color_out`` + ``variance_out`` (H*W vec3 [W/m²] and float32,
     given together), ``hist_color`` + ``parity`` (the colour history row ``1 - parity[0]``). No output may
-    alias an input (blocks read their neighbours' inputs while others write)."""
+    alias an input or ``aux`` (blocks read their neighbours' inputs while others write)."""
     d = slope.device
     spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
@@ -446,17 +668,23 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     write_history = hist_color is not None
     if write_history and parity is None:
         raise ValueError("hist_color needs parity")
-    packed = unpacked is None
-    if packed:
+    if (unpacked is None) != (pack_into is None):
+        raise ValueError("an unpacked input needs pack_into, a packed one neither")
+    if unpacked is None:
         color_in, variance_in, depth, normal = spare["vec3"], spare["float"], spare["float"], spare["vec3"]
+        cv_out = guide_out = spare["vec4"]
     else:
         color_in, variance_in, depth, normal = unpacked
-        color_variance = guide = spare["vec4"]
+        color_variance = cv_out = pack_into[0]
+        guide = guide_out = pack_into[1]
+    wp.launch(atrous_guide, dim=height * width, device=d,
+              inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
+                      height, int(gated), float(noise_target) if gated else 0.0, float(sigma_depth),
+                      1.0 / float(sigma_luminance), aux, int(unpacked is not None),
+                      cv_out, guide_out])
     wp.launch_tiled(atrous_level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
-                    inputs=[int(packed), color_variance, guide, color_in, variance_in, depth, normal, slope, width,
-                            height, int(step), tiles_x, float(sigma_depth), float(sigma_normal),
-                            float(sigma_luminance), int(conserve_energy), int(gated),
-                            float(noise_target) if gated else 0.0,
+                    inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, float(sigma_depth),
+                            float(sigma_normal), 1.0 / float(sigma_luminance), int(conserve_energy), int(gated),
                             int(color_variance_out is not None),
                             color_variance_out if color_variance_out is not None else spare["vec4"],
                             int(write_public), color_out if write_public else spare["vec3"],

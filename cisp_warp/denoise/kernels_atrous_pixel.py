@@ -1,9 +1,10 @@
-"""The per-pixel à-trous level (three launches): what the caustics denoiser's gated levels run.
+"""The per-pixel à-trous level (three launches): the caustics denoiser's ``levels="pixel"``.
 
-:mod:`.kernels_atrous` holds the tiled one-launch level SVGF runs. On the caustics denoiser's gated levels this
-per-pixel version measured faster on an H100 (1080p, 4 levels: pool 0.97 against 1.57 ms, Cornell box 0.97 against
-1.14 ms): most pixels there have converged and skip their taps one by one (2R <= step), while the tiled level skips
-only whole tiles. Same formula, same naive twin.
+:mod:`.kernels_atrous` holds the tiled level (a guide pass and one tiled launch) that SVGF and, by default, the
+caustics denoiser run. This per-pixel form was the faster one on the gated levels against the first tiled level
+(most pixels there have converged and skip their taps one by one, 2R <= step); the tiled level since rewritten
+measured faster on an H100 (1080p, the caustics denoiser's 4 levels: pool 0.87 against 1.19 ms, Cornell box 0.80
+against 1.33 ms; docs/perf_notes.md section 9). Same formula, same naive twin.
 
 One level is three launches over ``dim=(height, width)``:
 

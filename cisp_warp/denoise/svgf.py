@@ -60,7 +60,8 @@ class SVGF:
     Per frame (H*W each): ``depth``/``normal`` (the G-buffer copy the filters read; depth 0 without a
     surface), ``integrated`` (vec3 [W/m²], temporal accumulation), ``moments`` (vec2), ``history`` (int32),
     ``depth_slope`` (float32 [m/pixel]), ``guide`` (vec4: n, z [m]) and ``color_variance`` (2 x vec4: colour,
-    Var; the à-trous levels' packed input and output, ping-ponged), ``filtered_variance`` (float32: luminance
+    Var; the à-trous levels' packed input and output, ping-ponged), ``level_guides`` (vec4: a level's ‖∇z‖,
+    g3x3(Var), R from its guide pass), ``filtered_variance`` (float32: luminance
     variance of the last level, or of filter_moments without levels).
     """
 
@@ -92,6 +93,7 @@ class SVGF:
         self.depth_slope = one(wp.float32)
         self.guide = one(wp.vec4)
         self.color_variance = one(wp.vec4), one(wp.vec4)
+        self.level_guides = one(wp.vec4)
         self.filtered_variance = one(wp.float32)
         spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
@@ -143,7 +145,7 @@ class SVGF:
             last = level == s.atrous_levels - 1
             feedback = level == s.feedback_level
             launch_atrous(self.color_variance[level % 2], self.guide, self.depth_slope, w, h, 1 << level,
-                          s.sigma_depth, s.sigma_normal, s.sigma_luminance, s.conserve_energy,
+                          s.sigma_depth, s.sigma_normal, s.sigma_luminance, s.conserve_energy, self.level_guides,
                           color_variance_out=None if last else self.color_variance[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
                           hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None)
