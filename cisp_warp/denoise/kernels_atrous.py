@@ -95,6 +95,9 @@ _TILE_X = wp.constant(TILE_X)
 _GUIDE_X = wp.constant(GUIDE_X)
 _PITCH = wp.constant(GUIDE_PITCH)
 _GUIDE_N = wp.constant(GUIDE_PIXELS)
+_GUIDE_REAL = wp.constant(GUIDE_Y * GUIDE_X)
+_GUIDE_HALF = wp.constant((GUIDE_Y * GUIDE_X + 1) // 2)
+_EMPTY_N = wp.constant(GUIDE_Y * 4)
 _PAIR_PIXELS = wp.constant(PAIR_PIXELS)
 _PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
 _PAIR_POINTS = wp.constant(PAIR_ROWS * GUIDE_X)
@@ -217,6 +220,25 @@ def read_pair(t: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], i: int) -> flo
 @wp.func_native("WP_TILE_SYNC();")
 def block_sync():
     """Barrier of the block (every thread must reach it); a no-op for a CPU block of one lane."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __syncthreads_or(x);
+#else
+WP_TILE_SYNC();
+t.data(wp::tile_coord(0)) = 0;
+WP_TILE_SYNC();
+if (x != 0)
+    t.data(wp::tile_coord(0)) = 1;
+WP_TILE_SYNC();
+return t.data(wp::tile_coord(0));
+#endif
+""")
+def block_sync_or(t: wp.tile[wp.int32, 1], x: int) -> int:
+    """Barrier of the block that returns 1 on every thread if ``x`` != 0 on any (``__syncthreads_or`` on CUDA:
+    one barrier; the CPU's lanes go through the shared flag ``t``)."""
     ...
 
 
@@ -534,20 +556,20 @@ def atrous_level(
     guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
     signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
     filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
-    for k0 in range(lane, _GUIDE_N, 2 * threads):
-        # two table entries a round, their six loads issued before any is used (the round is one memory latency);
-        # entries in the empty columns are written 0
-        k1 = k0 + threads
-        i0 = k0 // _PITCH
-        j0 = k0 - i0 * _PITCH - 2
-        i1 = k1 // _PITCH
-        j1 = k1 - i1 * _PITCH - 2
+    # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
+    # latency), their six loads issued before any is used; the empty columns are written without loads
+    for r0 in range(lane, _GUIDE_HALF, threads):
+        r1 = r0 + _GUIDE_HALF
+        i0 = r0 // _GUIDE_X
+        j0 = r0 - i0 * _GUIDE_X
+        i1 = r1 // _GUIDE_X
+        j1 = r1 - i1 * _GUIDE_X
         y0 = row0 + step * (sy0 + i0)
         x0 = col0 + step * (sx0 + j0)
         y1 = row0 + step * (sy0 + i1)
         x1 = col0 + step * (sx0 + j1)
-        in0 = j0 >= 0 and j0 < _GUIDE_X and y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
-        in1 = k1 < _GUIDE_N and j1 >= 0 and j1 < _GUIDE_X and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
+        in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
+        in1 = r1 < _GUIDE_REAL and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
         p0 = wp.where(in0, y0 * width + x0, 0)
         p1 = wp.where(in1, y1 * width + x1, 0)
         cv0 = load_vec4(color_variance, p0)
@@ -556,16 +578,22 @@ def atrous_level(
         gs1 = load_vec4(guide, p1)
         ax0 = load_vec4(aux, p0)
         ax1 = load_vec4(aux, p1)
-        filtered += store_guide(guide_s, guide_d, signal, k0, in0, cv0, gs0, ax0, s)
-        if k1 < _GUIDE_N:
-            filtered += store_guide(guide_s, guide_d, signal, k1, in1, cv1, gs1, ax1, s)
-    block_sync()
+        filtered += store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s)
+        if r1 < _GUIDE_REAL:
+            filtered += store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s)
+    # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
+    for m in range(threads - 1 - lane, _EMPTY_N, threads):
+        c = m % 4
+        store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
+                    wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s)
 
     pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
     inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
-    # a block whose tile has no surface (the sky, the space around the Cornell box) or, on a gated level, only
-    # pixels that need less than half the step (converged) skips 2 and 3: step 4 reads neither table then
-    if wp.tile_sum(wp.tile(filtered))[0] > 0:
+    flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
+    # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
+    # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
+    # half the step (converged) skips 2 and 3: step 4 reads neither table then
+    if block_sync_or(flag, filtered) != 0:
         fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, sigma_depth * DEPTH_NOISE_REL,
                      sigma_normal, gated)
 
