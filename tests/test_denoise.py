@@ -704,10 +704,13 @@ def test_caustic_photon_m2_follows_a_caustic_the_differences_take_for_noise(devi
     assert still_m2 <= 1.01 * still
 
 
-@pytest.mark.parametrize("step,conserve,gate", [(1, True, None), (4, False, None), (16, True, None), (2, True, 0.1)])
-def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate):
+@pytest.mark.parametrize("step,conserve,gate,lattice", [(1, True, None, False), (4, False, None, False),
+                                                        (16, True, None, False), (2, True, 0.1, False),
+                                                        (8, True, None, True), (16, False, None, True)])
+def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, lattice):
     """The tiled level (:func:`launch_atrous`, SVGF's) over several blocks: tiles of each sub-lattice (step² of them), aprons that cross tiles and
-    sub-lattices, a partial last tile and image sizes no multiple of the step, against the float64 twin."""
+    sub-lattices, a partial last tile and image sizes no multiple of the step, against the float64 twin; with
+    ``lattice`` the level reads its packed input, guide and guide-pass terms in sub-lattice-major order."""
     rng = np.random.default_rng(23 + step)
     w, h = 45, 38
     g = plane(w, h)
@@ -727,19 +730,33 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate):
     c_out = wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device)  # every pixel must be written
     v_out = wp.full(w * h, -7.0, dtype=wp.float32, device=device)
     scratch = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(3)]
-    launch_atrous(None, None, slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
-                  scratch[0], noise_target=gate, color_out=c_out, variance_out=v_out,
-                  unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=scratch[1:])
+    if lattice:  # pack first (a step-1 guide pass), then the level from the packed input
+        from cisp_warp.denoise.kernels_atrous import lattice_size
+        size = lattice_size(w, h, step)
+        assert size > w * h
+        packed = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(2)]
+        launch_atrous(None, None, slope, w, h, 1, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
+                      scratch[0], unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=packed,
+                      color_variance_out=scratch[1])
+        aux, cv_lat, guide_lat = (wp.full(size, wp.vec4(7.0), dtype=wp.vec4, device=device) for _ in range(3))
+        launch_atrous(packed[0], packed[1], slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance,
+                      conserve, aux, noise_target=gate, color_out=c_out, variance_out=v_out, lattice=(cv_lat, guide_lat))
+        assert not np.allclose(cv_lat.numpy(), 7.0)  # the lattice buffers were used
+    else:
+        launch_atrous(None, None, slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
+                      scratch[0], noise_target=gate, color_out=c_out, variance_out=v_out,
+                      unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=scratch[1:])
     c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step,
                                       s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve, noise_target=gate)
     np.testing.assert_allclose(c_out.numpy().reshape(h, w, 3), c_ref, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("feedback", [0, 2, -1])
-def test_svgf_levels_match_naive_twin(device, feedback):
+@pytest.mark.parametrize("feedback,levels", [(0, 3), (2, 3), (-1, 3), (3, 5)])
+def test_svgf_levels_match_naive_twin(device, feedback, levels):
     """SVGF's chained levels (packed by filter_moments, ping-ponged packed, the last one unpacked, the feedback
-    level writing the colour history) equal the float64 twin's levels applied to the same temporal result."""
+    level writing the colour history; steps 8 and 16 read in sub-lattice-major order) equal the float64 twin's
+    levels applied to the same temporal result."""
     rng = np.random.default_rng(31)
     w, h = 37, 29
     g = plane(w, h)
@@ -750,12 +767,13 @@ def test_svgf_levels_match_naive_twin(device, feedback):
     out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     color = run_frame(temporal, g, e, out).astype(np.float64)
     variance = temporal.variance.numpy().reshape(h, w).astype(np.float64)
-    s = replace(base, atrous_levels=3, feedback_level=feedback)
+    s = replace(base, atrous_levels=levels, feedback_level=feedback)
     svgf = SVGF(w, h, device, s)
     res = run_frame(svgf, g, e, out)
     hist = svgf.hist_color.numpy()[1].reshape(h, w, 3)  # the row the first frame writes
     c_ref, v_ref = color, variance
-    for level in range(3):
+    assert (svgf.lattice is not None) == (levels > 3)
+    for level in range(levels):
         c_ref, v_ref = atrous_level_naive(c_ref, v_ref, g["depth"], g["normal"], 1 << level, s.sigma_depth,
                                           s.sigma_normal, s.sigma_luminance, s.conserve_energy)
         if level == feedback:
@@ -847,4 +865,5 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     """The level with real multi-lane blocks on the CPU (cooperative fibers): the barriers between the shared
     tables' phases are where a race would show; equals the twin like the one-lane CPU block."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None)
+    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False)
+    test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True)

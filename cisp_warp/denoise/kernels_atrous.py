@@ -85,6 +85,11 @@ TAPS_PER_ITEM = 3
 SUM_Y = TILE_Y + 4
 SUM_X = TILE_X + 4
 
+#: levels of this step and above read their input, guides and guide-pass terms in sub-lattice-major order
+#: (:func:`lattice_index`), written so by their guide pass when the caller gives the buffers: a row of a tile is
+#: then 16 contiguous bytes a point instead of one 16-byte load per 32-byte sector (or per 128-byte line)
+LATTICE_STEP = 8
+
 # Constant-range loops (the 12 forward taps, the 3x3 Gaussian) are unrolled, so every tap's offset, kernel
 # weight and distance is a constant; the loops that spread work over the block are not (their range is not
 # constant). Tiles are compiled for the block the level is launched with.
@@ -429,6 +434,21 @@ def blur_variance(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
     return wp.vec2(var_blur, UNGATED_RADIUS)
 
 
+@wp.func
+def lattice_index(y: int, x: int, width: int, height: int, step: int) -> int:
+    """Index of pixel (y, x) in the sub-lattice-major order of tap spacing ``step``: sub-lattice
+    (y mod step, x mod step) after sub-lattice, each ceil(height/step) x ceil(width/step) points row-major
+    (points past the image unused; :func:`lattice_size` entries in all)."""
+    sub_h = (height + step - 1) // step
+    sub_w = (width + step - 1) // step
+    return (((y % step) * step + x % step) * sub_h + y // step) * sub_w + x // step
+
+
+def lattice_size(width: int, height: int, step: int) -> int:
+    """Entries of a buffer in the sub-lattice-major order of tap spacing ``step``."""
+    return step * step * ((height + step - 1) // step) * ((width + step - 1) // step)
+
+
 @wp.kernel
 def atrous_guide(
     packed: int,
@@ -448,6 +468,10 @@ def atrous_guide(
     write_packed: int,
     color_variance_out: wp.array(dtype=wp.vec4),
     guide_out: wp.array(dtype=wp.vec4),
+    lattice: int,
+    guide_in: wp.array(dtype=wp.vec4),
+    color_variance_lattice: wp.array(dtype=wp.vec4),
+    guide_lattice: wp.array(dtype=wp.vec4),
 ):
     """The per-pixel guides of a level that its input's 3x3 neighbourhood gives, dense over
     ``dim=height * width``, so that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered
@@ -461,11 +485,17 @@ def atrous_guide(
     surface) and ``guide_out`` (n, z) that the level then reads instead. ``gated`` != 0: R from g3x3(Var) and
     the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``), else
     ``UNGATED_RADIUS``.
+
+    ``lattice`` = the level's step (>= 2; 0: off): ``aux`` is written in that step's sub-lattice-major order
+    (:func:`lattice_index`, :func:`lattice_size` entries) and so are copies of the packed input,
+    ``color_variance_lattice``, and of the packed guide ``guide_in`` (n, z), ``guide_lattice``, which the level
+    then reads instead (packed input only).
     """
     p = wp.tid()
     y = p // width
     x = p - y * width
     cv = read_signal(packed, color_variance, color_in, variance_in, depth, p)
+    o = p
     if write_packed != 0:
         store_vec4(color_variance_out, p, cv)
         if cv[3] >= 0.0:
@@ -473,11 +503,15 @@ def atrous_guide(
             store_vec4(guide_out, p, wp.vec4(n[0], n[1], n[2], depth[p]))
         else:
             store_vec4(guide_out, p, wp.vec4(0.0))
+    elif lattice != 0:
+        o = lattice_index(y, x, width, height, lattice)
+        store_vec4(color_variance_lattice, o, cv)
+        store_vec4(guide_lattice, o, load_vec4(guide_in, p))
     if cv[3] < 0.0:
-        store_vec4(aux, p, wp.vec4(0.0))
+        store_vec4(aux, o, wp.vec4(0.0))
         return
     b = blur_variance(packed, color_variance, color_in, variance_in, depth, x, y, width, height, gated, noise_target)
-    store_vec4(aux, p, wp.vec4(sigma_depth * slope[p], 0.5 * b[0], luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance,
+    store_vec4(aux, o, wp.vec4(sigma_depth * slope[p], 0.5 * b[0], luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance,
                                b[1]))
 
 
@@ -526,6 +560,7 @@ def atrous_level(
     write_history: int,
     parity: wp.array(dtype=wp.int32),
     hist_color: wp.array2d(dtype=wp.vec3),
+    lattice: int,
 ):
     """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
     ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -538,7 +573,8 @@ def atrous_level(
     ``aux``), else every gate is 1. Writes, each when its
     flag is set: ``color_variance_out`` (packed, the next level's input), ``color_out`` (H*W vec3 [W/m²]) and
     ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
-    (2 x H*W vec3, the colour history). The outputs must not alias the inputs.
+    (2 x H*W vec3, the colour history). The outputs must not alias the inputs. ``lattice`` != 0: the three
+    inputs are in the step's sub-lattice-major order (:func:`atrous_guide`'s ``lattice``), the outputs not.
     """
     block, lane = wp.tid()
     threads = wp.block_dim()
@@ -550,6 +586,8 @@ def atrous_level(
     sy0 = (t // tiles_x) * _TILE_Y - 4  # sub-lattice coordinates of guide element (0, 0)
     sx0 = (t % tiles_x) * _TILE_X - 4
     s = float(step)
+    sub_w = (width + step - 1) // step
+    lattice_row = sub * ((height + step - 1) // step)  # sub-lattice-major: point (sy, sx) at (lattice_row + sy) sub_w + sx
 
     # 1. guides of the tile and an apron of 4, read once
     guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
@@ -570,8 +608,8 @@ def atrous_level(
         x1 = col0 + step * (sx0 + j1)
         in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
         in1 = r1 < _GUIDE_REAL and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
-        p0 = wp.where(in0, y0 * width + x0, 0)
-        p1 = wp.where(in1, y1 * width + x1, 0)
+        p0 = wp.where(in0, wp.where(lattice != 0, (lattice_row + sy0 + i0) * sub_w + sx0 + j0, y0 * width + x0), 0)
+        p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
         cv0 = load_vec4(color_variance, p0)
         cv1 = load_vec4(color_variance, p1)
         gs0 = load_vec4(guide, p0)
@@ -675,7 +713,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   aux: wp.array, noise_target: float | None = None, color_variance_out: wp.array | None = None,
                   color_out: wp.array | None = None, variance_out: wp.array | None = None,
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
-                  unpacked: tuple | None = None, pack_into: tuple | None = None) -> None:
+                  unpacked: tuple | None = None, pack_into: tuple | None = None,
+                  lattice: tuple | None = None) -> None:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -685,7 +724,11 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     by the footprint the remaining variance needs; None: ungated (SVGF). Each output given is written:
     ``color_variance_out`` (packed, H*W vec4), ``color_out`` + ``variance_out`` (H*W vec3 [W/m²] and float32,
     given together), ``hist_color`` + ``parity`` (the colour history row ``1 - parity[0]``). No output may
-    alias an input or ``aux`` (blocks read their neighbours' inputs while others write)."""
+    alias an input or ``aux`` (blocks read their neighbours' inputs while others write).
+
+    ``lattice`` = (color_variance, guide) scratch (vec4, at least :func:`lattice_size` entries each, and ``aux``
+    as many): at a step of ``LATTICE_STEP`` or more with a packed input, the guide pass copies the input and the
+    guide there in the step's sub-lattice-major order and writes ``aux`` so, and the level reads them densely."""
     d = slope.device
     spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
@@ -705,11 +748,21 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         color_in, variance_in, depth, normal = unpacked
         color_variance = cv_out = pack_into[0]
         guide = guide_out = pack_into[1]
+    use_lattice = lattice is not None and unpacked is None and step >= LATTICE_STEP
+    if use_lattice:
+        size = lattice_size(width, height, step)
+        if min(lattice[0].shape[0], lattice[1].shape[0], aux.shape[0]) < size:
+            raise ValueError(f"the sub-lattice-major buffers and aux need {size} entries at step {step}")
+        cv_lattice, guide_lattice = lattice
+    else:
+        cv_lattice = guide_lattice = spare["vec4"]
     wp.launch(atrous_guide, dim=height * width, device=d,
               inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
                       height, int(gated), float(noise_target) if gated else 0.0, float(sigma_depth),
                       1.0 / float(sigma_luminance), aux, int(unpacked is not None),
-                      cv_out, guide_out])
+                      cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice])
+    if use_lattice:
+        color_variance, guide = cv_lattice, guide_lattice
     wp.launch_tiled(atrous_level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, float(sigma_depth),
                             float(sigma_normal), 1.0 / float(sigma_luminance), int(conserve_energy), int(gated),
@@ -718,4 +771,4 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             int(write_public), color_out if write_public else spare["vec3"],
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
-                            hist_color if write_history else spare["hist"]])
+                            hist_color if write_history else spare["hist"], int(use_lattice)])

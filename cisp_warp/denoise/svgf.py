@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_svgf as K
-from .kernels_atrous import launch_atrous, spare_outputs
+from .kernels_atrous import LATTICE_STEP, lattice_size, launch_atrous, spare_outputs
 
 
 @dataclass(frozen=True)
@@ -61,8 +61,10 @@ class SVGF:
     surface), ``integrated`` (vec3 [W/m²], temporal accumulation), ``moments`` (vec2), ``history`` (int32),
     ``depth_slope`` (float32 [m/pixel]), ``guide`` (vec4: n, z [m]) and ``color_variance`` (2 x vec4: colour,
     Var; the à-trous levels' packed input and output, ping-ponged), ``level_guides`` (vec4: a level's ‖∇z‖,
-    g3x3(Var), R from its guide pass), ``filtered_variance`` (float32: luminance
-    variance of the last level, or of filter_moments without levels).
+    g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a little more
+    than H*W), ``lattice`` (2 x vec4: those levels' input and guide copied in that order by their guide pass;
+    None with fewer levels), ``filtered_variance`` (float32: luminance variance of the last level, or of
+    filter_moments without levels).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
@@ -93,7 +95,11 @@ class SVGF:
         self.depth_slope = one(wp.float32)
         self.guide = one(wp.vec4)
         self.color_variance = one(wp.vec4), one(wp.vec4)
-        self.level_guides = one(wp.vec4)
+        # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order
+        lattice = max([lattice_size(width, height, 1 << k) for k in range(settings.atrous_levels)
+                       if (1 << k) >= LATTICE_STEP], default=0)
+        self.level_guides = wp.zeros(max(n, lattice), dtype=wp.vec4, device=d)
+        self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d), wp.zeros(lattice, dtype=wp.vec4, device=d)) if lattice else None
         self.filtered_variance = one(wp.float32)
         spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
@@ -148,5 +154,6 @@ class SVGF:
                           s.sigma_depth, s.sigma_normal, s.sigma_luminance, s.conserve_energy, self.level_guides,
                           color_variance_out=None if last else self.color_variance[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
-                          hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None)
+                          hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
+                          lattice=self.lattice)
         wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
