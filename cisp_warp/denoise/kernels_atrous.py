@@ -11,14 +11,18 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
    per-pixel terms every pair weight takes (σ_z ‖∇z‖, the 3x3 Gaussian g3x3(Var) over pixels with a surface,
    paper eq. 5, the luminance, and on gated levels the footprint R still needed). Its 3x3 neighbourhoods lie
    on other sub-lattices than the pixel's, so the level itself would read them nine scattered loads a guide;
-   here they are read once, neighbours in the same cache lines. (It also packs an unpacked input.)
+   here they are read once, neighbours in the same cache lines. (It also packs an unpacked input.) At a step
+   of ``LATTICE_STEP`` (8) or more, given the buffers (SVGF), it writes its terms and copies of the input and
+   the guide in the step's sub-lattice-major order (:func:`lattice_index`), so that the level's tile rows are
+   dense: otherwise each of its 16-byte loads takes its own sector at those steps.
 
 :func:`atrous_level` then gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one
 sub-lattice, in shared memory (Warp shared tiles):
 
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
    ``(n, z)``, the guide pass's terms and the input (colour, Var), three 16-byte loads a point, two points a
-   thread issued together;
+   thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
+   tile has any pixel to filter;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, three at a time with the pixel's guides in registers and the offsets, kernel weights and
    distances known to the compiler) and kept in shared memory;
@@ -43,8 +47,8 @@ first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1
 surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
 
-Costs (H100, 1920x1080, docs/perf_notes.md section 9): SVGF's 5 levels 1.13 ms on the Cornell box, 1.65 ms on the
-pool. Per pixel a level evaluates 20.6 pair weights (~45 instructions each on the common path), 24 filter taps
+Costs (H100, 1920x1080, docs/perf_notes.md sections 9 and 11): SVGF's 5 levels 1.00 ms on the Cornell box,
+1.47 ms on the pool. Per pixel a level evaluates 20.6 pair weights (~45 instructions each on the common path), 24 filter taps
 (~13) and reads 1.9 guides; it runs at about half the issue rate, the rest being the block's phases waiting on
 memory and barriers with two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
 """
