@@ -43,6 +43,8 @@ class PhotonSettings:
     reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
     sort_photons: bool | None = None  #: trace RSM photons in texel (Morton) order; None = on CUDA only
     splat: str = "point"  #: cisp, sspm: "point" deposits, or "wavefront" (photons on an RSM grid, cells splatted)
+    #: wavefront splats: cells over the RSM's texels ("rsm") or over the specular mesh's own triangles ("mesh")
+    wavefront_grid: str = "rsm"
 
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
@@ -51,6 +53,8 @@ class PhotonSettings:
             raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
         if self.splat not in ("point", "wavefront"):
             raise SceneError(f"--splat must be 'point' or 'wavefront', got {self.splat!r}")
+        if self.wavefront_grid not in ("rsm", "mesh"):
+            raise SceneError(f"--wavefront-grid must be 'rsm' or 'mesh', got {self.wavefront_grid!r}")
         if self.cmap_gather not in ("light", "eye"):
             raise SceneError(f"--cmap-gather must be 'light' or 'eye', got {self.cmap_gather!r}")
         for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0)):

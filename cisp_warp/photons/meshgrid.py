@@ -1,0 +1,234 @@
+"""Wavefront splatting over the water mesh (``PhotonSettings(splat="wavefront", wavefront_grid="mesh")``, CLI
+``--wavefront-grid mesh``): the grid's cells are the specular triangles of the scene cut ``n`` × ``n`` in their
+own barycentric coordinates (:mod:`.kernels_meshgrid`), traced and splatted as the RSM grid's are.
+
+``photons`` sets ``n``: about ``photons`` cells per light over all its specular triangles,
+``n = round(sqrt(photons / T))`` (at least 1; T the scene's specular triangles), so ``T · n²`` cells and
+``2 · T · (n + 1)(n + 2)/2`` corner photons per light (a refracted and a reflected sheet through every corner; a
+corner on an edge shared by two triangles is traced once for each).
+
+:func:`mesh_cells_numpy` is the naive twin of the cells' power (numpy, loops over triangles and sub-triangles).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from ..optics import fresnel_dielectric_np
+from ..scene.model import LAYER_SPECULAR
+from . import kernels_meshgrid as K
+from . import kernels_wavefront as KW
+from .base import PhotonPass, frame_random
+
+MAX_SPAN = 64  #: [pixels] a landing triangle wider or taller than this is not one wavefront: point fallback
+
+
+def subdivision_for(triangles: int, photons: int) -> int:
+    """Sub-triangles per triangle edge for about ``photons`` cells over ``triangles`` triangles."""
+    return max(1, int(round(math.sqrt(photons / max(triangles, 1)))))
+
+
+class MeshWavefrontSplat:
+    """The mesh grid, its records and the splat for one photon pass; allocated once, launched per light view
+    (the interface of :class:`~.wavefront.WavefrontSplat`)."""
+
+    def __init__(self, photon_pass: PhotonPass, cam):
+        """``cam``: the pass's :class:`~.kernels_world.CameraBuffers` (its ``view`` is set each frame)."""
+        self.p = photon_pass
+        self.cam = cam
+        d = photon_pass.device
+        sc = photon_pass.scene
+        tris = np.flatnonzero(sc.scene.triangle_layers() & LAYER_SPECULAR).astype(np.int32)
+        self.grid = K.MeshGrid()
+        self.grid.tris = wp.array(tris if len(tris) else np.zeros(1, np.int32), dtype=wp.int32, device=d)
+        self.grid.count = int(len(tris))
+        n = subdivision_for(len(tris), photon_pass.settings.photons)
+        self.grid.n, self.grid.cells, self.grid.corners = n, n * n, (n + 1) * (n + 2) // 2
+        records = max(1, 2 * self.grid.count * self.grid.corners)
+        cells = max(1, 2 * self.grid.count * self.grid.cells)
+        self.rec = KW.Records()
+        self.rec.entry = wp.zeros(records, dtype=wp.int32, device=d)
+        self.rec.pos = wp.zeros(records, dtype=wp.vec3, device=d)
+        self.rec.pix = wp.zeros(records, dtype=wp.int32, device=d)
+        self.rec.dir = wp.zeros(records, dtype=wp.vec3, device=d)
+        self.rec.throughput = wp.zeros(records, dtype=wp.vec3, device=d)
+        self.tri_power = wp.zeros(cells, dtype=wp.vec3, device=d)
+        self.tri_state = wp.zeros(cells, dtype=wp.int32, device=d)
+        self.grids: list[K.MeshGrid] = []  #: one entry per light view traced in the last frame
+
+    def photons_traced(self) -> int:
+        """Corner photons traced in the last frame (each corner in the one view its triangle belongs to)."""
+        return 2 * self.grid.count * self.grid.corners * len({id(g) for g in self.grids}) if self.grids else 0
+
+    def trace(self, frame: int, tracer: str, world=None) -> None:
+        """Every emitting light view of the frame: its triangles' cells, corner photons (``tracer`` "cisp" or
+        "sspm"), splat."""
+        p, s, dev, g = self.p, self.p.settings, self.p.device, self.grid
+        self.grids = []
+        if g.count == 0:
+            return
+        total = g.count * g.cells
+        sc = p.scene
+        for li, lm in enumerate(p.lights):
+            light = lm.light
+            light_pos = wp.vec3(*np.asarray(light.position, np.float32))
+            rgb = wp.vec3(*light.radiometric_rgb.astype(np.float32))
+            axis = wp.vec3(*np.asarray(light.direction, np.float32))
+            kind = int(light.kind)
+            for vi, (params, r) in enumerate(zip(lm.host_views(), lm.rsm)):  # fitted: read back
+                if not lm.active[vi]:
+                    continue
+                self.grids.append(g)
+                skip = wp.vec4(*lm.skip_windows[vi])
+                p.launch_photons(K.mesh_cells, total, inputs=[
+                    params, kind, light_pos, rgb, axis, float(light.cone_angle), float(light.cone_softness), g, skip,
+                    r.shadow_depth, sc.points, sc.normals, sc.indices, sc.triangle_material, sc.roughness, sc.opacity,
+                    sc.albedo, sc.ior, float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel),
+                    self.tri_power, p.ledger])
+                corners = 2 * g.count * g.corners
+                if tracer == "cisp":
+                    rsm_bounds = p.rsm_bounds[li][vi]
+                    p._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
+                    wp.launch(K.trace_mesh_cisp, dim=corners, device=dev, inputs=[
+                        params, kind, light_pos, g, skip, r.opaque_depth, rsm_bounds, sc.points, sc.normals, sc.indices,
+                        sc.triangle_material, sc.roughness, sc.opacity, sc.ior, float(s.roughness_cutoff),
+                        self.cam.view, self.cam.depth, p.cam_bounds, self.cam.position, self.cam.normal,
+                        int(s.max_steps), float(s.thickness), float(s.thickness_rel), p.t_max, int(s.cascade),
+                        self.rec])
+                else:
+                    _, _, seed = frame_random(s.seed, frame, li * 64 + vi)
+                    wp.launch(K.trace_mesh_world, dim=corners, device=dev, inputs=[
+                        params, kind, light_pos, g, skip, world, self.cam, seed, float(s.roughness_cutoff),
+                        float(s.thickness), float(s.thickness_rel), p.t_max, int(s.max_bounces), self.rec])
+                p.launch_photons(K.splat_mesh, 2 * total, inputs=[
+                    g, self.rec, self.tri_power, self.cam, float(s.thickness), float(s.thickness_rel), MAX_SPAN,
+                    p.footprint_mode, p.photon_map, self.tri_state, p.ledger])
+
+    def last_view_state(self) -> dict:
+        """Host copies of the last traced view's records and cells (tests, the naive twins)."""
+        g = self.grid
+        corners, cells = 2 * g.count * g.corners, 2 * g.count * g.cells
+        return {"grid": "mesh", "n": g.n, "count": g.count, "tris": g.tris.numpy()[: g.count],
+                "entry": self.rec.entry.numpy()[:corners], "pos": self.rec.pos.numpy()[:corners],
+                "pix": self.rec.pix.numpy()[:corners], "dir": self.rec.dir.numpy()[:corners],
+                "throughput": self.rec.throughput.numpy()[:corners], "tri_power": self.tri_power.numpy()[:cells],
+                "tri_state": self.tri_state.numpy()[:cells]}
+
+
+# --- naive twin ------------------------------------------------------------------------------------------
+
+
+def sub_cells_numpy(n: int) -> list[tuple[tuple[int, int], tuple[int, int], tuple[int, int]]]:
+    """The n² sub-triangles of a triangle cut n × n, in the kernels' order, as lattice corners (i, j):
+    row by row, along a row upright (i, j) (i+1, j) (i, j+1) then inverted (i+1, j) (i+1, j+1) (i, j+1)."""
+    out = []
+    for j in range(n):
+        for i in range(n - j):
+            out.append(((i, j), (i + 1, j), (i, j + 1)))
+            if i < n - j - 1:
+                out.append(((i + 1, j), (i + 1, j + 1), (i, j + 1)))
+    return out
+
+
+def mesh_cells_numpy(scene, light, view, skip_window, shadow_depth: np.ndarray, tris: np.ndarray, n: int,
+                     roughness_cutoff: float, thickness: float, thickness_rel: float) -> dict:
+    """Naive twin of ``mesh_cells`` for one light view, float64: loops in Python over the grid's triangles
+    and their sub-triangles.
+
+    ``scene``: the :class:`~cisp_warp.scene.model.Scene`; ``light``: its
+    :class:`~cisp_warp.scene.model.Light`; ``view``: the light view (a :class:`~cisp_warp.raster.views.View`);
+    ``skip_window``: (x0, y0, x1, y1) [pixels]; ``shadow_depth``: (H*W,) the view's nearest depth [m];
+    ``tris``: the grid's scene triangles. Returns the cells' power (2 sheets · T · n², 3) [W] and the ledger
+    parts they book {entry: (3,) W}."""
+    pts = scene.points.astype(np.float64)
+    nrm = scene.normals.astype(np.float64)
+    idx = scene.indices.reshape(-1, 3)
+    mats = scene.materials
+    rgb = light.radiometric_rgb
+    kind = int(light.kind)
+    pos = np.asarray(light.position, np.float64)
+    axis = np.asarray(light.direction, np.float64)
+    forward = np.asarray(view.to_world, np.float64)[:3, :3] @ np.array([0.0, 0.0, -1.0])
+    forward /= np.linalg.norm(forward)
+    cells = sub_cells_numpy(n)
+    total = len(tris) * n * n
+    power = np.zeros((2 * total, 3))
+    book: dict[str, np.ndarray] = {}
+
+    def add(name, v):
+        book[name] = book.get(name, np.zeros(3)) + v
+
+    def reaches(x):
+        px, py, z = view.project(x)
+        ix = min(max(int(px), 0), view.width - 1)
+        iy = min(max(int(py), 0), view.height - 1)
+        s = shadow_depth[iy * view.width + ix]
+        return 0.0 if 0.0 < s < z - (thickness + thickness_rel * z) else 1.0
+
+    def direction(x):
+        if kind == 0:
+            return forward
+        d = x - pos
+        return d / np.linalg.norm(d)
+
+    def spot(cos_angle):
+        angle = math.acos(min(max(cos_angle, -1.0), 1.0))
+        if angle >= light.cone_angle:
+            return 0.0
+        inner = light.cone_angle * (1.0 - min(max(light.cone_softness, 0.0), 1.0))
+        if angle <= inner:
+            return 1.0
+        s = (light.cone_angle - angle) / (light.cone_angle - inner)
+        return s * s * (3.0 - 2.0 * s)
+
+    x0, y0, x1, y1 = skip_window
+    for k, tri in enumerate(tris):
+        a, b, c = pts[idx[tri]]
+        na, nb, nc = nrm[idx[tri]]
+        px, py, z = view.project((a + b + c) / 3.0)
+        if view.far <= 0 or z <= 0 or not (0 <= px < view.width and 0 <= py < view.height):
+            continue
+        if x0 <= px < x1 and y0 <= py < y1:
+            continue
+        m = mats[scene.triangle_material[tri]]
+
+        def lattice(ij):
+            wb, wc = ij[0] / n, ij[1] / n
+            wa = 1.0 - wb - wc
+            return a * wa + b * wb + c * wc, na * wa + nb * wb + nc * wc
+
+        for s, corners in enumerate(cells):
+            (xa, ma), (xb, mb), (xc, mc) = (lattice(ij) for ij in corners)
+            g = (xa + xb + xc) / 3.0
+            d_in = direction(g)
+            if kind == 0:
+                flux = rgb * abs(d_in @ (0.5 * np.cross(xb - xa, xc - xa)))
+            else:
+                ra, rb, rc = xa - pos, xb - pos, xc - pos
+                la, lb, lc = np.linalg.norm(ra), np.linalg.norm(rb), np.linalg.norm(rc)
+                omega = 2.0 * math.atan2(abs(ra @ np.cross(rb, rc)),
+                                         la * lb * lc + (ra @ rb) * lc + (ra @ rc) * lb + (rb @ rc) * la)
+                flux = rgb * omega * (spot(d_in @ axis) if kind == 2 else 1.0)
+            flux = flux * (reaches(xa) + reaches(xb) + reaches(xc)) / 3.0
+            add("sampled", flux)
+            refr = refl = np.zeros(3)
+            if m.roughness > roughness_cutoff:
+                add("culled_roughness", flux)
+            elif m.opacity < 1.0:
+                nn = (ma + mb + mc) / np.linalg.norm(ma + mb + mc)
+                eta = m.ior
+                if d_in @ nn > 0:
+                    nn, eta = -nn, 1.0 / eta
+                refl = flux * float(fresnel_dielectric_np(-(d_in @ nn), eta))
+                refr = flux - refl
+            else:
+                refl = flux * np.asarray(m.albedo, np.float64)
+                add("absorbed", flux - refl)
+            add("refracted", refr)
+            add("reflected", refl)
+            power[k * n * n + s] = refr
+            power[total + k * n * n + s] = refl
+    return {"tri_power": power, "ledger": book}
