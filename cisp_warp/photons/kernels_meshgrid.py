@@ -17,9 +17,10 @@ barycentric coordinates, so a cell never crosses a mesh edge:
   point or spot light (Ω the triangle's exact solid angle, times the spot profile at its centroid), times the
   share of its corners the light reaches (the light view's nearest depth as a shadow map), split by the exact
   Fresnel factor at its centroid's interpolated normal into the refracted and reflected sheets.
-* **Views.** A light's views are traced one by one (CISP marches in the view's depth): a triangle belongs to
-  the view its centroid projects into, outside the window a finer cascade takes (the skip window); triangles
-  of no active view are left to ``outside_fitted_view`` (booked by the pass from the pilot's texels).
+* **Views.** A light's views are traced one by one (CISP marches in the view's depth): a cell belongs to the
+  view its centroid projects into, outside the window a finer cascade takes (the skip window), and a corner is
+  traced in every view one of its cells belongs to; cells of no active view are left to
+  ``outside_fitted_view`` (booked by the pass from the pilot's texels).
 * **Splat**: :func:`~.kernels_splat.splat_corners`, shared with the RSM grid.
 
 Every watt a cell samples ends in exactly one ledger entry. The luminance cutoff is not applied (the cells are
@@ -103,19 +104,65 @@ def lattice_point(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.ve
 
 
 @wp.func
-def tri_in_view(light: ViewParams, skip_window: wp.vec4, points: wp.array(dtype=wp.vec3),
-                indices: wp.array(dtype=wp.int32), tri: int) -> int:
-    """1 when triangle ``tri`` belongs to this light view: an active view, its centroid in front of it, inside
-    its image and outside the window a finer cascade covers (x0, y0, x1, y1; empty when x1 <= x0)."""
+def in_view(light: ViewParams, skip_window: wp.vec4, x: wp.vec3) -> int:
+    """1 when point ``x`` belongs to this light view: an active view, ``x`` in front of it, inside its image and
+    outside the window a finer cascade covers (x0, y0, x1, y1; empty when x1 <= x0)."""
     if light.far <= 0.0:
         return 0
-    g = (points[indices[3 * tri]] + points[indices[3 * tri + 1]] + points[indices[3 * tri + 2]]) / 3.0
-    q = world_project(light, g)
+    q = world_project(light, x)
     if q[2] <= 0.0 or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(light.width) or q[1] >= float(light.height):
         return 0
     if q[0] >= skip_window[0] and q[0] < skip_window[2] and q[1] >= skip_window[1] and q[1] < skip_window[3]:
         return 0
     return 1
+
+
+@wp.func
+def cell_in_view(light: ViewParams, skip_window: wp.vec4, points: wp.array(dtype=wp.vec3),
+                 indices: wp.array(dtype=wp.int32), tri: int, n: int, u: float, v: float) -> int:
+    """1 when the cell whose centroid is lattice point (u, v) of triangle ``tri`` belongs to this view."""
+    a = points[indices[3 * tri]]
+    x = a + (points[indices[3 * tri + 1]] - a) * (u / float(n)) + (points[indices[3 * tri + 2]] - a) * (v / float(n))
+    return in_view(light, skip_window, x)
+
+
+@wp.func
+def corner_in_view(light: ViewParams, skip_window: wp.vec4, points: wp.array(dtype=wp.vec3),
+                   indices: wp.array(dtype=wp.int32), tri: int, n: int, ij: wp.vec2i) -> int:
+    """1 when any of the (up to six) cells around lattice corner ``ij`` belongs to this view: the corner is
+    traced in it. Upright cell (i, j) has its centroid at (i + 1/3, j + 1/3), inverted cell (i, j) (corners
+    (i+1, j) (i+1, j+1) (i, j+1)) at (i + 2/3, j + 2/3)."""
+    i = ij[0]
+    j = ij[1]
+    for k in range(6):
+        ci = i - 1
+        cj = j
+        up = int(1)
+        if k == 1:
+            ci = i
+            cj = j
+        elif k == 2:
+            ci = i
+            cj = j - 1
+        elif k == 3:
+            ci = i - 1
+            cj = j
+            up = 0
+        elif k == 4:
+            ci = i - 1
+            cj = j - 1
+            up = 0
+        elif k == 5:
+            ci = i
+            cj = j - 1
+            up = 0
+        if ci >= 0 and cj >= 0 and ci + cj <= n - 2 + up:
+            f = 1.0 / 3.0
+            if up == 0:
+                f = 2.0 / 3.0
+            if cell_in_view(light, skip_window, points, indices, tri, n, float(ci) + f, float(cj) + f) != 0:
+                return 1
+    return 0
 
 
 @wp.func
@@ -206,11 +253,11 @@ def mesh_cells(
         zero = wp.vec3(0.0)
         refr = zero
         refl = zero
-        if tri_in_view(light, skip_window, points, indices, tri) != 0:
-            ca, cb, cc = sub_cell(grid.n, s)
-            xa, na = lattice_point(points, normals, indices, tri, grid.n, ca)
-            xb, nb = lattice_point(points, normals, indices, tri, grid.n, cb)
-            xc, nc = lattice_point(points, normals, indices, tri, grid.n, cc)
+        ca, cb, cc = sub_cell(grid.n, s)
+        xa, na = lattice_point(points, normals, indices, tri, grid.n, ca)
+        xb, nb = lattice_point(points, normals, indices, tri, grid.n, cb)
+        xc, nc = lattice_point(points, normals, indices, tri, grid.n, cc)
+        if in_view(light, skip_window, (xa + xb + xc) / 3.0) != 0:
             lit = (light_reaches(light, shadow_depth, xa, thickness, thickness_rel)
                    + light_reaches(light, shadow_depth, xb, thickness, thickness_rel)
                    + light_reaches(light, shadow_depth, xc, thickness, thickness_rel)) / 3.0
@@ -304,7 +351,7 @@ def trace_mesh_cisp(
     sheet, k, ij = mesh_corner(grid, p)
     tri, x, n, ng = corner_start(grid, k, ij, points, normals, indices)
     m = triangle_material[tri]
-    if mat_roughness[m] > roughness_cutoff or tri_in_view(light, skip_window, points, indices, tri) == 0:
+    if mat_roughness[m] > roughness_cutoff or corner_in_view(light, skip_window, points, indices, tri, grid.n, ij) == 0:
         return
     d_in = light_direction(light, light_kind, light_pos, x)
     trace_corner_cisp(p, sheet, x, n, d_in, int(mat_opacity[m] < 1.0), mat_ior[m], light, rsm_opaque_depth,
@@ -336,7 +383,8 @@ def trace_mesh_world(
     sheet, k, ij = mesh_corner(grid, p)
     tri, x, n, ng = corner_start(grid, k, ij, ws.points, ws.normals, ws.indices)
     m = ws.triangle_material[tri]
-    if ws.roughness[m] > roughness_cutoff or tri_in_view(light, skip_window, ws.points, ws.indices, tri) == 0:
+    if ws.roughness[m] > roughness_cutoff or corner_in_view(light, skip_window, ws.points, ws.indices, tri, grid.n,
+                                                            ij) == 0:
         return
     d_in = light_direction(light, light_kind, light_pos, x)
     trace_corner_world(p, sheet, x, n, ng, d_in, int(ws.opacity[m] < 1.0), ws.ior[m], ws, cam, seed,

@@ -188,11 +188,6 @@ def mesh_cells_numpy(scene, light, view, skip_window, shadow_depth: np.ndarray, 
     for k, tri in enumerate(tris):
         a, b, c = pts[idx[tri]]
         na, nb, nc = nrm[idx[tri]]
-        px, py, z = view.project((a + b + c) / 3.0)
-        if view.far <= 0 or z <= 0 or not (0 <= px < view.width and 0 <= py < view.height):
-            continue
-        if x0 <= px < x1 and y0 <= py < y1:
-            continue
         m = mats[scene.triangle_material[tri]]
 
         def lattice(ij):
@@ -203,6 +198,11 @@ def mesh_cells_numpy(scene, light, view, skip_window, shadow_depth: np.ndarray, 
         for s, corners in enumerate(cells):
             (xa, ma), (xb, mb), (xc, mc) = (lattice(ij) for ij in corners)
             g = (xa + xb + xc) / 3.0
+            px, py, z = view.project(g)
+            if view.far <= 0 or z <= 0 or not (0 <= px < view.width and 0 <= py < view.height):
+                continue  # another view's cell
+            if x0 <= px < x1 and y0 <= py < y1:
+                continue  # a finer cascade's
             d_in = direction(g)
             if kind == 0:
                 flux = rgb * abs(d_in @ (0.5 * np.cross(xb - xa, xc - xa)))
