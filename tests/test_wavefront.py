@@ -226,6 +226,8 @@ def test_pixel_triangle_overlap_against_numpy(device, rng):
 def test_splat_setting_is_checked():
     with pytest.raises(SceneError, match="--splat"):
         PhotonSettings(splat="quads").validate()
+    with pytest.raises(SceneError, match="--wavefront-grid"):
+        PhotonSettings(splat="wavefront", wavefront_grid="texels").validate()
     with pytest.raises(SceneError, match="cisp or sspm"):
         RenderSettings(method="caustics_map", photons=PhotonSettings(splat="wavefront")).validate()
 
@@ -241,6 +243,8 @@ def test_evaluation_runs_a_wavefront_curve():
     s = E.render_settings(E.Config("cisp", 4096, "none", "wavefront"), 64)
     assert s.photons.splat == "wavefront" and s.denoiser == "none" and s.photons.photons == 4096
     assert E.Config("sspm", 10, "caustic", "wavefront").label == "sspm wavefront 10 caustic"
+    assert E.Config("cisp", 10, "none", "wavefront", "mesh").label == "cisp wavefront mesh 10 none"
+    assert E.render_settings(E.Config("cisp", 4096, "none", "wavefront", "mesh"), 64).photons.wavefront_grid == "mesh"
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools"))
     from evaluate import analytic_sinusoid_reference
 
@@ -395,7 +399,8 @@ def test_mesh_cells_match_their_naive_twin(device):
     rv = lm.rsm[vi]
     shadow = rv.shadow_depth.numpy()
     ps = r.settings.photons
-    args = (scene, scene.lights[0], rv.view, lm.skip_windows[vi])
+    assert vi == 0
+    args = (scene, scene.lights[0], [rv.view], lm.skip_windows, vi)
     rest = (state["tris"], state["n"], ps.roughness_cutoff, ps.thickness, ps.thickness_rel)
     twin = mesh_cells_numpy(*args, shadow, *rest)
     unshaded = mesh_cells_numpy(*args, np.zeros_like(shadow), *rest)
@@ -410,3 +415,22 @@ def test_mesh_cells_match_their_naive_twin(device):
     # the card shades part of the water, the spot's soft edge dims some cells against their neighbours
     assert 0.9 * unshaded["ledger"]["sampled"].sum() > twin["ledger"]["sampled"].sum()
     assert ledger.closure() < 1e-5
+
+
+def test_grid_compare_tool_smoke(tmp_path):
+    """tools/wavefront_grid_compare.py in its smoke setting (the sinusoid, 16k cells): both grids land within 1%
+    of the analytic ray map, the ledgers close (no timings checked)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = tmp_path / "grids.json"
+    res = subprocess.run([sys.executable, os.path.join(root, "tools", "wavefront_grid_compare.py"), "--smoke",
+                          "--device", "cpu", "--json", str(out)], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    run = json.loads(out.read_text())["runs"][0]
+    assert run["mesh_n"] == 5
+    for g in ("rsm", "mesh"):
+        assert run[g]["rel_rmse"] < 0.01 and run[g]["ledger_closure"] < 1e-5

@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     p.add_argument("--smoke", action="store_true", help="sinusoid, 64x32, seconds")
     args = p.parse_args(argv)
     if args.smoke:
-        args.scene, args.size, args.rsm_size, args.counts, args.reference = "sinusoid", "64x32", 128, "1k,4k", "16k"
+        args.scene, args.size, args.rsm_size, args.counts, args.reference = "sinusoid", "64x32", 128, "16k", "16k"
     import warp as wp
 
     from cisp_warp import metrics as M

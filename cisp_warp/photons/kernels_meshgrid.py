@@ -17,10 +17,11 @@ barycentric coordinates, so a cell never crosses a mesh edge:
   point or spot light (Ω the triangle's exact solid angle, times the spot profile at its centroid), times the
   share of its corners the light reaches (the light view's nearest depth as a shadow map), split by the exact
   Fresnel factor at its centroid's interpolated normal into the refracted and reflected sheets.
-* **Views.** A light's views are traced one by one (CISP marches in the view's depth): a cell belongs to the
-  view its centroid projects into, outside the window a finer cascade takes (the skip window), and a corner is
-  traced in every view one of its cells belongs to; cells of no active view are left to
-  ``outside_fitted_view`` (booked by the pass from the pilot's texels).
+* **Views.** A point belongs to the light view it projects into, outside the window a finer cascade takes (the
+  skip window; :func:`owner_view`). Each corner is traced in its own view (CISP marches in that view's
+  depth), each cell is booked by its centroid's view, once every corner of the light is traced the cells are
+  splatted. A cell with a corner outside every view is not sampled: it is left to ``outside_fitted_view``
+  (booked by the pass from the pilot's texels), as the RSM grid leaves the texels outside the windows.
 * **Splat**: :func:`~.kernels_splat.splat_corners`, shared with the RSM grid.
 
 Every watt a cell samples ends in exactly one ledger entry. The luminance cutoff is not applied (the cells are
@@ -33,6 +34,7 @@ import warp as wp
 
 from ..optics import fresnel_dielectric
 from ..raster.kernels import spot_falloff
+from ..raster.light_maps import CascadeState
 from ..raster.views import ViewParams, pixel_ray_world, world_project
 from .common import L_ABSORBED, L_CULLED_ROUGH, L_REFLECTED, L_REFRACTED, L_SAMPLED
 from .kernels_splat import splat_corners
@@ -118,51 +120,14 @@ def in_view(light: ViewParams, skip_window: wp.vec4, x: wp.vec3) -> int:
 
 
 @wp.func
-def cell_in_view(light: ViewParams, skip_window: wp.vec4, points: wp.array(dtype=wp.vec3),
-                 indices: wp.array(dtype=wp.int32), tri: int, n: int, u: float, v: float) -> int:
-    """1 when the cell whose centroid is lattice point (u, v) of triangle ``tri`` belongs to this view."""
-    a = points[indices[3 * tri]]
-    x = a + (points[indices[3 * tri + 1]] - a) * (u / float(n)) + (points[indices[3 * tri + 2]] - a) * (v / float(n))
-    return in_view(light, skip_window, x)
-
-
-@wp.func
-def corner_in_view(light: ViewParams, skip_window: wp.vec4, points: wp.array(dtype=wp.vec3),
-                   indices: wp.array(dtype=wp.int32), tri: int, n: int, ij: wp.vec2i) -> int:
-    """1 when any of the (up to six) cells around lattice corner ``ij`` belongs to this view: the corner is
-    traced in it. Upright cell (i, j) has its centroid at (i + 1/3, j + 1/3), inverted cell (i, j) (corners
-    (i+1, j) (i+1, j+1) (i, j+1)) at (i + 2/3, j + 2/3)."""
-    i = ij[0]
-    j = ij[1]
-    for k in range(6):
-        ci = i - 1
-        cj = j
-        up = int(1)
-        if k == 1:
-            ci = i
-            cj = j
-        elif k == 2:
-            ci = i
-            cj = j - 1
-        elif k == 3:
-            ci = i - 1
-            cj = j
-            up = 0
-        elif k == 4:
-            ci = i - 1
-            cj = j - 1
-            up = 0
-        elif k == 5:
-            ci = i
-            cj = j - 1
-            up = 0
-        if ci >= 0 and cj >= 0 and ci + cj <= n - 2 + up:
-            f = 1.0 / 3.0
-            if up == 0:
-                f = 2.0 / 3.0
-            if cell_in_view(light, skip_window, points, indices, tri, n, float(ci) + f, float(cj) + f) != 0:
-                return 1
-    return 0
+def owner_view(views: wp.array(dtype=ViewParams), states: wp.array(dtype=CascadeState), view_count: int,
+               x: wp.vec3) -> int:
+    """The light view point ``x`` belongs to (:func:`in_view` with its skip window: one of nested cascades, one
+    of a point light's cube faces), or -1 outside every active view."""
+    for v in range(view_count):
+        if states[v].active != 0 and in_view(views[v], states[v].skip_window, x) != 0:
+            return v
+    return -1
 
 
 @wp.func
@@ -216,7 +181,10 @@ def cell_flux(light: ViewParams, light_kind: int, light_pos: wp.vec3, light_rgb:
 
 @wp.kernel
 def mesh_cells(
-    light: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) the light's views (read)
+    states: wp.array(dtype=CascadeState),  # (V,) their states: active, skip window (read)
+    view_count: int,
+    view_index: int,  # the view whose cells this launch books
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
     light_rgb: wp.vec3,  # irradiance across the beam [W/m²] (distant) or intensity [W/sr] (point, spot)
@@ -224,7 +192,6 @@ def mesh_cells(
     cone_angle: float,  # [rad] spot half-angle
     cone_softness: float,
     grid: MeshGrid,
-    skip_window: wp.vec4,  # (x0, y0, x1, y1) this view's pixels a finer cascade covers; empty when x1 <= x0
     shadow_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) the view's nearest depth of any surface [m], 0 none (read)
     points: wp.array(dtype=wp.vec3),  # (V,) [m] (read)
     normals: wp.array(dtype=wp.vec3),  # (V,) unit vertex normals (read)
@@ -237,11 +204,14 @@ def mesh_cells(
     roughness_cutoff: float,
     thickness: float,  # [m] the shadow test's tolerance, absolute
     thickness_rel: float,  # and relative (× depth)
-    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · T · n²,) [W] (write)
+    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · T · n²,) [W] (write: this view's cells; zeroed per light)
     ledger: wp.array(dtype=wp.float64),  # (3*LEDGER_ENTRIES,) [W] (accumulate, once per block and entry)
 ):
-    """One thread per cell (grid triangle k, sub-triangle s), launched tiled: its flux, split into the two
-    sheets (zero for a cell of another view); the block's ledger rows added once."""
+    """One thread per cell (grid triangle k, sub-triangle s), launched tiled: a cell of this view (its centroid
+    here, each corner in some view, so traced) gets its flux, split into the two sheets; the block's ledger rows
+    added once."""
+    light = views[view_index]
+    skip_window = states[view_index].skip_window
     block, lane = wp.tid()
     c = block * wp.block_dim() + lane
     rows = LedgerRows()
@@ -257,7 +227,17 @@ def mesh_cells(
         xa, na = lattice_point(points, normals, indices, tri, grid.n, ca)
         xb, nb = lattice_point(points, normals, indices, tri, grid.n, cb)
         xc, nc = lattice_point(points, normals, indices, tri, grid.n, cc)
-        if in_view(light, skip_window, (xa + xb + xc) / 3.0) != 0:
+        mine = in_view(light, skip_window, (xa + xb + xc) / 3.0)
+        if mine != 0:
+            for q in range(3):
+                xq = xa
+                if q == 1:
+                    xq = xb
+                elif q == 2:
+                    xq = xc
+                if owner_view(views, states, view_count, xq) < 0:
+                    mine = 0  # a corner outside every view: no trace, the cell is left to outside_fitted_view
+        if mine != 0:
             lit = (light_reaches(light, shadow_depth, xa, thickness, thickness_rel)
                    + light_reaches(light, shadow_depth, xb, thickness, thickness_rel)
                    + light_reaches(light, shadow_depth, xc, thickness, thickness_rel)) / 3.0
@@ -282,8 +262,8 @@ def mesh_cells(
                 rows = rows_add(rows, L_ABSORBED, flux - refl)
             rows = rows_add(rows, L_REFRACTED, refr)
             rows = rows_add(rows, L_REFLECTED, refl)
-        tri_power[SHEET_REFRACTED * total + c] = refr
-        tri_power[SHEET_REFLECTED * total + c] = refl
+            tri_power[SHEET_REFRACTED * total + c] = refr
+            tri_power[SHEET_REFLECTED * total + c] = refl
     ledger_flush(ledger, rows, lane)
 
 
@@ -317,11 +297,13 @@ def corner_start(grid: MeshGrid, k: int, ij: wp.vec2i, points: wp.array(dtype=wp
 
 @wp.kernel
 def trace_mesh_cisp(
-    light: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) the light's views (read)
+    states: wp.array(dtype=CascadeState),  # (V,) their states (read)
+    view_count: int,
+    view_index: int,  # this launch traces the corners of this view
     light_kind: int,
     light_pos: wp.vec3,
     grid: MeshGrid,
-    skip_window: wp.vec4,
     rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) [m] (read)
     rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
     points: wp.array(dtype=wp.vec3),  # (V,) scene vertices [m] (read)
@@ -344,15 +326,15 @@ def trace_mesh_cisp(
     use_cascade: int,
     rec: Records,  # (2 · T · corners,) (write)
 ):
-    """One thread per corner photon of this view's triangles: its exact surface point, then
-    :func:`trace_corner_cisp` in this light view."""
+    """One thread per corner photon of the grid: a corner of this view (:func:`owner_view`) from its exact surface
+    point, by :func:`trace_corner_cisp` in this light view."""
     p = wp.tid()
-    clear_record(rec, p)
     sheet, k, ij = mesh_corner(grid, p)
     tri, x, n, ng = corner_start(grid, k, ij, points, normals, indices)
     m = triangle_material[tri]
-    if mat_roughness[m] > roughness_cutoff or corner_in_view(light, skip_window, points, indices, tri, grid.n, ij) == 0:
-        return
+    if mat_roughness[m] > roughness_cutoff or owner_view(views, states, view_count, x) != view_index:
+        return  # another view's corner (or none's: its record stays cleared)
+    light = views[view_index]
     d_in = light_direction(light, light_kind, light_pos, x)
     trace_corner_cisp(p, sheet, x, n, d_in, int(mat_opacity[m] < 1.0), mat_ior[m], light, rsm_opaque_depth,
                       rsm_depth_bounds, camera, cam_depth, cam_depth_bounds, cam_position, cam_normal, max_steps,
@@ -361,11 +343,13 @@ def trace_mesh_cisp(
 
 @wp.kernel
 def trace_mesh_world(
-    light: ViewParams,
+    views: wp.array(dtype=ViewParams),  # (V,) the light's views (read)
+    states: wp.array(dtype=CascadeState),  # (V,) their states (read)
+    view_count: int,
+    view_index: int,  # this launch traces the corners of this view
     light_kind: int,
     light_pos: wp.vec3,
     grid: MeshGrid,
-    skip_window: wp.vec4,
     ws: WorldScene,
     cam: CameraBuffers,
     seed: int,  # random streams of later Fresnel bounces (after the first, deterministic one)
@@ -376,19 +360,24 @@ def trace_mesh_world(
     max_bounces: int,
     rec: Records,  # (2 · T · corners,) (write)
 ):
-    """One thread per corner photon of this view's triangles: its exact surface point, then
-    :func:`trace_corner_world`."""
+    """One thread per corner photon of the grid: a corner of this view (:func:`owner_view`) from its exact surface
+    point, by :func:`trace_corner_world`."""
     p = wp.tid()
-    clear_record(rec, p)
     sheet, k, ij = mesh_corner(grid, p)
     tri, x, n, ng = corner_start(grid, k, ij, ws.points, ws.normals, ws.indices)
     m = ws.triangle_material[tri]
-    if ws.roughness[m] > roughness_cutoff or corner_in_view(light, skip_window, ws.points, ws.indices, tri, grid.n,
-                                                            ij) == 0:
-        return
+    if ws.roughness[m] > roughness_cutoff or owner_view(views, states, view_count, x) != view_index:
+        return  # another view's corner (or none's: its record stays cleared)
+    light = views[view_index]
     d_in = light_direction(light, light_kind, light_pos, x)
     trace_corner_world(p, sheet, x, n, ng, d_in, int(ws.opacity[m] < 1.0), ws.ior[m], ws, cam, seed,
                        roughness_cutoff, thickness, thickness_rel, t_max, max_bounces, rec)
+
+
+@wp.kernel
+def clear_records(rec: Records):
+    """Every corner photon's record: none yet (a light's corners are traced view by view)."""
+    clear_record(rec, wp.tid())
 
 
 @wp.kernel

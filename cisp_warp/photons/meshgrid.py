@@ -57,20 +57,21 @@ class MeshWavefrontSplat:
         self.rec.throughput = wp.zeros(records, dtype=wp.vec3, device=d)
         self.tri_power = wp.zeros(cells, dtype=wp.vec3, device=d)
         self.tri_state = wp.zeros(cells, dtype=wp.int32, device=d)
-        self.grids: list[K.MeshGrid] = []  #: one entry per light view traced in the last frame
+        self.grids: list[K.MeshGrid] = []  #: one entry per light traced in the last frame
 
     def photons_traced(self) -> int:
-        """Corner photons traced in the last frame (each corner in the one view its triangle belongs to)."""
-        return 2 * self.grid.count * self.grid.corners * len({id(g) for g in self.grids}) if self.grids else 0
+        """Corner photon slots of the last frame over every light (each corner traced in the view it lies in)."""
+        return 2 * self.grid.count * self.grid.corners * len(self.grids)
 
     def trace(self, frame: int, tracer: str, world=None) -> None:
-        """Every emitting light view of the frame: its triangles' cells, corner photons (``tracer`` "cisp" or
-        "sspm"), splat."""
+        """Every light: its corner photons traced view by view (``tracer`` "cisp" or "sspm"), each view's cells
+        booked, then all its cells splatted."""
         p, s, dev, g = self.p, self.p.settings, self.p.device, self.grid
         self.grids = []
         if g.count == 0:
             return
         total = g.count * g.cells
+        corners = 2 * g.count * g.corners
         sc = p.scene
         for li, lm in enumerate(p.lights):
             light = lm.light
@@ -78,37 +79,39 @@ class MeshWavefrontSplat:
             rgb = wp.vec3(*light.radiometric_rgb.astype(np.float32))
             axis = wp.vec3(*np.asarray(light.direction, np.float32))
             kind = int(light.kind)
-            for vi, (params, r) in enumerate(zip(lm.host_views(), lm.rsm)):  # fitted: read back
-                if not lm.active[vi]:
+            n_views = len(lm.rsm)
+            wp.launch(K.clear_records, dim=corners, device=dev, inputs=[self.rec])
+            self.tri_power.zero_()
+            self.grids.append(g)
+            for vi, r in enumerate(lm.rsm):
+                if not lm.active[vi]:  # fitted on CUDA: a device->host copy, as the RSM grid's views
                     continue
-                self.grids.append(g)
-                skip = wp.vec4(*lm.skip_windows[vi])
                 p.launch_photons(K.mesh_cells, total, inputs=[
-                    params, kind, light_pos, rgb, axis, float(light.cone_angle), float(light.cone_softness), g, skip,
-                    r.shadow_depth, sc.points, sc.normals, sc.indices, sc.triangle_material, sc.roughness, sc.opacity,
-                    sc.albedo, sc.ior, float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel),
-                    self.tri_power, p.ledger])
-                corners = 2 * g.count * g.corners
+                    lm.views, lm.states, n_views, vi, kind, light_pos, rgb, axis, float(light.cone_angle),
+                    float(light.cone_softness), g, r.shadow_depth, sc.points, sc.normals, sc.indices,
+                    sc.triangle_material, sc.roughness, sc.opacity, sc.albedo, sc.ior, float(s.roughness_cutoff),
+                    float(s.thickness), float(s.thickness_rel), self.tri_power, p.ledger])
                 if tracer == "cisp":
                     rsm_bounds = p.rsm_bounds[li][vi]
                     p._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
                     wp.launch(K.trace_mesh_cisp, dim=corners, device=dev, inputs=[
-                        params, kind, light_pos, g, skip, r.opaque_depth, rsm_bounds, sc.points, sc.normals, sc.indices,
-                        sc.triangle_material, sc.roughness, sc.opacity, sc.ior, float(s.roughness_cutoff),
-                        self.cam.view, self.cam.depth, p.cam_bounds, self.cam.position, self.cam.normal,
-                        int(s.max_steps), float(s.thickness), float(s.thickness_rel), p.t_max, int(s.cascade),
-                        self.rec])
+                        lm.views, lm.states, n_views, vi, kind, light_pos, g, r.opaque_depth, rsm_bounds, sc.points,
+                        sc.normals, sc.indices, sc.triangle_material, sc.roughness, sc.opacity, sc.ior,
+                        float(s.roughness_cutoff), self.cam.view, self.cam.depth, p.cam_bounds, self.cam.position,
+                        self.cam.normal, int(s.max_steps), float(s.thickness), float(s.thickness_rel), p.t_max,
+                        int(s.cascade), self.rec])
                 else:
                     _, _, seed = frame_random(s.seed, frame, li * 64 + vi)
                     wp.launch(K.trace_mesh_world, dim=corners, device=dev, inputs=[
-                        params, kind, light_pos, g, skip, world, self.cam, seed, float(s.roughness_cutoff),
-                        float(s.thickness), float(s.thickness_rel), p.t_max, int(s.max_bounces), self.rec])
-                p.launch_photons(K.splat_mesh, 2 * total, inputs=[
-                    g, self.rec, self.tri_power, self.cam, float(s.thickness), float(s.thickness_rel), MAX_SPAN,
-                    p.footprint_mode, p.photon_map, self.tri_state, p.ledger])
+                        lm.views, lm.states, n_views, vi, kind, light_pos, g, world, self.cam, seed,
+                        float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel), p.t_max,
+                        int(s.max_bounces), self.rec])
+            p.launch_photons(K.splat_mesh, 2 * total, inputs=[
+                g, self.rec, self.tri_power, self.cam, float(s.thickness), float(s.thickness_rel), MAX_SPAN,
+                p.footprint_mode, p.photon_map, self.tri_state, p.ledger])
 
     def last_view_state(self) -> dict:
-        """Host copies of the last traced view's records and cells (tests, the naive twins)."""
+        """Host copies of the last traced light's records and cells (tests, the naive twins)."""
         g = self.grid
         corners, cells = 2 * g.count * g.corners, 2 * g.count * g.cells
         return {"grid": "mesh", "n": g.n, "count": g.count, "tris": g.tris.numpy()[: g.count],
@@ -133,16 +136,17 @@ def sub_cells_numpy(n: int) -> list[tuple[tuple[int, int], tuple[int, int], tupl
     return out
 
 
-def mesh_cells_numpy(scene, light, view, skip_window, shadow_depth: np.ndarray, tris: np.ndarray, n: int,
-                     roughness_cutoff: float, thickness: float, thickness_rel: float) -> dict:
+def mesh_cells_numpy(scene, light, views: list, skip_windows: list, view_index: int, shadow_depth: np.ndarray,
+                     tris: np.ndarray, n: int, roughness_cutoff: float, thickness: float, thickness_rel: float) -> dict:
     """Naive twin of ``mesh_cells`` for one light view, float64: loops in Python over the grid's triangles
     and their sub-triangles.
 
     ``scene``: the :class:`~cisp_warp.scene.model.Scene`; ``light``: its
-    :class:`~cisp_warp.scene.model.Light`; ``view``: the light view (a :class:`~cisp_warp.raster.views.View`);
-    ``skip_window``: (x0, y0, x1, y1) [pixels]; ``shadow_depth``: (H*W,) the view's nearest depth [m];
-    ``tris``: the grid's scene triangles. Returns the cells' power (2 sheets · T · n², 3) [W] and the ledger
-    parts they book {entry: (3,) W}."""
+    :class:`~cisp_warp.scene.model.Light`; ``views``: the light's active views
+    (:class:`~cisp_warp.raster.views.View`), ``skip_windows`` theirs ((x0, y0, x1, y1) [pixels]), the cells of
+    ``views[view_index]`` booked; ``shadow_depth``: (H*W,) that view's nearest depth [m]; ``tris``: the grid's
+    scene triangles. Returns the cells' power (2 sheets · T · n², 3) [W] and the ledger parts they book
+    {entry: (3,) W}."""
     pts = scene.points.astype(np.float64)
     nrm = scene.normals.astype(np.float64)
     idx = scene.indices.reshape(-1, 3)
@@ -151,6 +155,16 @@ def mesh_cells_numpy(scene, light, view, skip_window, shadow_depth: np.ndarray, 
     kind = int(light.kind)
     pos = np.asarray(light.position, np.float64)
     axis = np.asarray(light.direction, np.float64)
+    view = views[view_index]
+
+    def owner(x):
+        for v, (w, (x0, y0, x1, y1)) in enumerate(zip(views, skip_windows)):
+            px, py, z = w.project(x)
+            if w.far > 0 and z > 0 and 0 <= px < w.width and 0 <= py < w.height \
+                    and not (x0 <= px < x1 and y0 <= py < y1):
+                return v
+        return -1
+
     forward = np.asarray(view.to_world, np.float64)[:3, :3] @ np.array([0.0, 0.0, -1.0])
     forward /= np.linalg.norm(forward)
     cells = sub_cells_numpy(n)
@@ -184,7 +198,6 @@ def mesh_cells_numpy(scene, light, view, skip_window, shadow_depth: np.ndarray, 
         s = (light.cone_angle - angle) / (light.cone_angle - inner)
         return s * s * (3.0 - 2.0 * s)
 
-    x0, y0, x1, y1 = skip_window
     for k, tri in enumerate(tris):
         a, b, c = pts[idx[tri]]
         na, nb, nc = nrm[idx[tri]]
@@ -198,11 +211,8 @@ def mesh_cells_numpy(scene, light, view, skip_window, shadow_depth: np.ndarray, 
         for s, corners in enumerate(cells):
             (xa, ma), (xb, mb), (xc, mc) = (lattice(ij) for ij in corners)
             g = (xa + xb + xc) / 3.0
-            px, py, z = view.project(g)
-            if view.far <= 0 or z <= 0 or not (0 <= px < view.width and 0 <= py < view.height):
-                continue  # another view's cell
-            if x0 <= px < x1 and y0 <= py < y1:
-                continue  # a finer cascade's
+            if owner(g) != view_index or min(owner(xa), owner(xb), owner(xc)) < 0:
+                continue  # another view's cell, or one with a corner outside every view
             d_in = direction(g)
             if kind == 0:
                 flux = rgb * abs(d_in @ (0.5 * np.cross(xb - xa, xc - xa)))
