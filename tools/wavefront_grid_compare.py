@@ -39,12 +39,13 @@ def parse_count(text: str) -> int:
     return int(value)
 
 
-def render(spec, grid: str, cells: int, width: int, height: int, rsm: int, method: str, device):
+def render(spec, grid: str, cells: int, width: int, height: int, rsm: int, method: str, fit: str, device):
     """One raw frame of ``spec`` with ``cells`` wavefront cells per light over ``grid``: (aovs, seconds, renderer)."""
     from cisp_warp.photons import PhotonSettings
+    from cisp_warp.raster.views import LightViewSettings
     from cisp_warp.render import Renderer, RenderSettings
 
-    settings = RenderSettings(rsm_size=rsm, method=method, denoiser="none",
+    settings = RenderSettings(rsm_size=rsm, method=method, denoiser="none", light_views=LightViewSettings(fit=fit),
                               photons=PhotonSettings(photons=cells, splat="wavefront", wavefront_grid=grid))
     r = Renderer(spec.make(width, height), settings, device=device)
     if spec.prepare is not None:
@@ -62,6 +63,8 @@ def main(argv=None) -> int:
     p.add_argument("--size", default="480x270", help="camera WxH")
     p.add_argument("--rsm-size", type=int, default=1024)
     p.add_argument("--method", default="cisp", choices=["cisp", "sspm"])
+    p.add_argument("--light-views", default="camera", choices=["camera", "scene"],
+                   help="light views fitted to the camera (the renderer's default) or whole")
     p.add_argument("--counts", default="65k,262k,1M", help="comma-separated cells per light")
     p.add_argument("--reference", default="4M", help="cells per light of both grids' reference maps (not sinusoid)")
     p.add_argument("--device", default=None)
@@ -70,6 +73,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.smoke:
         args.scene, args.size, args.rsm_size, args.counts, args.reference = "sinusoid", "64x32", 128, "16k", "16k"
+        args.light_views = "scene"  # whole views: the sinusoid's long strip cells cross a fitted window's edge
     import warp as wp
 
     from cisp_warp import metrics as M
@@ -84,16 +88,17 @@ def main(argv=None) -> int:
         raise SystemExit(f"scene {args.scene} not available")
     spec = spec[0]
     report = {"scene": args.scene, "width": width, "height": height, "rsm_size": args.rsm_size, "method": args.method,
+              "light_views": args.light_views,
               "device": f"{device.alias} ({device.name})", "runs": []}
     if args.scene == "sinusoid":
-        a, _, _ = render(spec, "rsm", counts[0], width, height, args.rsm_size, args.method, device)
+        a, _, _ = render(spec, "rsm", counts[0], width, height, args.rsm_size, args.method, args.light_views, device)
         ref = analytic_sinusoid_reference({**a, "caustics_stderr": np.zeros_like(a["photon_map"])}, width, height)
         report["reference"] = "analytic ray map"
     else:
         n_ref = parse_count(args.reference)
         maps = {}
         for g in GRIDS:
-            a, sec, _ = render(spec, g, n_ref, width, height, args.rsm_size, args.method, device)
+            a, sec, _ = render(spec, g, n_ref, width, height, args.rsm_size, args.method, args.light_views, device)
             maps[g] = a["photon_map"].astype(np.float64)
             print(f"reference {g} {n_ref:,} cells: {sec:.1f} s", flush=True)
         ref = {**a, "photon_map": 0.5 * (maps["rsm"] + maps["mesh"]), "caustics_stderr": np.zeros_like(a["photon_map"])}
@@ -102,14 +107,15 @@ def main(argv=None) -> int:
         report["reference_grids_differ"] = M.relative_rmse(maps["rsm"], maps["mesh"], mask)
         print(f"the two {n_ref:,}-cell maps differ by {100 * report['reference_grids_differ']:.2f}% (relative RMSE)")
     mask = M.caustic_mask(ref)
-    print(f"{args.scene} {width}x{height}, RSM {args.rsm_size}², {args.method}, one raw frame; caustic mask "
+    print(f"{args.scene} {width}x{height}, RSM {args.rsm_size}², {args.method}, light views {args.light_views}, "
+          f"one raw frame; caustic mask "
           f"{int(mask.sum())} pixels; relative RMSE against the {report['reference']}")
     print(f"{'cells':>10}" + "".join(f"{g:>12}{'s':>7}" for g in GRIDS) + f"{'mesh n':>8}")
     for n in counts:
         row = {"cells": n}
         line = f"{n:>10,}"
         for g in GRIDS:
-            a, sec, r = render(spec, g, n, width, height, args.rsm_size, args.method, device)
+            a, sec, r = render(spec, g, n, width, height, args.rsm_size, args.method, args.light_views, device)
             err = M.relative_rmse(a["photon_map"], ref["photon_map"], mask)
             ledger = r.photons.read_ledger()
             row[g] = {"rel_rmse": err, "seconds": sec, "ledger_closure": ledger.closure(),
