@@ -69,6 +69,7 @@ def main(argv=None) -> int:
     p.add_argument("--reference", default="4M", help="cells per light of both grids' reference maps (not sinusoid)")
     p.add_argument("--device", default=None)
     p.add_argument("--json", default=None, help="write the figures to this file")
+    p.add_argument("--save", default=None, help="write the maps (references, every run, the mask) to this .npz")
     p.add_argument("--smoke", action="store_true", help="sinusoid, 64x32, seconds")
     args = p.parse_args(argv)
     if args.smoke:
@@ -97,9 +98,11 @@ def main(argv=None) -> int:
     else:
         n_ref = parse_count(args.reference)
         maps = {}
+        saved = {}
         for g in GRIDS:
             a, sec, _ = render(spec, g, n_ref, width, height, args.rsm_size, args.method, args.light_views, device)
             maps[g] = a["photon_map"].astype(np.float64)
+            saved[f"ref_{g}"] = a["photon_map"]
             print(f"reference {g} {n_ref:,} cells: {sec:.1f} s", flush=True)
         ref = {**a, "photon_map": 0.5 * (maps["rsm"] + maps["mesh"]), "caustics_stderr": np.zeros_like(a["photon_map"])}
         mask = M.caustic_mask(ref)
@@ -107,6 +110,9 @@ def main(argv=None) -> int:
         report["reference_grids_differ"] = M.relative_rmse(maps["rsm"], maps["mesh"], mask)
         print(f"the two {n_ref:,}-cell maps differ by {100 * report['reference_grids_differ']:.2f}% (relative RMSE)")
     mask = M.caustic_mask(ref)
+    if args.scene == "sinusoid":
+        saved = {"ref": ref["photon_map"]}
+    saved.update(mask=mask, position=ref["position"], normal=ref["normal"], depth=ref["depth"])
     print(f"{args.scene} {width}x{height}, RSM {args.rsm_size}², {args.method}, light views {args.light_views}, "
           f"one raw frame; caustic mask "
           f"{int(mask.sum())} pixels; relative RMSE against the {report['reference']}")
@@ -123,8 +129,11 @@ def main(argv=None) -> int:
             if g == "mesh":
                 row["mesh_n"] = r.photons.wavefront.grid.n
             line += f"{100 * err:11.2f}%{sec:7.1f}"
+            saved[f"{g}_{n}"] = a["photon_map"]
         print(line + f"{row['mesh_n']:>8}", flush=True)
         report["runs"].append(row)
+    if args.save:
+        np.savez_compressed(args.save, **saved)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(report, f, indent=1)

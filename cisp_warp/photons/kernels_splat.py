@@ -32,6 +32,7 @@ wp.set_module_options({"enable_backward": False})
 TRI_EMPTY = wp.constant(0)  #: the triangle carries no power
 TRI_SPLAT = wp.constant(1)  #: splatted over its landing area
 TRI_FALLBACK = wp.constant(2)  #: corners diverged: point deposits at the corners
+TRI_REFINE = wp.constant(3)  #: corners diverged, one on a camera surface: left to a finer grid (nothing booked yet)
 
 vec8 = wp.types.vector(length=8, dtype=wp.float32)  #: a clipped polygon's coordinates (a triangle cut by 4 lines: 7)
 
@@ -172,9 +173,11 @@ def splat_corners(
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     tri_state: wp.array(dtype=wp.int32),  # TRI_* (write)
+    defer: int,  # 1: a triangle that would fall back with a corner on a camera surface is left to refinement
 ):
     """Triangle ``t`` of either grid (RSM or mesh), with corner photons ``ia``, ``ib``, ``ic``: splat its
-    power over its landing triangle, or fall back. Returns its ledger rows."""
+    power over its landing triangle, or fall back (or, with ``defer``, mark it ``TRI_REFINE`` and book
+    nothing: a finer grid over it books its power). Returns its ledger rows."""
     rows = LedgerRows()
     power = tri_power[t]
     if wp.length_sq(power) == 0.0:
@@ -269,6 +272,9 @@ def splat_corners(
             rows = rows_add(rows, L_LOST_CAMERA, p_eff - stored - occluded)  # off the screen (and ~1e-7 rounding)
             rows = rows_add(rows, L_ABSORBED, power - p_eff)
             return rows
+    if defer != 0 and (ea == L_STORED or eb == L_STORED or ec == L_STORED):
+        tri_state[t] = TRI_REFINE
+        return rows
     # fallback: a third of the power to each corner photon, as a point (or booked where it ended)
     tri_state[t] = TRI_FALLBACK
     valid = int(0)
@@ -331,7 +337,7 @@ def splat_triangle(
         ib = base + row + 1
         ic = base + row  # (0, 1)
     return splat_corners(t, ia, ib, ic, rec, tri_power, cam, thickness, thickness_rel, max_span, footprint_mode,
-                         photon_map, tri_state)
+                         photon_map, tri_state, 0)
 
 
 @wp.kernel

@@ -24,6 +24,7 @@ from . import kernels_wavefront as KW
 from .base import PhotonPass, frame_random
 
 MAX_SPAN = 64  #: [pixels] a landing triangle wider or taller than this is not one wavefront: point fallback
+REFINE_SHARE = 8  #: refinement holds sub-cells for 1/REFINE_SHARE of the grid's cells (the rest fall back)
 
 
 def subdivision_for(triangles: int, photons: int) -> int:
@@ -57,17 +58,36 @@ class MeshWavefrontSplat:
         self.rec.throughput = wp.zeros(records, dtype=wp.vec3, device=d)
         self.tri_power = wp.zeros(cells, dtype=wp.vec3, device=d)
         self.tri_state = wp.zeros(cells, dtype=wp.int32, device=d)
+        # refinement: cells whose corners diverge, cut m × m; up to REFINE_SHARE of the cells (the rest fall back)
+        self.m = int(photon_pass.settings.wavefront_refine)
+        self.refine_capacity = max(1, cells // REFINE_SHARE) if self.m > 1 else 1
+        cm = (self.m + 1) * (self.m + 2) // 2
+        self.flags = wp.zeros(cells, dtype=wp.int32, device=d)
+        self.offsets = wp.zeros(cells, dtype=wp.int32, device=d)
+        self.refine_list = wp.zeros(cells if self.m > 1 else 1, dtype=wp.int32, device=d)
+        self.sub_rec = KW.Records()
+        sub = self.refine_capacity * cm
+        self.sub_rec.entry = wp.zeros(sub, dtype=wp.int32, device=d)
+        self.sub_rec.pos = wp.zeros(sub, dtype=wp.vec3, device=d)
+        self.sub_rec.pix = wp.zeros(sub, dtype=wp.int32, device=d)
+        self.sub_rec.dir = wp.zeros(sub, dtype=wp.vec3, device=d)
+        self.sub_rec.throughput = wp.zeros(sub, dtype=wp.vec3, device=d)
+        self.sub_power = wp.zeros(self.refine_capacity * self.m * self.m, dtype=wp.vec3, device=d)
+        self.sub_state = wp.zeros(self.refine_capacity * self.m * self.m, dtype=wp.int32, device=d)
+        self.refined: list[tuple[int, int]] = []  #: per light of the last frame: (cells listed, cells cut m × m)
         self.grids: list[K.MeshGrid] = []  #: one entry per light traced in the last frame
 
     def photons_traced(self) -> int:
         """Corner photon slots of the last frame over every light (each corner traced in the view it lies in)."""
-        return 2 * self.grid.count * self.grid.corners * len(self.grids)
+        cm = (self.m + 1) * (self.m + 2) // 2
+        return 2 * self.grid.count * self.grid.corners * len(self.grids) + sum(r * cm for _, r in self.refined)
 
     def trace(self, frame: int, tracer: str, world=None) -> None:
         """Every light: its corner photons traced view by view (``tracer`` "cisp" or "sspm"), each view's cells
         booked, then all its cells splatted."""
         p, s, dev, g = self.p, self.p.settings, self.p.device, self.grid
         self.grids = []
+        self.refined = []
         if g.count == 0:
             return
         total = g.count * g.cells
@@ -108,7 +128,49 @@ class MeshWavefrontSplat:
                         int(s.max_bounces), self.rec])
             p.launch_photons(K.splat_mesh, 2 * total, inputs=[
                 g, self.rec, self.tri_power, self.cam, float(s.thickness), float(s.thickness_rel), MAX_SPAN,
-                p.footprint_mode, p.photon_map, self.tri_state, p.ledger])
+                p.footprint_mode, p.photon_map, self.tri_state, int(self.m > 1), p.ledger])
+            if self.m > 1:
+                self._refine(li, lm, tracer, frame, world, light_pos, kind)
+
+    def _refine(self, li: int, lm, tracer: str, frame: int, world, light_pos, kind: int) -> None:
+        """The cells the splat left to refinement (``TRI_REFINE``), listed in cell order (a scan), cut m × m,
+        their corners traced view by view, their sub-cells splatted; listed cells past the capacity fall back.
+        Reads the list's length back (a device->host copy, as the fitted views' read-back)."""
+        p, s, dev, g, m = self.p, self.p.settings, self.p.device, self.grid, self.m
+        cells = 2 * g.count * g.cells
+        wp.launch(K.refine_flags, dim=cells, device=dev, inputs=[self.tri_state, self.flags])
+        wp.utils.array_scan(self.flags, self.offsets, inclusive=False)
+        wp.launch(K.refine_scatter, dim=cells, device=dev, inputs=[self.flags, self.offsets, self.refine_list])
+        ends = np.concatenate([self.offsets[cells - 1 : cells].numpy(), self.flags[cells - 1 : cells].numpy()])
+        listed = int(ends.sum())
+        refined = min(listed, self.refine_capacity)
+        self.refined.append((listed, refined))
+        if listed == 0:
+            return
+        cm = (m + 1) * (m + 2) // 2
+        sc = p.scene
+        if refined > 0:
+            wp.launch(K.clear_records, dim=refined * cm, device=dev, inputs=[self.sub_rec])
+            for vi, r in enumerate(lm.rsm):
+                if not lm.active[vi]:
+                    continue
+                if tracer == "cisp":
+                    wp.launch(K.trace_refine_cisp, dim=refined * cm, device=dev, inputs=[
+                        lm.views, lm.states, len(lm.rsm), vi, kind, light_pos, g, m, self.refine_list,
+                        r.opaque_depth, p.rsm_bounds[li][vi], sc.points, sc.normals, sc.indices,
+                        sc.triangle_material, sc.opacity, sc.ior, self.cam.view, self.cam.depth, p.cam_bounds,
+                        self.cam.position, self.cam.normal, int(s.max_steps), float(s.thickness),
+                        float(s.thickness_rel), p.t_max, int(s.cascade), self.sub_rec])
+                else:
+                    _, _, seed = frame_random(s.seed, frame, li * 64 + vi)
+                    wp.launch(K.trace_refine_world, dim=refined * cm, device=dev, inputs=[
+                        lm.views, lm.states, len(lm.rsm), vi, kind, light_pos, g, m, self.refine_list, world,
+                        self.cam, seed, float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel),
+                        p.t_max, int(s.max_bounces), self.sub_rec])
+        p.launch_photons(K.splat_refined, refined * m * m + listed - refined, inputs=[
+            g, m, self.refine_list, refined, listed, self.rec, self.sub_rec, self.tri_power, self.sub_power, self.cam,
+            float(s.thickness), float(s.thickness_rel), MAX_SPAN, p.footprint_mode, p.photon_map, self.tri_state,
+            self.sub_state, p.ledger])
 
     def last_view_state(self) -> dict:
         """Host copies of the last traced light's records and cells (tests, the naive twins)."""
