@@ -460,3 +460,16 @@ def test_mesh_grid_refinement_resolves_silhouettes(device):
     assert fine < 0.5 * plain, f"refined {fine:.4f}, plain {plain:.4f}"
     for r in (rr, rp):
         assert r.photons.read_ledger().closure() < 1e-5
+
+
+def test_cli_wavefront_grid_flags(tmp_path, capsys):
+    """--wavefront-grid takes rsm or mesh; a --wavefront-refine below 1 is one sentence, before rendering."""
+    from cisp_warp.cli import main
+
+    tiny = ["--width", "32", "--height", "18", "--rsm-size", "64", "--photons", "2000", "--device", "cpu"]
+    assert main(["--demo", "pool", "--out", str(tmp_path / "o"), "--splat", "wavefront", "--wavefront-grid", "mesh",
+                 "--wavefront-refine", "0", *tiny]) == 2
+    err = capsys.readouterr().err
+    assert "--wavefront-refine must be an integer >= 1" in err and "Traceback" not in err
+    with pytest.raises(SystemExit):
+        main(["--demo", "pool", "--wavefront-grid", "texels", *tiny])
