@@ -116,7 +116,8 @@ def main(argv=None) -> int:
     print(f"{args.scene} {width}x{height}, RSM {args.rsm_size}², {args.method}, light views {args.light_views}, "
           f"one raw frame; caustic mask "
           f"{int(mask.sum())} pixels; relative RMSE against the {report['reference']}")
-    print(f"{'cells':>10}" + "".join(f"{g:>12}{'s':>7}" for g in GRIDS) + f"{'mesh n':>8}")
+    print(f"{'cells':>10}" + "".join(f"{g:>12}{'s':>7}" for g in GRIDS) + f"{'mesh n':>8}{'refined':>9}"
+          f"{'photons rsm':>13}{'mesh':>11}")
     for n in counts:
         row = {"cells": n}
         line = f"{n:>10,}"
@@ -128,9 +129,13 @@ def main(argv=None) -> int:
                       "stored_share": float(ledger["stored"].sum() / max(ledger["sampled"].sum(), 1e-300))}
             if g == "mesh":
                 row["mesh_n"] = r.photons.wavefront.grid.n
+                row["mesh_refined"] = [list(v) for v in r.photons.wavefront.refined]  # (listed, cut) per light
+            row[g]["photons_traced"] = r.photons.wavefront.photons_traced()
             line += f"{100 * err:11.2f}%{sec:7.1f}"
             saved[f"{g}_{n}"] = a["photon_map"]
-        print(line + f"{row['mesh_n']:>8}", flush=True)
+        refined = sum(c for _, c in row["mesh_refined"])
+        print(line + f"{row['mesh_n']:>8}{refined:>9,}{row['rsm']['photons_traced']:>13,}"
+              f"{row['mesh']['photons_traced']:>11,}", flush=True)
         report["runs"].append(row)
     if args.save:
         np.savez_compressed(args.save, **saved)
