@@ -7,8 +7,11 @@ irradiance), a silhouette or a crease in the light view, its landing triangle is
 taken for. Here every specular triangle of the scene is cut into ``n`` × ``n`` sub-triangles in its own
 barycentric coordinates, so a cell never crosses a mesh edge:
 
-* **Corners.** Lattice point (i, j), i + j <= n, of triangle abc is the surface point
-  ``a + (b − a)·i/n + (c − a)·j/n``, exactly on the triangle, with the vertex normals interpolated there;
+* **Grid triangles.** The specular triangles, elongated ones first cut across their length into pieces
+  (their corners kept in the scene triangle's barycentric coordinates, ``MeshGrid.bary``): a strip of the
+  sinusoid's water, 400 times longer than wide, cut n × n would give cells as long as a tenth of the water.
+* **Corners.** Lattice point (i, j), i + j <= n, of grid triangle abc is the surface point
+  ``a + (b − a)·i/n + (c − a)·j/n``, exactly on the scene triangle, with the vertex normals interpolated there;
   ``(n + 1)(n + 2)/2`` corners per triangle, traced by :func:`~.kernels_wavefront.trace_corner_cisp` (or
   ``trace_corner_world``) once refracted and once reflected, as the RSM grid's corners are.
 * **Cells.** Sub-triangle s of row j (``2(n − j) − 1`` per row: upright (i, j) (i+1, j) (i, j+1), inverted
@@ -50,6 +53,9 @@ class MeshGrid:
     """The photon grid over the scene's specular triangles."""
 
     tris: wp.array(dtype=wp.int32)  #: (T,) scene triangle of each grid triangle (the specular layer) (read)
+    #: (3T,) the grid triangle's corners in its scene triangle's barycentric coordinates (weights of vertices 1, 2):
+    #: the scene triangle itself, or a piece of an elongated one (``meshgrid.grid_triangles``) (read)
+    bary: wp.array(dtype=wp.vec2)
     count: int  #: T
     n: int  #: sub-triangles per triangle edge
     cells: int  #: n² sub-triangles (cells) per triangle
@@ -91,19 +97,23 @@ def sub_cell(n: int, s: int):
 
 
 @wp.func
-def lattice_point(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32),
-                  tri: int, n: int, ij: wp.vec2i):
-    """Lattice corner ``ij`` of triangle ``tri``: (point [m], its interpolated vertex normal, not normalised)."""
-    return lattice_point_uv(points, normals, indices, tri, n, float(ij[0]), float(ij[1]))
+def lattice_point(grid: MeshGrid, points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+                  indices: wp.array(dtype=wp.int32), k: int, ij: wp.vec2i):
+    """Lattice corner ``ij`` of grid triangle ``k``: (point [m], its interpolated vertex normal, not normalised)."""
+    return lattice_point_uv(grid, points, normals, indices, k, float(ij[0]), float(ij[1]))
 
 
 @wp.func
-def lattice_point_uv(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
-                     indices: wp.array(dtype=wp.int32), tri: int, n: int, u: float, v: float):
-    """Point (u, v) of triangle ``tri``'s lattice (continuous: 0 <= u, v, u + v <= n): (point [m], its
-    interpolated vertex normal, not normalised)."""
-    wb = u / float(n)
-    wc = v / float(n)
+def lattice_point_uv(grid: MeshGrid, points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+                     indices: wp.array(dtype=wp.int32), k: int, u: float, v: float):
+    """Point (u, v) of grid triangle ``k``'s lattice (continuous: 0 <= u, v, u + v <= n), on its scene triangle
+    (through the grid triangle's corners in the scene triangle's barycentric coordinates): (point [m], the
+    vertex normals interpolated there, not normalised)."""
+    tri = grid.tris[k]
+    b0 = grid.bary[3 * k]
+    bary = b0 + (grid.bary[3 * k + 1] - b0) * (u / float(grid.n)) + (grid.bary[3 * k + 2] - b0) * (v / float(grid.n))
+    wb = bary[0]
+    wc = bary[1]
     wa = 1.0 - wb - wc
     va = indices[3 * tri]
     vb = indices[3 * tri + 1]
@@ -232,9 +242,9 @@ def mesh_cells(
         refr = zero
         refl = zero
         ca, cb, cc = sub_cell(grid.n, s)
-        xa, na = lattice_point(points, normals, indices, tri, grid.n, ca)
-        xb, nb = lattice_point(points, normals, indices, tri, grid.n, cb)
-        xc, nc = lattice_point(points, normals, indices, tri, grid.n, cc)
+        xa, na = lattice_point(grid, points, normals, indices, k, ca)
+        xb, nb = lattice_point(grid, points, normals, indices, k, cb)
+        xc, nc = lattice_point(grid, points, normals, indices, k, cc)
         mine = in_view(light, skip_window, (xa + xb + xc) / 3.0)
         if mine != 0:
             for q in range(3):
@@ -292,7 +302,7 @@ def corner_start(grid: MeshGrid, k: int, ij: wp.vec2i, points: wp.array(dtype=wp
     """Corner ``ij`` of grid triangle ``k``: (scene triangle, point [m], unit normal, geometric normal on the
     normal's side)."""
     tri = grid.tris[k]
-    x, nrm = lattice_point(points, normals, indices, tri, grid.n, ij)
+    x, nrm = lattice_point(grid, points, normals, indices, k, ij)
     a = points[indices[3 * tri]]
     ng = wp.normalize(wp.cross(points[indices[3 * tri + 1]] - a, points[indices[3 * tri + 2]] - a))
     n = ng
@@ -459,7 +469,7 @@ def refine_corner(grid: MeshGrid, m: int, refine_list: wp.array(dtype=wp.int32),
     u = float(ca[0]) + float(cb[0] - ca[0]) * fi + float(cc[0] - ca[0]) * fj
     v = float(ca[1]) + float(cb[1] - ca[1]) * fi + float(cc[1] - ca[1]) * fj
     tri = grid.tris[k]
-    x, nrm = lattice_point_uv(points, normals, indices, tri, grid.n, u, v)
+    x, nrm = lattice_point_uv(grid, points, normals, indices, k, u, v)
     a = points[indices[3 * tri]]
     ng = wp.normalize(wp.cross(points[indices[3 * tri + 1]] - a, points[indices[3 * tri + 2]] - a))
     n = ng

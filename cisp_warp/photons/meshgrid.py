@@ -3,9 +3,10 @@
 own barycentric coordinates (:mod:`.kernels_meshgrid`), traced and splatted as the RSM grid's are.
 
 ``photons`` sets ``n``: about ``photons`` cells per light over all its specular triangles,
-``n = round(sqrt(photons / T))`` (at least 1; T the scene's specular triangles), so ``T · n²`` cells and
-``2 · T · (n + 1)(n + 2)/2`` corner photons per light (a refracted and a reflected sheet through every corner; a
-corner on an edge shared by two triangles is traced once for each).
+``n = round(sqrt(photons / T))`` (at least 1; T the grid's triangles: the scene's specular triangles, elongated
+ones cut into pieces by :func:`grid_triangles`), so ``T · n²`` cells and ``2 · T · (n + 1)(n + 2)/2`` corner
+photons per light (a refracted and a reflected sheet through every corner; a corner on an edge shared by two
+triangles is traced once for each).
 
 :func:`mesh_cells_numpy` is the naive twin of the cells' power (numpy, loops over triangles and sub-triangles).
 """
@@ -27,6 +28,51 @@ MAX_SPAN = 64  #: [pixels] a landing triangle wider or taller than this is not o
 REFINE_SHARE = 8  #: refinement holds sub-cells for 1/REFINE_SHARE of the grid's cells (the rest fall back)
 
 
+ASPECT_MAX = 2.5  #: a grid triangle's longest edge over its height: more, and it is cut across
+
+
+def grid_triangles(points: np.ndarray, indices: np.ndarray, tris: np.ndarray, photons: int):
+    """The grid's triangles over scene triangles ``tris``: each one whole, or, when elongated (longest edge over
+    height above ``ASPECT_MAX``), cut across its length into k stripes by lines parallel to its shortest edge
+    (each stripe two triangles, the tip's one): k = min(its share of the budget's cells / 2, ceil(aspect /
+    ASPECT_MAX)), the budget ``photons`` cells of equal area over all the triangles. The pieces then hold about
+    one cell each (n = 1), or are cut n × n with the rest. Returns
+    (scene triangle (T,) int32, corners in its barycentric coordinates (T, 3, 2) float32: weights of its
+    vertices 1 and 2), each piece wound as its triangle."""
+    p = points.astype(np.float64)
+    idx = indices.reshape(-1, 3)[tris]
+    x = p[idx]  # (S, 3 corners, 3)
+    twice_area = np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1)
+    cell = math.sqrt(twice_area.sum() / max(photons, 1))  # a right isoceles cell's leg [m]: area cell² / 2
+    edge = np.stack([np.linalg.norm(x[:, 2] - x[:, 1], axis=1), np.linalg.norm(x[:, 0] - x[:, 2], axis=1),
+                     np.linalg.norm(x[:, 1] - x[:, 0], axis=1)], 1)  # edge opposite corner 0, 1, 2
+    longest = edge.max(1)
+    aspect = longest * longest / np.maximum(twice_area, 1e-30)  # longest edge over its height
+    k = np.minimum(np.round(twice_area / (2.0 * cell * cell)), np.ceil(aspect / ASPECT_MAX)).astype(np.int64)
+    k = np.where(aspect > ASPECT_MAX, np.maximum(k, 1), 1)
+    corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    out_t, out_b = [], []
+    for t, kk, e in zip(tris, k, edge):
+        if kk == 1:
+            out_t.append(t)
+            out_b.append(corners)
+            continue
+        tip = int(e.argmin())  # the vertex opposite the shortest edge; the next two follow in winding order
+        tp, pp, qp = corners[tip], corners[(tip + 1) % 3], corners[(tip + 2) % 3]
+        for i in range(kk):
+            s0, s1 = i / kk, (i + 1) / kk
+            a0, a1 = tp + s0 * (pp - tp), tp + s1 * (pp - tp)
+            b0, b1 = tp + s0 * (qp - tp), tp + s1 * (qp - tp)
+            out_t.append(t)
+            out_b.append(np.stack([a0, a1, b1]))
+            if i > 0:  # the tip's stripe is one triangle
+                out_t.append(t)
+                out_b.append(np.stack([a0, b1, b0]))
+    if not out_t:
+        return np.zeros(0, np.int32), np.zeros((0, 3, 2), np.float32)
+    return np.asarray(out_t, np.int32), np.asarray(out_b, np.float32)
+
+
 def subdivision_for(triangles: int, photons: int) -> int:
     """Sub-triangles per triangle edge for about ``photons`` cells over ``triangles`` triangles."""
     return max(1, int(round(math.sqrt(photons / max(triangles, 1)))))
@@ -42,9 +88,12 @@ class MeshWavefrontSplat:
         self.cam = cam
         d = photon_pass.device
         sc = photon_pass.scene
-        tris = np.flatnonzero(sc.scene.triangle_layers() & LAYER_SPECULAR).astype(np.int32)
+        specular = np.flatnonzero(sc.scene.triangle_layers() & LAYER_SPECULAR).astype(np.int32)
+        tris, bary = grid_triangles(sc.scene.points, sc.scene.indices, specular, photon_pass.settings.photons)
         self.grid = K.MeshGrid()
         self.grid.tris = wp.array(tris if len(tris) else np.zeros(1, np.int32), dtype=wp.int32, device=d)
+        self.grid.bary = wp.array(bary.reshape(-1, 2) if len(tris) else np.zeros((3, 2), np.float32), dtype=wp.vec2,
+                                  device=d)
         self.grid.count = int(len(tris))
         n = subdivision_for(len(tris), photon_pass.settings.photons)
         self.grid.n, self.grid.cells, self.grid.corners = n, n * n, (n + 1) * (n + 2) // 2
@@ -177,6 +226,7 @@ class MeshWavefrontSplat:
         g = self.grid
         corners, cells = 2 * g.count * g.corners, 2 * g.count * g.cells
         return {"grid": "mesh", "n": g.n, "count": g.count, "tris": g.tris.numpy()[: g.count],
+                "bary": g.bary.numpy()[: 3 * g.count].reshape(-1, 3, 2),
                 "entry": self.rec.entry.numpy()[:corners], "pos": self.rec.pos.numpy()[:corners],
                 "pix": self.rec.pix.numpy()[:corners], "dir": self.rec.dir.numpy()[:corners],
                 "throughput": self.rec.throughput.numpy()[:corners], "tri_power": self.tri_power.numpy()[:cells],
@@ -199,15 +249,16 @@ def sub_cells_numpy(n: int) -> list[tuple[tuple[int, int], tuple[int, int], tupl
 
 
 def mesh_cells_numpy(scene, light, views: list, skip_windows: list, view_index: int, shadow_depth: np.ndarray,
-                     tris: np.ndarray, n: int, roughness_cutoff: float, thickness: float, thickness_rel: float) -> dict:
+                     tris: np.ndarray, bary: np.ndarray, n: int, roughness_cutoff: float, thickness: float,
+                     thickness_rel: float) -> dict:
     """Naive twin of ``mesh_cells`` for one light view, float64: loops in Python over the grid's triangles
     and their sub-triangles.
 
     ``scene``: the :class:`~cisp_warp.scene.model.Scene`; ``light``: its
     :class:`~cisp_warp.scene.model.Light`; ``views``: the light's active views
     (:class:`~cisp_warp.raster.views.View`), ``skip_windows`` theirs ((x0, y0, x1, y1) [pixels]), the cells of
-    ``views[view_index]`` booked; ``shadow_depth``: (H*W,) that view's nearest depth [m]; ``tris``: the grid's
-    scene triangles. Returns the cells' power (2 sheets · T · n², 3) [W] and the ledger parts they book
+    ``views[view_index]`` booked; ``shadow_depth``: (H*W,) that view's nearest depth [m]; ``tris``, ``bary``: the
+    grid's triangles (:func:`grid_triangles`). Returns the cells' power (2 sheets · T · n², 3) [W] and the ledger parts they book
     {entry: (3,) W}."""
     pts = scene.points.astype(np.float64)
     nrm = scene.normals.astype(np.float64)
@@ -266,7 +317,8 @@ def mesh_cells_numpy(scene, light, views: list, skip_windows: list, view_index: 
         m = mats[scene.triangle_material[tri]]
 
         def lattice(ij):
-            wb, wc = ij[0] / n, ij[1] / n
+            b0, b1, b2 = bary[k].astype(np.float64)
+            wb, wc = b0 + (b1 - b0) * (ij[0] / n) + (b2 - b0) * (ij[1] / n)
             wa = 1.0 - wb - wc
             return a * wa + b * wb + c * wc, na * wa + nb * wb + nc * wc
 
