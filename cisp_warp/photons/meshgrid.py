@@ -25,7 +25,7 @@ from . import kernels_wavefront as KW
 from .base import PhotonPass, frame_random
 
 MAX_SPAN = 64  #: [pixels] a landing triangle wider or taller than this is not one wavefront: point fallback
-REFINE_SHARE = 8  #: refinement holds sub-cells for 1/REFINE_SHARE of the grid's cells (the rest fall back)
+REFINE_SHARE = 4  #: refinement holds sub-cells for 1/REFINE_SHARE of the grid's cells (the rest fall back)
 
 
 ASPECT_MAX = 2.5  #: a grid triangle's longest edge over its height: more, and it is cut across
