@@ -21,6 +21,7 @@ import warp as wp
 from ..optics import fresnel_dielectric_np
 from ..scene.model import LAYER_SPECULAR
 from . import kernels_meshgrid as K
+from . import kernels_meshrefine as R
 from . import kernels_wavefront as KW
 from .base import PhotonPass, frame_random
 
@@ -149,11 +150,12 @@ class MeshWavefrontSplat:
             axis = wp.vec3(*np.asarray(light.direction, np.float32))
             kind = int(light.kind)
             n_views = len(lm.rsm)
+            active = lm.active  # fitted: a device->host copy, as the RSM grid's views
             wp.launch(K.clear_records, dim=corners, device=dev, inputs=[self.rec])
             self.tri_power.zero_()
             self.grids.append(g)
             for vi, r in enumerate(lm.rsm):
-                if not lm.active[vi]:  # fitted on CUDA: a device->host copy, as the RSM grid's views
+                if not active[vi]:
                     continue
                 p.launch_photons(K.mesh_cells, total, inputs=[
                     lm.views, lm.states, n_views, vi, kind, light_pos, rgb, axis, float(light.cone_angle),
@@ -179,17 +181,17 @@ class MeshWavefrontSplat:
                 g, self.rec, self.tri_power, self.cam, float(s.thickness), float(s.thickness_rel), MAX_SPAN,
                 p.footprint_mode, p.photon_map, self.tri_state, int(self.m > 1), p.ledger])
             if self.m > 1:
-                self._refine(li, lm, tracer, frame, world, light_pos, kind)
+                self._refine(li, lm, active, tracer, frame, world, light_pos, kind)
 
-    def _refine(self, li: int, lm, tracer: str, frame: int, world, light_pos, kind: int) -> None:
+    def _refine(self, li: int, lm, active: list[bool], tracer: str, frame: int, world, light_pos, kind: int) -> None:
         """The cells the splat left to refinement (``TRI_REFINE``), listed in cell order (a scan), cut m × m,
         their corners traced view by view, their sub-cells splatted; listed cells past the capacity fall back.
         Reads the list's length back (a device->host copy, as the fitted views' read-back)."""
         p, s, dev, g, m = self.p, self.p.settings, self.p.device, self.grid, self.m
         cells = 2 * g.count * g.cells
-        wp.launch(K.refine_flags, dim=cells, device=dev, inputs=[self.tri_state, self.flags])
+        wp.launch(R.refine_flags, dim=cells, device=dev, inputs=[self.tri_state, self.flags])
         wp.utils.array_scan(self.flags, self.offsets, inclusive=False)
-        wp.launch(K.refine_scatter, dim=cells, device=dev, inputs=[self.flags, self.offsets, self.refine_list])
+        wp.launch(R.refine_scatter, dim=cells, device=dev, inputs=[self.flags, self.offsets, self.refine_list])
         ends = np.concatenate([self.offsets[cells - 1 : cells].numpy(), self.flags[cells - 1 : cells].numpy()])
         listed = int(ends.sum())
         refined = min(listed, self.refine_capacity)
@@ -201,10 +203,10 @@ class MeshWavefrontSplat:
         if refined > 0:
             wp.launch(K.clear_records, dim=refined * cm, device=dev, inputs=[self.sub_rec])
             for vi, r in enumerate(lm.rsm):
-                if not lm.active[vi]:
+                if not active[vi]:
                     continue
                 if tracer == "cisp":
-                    wp.launch(K.trace_refine_cisp, dim=refined * cm, device=dev, inputs=[
+                    wp.launch(R.trace_refine_cisp, dim=refined * cm, device=dev, inputs=[
                         lm.views, lm.states, len(lm.rsm), vi, kind, light_pos, g, m, self.refine_list,
                         r.opaque_depth, p.rsm_bounds[li][vi], sc.points, sc.normals, sc.indices,
                         sc.triangle_material, sc.opacity, sc.ior, self.cam.view, self.cam.depth, p.cam_bounds,
@@ -212,11 +214,11 @@ class MeshWavefrontSplat:
                         float(s.thickness_rel), p.t_max, int(s.cascade), self.sub_rec])
                 else:
                     _, _, seed = frame_random(s.seed, frame, li * 64 + vi)
-                    wp.launch(K.trace_refine_world, dim=refined * cm, device=dev, inputs=[
+                    wp.launch(R.trace_refine_world, dim=refined * cm, device=dev, inputs=[
                         lm.views, lm.states, len(lm.rsm), vi, kind, light_pos, g, m, self.refine_list, world,
                         self.cam, seed, float(s.roughness_cutoff), float(s.thickness), float(s.thickness_rel),
                         p.t_max, int(s.max_bounces), self.sub_rec])
-        p.launch_photons(K.splat_refined, refined * m * m + listed - refined, inputs=[
+        p.launch_photons(R.splat_refined, refined * m * m + listed - refined, inputs=[
             g, m, self.refine_list, refined, listed, self.rec, self.sub_rec, self.tri_power, self.sub_power, self.cam,
             float(s.thickness), float(s.thickness_rel), MAX_SPAN, p.footprint_mode, p.photon_map, self.tri_state,
             self.sub_state, p.ledger])
