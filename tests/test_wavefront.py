@@ -474,3 +474,33 @@ def test_cli_wavefront_grid_flags(tmp_path, capsys):
     assert "--wavefront-refine must be an integer >= 1" in err and "Traceback" not in err
     with pytest.raises(SystemExit):
         main(["--demo", "pool", "--wavefront-grid", "texels", *tiny])
+
+
+def test_grid_triangles_cut_strips_into_pieces_that_tile_them():
+    """The sinusoid's strips (1 m long, 400 times longer than wide) are cut across into pieces of about one cell
+    each (2.5 mm wide, 1/40 of the strip long at 65k cells) that tile every strip exactly (areas add up, same
+    winding, corners inside it); a grid of right isoceles triangles is left whole."""
+    from cisp_warp.photons.meshgrid import grid_triangles
+    from cisp_warp.scene.model import LAYER_SPECULAR
+
+    s = analytic.sinusoidal_water(64, 32)
+    spec = np.flatnonzero(s.triangle_layers() & LAYER_SPECULAR)
+    tris, bary = grid_triangles(s.points, s.indices, spec, 65536)
+    assert 0.8 * 65536 < len(tris) < 1.2 * 65536 and set(tris) == set(spec)
+    assert (bary >= -1e-6).all() and (bary.sum(-1) <= 1 + 1e-6).all()
+    e1, e2 = bary[:, 1] - bary[:, 0], bary[:, 2] - bary[:, 0]
+    signed = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # share of the scene triangle, + = same winding
+    assert (signed > 0).all()
+    np.testing.assert_allclose(np.bincount(tris, weights=signed)[spec], 1.0, rtol=1e-5)
+    p = s.points.astype(np.float64)[s.indices.reshape(-1, 3)[tris]]
+    x = p[:, :1] + (p[:, 1:2] - p[:, :1]) * bary[..., :1] + (p[:, 2:3] - p[:, :1]) * bary[..., 1:]
+    edges = np.linalg.norm(np.roll(x, -1, axis=1) - x, axis=-1)
+    twice = np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1)
+    assert edges.max() < 0.03  # the 1 m strips in ~40 stripes (their tips stay as thin as the strip's)
+    assert twice.max() < 3.0 * 2.0 / 65536  # no piece above 3 cells of the budget (cells of area 1 m² / 65536)
+    k = 16  # a regular grid of right isoceles triangles stays whole
+    g = np.stack(np.meshgrid(np.arange(k + 1), np.arange(k + 1)), -1).reshape(-1, 2).astype(np.float32)
+    pts = np.stack([g[:, 0], np.zeros(len(g)), g[:, 1]], 1)
+    faces = [(j * (k + 1) + i, (j + 1) * (k + 1) + i, j * (k + 1) + i + 1) for j in range(k) for i in range(k)]
+    t2, _ = grid_triangles(pts, np.array(faces), np.arange(len(faces)), 65536)
+    assert len(t2) == len(faces)

@@ -37,7 +37,8 @@ def grid_triangles(points: np.ndarray, indices: np.ndarray, tris: np.ndarray, ph
     height above ``ASPECT_MAX``), cut across its length into k stripes by lines parallel to its shortest edge
     (each stripe two triangles, the tip's one): k = min(its share of the budget's cells / 2, ceil(aspect /
     ASPECT_MAX)), the budget ``photons`` cells of equal area over all the triangles. The pieces then hold about
-    one cell each (n = 1), or are cut n × n with the rest. Returns
+    one cell each (n = 1), or are cut n × n with the rest; they are as long as a k-th of the triangle (those at its
+    tip as thin as the tip). Returns
     (scene triangle (T,) int32, corners in its barycentric coordinates (T, 3, 2) float32: weights of its
     vertices 1 and 2), each piece wound as its triangle."""
     p = points.astype(np.float64)
