@@ -58,6 +58,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--splat", default="point", choices=["point", "wavefront"],
                    help="cisp, sspm: store photons as points, or as a wavefront: photons on a grid of the RSM "
                    "(--photons cells per light), each cell's power spread over the area its corners land on")
+    p.add_argument("--wavefront-grid", default="rsm", choices=["rsm", "mesh"],
+                   help="--splat wavefront: cells over the RSM's texels, or over the water mesh's own triangles "
+                   "(cut n x n; no cell straddles a mesh edge or silhouette)")
+    p.add_argument("--wavefront-refine", type=int, default=4,
+                   help="--wavefront-grid mesh: cells whose corners diverge (silhouettes, shadow edges) are cut this "
+                   "many times per edge and traced again (1: off, points at their corners)")
     p.add_argument("--max-bounces", type=int, default=8, help="sspm, reference: specular bounces before a photon is dropped")
     p.add_argument("--cmap-gather", default="light", choices=["light", "eye"],
                    help="caustics_map: Gaussian gather in the light-space caustic map, or leave it to the eye-space denoiser")
@@ -239,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
                                      roughness_cutoff=args.roughness_cutoff, luminance_cutoff=args.luminance_cutoff,
                                      max_bounces=args.max_bounces, cmap_gather=args.cmap_gather,
                                      cmap_history=args.cmap_history, reference_photons=args.reference_photons or 0,
-                                     splat=args.splat)
+                                     splat=args.splat, wavefront_grid=args.wavefront_grid,
+                                     wavefront_refine=args.wavefront_refine)
             settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                       method=args.method, photons=photons, denoiser=args.denoiser,
                                       supersample=args.supersample,

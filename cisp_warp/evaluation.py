@@ -58,6 +58,7 @@ class Config:
     photons: int
     denoiser: str
     splat: str = "point"  #: cisp, sspm: "point" or "wavefront" (``photons`` then counts grid cells per light)
+    wavefront_grid: str = "rsm"  #: wavefront splats: cells over the RSM's texels ("rsm") or the water mesh ("mesh")
 
     @property
     def denoise(self) -> bool:
@@ -66,8 +67,10 @@ class Config:
 
     @property
     def curve(self) -> str:
-        """The method as a chart names it: ``cisp``, or ``cisp wavefront``."""
-        return self.method if self.splat == "point" else f"{self.method} {self.splat}"
+        """The method as a chart names it: ``cisp``, ``cisp wavefront`` or ``cisp wavefront mesh``."""
+        if self.splat == "point":
+            return self.method
+        return f"{self.method} {self.splat}" + (" mesh" if self.wavefront_grid == "mesh" else "")
 
     @property
     def label(self) -> str:
@@ -83,7 +86,7 @@ def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSet
     """The renderer's settings for ``cfg`` (see the module table)."""
     if not applicable(cfg.method, cfg.denoiser):
         raise ValueError(f"denoiser {cfg.denoiser!r} does not apply to method {cfg.method!r}")
-    photons = replace(base, photons=int(cfg.photons), splat=cfg.splat)
+    photons = replace(base, photons=int(cfg.photons), splat=cfg.splat, wavefront_grid=cfg.wavefront_grid)
     if cfg.method == "caustics_map":
         own = cfg.denoiser == "own"
         photons = replace(photons, cmap_gather="light" if own else "eye", cmap_history=4 if own else 1)

@@ -67,7 +67,8 @@ def run_config(scene_path, method, n, args, device):
     # the reference traces two passes of n per frame here: its rate per photon is what is compared
     photons = PhotonSettings(photons=n, reference_photons=2 * n,
                              sort_photons={"auto": None, "on": True, "off": False}[args.sort],
-                             splat=args.splat if method in ("cisp", "sspm") else "point")
+                             splat=args.splat if method in ("cisp", "sspm") else "point",
+                             wavefront_grid=args.wavefront_grid)
     settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
     r = Renderer(scene, settings, device=device)
     r.use_graph = False
@@ -114,6 +115,8 @@ def main(argv=None) -> int:
                    help="trace RSM photons in texel order (auto: on CUDA only)")
     p.add_argument("--splat", default="point", choices=["point", "wavefront"],
                    help="cisp, sspm: point deposits or wavefront splatting (photons = grid cells per light)")
+    p.add_argument("--wavefront-grid", default="rsm", choices=["rsm", "mesh"],
+                   help="--splat wavefront: cells over the RSM's texels or over the water mesh's triangles")
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
     p.add_argument("--kernels", action="store_true",
                    help="also time every kernel (CUDA activity timing, separate frames) and count launches")
@@ -142,9 +145,12 @@ def main(argv=None) -> int:
             results[method] = rows
             for row in rows:
                 splat = args.splat if method in ("cisp", "sspm") else "point"
-                report["runs"].append({"scene": sname, "method": method, "splat": splat, **row})
+                report["runs"].append({"scene": sname, "method": method, "splat": splat,
+                                       "wavefront_grid": args.wavefront_grid, **row})
             stages = list(rows[0]["stages"])
             splat = f", splat {args.splat}" if method in ("cisp", "sspm") else ""
+            if splat and args.splat == "wavefront":
+                splat += f" over the {args.wavefront_grid} grid"
             print(f"{sname}, {method}: device {dev}; {args.width}x{args.height}, RSM {args.rsm_size}², "
                   f"denoiser {args.denoiser}{splat}; median ms over {args.frames} frames")
             print(f"{'stage':<14}" + "".join(f"{row['photons']:>14,}" for row in rows))

@@ -201,7 +201,9 @@ def pareto_chart(rows: list[dict], path: str, title: str) -> None:
 def curve_name(row: dict) -> str:
     """A run's curve: its method, and its splat when not points (rows from before splats count as points)."""
     splat = row.get("splat", "point")
-    return row["method"] if splat == "point" else f"{row['method']} {splat}"
+    if splat == "point":
+        return row["method"]
+    return f"{row['method']} {splat}" + (" mesh" if row.get("wavefront_grid", "rsm") == "mesh" else "")
 
 
 def chart_title(meta: dict) -> str:
@@ -211,7 +213,7 @@ def chart_title(meta: dict) -> str:
             f"{meta['preset']} · {counts[0]:,} to {counts[-1]:,} photons per frame along each curve")
 
 
-FIELDS = ["scene", "method", "splat", "photons", "denoiser", "width", "height", "frame_ms", "raster_ms", "direct_ms",
+FIELDS = ["scene", "method", "splat", "wavefront_grid", "photons", "denoiser", "width", "height", "frame_ms", "raster_ms", "direct_ms",
           "trace_ms", "denoise_ms", "shade_ms", "rel_rmse", "rel_rmse_raw", "energy_ratio", "energy_ratio_raw",
           "flip", "reference_noise", "reference_flip", "mask_pixels", "stored_share", "ledger_closure", "finite"]
 
@@ -237,6 +239,9 @@ def main(argv=None) -> int:
     p.add_argument("--splats", default="point",
                    help="comma-separated photon stores for cisp and sspm: point, wavefront (photons on an RSM grid, "
                    "--photons then counts grid cells per light); one curve per method and splat")
+    p.add_argument("--wavefront-grids", default="rsm",
+                   help="comma-separated grids of the wavefront splat: rsm (cells over the RSM's texels), mesh (over "
+                   "the water mesh's triangles); one curve each")
     p.add_argument("--denoisers", default="caustic,svgf,none,own",
                    help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
     p.add_argument("--reference-noise", type=float, default=None,
@@ -304,7 +309,12 @@ def main(argv=None) -> int:
     for sp in splats:
         if sp not in ("point", "wavefront"):
             raise SystemExit(f"unknown splat {sp!r}: point, wavefront")
-    configs = [E.Config(m, n, d, sp) for m in methods for sp in (splats if m in ("cisp", "sspm") else ["point"])
+    grids = args.wavefront_grids.split(",")
+    for g in grids:
+        if g not in ("rsm", "mesh"):
+            raise SystemExit(f"unknown wavefront grid {g!r}: rsm, mesh")
+    configs = [E.Config(m, n, d, sp, g) for m in methods for sp in (splats if m in ("cisp", "sspm") else ["point"])
+               for g in (grids if sp == "wavefront" else ["rsm"])
                for d in denoisers if E.applicable(m, d) for n in cfg["photons"]]
     noise_target = args.reference_noise if args.reference_noise is not None else cfg["reference_noise"]
     ref_seconds = args.reference_seconds if args.reference_seconds is not None else cfg["reference_seconds"]
@@ -351,7 +361,8 @@ def main(argv=None) -> int:
             fig = measure(shots, ref, mask, footprint, flip and (flip_counts is None or cfg_run.photons in flip_counts))
             ledger = r.photons.read_ledger()
             s = timing.stages
-            rows.append({"scene": spec.name, "method": cfg_run.method, "splat": cfg_run.splat, "photons": cfg_run.photons,
+            rows.append({"scene": spec.name, "method": cfg_run.method, "splat": cfg_run.splat,
+                         "wavefront_grid": cfg_run.wavefront_grid, "photons": cfg_run.photons,
                          "denoiser": cfg_run.denoiser, "width": w, "height": h, "frame_ms": timing.frame,
                          "raster_ms": s.get("raster", 0.0), "direct_ms": s.get("direct", 0.0),
                          "trace_ms": s.get("trace+store", 0.0), "denoise_ms": s.get("denoise", 0.0),

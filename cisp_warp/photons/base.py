@@ -45,6 +45,11 @@ class PhotonSettings:
     reference_photons: int = 0  #: reference: photons per light to accumulate; 0 = 1e8 on CUDA, 4e6 on CPU
     sort_photons: bool | None = None  #: trace RSM photons in texel (Morton) order; None = on CUDA only
     splat: str = "point"  #: cisp, sspm: "point" deposits, or "wavefront" (photons on an RSM grid, cells splatted)
+    #: wavefront splats: cells over the RSM's texels ("rsm") or over the specular mesh's own triangles ("mesh")
+    wavefront_grid: str = "rsm"
+    #: mesh grid: a cell whose corners diverge (a silhouette, an occluder's shadow edge), one of them on a camera
+    #: surface, is cut this many times along each edge and traced again (1: no refinement, points at its corners)
+    wavefront_refine: int = 4
 
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
@@ -53,9 +58,12 @@ class PhotonSettings:
             raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
         if self.splat not in ("point", "wavefront"):
             raise SceneError(f"--splat must be 'point' or 'wavefront', got {self.splat!r}")
+        if self.wavefront_grid not in ("rsm", "mesh"):
+            raise SceneError(f"--wavefront-grid must be 'rsm' or 'mesh', got {self.wavefront_grid!r}")
         if self.cmap_gather not in ("light", "eye"):
             raise SceneError(f"--cmap-gather must be 'light' or 'eye', got {self.cmap_gather!r}")
-        for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0)):
+        for name, lo in (("max_steps", 1), ("max_bounces", 1), ("cmap_history", 1), ("reference_photons", 0),
+                         ("wavefront_refine", 1)):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < lo:
                 raise SceneError(f"--{name.replace('_', '-')} must be an integer >= {lo}, got {v!r}")

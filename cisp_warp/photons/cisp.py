@@ -50,13 +50,13 @@ class CISP(PhotonPass):
             self.keep_photon_m2(gbuffer.width * gbuffer.height)
         if settings.splat == "wavefront":
             from .kernels_world import CameraBuffers
-            from .wavefront import WavefrontSplat
+            from .wavefront import make_wavefront
 
             cam = CameraBuffers()
             cam.view = camera_view.params()
             cam.depth, cam.position, cam.normal = gbuffer.depth, gbuffer.position, gbuffer.normal
             cam.solid_angle = self.solid_angle
-            self.wavefront = WavefrontSplat(self, cam)
+            self.wavefront = make_wavefront(self, cam)
         # depth bounds per 8x8 cell of every light view's opaque depth and of the camera's, rebuilt each frame:
         # the march skips the steps they prove hitless
         self.cam_bounds = self._bounds_for(gbuffer.width, gbuffer.height)

@@ -32,6 +32,7 @@ wp.set_module_options({"enable_backward": False})
 TRI_EMPTY = wp.constant(0)  #: the triangle carries no power
 TRI_SPLAT = wp.constant(1)  #: splatted over its landing area
 TRI_FALLBACK = wp.constant(2)  #: corners diverged: point deposits at the corners
+TRI_REFINE = wp.constant(3)  #: corners diverged, one on a camera surface: left to a finer grid (nothing booked yet)
 
 vec8 = wp.types.vector(length=8, dtype=wp.float32)  #: a clipped polygon's coordinates (a triangle cut by 4 lines: 7)
 
@@ -158,38 +159,30 @@ def splat_pixel(cam: CameraBuffers, pix: int, power: wp.vec3, d: wp.vec3, footpr
 
 
 @wp.func
-def splat_triangle(
-    t: int,  # triangle: (sheet · cells + cell) · 2 + half
-    grid: Grid,
-    rec: Records,  # (2 · corners,) (read)
-    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2,) [W] (read)
+def splat_corners(
+    t: int,  # the triangle's slot in tri_power and tri_state
+    ia: int,  # its corner photons' record slots
+    ib: int,
+    ic: int,
+    rec: Records,  # (read)
+    tri_power: wp.array(dtype=wp.vec3),  # [W] (read)
     cam: CameraBuffers,
     thickness: float,  # [m] receiver tolerance, absolute
     thickness_rel: float,  # relative (× depth)
     max_span: int,  # [pixels] a landing triangle wider or taller than this falls back
     footprint_mode: int,
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    tri_state: wp.array(dtype=wp.int32),  # (2 sheets · cells · 2,) TRI_* (write)
+    tri_state: wp.array(dtype=wp.int32),  # TRI_* (write)
+    defer: int,  # 1: a triangle that would fall back with a corner on a camera surface is left to refinement
 ):
-    """Grid triangle ``t`` of its sheet: splat its power over its landing triangle, or fall back. Returns its
-    ledger rows."""
+    """Triangle ``t`` of either grid (RSM or mesh), with corner photons ``ia``, ``ib``, ``ic``: splat its
+    power over its landing triangle, or fall back (or, with ``defer``, mark it ``TRI_REFINE`` and book
+    nothing: a finer grid over it books its power). Returns its ledger rows."""
     rows = LedgerRows()
     power = tri_power[t]
     if wp.length_sq(power) == 0.0:
         tri_state[t] = TRI_EMPTY
         return rows
-    cells = grid.cells_x * grid.cells_y
-    half = t % 2
-    c = (t / 2) % cells
-    sheet = t / (2 * cells)
-    row = grid.cells_x + 1
-    base = sheet * grid_corners(grid) + (c / grid.cells_x) * row + c % grid.cells_x
-    ia = base  # corner (0, 0) of the cell
-    ib = base + 1  # (1, 0)
-    ic = base + row + 1  # (1, 1)
-    if half == 1:
-        ib = base + row + 1
-        ic = base + row  # (0, 1)
     ea = rec.entry[ia]
     eb = rec.entry[ib]
     ec = rec.entry[ic]
@@ -279,6 +272,9 @@ def splat_triangle(
             rows = rows_add(rows, L_LOST_CAMERA, p_eff - stored - occluded)  # off the screen (and ~1e-7 rounding)
             rows = rows_add(rows, L_ABSORBED, power - p_eff)
             return rows
+    if defer != 0 and (ea == L_STORED or eb == L_STORED or ec == L_STORED):
+        tri_state[t] = TRI_REFINE
+        return rows
     # fallback: a third of the power to each corner photon, as a point (or booked where it ended)
     tri_state[t] = TRI_FALLBACK
     valid = int(0)
@@ -311,6 +307,37 @@ def splat_triangle(
                 splat_pixel(cam, pk, kept, rec.dir[ik], footprint_mode, photon_map)
         rows = rows_add(rows, e, kept)
     return rows
+
+
+@wp.func
+def splat_triangle(
+    t: int,  # triangle: (sheet · cells + cell) · 2 + half
+    grid: Grid,
+    rec: Records,  # (2 · corners,) (read)
+    tri_power: wp.array(dtype=wp.vec3),  # (2 sheets · cells · 2,) [W] (read)
+    cam: CameraBuffers,
+    thickness: float,  # [m] receiver tolerance, absolute
+    thickness_rel: float,  # relative (× depth)
+    max_span: int,  # [pixels] a landing triangle wider or taller than this falls back
+    footprint_mode: int,
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    tri_state: wp.array(dtype=wp.int32),  # (2 sheets · cells · 2,) TRI_* (write)
+):
+    """RSM grid triangle ``t`` of its sheet: its corner photons, then :func:`splat_corners`."""
+    cells = grid.cells_x * grid.cells_y
+    half = t % 2
+    c = (t / 2) % cells
+    sheet = t / (2 * cells)
+    row = grid.cells_x + 1
+    base = sheet * grid_corners(grid) + (c / grid.cells_x) * row + c % grid.cells_x
+    ia = base  # corner (0, 0) of the cell
+    ib = base + 1  # (1, 0)
+    ic = base + row + 1  # (1, 1)
+    if half == 1:
+        ib = base + row + 1
+        ic = base + row  # (0, 1)
+    return splat_corners(t, ia, ib, ic, rec, tri_power, cam, thickness, thickness_rel, max_span, footprint_mode,
+                         photon_map, tri_state, 0)
 
 
 @wp.kernel

@@ -444,6 +444,90 @@ def camera_rescue(
     return L_STORED, x, pix
 
 
+@wp.func
+def trace_corner_cisp(
+    p: int,  # record slot
+    sheet: int,  # SHEET_REFRACTED or SHEET_REFLECTED
+    origin: wp.vec3,  # [m] the corner's point on the specular surface
+    n: wp.vec3,  # its (interpolated) unit normal
+    d_in: wp.vec3,  # the light's unit direction arriving there
+    transmissive: int,  # 1: a dielectric (both sheets), 0: a metal (reflected sheet only)
+    ior: float,
+    light: ViewParams,
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) [m] (read)
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    cam_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+    cam_normal: wp.array(dtype=wp.vec3),  # (H*W,) unit (read)
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    t_max: float,
+    use_cascade: int,
+    rec: Records,  # (write) slot p, cleared by the caller
+):
+    """A corner photon of either grid (RSM or mesh) from its surface point: its sheet's bounce, CISP's
+    light-view march and cascade (:func:`march_cascade`), the camera rescue and the landing refined onto
+    the receiver's tangent plane, recorded in slot ``p``."""
+    ok, d = grid_bounce(sheet, d_in, n, transmissive, ior)
+    if ok == 0:
+        return
+    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
+                                      origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
+    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
+        entry, x_end, pix = camera_rescue(camera, cam_depth, cam_depth_bounds, origin, d, t_max, max_steps, thickness,
+                                          thickness_rel, entry, x_end, pix)
+    if entry == L_STORED:
+        x_end, pix = refine_landing(camera, cam_depth, cam_position, cam_normal, origin, d, x_end, pix, thickness,
+                                    thickness_rel)
+    rec.entry[p] = entry
+    rec.pos[p] = x_end
+    rec.pix[p] = pix
+    rec.dir[p] = d
+
+
+@wp.func
+def trace_corner_world(
+    p: int,  # record slot
+    sheet: int,
+    x: wp.vec3,  # [m] the corner's point on the specular surface
+    n: wp.vec3,  # its (interpolated) unit normal
+    ng: wp.vec3,  # the triangle's geometric normal
+    d_in: wp.vec3,  # the light's unit direction arriving there
+    transmissive: int,
+    ior: float,
+    ws: WorldScene,
+    cam: CameraBuffers,
+    seed: int,  # random streams of later Fresnel bounces (after the first, deterministic one)
+    roughness_cutoff: float,
+    thickness: float,
+    thickness_rel: float,
+    t_max: float,
+    max_bounces: int,
+    rec: Records,  # (write) slot p, cleared by the caller
+):
+    """A corner photon of either grid from its surface point: its sheet's bounce, SSPM's world-space trace
+    (:func:`world_trace`) and depth-visibility test (:func:`camera_receiver`), recorded in slot ``p`` with
+    unit power: the record's throughput is what it kept."""
+    ok, d = grid_bounce(sheet, d_in, n, transmissive, ior)
+    if ok == 0:
+        return
+    discard = tally_new()  # world_trace books the unit photon's ending here; the splat books the cells' power
+    status, y, nr, d2, kept, state = world_trace(ws, x, ng, d, wp.vec3(1.0), wp.rand_init(seed, p),
+                                                 roughness_cutoff, t_max, max_bounces, discard)
+    entry = status
+    pix = int(-1)
+    if status == WT_LANDED:
+        entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
+    rec.entry[p] = entry
+    rec.pos[p] = y
+    rec.pix[p] = pix
+    rec.dir[p] = d2
+    rec.throughput[p] = kept
+
+
 @wp.kernel
 def trace_grid_cisp(
     light: ViewParams,
@@ -473,8 +557,7 @@ def trace_grid_cisp(
     use_cascade: int,
     rec: Records,  # (2 · corners,) (write)
 ):
-    """One thread per grid photon: its corner's surface from the RSM, its sheet's bounce, CISP's light-view
-    march and cascade (:func:`march_cascade`), recorded."""
+    """One thread per grid photon: its corner's surface from the RSM, then :func:`trace_corner_cisp`."""
     p = wp.tid()
     clear_record(rec, p)
     sheet, sx, sy = grid_corner(grid, p)
@@ -486,21 +569,10 @@ def trace_grid_cisp(
     d_in = wp.normalize(ld)
     if light_kind != 0:
         d_in = wp.normalize(origin - light_pos)
-    ok, d = grid_bounce(sheet, d_in, n, int(mat_opacity[triangle_material[rsm_tri[texel]]] < 1.0), rsm_ior[texel])
-    if ok == 0:
-        return
-    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
-                                      origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
-    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
-        entry, x_end, pix = camera_rescue(camera, cam_depth, cam_depth_bounds, origin, d, t_max, max_steps, thickness,
-                                          thickness_rel, entry, x_end, pix)
-    if entry == L_STORED:
-        x_end, pix = refine_landing(camera, cam_depth, cam_position, cam_normal, origin, d, x_end, pix, thickness,
-                                    thickness_rel)
-    rec.entry[p] = entry
-    rec.pos[p] = x_end
-    rec.pix[p] = pix
-    rec.dir[p] = d
+    transmissive = int(mat_opacity[triangle_material[rsm_tri[texel]]] < 1.0)
+    trace_corner_cisp(p, sheet, origin, n, d_in, transmissive, rsm_ior[texel], light, rsm_opaque_depth,
+                      rsm_depth_bounds, camera, cam_depth, cam_depth_bounds, cam_position, cam_normal, max_steps,
+                      thickness, thickness_rel, t_max, use_cascade, rec)
 
 
 @wp.kernel
@@ -520,8 +592,7 @@ def trace_grid_world(
     rec: Records,  # (2 · corners,) (write)
 ):
     """One thread per grid photon: its corner's surface where the light's ray first meets the scene (BVH),
-    its sheet's bounce, SSPM's world-space trace (:func:`world_trace`) and depth-visibility test
-    (:func:`camera_receiver`), recorded with unit power: the record's throughput is what it kept."""
+    then :func:`trace_corner_world`."""
     p = wp.tid()
     clear_record(rec, p)
     sheet, sx, sy = grid_corner(grid, p)
@@ -536,18 +607,5 @@ def trace_grid_world(
     if light_kind != 0:
         d_in = wp.normalize(x - light_pos)
     m = ws.triangle_material[tri]
-    ok, d = grid_bounce(sheet, d_in, n, int(ws.opacity[m] < 1.0), ws.ior[m])
-    if ok == 0:
-        return
-    discard = tally_new()  # world_trace books the unit photon's ending here; the splat books the cells' power
-    status, y, nr, d2, kept, state = world_trace(ws, x, ng, d, wp.vec3(1.0), wp.rand_init(seed, p),
-                                                 roughness_cutoff, t_max, max_bounces, discard)
-    entry = status
-    pix = int(-1)
-    if status == WT_LANDED:
-        entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
-    rec.entry[p] = entry
-    rec.pos[p] = y
-    rec.pix[p] = pix
-    rec.dir[p] = d2
-    rec.throughput[p] = kept
+    trace_corner_world(p, sheet, x, n, ng, d_in, int(ws.opacity[m] < 1.0), ws.ior[m], ws, cam, seed,
+                       roughness_cutoff, thickness, thickness_rel, t_max, max_bounces, rec)

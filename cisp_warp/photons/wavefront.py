@@ -28,6 +28,16 @@ from .base import PhotonPass, frame_random
 MAX_SPAN = 64  #: [pixels] a landing triangle wider or taller than this is not one wavefront: point fallback
 
 
+def make_wavefront(photon_pass: PhotonPass, cam):
+    """The pass's wavefront splat over the grid its settings name: the RSM's texels (:class:`WavefrontSplat`) or the
+    specular mesh's triangles (:class:`~.meshgrid.MeshWavefrontSplat`)."""
+    if photon_pass.settings.wavefront_grid == "mesh":
+        from .meshgrid import MeshWavefrontSplat
+
+        return MeshWavefrontSplat(photon_pass, cam)
+    return WavefrontSplat(photon_pass, cam)
+
+
 def grid_for(width: int, height: int, photons: int) -> tuple[int, int, int]:
     """(cell edge in texels, cells across, cells down) of a grid of about ``photons`` cells over a view."""
     cell = max(1, int(round(math.sqrt(width * height / max(photons, 1)))))

@@ -58,9 +58,9 @@ class SSPM(_WorldPass):
         if settings.splat == "point":
             self.keep_photon_m2(gbuffer.width * gbuffer.height)
         if settings.splat == "wavefront":
-            from .wavefront import WavefrontSplat
+            from .wavefront import make_wavefront
 
-            self.wavefront = WavefrontSplat(self, self.cam)
+            self.wavefront = make_wavefront(self, self.cam)
         #: (2N,) each photon's final entry and power, then its absorption at further bounces, added to the ledger
         #: after the trace (K.trace_sspm)
         n_out = 2 * self.max_photons_per_view() if self.wavefront is None else 1
