@@ -121,8 +121,34 @@ def map_visibility(view: ViewParams, depth: wp.array(dtype=wp.float32), base: in
     return vis
 
 
+@wp.func
+def same_view(a: ViewParams, b: ViewParams) -> int:
+    """1 when every field of ``a`` equals ``b``'s (bitwise for finite values), else 0."""
+    same = int(a.fx == b.fx and a.fy == b.fy and a.cx == b.cx and a.cy == b.cy and a.near == b.near and a.far == b.far
+               and a.width == b.width and a.height == b.height and a.orthographic == b.orthographic)
+    for i in range(4):
+        for j in range(4):
+            if a.world_to_view[i, j] != b.world_to_view[i, j] or a.view_to_world[i, j] != b.view_to_world[i, j]:
+                same = 0
+    return same
+
+
+@wp.kernel
+def sky_inputs_changed(
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera, then the last frame's (frame.FrameInputs, read)
+    force: int,  # 1: the irradiance must be computed whatever the cameras (first frame, occlusion maps redrawn)
+    changed: wp.array(dtype=wp.int32),  # (1,) 1 when sky_irradiance_kernel must compute this frame (write)
+):
+    """One thread: whether the sky irradiance of the last frame still holds. Its inputs are the camera's opaque
+    G-buffer (a function of the camera and the opaque geometry), the occlusion maps and the sky: with the opaque
+    geometry static (else ``force``), the same camera gives the same G-buffer, bit for bit, hence the same
+    irradiance. The water is not among its inputs (not in the opaque layer, not in the maps)."""
+    changed[0] = wp.where(force != 0 or same_view(cameras[0], cameras[1]) == 0, 1, 0)
+
+
 @wp.kernel
 def sky_irradiance_kernel(
+    changed: wp.array(dtype=wp.int32),  # (1,) sky_inputs_changed: 0 keeps the last frame's irradiance (read)
     depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
     position: wp.array(dtype=wp.vec3),  # (H*W,) world position [m] (read)
     normal: wp.array(dtype=wp.vec3),  # (H*W,) unit normal (read)
@@ -132,9 +158,11 @@ def sky_irradiance_kernel(
     luminance: wp.array(dtype=wp.float32),  # (K,) sky luminance along ω_k [W/(m² sr)] (read)
     map_depth: wp.array(dtype=wp.float32),  # (K*S*S,) occlusion maps, nearest opaque depth [m] (read)
     map_texels: int,  # S*S
-    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) sky irradiance [W/m²] (write)
+    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) sky irradiance [W/m²] (write when ``changed``)
 ):
     p = wp.tid()
+    if changed[0] == 0:
+        return
     if depth[p] <= 0.0:
         irradiance[p] = wp.vec3(0.0)
         return
@@ -259,6 +287,9 @@ class SkyLighting:
                 dynamic_opaque = True
         self.dynamic = dynamic_opaque  #: opaque geometry moves: the maps are redrawn every frame
         self._drawn = False
+        #: (1,) int32: whether this frame computes the irradiance (``sky_inputs_changed``); else the last frame's stays
+        self.changed = wp.ones(1, dtype=wp.int32, device=d)
+        self._computed = False  #: ``irradiance`` holds some frame's result (a later frame may keep it)
 
     @staticmethod
     def _empty_view() -> ViewParams:
@@ -277,15 +308,24 @@ class SkyLighting:
                               self.map_depth[k * texels : (k + 1) * texels], self.tri_scratch])
         self._drawn = True
 
-    def render(self, raster, gbuffer) -> None:
-        """Sky irradiance of this frame's G-buffer into ``irradiance`` (maps redrawn when needed)."""
+    def render(self, raster, gbuffer, cameras: wp.array) -> None:
+        """Sky irradiance of this frame's G-buffer into ``irradiance`` (maps redrawn when needed).
+
+        ``cameras``: (2,) ViewParams, the camera ``gbuffer`` was drawn with and the last frame's (``FrameInputs``),
+        the last frame being the one whose irradiance ``irradiance`` holds. When they are the same and the opaque
+        geometry is static, the G-buffer is the last frame's and the irradiance is kept (decided on the device,
+        so a captured frame keeps deciding); the first frame, and every frame of a scene whose opaque geometry
+        moves, computes it."""
         if self.dynamic or not self._drawn:
             self.render_maps(raster)
+        force = int(self.dynamic or not self._computed)
+        wp.launch(sky_inputs_changed, dim=1, device=self.device, inputs=[cameras, force, self.changed])
+        self._computed = True
         wp.launch(sky_irradiance_kernel, dim=gbuffer.width * gbuffer.height, device=self.device,
-                  inputs=[gbuffer.depth, gbuffer.position, gbuffer.normal, self.sh, self.view_params,
+                  inputs=[self.changed, gbuffer.depth, gbuffer.position, gbuffer.normal, self.sh, self.view_params,
                           self.directions, self.luminance, self.map_depth, self.map_size * self.map_size,
                           self.irradiance])
 
 
-__all__ = ["SkyLighting", "SkyMap", "fibonacci_directions", "latlong_directions", "sh_basis", "sky_map",
-           "sky_radiance", "sky_sh_irradiance"]
+__all__ = ["SkyLighting", "SkyMap", "fibonacci_directions", "latlong_directions", "same_view", "sh_basis",
+           "sky_map", "sky_radiance", "sky_sh_irradiance"]

@@ -111,6 +111,49 @@ def test_uniform_sky_on_an_open_plane_gives_pi_L_and_occlusion_darkens(device):
     assert e[open_].min() > 0.9 and e.max() <= 1.0 + 1e-5
 
 
+def test_sky_irradiance_is_kept_only_while_its_inputs_stand_still(device):
+    """A frame with the last frame's camera and static opaque geometry keeps the irradiance (a poisoned buffer stays
+    poisoned: the kernel did not run); a moved camera recomputes it, equal bit for bit to a fresh renderer's frame;
+    moving opaque geometry, or the first frame, always computes."""
+    from dataclasses import replace
+
+    L = (2.0, 3.0, 4.0)
+    floor = (analytic.quad(0, 0, 0, (4, 0, 0), (0, 0, -4)), 0)
+    roof = (analytic.quad(0, 0.3, 0, (1, 0, 0), (0, 0, 1)), 0)
+    settings = RenderSettings(method="none", sky_maps=16, sky_map_size=64)
+    scene = lambda eye: _sky_scene([floor, roof], Sky("/Sky", L), eye=eye, target=(0.0, 0.0, -1.0))  # noqa: E731
+    eye0, eye1 = (0.0, 0.4, 3.8), (0.3, 0.5, 3.6)
+    r = Renderer(scene(eye0), settings, device=device)
+    r.render_frame()
+    first = r.sky_irradiance.numpy().copy()
+    assert (first > 0).any()
+    r.sky_irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    r.render_frame()  # same camera: kept
+    assert np.all(r.sky_irradiance.numpy() == -1.0)
+    r.sky_irradiance.assign(first)
+    r.render_frame()
+    np.testing.assert_array_equal(r.sky_irradiance.numpy(), first)
+    r.set_camera(replace(scene(eye1).camera, width=r.width, height=r.height))
+    r.render_frame()  # moved: computed
+    fresh = Renderer(scene(eye1), settings, device=device)
+    fresh.render_frame()
+    moved = r.sky_irradiance.numpy()
+    assert not np.array_equal(moved, first)
+    np.testing.assert_array_equal(moved, fresh.sky_irradiance.numpy())
+    r.sky_irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    r.render_frame()  # standing still again: kept
+    assert np.all(r.sky_irradiance.numpy() == -1.0)
+    r.sky.dynamic = True  # as when opaque geometry moves: maps redrawn and the irradiance computed every frame
+    r.render_frame()
+    np.testing.assert_array_equal(r.sky_irradiance.numpy(), moved)
+    # a renderer's first frame computes although both cameras it reads are the same
+    fresh.sky_irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    again = Renderer(scene(eye1), settings, device=device)
+    again.sky.irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    again.render_frame()
+    np.testing.assert_array_equal(again.sky_irradiance.numpy(), moved)
+
+
 def test_camera_rays_that_miss_see_the_sky(device):
     tex = np.ones((4, 8, 3), np.float32)
     tex[:2] *= 3.0  # upper half brighter
