@@ -73,6 +73,28 @@ def test_device_fit_matches_numpy_fit(device, scene, cascades):
     _assert_same_fit(dev, _fitted(r), f"{scene}, {cascades} cascade(s)")
 
 
+@pytest.mark.parametrize("scene", ["pool", "point_closeup", "cornell"])
+def test_pilot_branches_equal_one_thread_per_texel(device, scene):
+    """The pilot traced one thread per texel and branch (pilot_branches + pilot_nearest) gives the one-thread-per-
+    texel kernel's receiver depths bit for bit (the twin, pilot_receivers), with some texels seen by both branches."""
+    r = Renderer(SCENES[scene](device), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000),
+                 device=device)
+    r.render_frame()
+    f = r.fitter
+    split = [d.numpy().copy() for d in f.receiver_depth_all]
+    both = sum(int(((b[:, 0] < np.inf) & (b[:, 1] < np.inf)).sum()) for b in
+               (x.numpy().reshape(-1, 2, f.lights[0].pilot[0].width ** 2) for x in f.branch_depth_all))
+    for d in f.receiver_depth_all:
+        d.fill_(-1.0)
+    f.one_thread_per_texel = True
+    f.trace_pilots(r.raster, r.view_params, 0)
+    assert any((d > 0).any() for d in split)
+    for a, b in zip(split, f.receiver_depth_all):
+        np.testing.assert_array_equal(a, b.numpy())
+    if scene == "pool":
+        assert both > 0  # the refracted branch competes with a reflected one somewhere
+
+
 def test_device_fit_forced_cascades_and_empty_pilot(device):
     """Hand-made receiver depths (a near patch inside a far band, then nothing): the device fit nests two
     cascades as the numpy fit does, and leaves every cascade inactive (far = 0, no photons) when nothing is seen."""

@@ -111,6 +111,105 @@ def pilot_receivers(
     receiver_depth[p] = nearest
 
 
+#: a branch's receiver depth in ``pilot_branches``' scratch when it lands nowhere the camera sees
+PILOT_NONE = wp.constant(float("inf"))
+#: threads per block of ``pilot_branches`` on CUDA: a 128² pilot's 2 × 16k branches in 512 blocks, spread over every
+#: SM (blocks of 256 over one branch a thread filled 64 SMs of an H100's 132 with 8 warps each)
+PILOT_BLOCK = 64
+
+
+@wp.kernel
+def pilot_branches(
+    light: ViewParams,  # a pilot (whole) view of the light
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
+    rsm_position: wp.array(dtype=wp.vec3),  # (P*P,) specular layer [m] (read)
+    rsm_normal: wp.array(dtype=wp.vec3),  # (P*P,) authored unit normal (read)
+    rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
+    rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
+    rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
+    rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) -1 = none (read)
+    geometry: SurfaceGeometry,
+    ws: WorldScene,
+    cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+    roughness_cutoff: float,
+    thickness: float,  # [m] depth-visibility tolerance, absolute
+    thickness_rel: float,  # relative (× depth)
+    t_max: float,  # [m]
+    max_bounces: int,
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream, the seed third (frame.FrameInputs.randoms, read)
+    stream: int,  # this pilot view's stream
+    branch_depth: wp.array(dtype=wp.float32),  # (2*P*P,) camera depth [m] where branch b of texel p lands, at
+    # b*P*P + p; PILOT_NONE where it lands nowhere the camera sees (write)
+):
+    """:func:`pilot_receivers` with one thread per texel and branch (threads 0..P²-1 reflect, P²..2P²-1 refract,
+    so a warp traces alike): twice the threads for a launch of 16k texels that filled half the GPU, and a warp
+    waits for its own branch's longest trace, not for both. :func:`pilot_nearest` takes the nearer branch."""
+    tid = wp.tid()
+    n = light.width * light.height
+    branch = tid / n
+    p = tid - branch * n
+    branch_depth[tid] = PILOT_NONE
+    cam.view = cameras[0]
+    seed = randoms[stream][2]
+    tri = rsm_tri[p]
+    if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
+        return
+    lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
+    x, n_s = surface_at_sample(lo, ld, tri, rsm_position[p], rsm_normal[p], geometry)
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(x - light_pos)
+    nn = n_s
+    eta = rsm_ior[p]
+    if wp.dot(d_in, n_s) > 0.0:
+        nn = -n_s
+        eta = 1.0 / eta
+    d = reflect(d_in, nn)
+    if branch == 1:
+        transmissive = int(ws.opacity[ws.triangle_material[tri]] < 1.0)
+        if transmissive == 0:
+            return
+        d = refract(d_in, nn, eta)
+        if wp.length(d) == 0.0:  # total internal reflection
+            return
+    tally = tally_new()  # the pilot's bookings: discarded
+    state = wp.rand_init(seed, 2 * p + branch)
+    status, y, nr, d_end, power, state = world_trace(ws, x, n_s, d, wp.vec3(1.0), state, roughness_cutoff, t_max,
+                                                     max_bounces, tally)
+    if status != WT_LANDED:
+        return
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        return
+    zc = cam.depth[pix]
+    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc or wp.dot(-d_end, cam.normal[pix]) < 0.0:
+        return
+    branch_depth[tid] = q[2]
+
+
+@wp.kernel
+def pilot_nearest(
+    branch_depth: wp.array(dtype=wp.float32),  # (V*2*P*P,) each pilot view's pilot_branches scratch in turn (read)
+    texels: int,  # P*P
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (write)
+):
+    """Texel g's receiver depth from its two branches, as :func:`pilot_receivers` keeps it: the reflected
+    branch's depth, then the refracted one's where there was none (0) or it is nearer."""
+    g = wp.tid()
+    b = g / texels
+    p = g - b * texels
+    nearest = float(0.0)
+    d0 = branch_depth[2 * b * texels + p]
+    d1 = branch_depth[(2 * b + 1) * texels + p]
+    if d0 != PILOT_NONE:
+        nearest = d0
+    if d1 != PILOT_NONE and (nearest == 0.0 or d1 < nearest):
+        nearest = d1
+    receiver_depth[g] = nearest
+
+
 #: turns about the pilot view's axis tried by the fit, in [0, 90°) (``views.fit_angle``'s ``steps``)
 FIT_STEPS = 18
 FIT_BLOCK = 256  #: threads per block of the fit's reductions on CUDA (one per block on the CPU)
@@ -469,6 +568,16 @@ class LightViewFitter:
         #: per light: its pilots' receiver depths [m], (V*P*P,) float32, and one slice per pilot view
         self.receiver_depth_all = [wp.zeros(sum(r.width * r.height for r in lm.pilot), dtype=wp.float32, device=d)
                                    for lm in self.lights]
+        #: per light: its pilots' pilot_branches scratch, (V*2*P*P,) float32, and one (2*P*P,) slice per pilot view
+        self.branch_depth_all = [wp.zeros(2 * sum(r.width * r.height for r in lm.pilot), dtype=wp.float32, device=d)
+                                 for lm in self.lights]
+        self.branch_depth = []
+        for lm, whole in zip(self.lights, self.branch_depth_all):
+            n = 2 * lm.pilot[0].width * lm.pilot[0].height
+            self.branch_depth.append([whole[i * n : (i + 1) * n] for i in range(len(lm.pilot))])
+        #: pilot_receivers (one thread per texel, both branches) instead of pilot_branches + pilot_nearest: the twin
+        self.one_thread_per_texel = False
+        self.pilot_block = PILOT_BLOCK if self.device.is_cuda else 256
         self.receiver_depth = []
         for lm, whole in zip(self.lights, self.receiver_depth_all):
             n = lm.pilot[0].width * lm.pilot[0].height
@@ -505,15 +614,24 @@ class LightViewFitter:
         self.cam.view = camera
         for lm in self.lights:
             lm.render_pilot(raster)
-        for li, lm, depths in zip(self.light_index, self.lights, self.receiver_depth):
+        for i, (li, lm, depths) in enumerate(zip(self.light_index, self.lights, self.receiver_depth)):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
             for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
                 sp = r.specular
-                wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=[
-                    r.view.params(), int(lm.light.kind), light_pos, sp.position, sp.normal, r.flux, sp.roughness,
-                    sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
-                    float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel), float(self.t_max),
-                    int(self.max_bounces), self.inputs.randoms, self.inputs.pilot_stream(li, vi), depth])
+                inputs = [r.view.params(), int(lm.light.kind), light_pos, sp.position, sp.normal, r.flux, sp.roughness,
+                          sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
+                          float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel),
+                          float(self.t_max), int(self.max_bounces), self.inputs.randoms,
+                          self.inputs.pilot_stream(li, vi)]
+                if self.one_thread_per_texel:
+                    wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=inputs + [depth])
+                else:
+                    wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
+                              inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
+            if not self.one_thread_per_texel:
+                p = lm.pilot[0]
+                wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
+                          inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
 
     def fit_device(self) -> None:
         """Fit every light's cascades to its pilots' receiver depths in three launches per light."""
