@@ -243,7 +243,7 @@ def _box_reduce(umin: wp.float64, umax: wp.float64, vmin: wp.float64, vmax: wp.f
 
 
 @wp.kernel
-def fit_reduce_angles(
+def fit_reduce_angles_naive(
     receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read)
     width: int,  # P
     height: int,
@@ -252,7 +252,8 @@ def fit_reduce_angles(
     # box (min u, max u, min v, max v) [pilot pixels]; at k = FIT_STEPS (min depth, max depth, count, 0) (write)
 ):
     """One block per (pilot view, turn): the box of the useful texels (receiver depth > 0) turned by that
-    angle, each thread over a strided share of the texels, reduced with Warp tiles (``views.fit_angle``)."""
+    angle, each thread over a strided share of the texels, reduced with Warp tiles (``views.fit_angle``).
+    The twin of :func:`fit_reduce_angles` (every texel turned)."""
     b, k, lane = wp.tid()
     n = width * height
     big = wp.float64(1.0e300)
@@ -316,7 +317,7 @@ def _split(z_near: wp.float64, z_far: wp.float64, c: int, cascades: int) -> wp.f
 
 
 @wp.kernel
-def fit_reduce_cascades(
+def fit_reduce_cascades_naive(
     receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) (read)
     width: int,
     height: int,
@@ -328,7 +329,8 @@ def fit_reduce_cascades(
     angles: wp.array(dtype=wp.float64),  # (V,) the fitted turn [rad] (write)
 ):
     """One block per (pilot view, cascade): the tightest turn (``views.fit_angle``), the cascade's depth split
-    (``views.cascade_splits``) and the turned box of the useful texels it covers (``views.fit_windows``)."""
+    (``views.cascade_splits``) and the turned box of the useful texels it covers (``views.fit_windows``).
+    The twin of :func:`fit_reduce_cascades` (every texel turned)."""
     b, ci, lane = wp.tid()
     n = width * height
     angle = _fitted_angle(boxes, b)
@@ -354,6 +356,114 @@ def fit_reduce_cascades(
             vmax = wp.max(vmax, v)
             count += wp.float64(1.0)
         p += wp.block_dim()
+    box = _box_reduce(umin, umax, vmin, vmax)
+    total = wp.tile_sum(wp.tile(count))
+    if lane == 0:
+        cascade_boxes[b * cascades + ci] = box
+        cascade_counts[b * cascades + ci] = total[0]
+        if ci == 0:
+            angles[b] = angle
+
+
+@wp.func
+def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: int, height: int, lane: int, bd: int,
+                c: wp.float64, s: wp.float64, aspect: wp.float64, split: wp.float64, turn: int):
+    """This thread's share of a turned box by columns: (min u, max u, min v, max v, count, min z, max z) over the
+    useful texels (0 < z <= ``split``; an infinite ``split`` takes every z > 0) of its columns (``i = lane % width``, then every ``bd``-th) and rows
+    (``j = lane / width``, then every ``max(1, bd / width)``-th: a warp reads one row's texels side by side).
+
+    Only a column's first and last useful rows are turned (``turn`` != 0): for a turn in [0°, 90°) (c > 0, s >= 0)
+    ``_turn``'s u = (hw + c·dx) − (s·aspect)·dy falls and v = (hh + s·dx/aspect) + c·dy rises with the row,
+    operation by operation (each a correctly rounded product or sum of a monotone term), so the column's extremes
+    of u and v lie at those rows: the same values, bit for bit, as turning every texel."""
+    big = wp.float64(1.0e300)
+    umin = big
+    umax = -big
+    vmin = big
+    vmax = -big
+    zmin = big
+    zmax = -big
+    count = wp.float64(0.0)
+    groups = wp.max(1, bd / width)
+    if lane < groups * width:
+        i = lane % width
+        while i < width:
+            first = int(-1)
+            last = int(-1)
+            j = lane / width
+            while j < height:
+                z = receiver_depth[base + j * width + i]
+                if z > 0.0 and wp.float64(z) <= split:
+                    if first < 0:
+                        first = j
+                    last = j
+                    count += wp.float64(1.0)
+                    zmin = wp.min(zmin, wp.float64(z))
+                    zmax = wp.max(zmax, wp.float64(z))
+                j += groups
+            if first >= 0 and turn != 0:
+                u0, v0 = _turn(i, first, width, height, c, s, aspect)
+                u1, v1 = _turn(i, last, width, height, c, s, aspect)
+                umin = wp.min(umin, wp.min(u0, u1))
+                umax = wp.max(umax, wp.max(u0, u1))
+                vmin = wp.min(vmin, wp.min(v0, v1))
+                vmax = wp.max(vmax, wp.max(v0, v1))
+            i += bd
+    return umin, umax, vmin, vmax, count, zmin, zmax
+
+
+@wp.kernel
+def fit_reduce_angles(
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read)
+    width: int,  # P
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
+    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) per view and turn k < FIT_STEPS the useful texels' turned
+    # box (min u, max u, min v, max v) [pilot pixels]; at k = FIT_STEPS (min depth, max depth, count, 0) (write)
+):
+    """One block per (pilot view, turn): the box of the useful texels (receiver depth > 0) turned by that angle
+    (``views.fit_angle``), reduced with Warp tiles; each thread reads its columns' texels and turns only each column's
+    first and last useful texel (:func:`_column_box`). Equal, bit for bit, to :func:`fit_reduce_angles_naive`, which
+    turns every texel (a float64 division each)."""
+    b, k, lane = wp.tid()
+    c = wp.cos(_step_angle(k))
+    s = wp.sin(_step_angle(k))
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
+                                                            wp.block_dim(), c, s, aspects[b], wp.float64(PILOT_NONE),
+                                                            wp.where(k == FIT_STEPS, 0, 1))
+    if k == FIT_STEPS:
+        umin = zmin
+        umax = zmax
+    box = _box_reduce(umin, umax, vmin, vmax)
+    total = wp.tile_sum(wp.tile(count))
+    if lane == 0:
+        if k == FIT_STEPS:
+            box = wp.vec4d(box[0], box[1], total[0], wp.float64(0.0))
+        boxes[b * (FIT_STEPS + 1) + k] = box
+
+
+@wp.kernel
+def fit_reduce_cascades(
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) (read)
+    width: int,
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
+    cascades: int,
+    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) from fit_reduce_angles (read)
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) turned box of the texels nearer than each split (write)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) those texels (write)
+    angles: wp.array(dtype=wp.float64),  # (V,) the fitted turn [rad] (write)
+):
+    """One block per (pilot view, cascade): the tightest turn (``views.fit_angle``), the cascade's depth split
+    (``views.cascade_splits``) and the turned box of the useful texels it covers (``views.fit_windows``), by columns
+    as :func:`fit_reduce_angles`. Equal, bit for bit, to :func:`fit_reduce_cascades_naive`."""
+    b, ci, lane = wp.tid()
+    angle = _fitted_angle(boxes, b)
+    zs = boxes[b * (FIT_STEPS + 1) + FIT_STEPS]
+    split = _split(zs[0], zs[1], ci, cascades)
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
+                                                            wp.block_dim(), wp.cos(angle), wp.sin(angle), aspects[b],
+                                                            split, 1)
     box = _box_reduce(umin, umax, vmin, vmax)
     total = wp.tile_sum(wp.tile(count))
     if lane == 0:
