@@ -225,3 +225,28 @@ def test_dome_light_is_read_from_usd_with_its_texture(tmp_path):
 
     with pytest.raises(SceneError, match=r"prim '/World/Sky'.*inputs:texture:file.*does not exist"):
         load_usd(tmp_path / "s.usda")
+
+
+def test_direct_light_two_maps_a_launch_equal_one_a_launch(device):
+    """DirectLighting's paired launches (direct_light_pair) give direct_light's irradiance bit for bit: the pool
+    (sun + spot: one pair) and a point light's six cube faces with a spot (seven maps: three pairs and one alone)."""
+    from cisp_warp.scene import Light, LightKind
+    from cisp_warp.usd import load_usd
+
+    pool = load_usd("scenes_usd/pool.usda", width=48, height=36, device=device)
+    floor = (analytic.quad(0, 0, 0, (2, 0, 0), (0, 0, -2)), 0)
+    box = (analytic.quad(0, 0.4, 0, (0.3, 0, 0), (0, 0, 0.3)), 0)
+    lamps = [Light(LightKind.POINT, "lamp", intensity=50.0, position=(0.2, 1.0, 0.1), direction=(0, -1, 0)),
+             Light(LightKind.SPOT, "spot", intensity=80.0, position=(-0.5, 1.5, 0.3), direction=tuple(np.array([0.3, -1.0, -0.1]) / np.linalg.norm([0.3, -1.0, -0.1])),
+                   cone_angle=math.radians(40), cone_softness=0.1)]
+    lamp_scene = analytic.build([floor, box], _sky_scene([floor], None, eye=(0.0, 2.0, 2.5)).camera, lamps, (FLOOR,))
+    for scene, maps in ((pool, 2), (lamp_scene, 7)):
+        r = Renderer(scene, RenderSettings(method="none", rsm_size=64), device=device)
+        r.render_frame()
+        assert sum(len(lm.shadow_maps()) for lm in r.lights) == maps
+        paired = r.direct.irradiance.numpy().copy()
+        assert (paired > 0).any()
+        r.direct.pairs = False
+        r.direct.irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+        r.direct.render(r.gbuffer, r.lights)
+        np.testing.assert_array_equal(r.direct.irradiance.numpy(), paired)
