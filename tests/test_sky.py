@@ -57,6 +57,13 @@ def test_latlong_lookup_matches_twin_and_convention(device, rng):
     assert dirs[0, 0, 1] > 0.98 and dirs[-1, 0, 1] < -0.98
     np.testing.assert_allclose(dirs[4, 8], [0, 0, 1], atol=0.2)
     np.testing.assert_allclose(sky_radiance_np(plain, dirs.reshape(-1, 3)), tex.reshape(-1, 3), rtol=1e-6)
+    # no sky: zero (+0.0, as the black map's bilinear sum gives) without reading the map
+    none = sky_map(None, device)
+    assert none.present == 0 and sky_map(sky, device).present == 1
+    out.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    wp.launch(_lookup, len(d), inputs=[none, wp.array(d.astype(np.float32), dtype=wp.vec3, device=device), out],
+              device=device)
+    assert np.all(out.numpy() == 0.0) and not np.signbit(out.numpy()).any()
 
 
 def test_sh_irradiance_is_exact_for_uniform_and_linear_skies():
