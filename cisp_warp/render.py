@@ -264,8 +264,8 @@ class Renderer:
 
     def _steady_key(self) -> tuple:
         """What a captured frame bakes in besides ``inputs``: the lights (a moved light re-fits its whole views on
-        the host) and whether the sky's maps are drawn and its irradiance computed once (the first frame forces it)."""
-        sky = None if self.sky is None else (self.sky.dynamic, self.sky._drawn, self.sky._computed)
+        the host) and whether the sky's maps are drawn."""
+        sky = None if self.sky is None else (self.sky.dynamic, self.sky._drawn)
         return tuple(id(lm.light) for lm in self.lights) + (sky,)
 
     def render_frame(self, timer=None, graph: bool | None = None) -> None:

@@ -140,15 +140,23 @@ def same_view(a: ViewParams, b: ViewParams) -> int:
 
 @wp.kernel
 def sky_inputs_changed(
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera, then the last frame's (frame.FrameInputs, read)
-    force: int,  # 1: the irradiance must be computed whatever the cameras (first frame, occlusion maps redrawn)
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+    force: int,  # 1: compute whatever the camera (the occlusion maps are redrawn every frame: opaque geometry moves)
+    computed_for: wp.array(dtype=ViewParams),  # (1,) the camera ``irradiance`` was last computed for (read, write)
     changed: wp.array(dtype=wp.int32),  # (1,) 1 when sky_irradiance_kernel must compute this frame (write)
 ):
-    """One thread: whether the sky irradiance of the last frame still holds. Its inputs are the camera's opaque
-    G-buffer (a function of the camera and the opaque geometry), the occlusion maps and the sky: with the opaque
-    geometry static (else ``force``), the same camera gives the same G-buffer, bit for bit, hence the same
-    irradiance. The water is not among its inputs (not in the opaque layer, not in the maps)."""
-    changed[0] = wp.where(force != 0 or same_view(cameras[0], cameras[1]) == 0, 1, 0)
+    """One thread: whether the irradiance in the buffer still holds. Its inputs are the camera's opaque G-buffer (a
+    function of the camera and the opaque geometry), the occlusion maps and the sky: with the opaque geometry static
+    (else ``force``), the camera it was computed for gives the same G-buffer, bit for bit, hence the same
+    irradiance. Compared with the camera of the buffer's contents, not the last frame's: frames that leave the sky
+    out (``sequence.render_history_frame``) do not fool it. The water is not an input (not in the opaque layer, not
+    in the maps)."""
+    camera = cameras[0]
+    if force != 0 or same_view(camera, computed_for[0]) == 0:
+        changed[0] = 1
+        computed_for[0] = camera
+    else:
+        changed[0] = 0
 
 
 @wp.kernel
@@ -293,9 +301,10 @@ class SkyLighting:
                 dynamic_opaque = True
         self.dynamic = dynamic_opaque  #: opaque geometry moves: the maps are redrawn every frame
         self._drawn = False
-        #: (1,) int32: whether this frame computes the irradiance (``sky_inputs_changed``); else the last frame's stays
+        #: (1,) int32: whether this frame computes the irradiance (``sky_inputs_changed``); else the buffer's stays
         self.changed = wp.ones(1, dtype=wp.int32, device=d)
-        self._computed = False  #: ``irradiance`` holds some frame's result (a later frame may keep it)
+        #: (1,) ViewParams: the camera ``irradiance`` was computed for (zeros, a view of no pixels, until the first)
+        self.computed_for = wp.zeros(1, dtype=ViewParams, device=d)
 
     @staticmethod
     def _empty_view() -> ViewParams:
@@ -317,16 +326,14 @@ class SkyLighting:
     def render(self, raster, gbuffer, cameras: wp.array) -> None:
         """Sky irradiance of this frame's G-buffer into ``irradiance`` (maps redrawn when needed).
 
-        ``cameras``: (2,) ViewParams, the camera ``gbuffer`` was drawn with and the last frame's (``FrameInputs``),
-        the last frame being the one whose irradiance ``irradiance`` holds. When they are the same and the opaque
-        geometry is static, the G-buffer is the last frame's and the irradiance is kept (decided on the device,
-        so a captured frame keeps deciding); the first frame, and every frame of a scene whose opaque geometry
-        moves, computes it."""
+        ``cameras``: (2,) ViewParams, the camera ``gbuffer`` was drawn with first (``FrameInputs``). When it is the
+        camera the buffer's irradiance was computed for and the opaque geometry is static, the G-buffer is that
+        frame's and the irradiance is kept (decided on the device, so a captured frame keeps deciding); the first
+        frame, and every frame of a scene whose opaque geometry moves, computes it."""
         if self.dynamic or not self._drawn:
             self.render_maps(raster)
-        force = int(self.dynamic or not self._computed)
-        wp.launch(sky_inputs_changed, dim=1, device=self.device, inputs=[cameras, force, self.changed])
-        self._computed = True
+        wp.launch(sky_inputs_changed, dim=1, device=self.device,
+                  inputs=[cameras, int(self.dynamic), self.computed_for, self.changed])
         wp.launch(sky_irradiance_kernel, dim=gbuffer.width * gbuffer.height, device=self.device,
                   inputs=[self.changed, gbuffer.depth, gbuffer.position, gbuffer.normal, self.sh, self.view_params,
                           self.directions, self.luminance, self.map_depth, self.map_size * self.map_size,

@@ -119,9 +119,9 @@ def test_uniform_sky_on_an_open_plane_gives_pi_L_and_occlusion_darkens(device):
 
 
 def test_sky_irradiance_is_kept_only_while_its_inputs_stand_still(device):
-    """A frame with the last frame's camera and static opaque geometry keeps the irradiance (a poisoned buffer stays
-    poisoned: the kernel did not run); a moved camera recomputes it, equal bit for bit to a fresh renderer's frame;
-    moving opaque geometry, or the first frame, always computes."""
+    """A frame with the camera the irradiance was computed for and static opaque geometry keeps it (a poisoned buffer
+    stays poisoned: the kernel did not run); a moved camera recomputes it, equal bit for bit to a fresh renderer's
+    frame, also after frames that left the sky out; moving opaque geometry, or the first frame, always computes."""
     from dataclasses import replace
 
     L = (2.0, 3.0, 4.0)
@@ -150,6 +150,17 @@ def test_sky_irradiance_is_kept_only_while_its_inputs_stand_still(device):
     r.sky_irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
     r.render_frame()  # standing still again: kept
     assert np.all(r.sky_irradiance.numpy() == -1.0)
+    # frames that leave the sky out (a chunk's warm-up) move the camera under it: the next full frame computes,
+    # although its camera is the last frame's
+    from cisp_warp.sequence import render_history_frame
+
+    r.sky_irradiance.assign(moved)
+    r.set_camera(replace(scene(eye0).camera, width=r.width, height=r.height))
+    render_history_frame(r)
+    r.render_frame()
+    np.testing.assert_array_equal(r.sky_irradiance.numpy(), first)
+    r.set_camera(replace(scene(eye1).camera, width=r.width, height=r.height))
+    r.render_frame()
     r.sky.dynamic = True  # as when opaque geometry moves: maps redrawn and the irradiance computed every frame
     r.render_frame()
     np.testing.assert_array_equal(r.sky_irradiance.numpy(), moved)
