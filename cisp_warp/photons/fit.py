@@ -3,13 +3,15 @@
 Per frame, after the camera's G-buffer and before the lights' RSM views are drawn, all on the device:
 
 1. every light's pilot views (its whole views, ``pilot_size``²) are drawn;
-2. :func:`pilot_receivers` sends one photon per pilot texel and branch (reflected; refracted where the
-   surface transmits) from the surface under the texel's centre, traces it through the scene's BVH
+2. :func:`pilot_branches` sends one photon per pilot texel and branch (reflected; refracted where the
+   surface transmits; a thread each) from the surface under the texel's centre, traces it through the scene's BVH
    (further specular bounces by Fresnel probability) and keeps the camera depth [m] where it lands on
-   a surface the camera sees (the depth-visibility test of the photon stores), 0 where neither lands;
+   a surface the camera sees (the depth-visibility test of the photon stores); :func:`pilot_nearest` keeps the
+   nearer branch per texel, 0 where neither lands (:func:`pilot_receivers`, one thread per texel, is the twin);
 3. three small kernels fit the cascades to those depths (``views.fit_angle`` and ``views.fit_windows`` on the
    device): :func:`fit_reduce_angles` reduces, per pilot view and each of ``FIT_STEPS`` turns about its axis, the
-   box of the turned useful texels (and their depth range) with Warp tiles, one block each;
+   box of the turned useful texels (and their depth range) with Warp tiles, one block each, turning only each
+   column's first and last useful texel (``fit_reduce_*_naive``, every texel turned, are the twins);
    :func:`fit_reduce_cascades` picks the tightest turn and reduces each cascade's box (texels nearer than its
    split); :func:`fit_solve` (one thread per light) grows, clips, merges and nests the windows and writes the
    cascades' views and states into ``LightMaps.views`` / ``states`` / ``outside`` (see ``LightMaps``);
