@@ -309,7 +309,7 @@ class Renderer:
             self.direct.render(g, self.lights)
         if self.sky is not None:
             with stage("sky"):
-                self.sky.render(self.raster, g)
+                self.sky.render(self.raster, g, self.inputs.cameras)
         if self.photons is not None:
             with stage("trace+store"):
                 self.photons.trace(g, self.view_params, self.frame)

@@ -129,6 +129,52 @@ def direct_light(
 
 
 @wp.kernel
+def direct_light_pair(
+    view_a: ViewParams,  # the first shadow map, as direct_light's arguments
+    depth_a: wp.array(dtype=wp.float32),
+    exclusive_a: int,
+    kind_a: int,
+    rgb_a: wp.vec3,
+    pos_a: wp.vec3,
+    dir_a: wp.vec3,
+    cone_a: float,
+    softness_a: float,
+    view_b: ViewParams,  # the second, added after it
+    depth_b: wp.array(dtype=wp.float32),
+    exclusive_b: int,
+    kind_b: int,
+    rgb_b: wp.vec3,
+    pos_b: wp.vec3,
+    dir_b: wp.vec3,
+    cone_b: float,
+    softness_b: float,
+    depth: wp.array(dtype=wp.float32),  # (H*W,) camera G-buffer (read)
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    first: int,  # 1: the frame's first shadow maps: write the irradiance, else add to it
+    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) direct irradiance [W/m²] (write or accumulate)
+):
+    """Two shadow maps in one pass: :func:`direct_light` for map a, then for map b, the same float32 sums in the
+    same order, with the G-buffer read and the irradiance written once instead of twice."""
+    p = wp.tid()
+    e = _direct(view_a, depth_a, exclusive_a, kind_a, rgb_a, pos_a, dir_a, cone_a, softness_a, depth, position, normal, p)
+    f = _direct(view_b, depth_b, exclusive_b, kind_b, rgb_b, pos_b, dir_b, cone_b, softness_b, depth, position, normal, p)
+    acc = wp.vec3(0.0)
+    add_e = e[0] != 0.0 or e[1] != 0.0 or e[2] != 0.0
+    add_f = f[0] != 0.0 or f[1] != 0.0 or f[2] != 0.0
+    if first != 0:
+        acc = wp.vec3(0.0) + e
+    elif add_e or add_f:
+        acc = irradiance[p]
+        if add_e:
+            acc = acc + e
+    if add_f:
+        acc = acc + f
+    if first != 0 or add_e or add_f:
+        irradiance[p] = acc
+
+
+@wp.kernel
 def surface_radiance(
     depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
     albedo: wp.array(dtype=wp.vec3),
@@ -238,24 +284,37 @@ class DirectLighting:
     def __init__(self, gbuffer: GBuffer, device):
         self.device = device
         self.irradiance = wp.zeros(gbuffer.width * gbuffer.height, dtype=wp.vec3, device=device)
+        self.pairs = True  #: two shadow maps a launch (False: one a launch, direct_light alone: the twin)
 
     def render(self, gbuffer: GBuffer, lights: list[LightMaps]) -> None:
-        """Write ``irradiance``: the first shadow map's launch writes every pixel (no memset first), the rest add."""
-        first = 1
-        if not any(lm.shadow_maps() for lm in lights):
-            self.irradiance.zero_()
+        """Write ``irradiance``: the first launch writes every pixel (no memset first), the rest add. Shadow maps go
+        two at a time (:func:`direct_light_pair`; the lights' maps in order, across lights), an odd one last alone
+        (:func:`direct_light`, the twin); ``pairs`` = False launches every map alone."""
+        maps = []
         for lm in lights:
             light = lm.light
-            maps = lm.shadow_maps()
+            light_maps = lm.shadow_maps()
             rgb = light.radiometric_rgb.astype(np.float32)
-            for view, depth in maps:
-                wp.launch(direct_light, dim=gbuffer.width * gbuffer.height, device=self.device,
-                          inputs=[view, depth, int(len(maps) > 1), int(light.kind), wp.vec3(*rgb),
-                                  wp.vec3(*np.asarray(light.position, np.float32)),
-                                  wp.vec3(*np.asarray(light.direction, np.float32)),
-                                  float(light.cone_angle), float(light.cone_softness),
-                                  gbuffer.depth, gbuffer.position, gbuffer.normal, first, self.irradiance])
-                first = 0
+            for view, depth in light_maps:
+                maps.append([view, depth, int(len(light_maps) > 1), int(light.kind), wp.vec3(*rgb),
+                             wp.vec3(*np.asarray(light.position, np.float32)),
+                             wp.vec3(*np.asarray(light.direction, np.float32)),
+                             float(light.cone_angle), float(light.cone_softness)])
+        if not maps:
+            self.irradiance.zero_()
+        g = [gbuffer.depth, gbuffer.position, gbuffer.normal]
+        n = gbuffer.width * gbuffer.height
+        first = 1
+        i = 0
+        while i < len(maps):
+            if self.pairs and i + 1 < len(maps):
+                wp.launch(direct_light_pair, dim=n, device=self.device,
+                          inputs=maps[i] + maps[i + 1] + g + [first, self.irradiance])
+                i += 2
+            else:
+                wp.launch(direct_light, dim=n, device=self.device, inputs=maps[i] + g + [first, self.irradiance])
+                i += 1
+            first = 0
 
 
-__all__ = ["DirectLighting", "composite", "direct_light", "LightKind"]
+__all__ = ["DirectLighting", "composite", "direct_light", "direct_light_pair", "LightKind"]

@@ -49,11 +49,16 @@ class SkyMap:
     width: int
     height: int
     to_local: wp.mat33  #: world direction -> dome-local direction
+    present: int  #: 1: a dome light; 0: none, black everywhere (the map is a black 1x2 and is not read)
 
 
 @wp.func
 def sky_radiance(sky: SkyMap, d: wp.vec3) -> wp.vec3:
-    """Radiance [W/(m² sr)] arriving from world direction ``d`` (towards the sky), bilinear in the map."""
+    """Radiance [W/(m² sr)] arriving from world direction ``d`` (towards the sky), bilinear in the map; zero without
+    a sky (what the black map gives for any finite ``d``, without its trigonometry and reads: 63% of the Cornell box's
+    pixels and every reflected ray leaving its water ask)."""
+    if sky.present == 0:
+        return wp.vec3(0.0)
     l = wp.normalize(sky.to_local * d)
     lon = wp.atan2(l[0], l[2])
     lat = wp.asin(wp.clamp(l[1], -1.0, 1.0))
@@ -121,8 +126,42 @@ def map_visibility(view: ViewParams, depth: wp.array(dtype=wp.float32), base: in
     return vis
 
 
+@wp.func
+def same_view(a: ViewParams, b: ViewParams) -> int:
+    """1 when every field of ``a`` equals ``b``'s (bitwise for finite values), else 0."""
+    same = int(a.fx == b.fx and a.fy == b.fy and a.cx == b.cx and a.cy == b.cy and a.near == b.near and a.far == b.far
+               and a.width == b.width and a.height == b.height and a.orthographic == b.orthographic)
+    for i in range(4):
+        for j in range(4):
+            if a.world_to_view[i, j] != b.world_to_view[i, j] or a.view_to_world[i, j] != b.view_to_world[i, j]:
+                same = 0
+    return same
+
+
+@wp.kernel
+def sky_inputs_changed(
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+    force: int,  # 1: compute whatever the camera (the occlusion maps are redrawn every frame: opaque geometry moves)
+    computed_for: wp.array(dtype=ViewParams),  # (1,) the camera ``irradiance`` was last computed for (read, write)
+    changed: wp.array(dtype=wp.int32),  # (1,) 1 when sky_irradiance_kernel must compute this frame (write)
+):
+    """One thread: whether the irradiance in the buffer still holds. Its inputs are the camera's opaque G-buffer (a
+    function of the camera and the opaque geometry), the occlusion maps and the sky: with the opaque geometry static
+    (else ``force``), the camera it was computed for gives the same G-buffer, bit for bit, hence the same
+    irradiance. Compared with the camera of the buffer's contents, not the last frame's: frames that leave the sky
+    out (``sequence.render_history_frame``) do not fool it. The water is not an input (not in the opaque layer, not
+    in the maps)."""
+    camera = cameras[0]
+    if force != 0 or same_view(camera, computed_for[0]) == 0:
+        changed[0] = 1
+        computed_for[0] = camera
+    else:
+        changed[0] = 0
+
+
 @wp.kernel
 def sky_irradiance_kernel(
+    changed: wp.array(dtype=wp.int32),  # (1,) sky_inputs_changed: 0 keeps the last frame's irradiance (read)
     depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
     position: wp.array(dtype=wp.vec3),  # (H*W,) world position [m] (read)
     normal: wp.array(dtype=wp.vec3),  # (H*W,) unit normal (read)
@@ -132,9 +171,11 @@ def sky_irradiance_kernel(
     luminance: wp.array(dtype=wp.float32),  # (K,) sky luminance along ω_k [W/(m² sr)] (read)
     map_depth: wp.array(dtype=wp.float32),  # (K*S*S,) occlusion maps, nearest opaque depth [m] (read)
     map_texels: int,  # S*S
-    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) sky irradiance [W/m²] (write)
+    irradiance: wp.array(dtype=wp.vec3),  # (H*W,) sky irradiance [W/m²] (write when ``changed``)
 ):
     p = wp.tid()
+    if changed[0] == 0:
+        return
     if depth[p] <= 0.0:
         irradiance[p] = wp.vec3(0.0)
         return
@@ -210,6 +251,7 @@ def sky_map(sky: Sky | None, device) -> SkyMap:
     m.height, m.width = int(L.shape[0]), int(L.shape[1])
     to_world = np.eye(3) if sky is None else np.asarray(sky.to_world, dtype=np.float64)
     m.to_local = wp.mat33(*np.linalg.inv(to_world).astype(np.float32).flatten())
+    m.present = int(sky is not None)
     return m
 
 
@@ -259,6 +301,10 @@ class SkyLighting:
                 dynamic_opaque = True
         self.dynamic = dynamic_opaque  #: opaque geometry moves: the maps are redrawn every frame
         self._drawn = False
+        #: (1,) int32: whether this frame computes the irradiance (``sky_inputs_changed``); else the buffer's stays
+        self.changed = wp.ones(1, dtype=wp.int32, device=d)
+        #: (1,) ViewParams: the camera ``irradiance`` was computed for (zeros, a view of no pixels, until the first)
+        self.computed_for = wp.zeros(1, dtype=ViewParams, device=d)
 
     @staticmethod
     def _empty_view() -> ViewParams:
@@ -277,15 +323,22 @@ class SkyLighting:
                               self.map_depth[k * texels : (k + 1) * texels], self.tri_scratch])
         self._drawn = True
 
-    def render(self, raster, gbuffer) -> None:
-        """Sky irradiance of this frame's G-buffer into ``irradiance`` (maps redrawn when needed)."""
+    def render(self, raster, gbuffer, cameras: wp.array) -> None:
+        """Sky irradiance of this frame's G-buffer into ``irradiance`` (maps redrawn when needed).
+
+        ``cameras``: (2,) ViewParams, the camera ``gbuffer`` was drawn with first (``FrameInputs``). When it is the
+        camera the buffer's irradiance was computed for and the opaque geometry is static, the G-buffer is that
+        frame's and the irradiance is kept (decided on the device, so a captured frame keeps deciding); the first
+        frame, and every frame of a scene whose opaque geometry moves, computes it."""
         if self.dynamic or not self._drawn:
             self.render_maps(raster)
+        wp.launch(sky_inputs_changed, dim=1, device=self.device,
+                  inputs=[cameras, int(self.dynamic), self.computed_for, self.changed])
         wp.launch(sky_irradiance_kernel, dim=gbuffer.width * gbuffer.height, device=self.device,
-                  inputs=[gbuffer.depth, gbuffer.position, gbuffer.normal, self.sh, self.view_params,
+                  inputs=[self.changed, gbuffer.depth, gbuffer.position, gbuffer.normal, self.sh, self.view_params,
                           self.directions, self.luminance, self.map_depth, self.map_size * self.map_size,
                           self.irradiance])
 
 
-__all__ = ["SkyLighting", "SkyMap", "fibonacci_directions", "latlong_directions", "sh_basis", "sky_map",
-           "sky_radiance", "sky_sh_irradiance"]
+__all__ = ["SkyLighting", "SkyMap", "fibonacci_directions", "latlong_directions", "same_view", "sh_basis",
+           "sky_map", "sky_radiance", "sky_sh_irradiance"]

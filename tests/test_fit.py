@@ -73,6 +73,28 @@ def test_device_fit_matches_numpy_fit(device, scene, cascades):
     _assert_same_fit(dev, _fitted(r), f"{scene}, {cascades} cascade(s)")
 
 
+@pytest.mark.parametrize("scene", ["pool", "point_closeup", "cornell"])
+def test_pilot_branches_equal_one_thread_per_texel(device, scene):
+    """The pilot traced one thread per texel and branch (pilot_branches + pilot_nearest) gives the one-thread-per-
+    texel kernel's receiver depths bit for bit (the twin, pilot_receivers), with some texels seen by both branches."""
+    r = Renderer(SCENES[scene](device), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000),
+                 device=device)
+    r.render_frame()
+    f = r.fitter
+    split = [d.numpy().copy() for d in f.receiver_depth_all]
+    both = sum(int(((b[:, 0] < np.inf) & (b[:, 1] < np.inf)).sum()) for b in
+               (x.numpy().reshape(-1, 2, f.lights[0].pilot[0].width ** 2) for x in f.branch_depth_all))
+    for d in f.receiver_depth_all:
+        d.fill_(-1.0)
+    f.one_thread_per_texel = True
+    f.trace_pilots(r.raster, r.view_params, 0)
+    assert any((d > 0).any() for d in split)
+    for a, b in zip(split, f.receiver_depth_all):
+        np.testing.assert_array_equal(a, b.numpy())
+    if scene == "pool":
+        assert both > 0  # the refracted branch competes with a reflected one somewhere
+
+
 def test_device_fit_forced_cascades_and_empty_pilot(device):
     """Hand-made receiver depths (a near patch inside a far band, then nothing): the device fit nests two
     cascades as the numpy fit does, and leaves every cascade inactive (far = 0, no photons) when nothing is seen."""
@@ -127,6 +149,46 @@ def wp_device_is_cpu(device) -> bool:
     import warp as wp
 
     return wp.get_device(device).is_cpu
+
+
+@pytest.mark.parametrize("block", [1, 32, 128])
+def test_fit_reductions_by_columns_equal_the_naive_ones(device, monkeypatch, block):
+    """fit_reduce_angles / fit_reduce_cascades (a column's first and last useful texels turned) write the naive
+    kernels' boxes, counts and angles bit for bit: random sparse depths with gaps in columns, a full view, a diagonal
+    band, on 40² pilots (blocks narrower and wider than a row, lanes left idle)."""
+    import warp as wp
+
+    from cisp_warp.photons import fit as F
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    rng = np.random.default_rng(5)
+    p, cascades = 40, 3
+    depth = np.zeros((4, p, p), np.float32)
+    depth[0] = np.where(rng.random((p, p)) < 0.05, rng.uniform(0.5, 9.0, (p, p)), 0.0)
+    depth[1, 5:30, 3:17] = rng.uniform(1.0, 2.0, (25, 14))
+    depth[1, 31:33, 20:39] = 7.0  # a far band: a cascade of its own
+    depth[2] = rng.uniform(0.1, 3.0, (p, p))
+    jj, ii = np.mgrid[0:p, 0:p]
+    depth[3] = np.where(np.abs(ii - jj) < 3, rng.uniform(1.0, 4.0, (p, p)), 0.0)  # a diagonal band: fitted turned
+    nv = depth.shape[0]
+    d = wp.array(depth.reshape(-1), dtype=wp.float32, device=device)
+    aspects = wp.array([1.0, 0.7, 1.3, 1.0], dtype=wp.float64, device=device)
+    out = []
+    for angles_kernel, cascades_kernel in ((F.fit_reduce_angles_naive, F.fit_reduce_cascades_naive),
+                                           (F.fit_reduce_angles, F.fit_reduce_cascades)):
+        boxes = wp.zeros(nv * (F.FIT_STEPS + 1), dtype=wp.vec4d, device=device)
+        cboxes = wp.zeros(nv * cascades, dtype=wp.vec4d, device=device)
+        counts = wp.zeros(nv * cascades, dtype=wp.float64, device=device)
+        angles = wp.zeros(nv, dtype=wp.float64, device=device)
+        wp.launch_tiled(angles_kernel, dim=(nv, F.FIT_STEPS + 1), block_dim=block, device=device,
+                        inputs=[d, p, p, aspects, boxes])
+        wp.launch_tiled(cascades_kernel, dim=(nv, cascades), block_dim=block, device=device,
+                        inputs=[d, p, p, aspects, cascades, boxes, cboxes, counts, angles])
+        out.append([a.numpy() for a in (boxes, cboxes, counts, angles)])
+    for naive, fast in zip(*out):
+        np.testing.assert_array_equal(fast, naive)
+    assert out[0][3][3] != 0.0  # the band's view turned
+    assert (out[0][2].reshape(nv, cascades)[:2] > 0).all()
 
 
 def test_fit_reductions_do_not_depend_on_the_block_size(device, monkeypatch):

@@ -142,6 +142,35 @@ def test_fitted_texel_solid_angles_match_the_host_formula(device):
     np.testing.assert_allclose(host.sum(), whole.texel_solid_angle()[20:23, 90:94].sum(), rtol=1e-9)
 
 
+def test_cascade_solid_angles_cover_every_texel_once_and_only_when_moved(device):
+    """The per-frame kernel (several texels a thread) writes exactly what texel_solid_angles writes, for a texel
+    count that is not a multiple of its texels per thread, and nothing when the view stood still."""
+    import warp as wp
+
+    from cisp_warp.raster.light_maps import (CASCADE_TEXELS_PER_THREAD, CascadeState, cascade_solid_angles,
+                                             texel_solid_angles)
+    from cisp_warp.raster.views import View, ViewParams, window_view
+
+    whole = View(np.eye(4), 128, 128, 0.01, 10.0, 64.0, 64.0, False, "w")
+    v = window_view(whole, (90.0, 20.0, 97.0, 25.0), 37, "c")  # 37² texels: 1369 = 171 * 8 + 1
+    n = 37 * 37
+    assert n % CASCADE_TEXELS_PER_THREAD != 0
+    twin = wp.zeros(n, dtype=wp.float32, device=device)
+    wp.launch(texel_solid_angles, dim=n, inputs=[v.params(), twin], device=device)
+    views = wp.array([v.params(), v.params()], dtype=ViewParams, device=device)
+    states = []
+    for changed in (1, 0):
+        st = CascadeState()
+        st.active, st.active_views, st.texel_scale, st.changed = 1, 1, 1.0, changed
+        states.append(st)
+    states = wp.array(states, dtype=CascadeState, device=device)
+    threads = (n + CASCADE_TEXELS_PER_THREAD - 1) // CASCADE_TEXELS_PER_THREAD
+    for k, expect in ((0, twin.numpy()), (1, np.full(n, -1.0, np.float32))):
+        out = wp.full(n, -1.0, dtype=wp.float32, device=device)
+        wp.launch(cascade_solid_angles, dim=threads, inputs=[views, states, k, n, out], device=device)
+        np.testing.assert_array_equal(out.numpy(), expect)
+
+
 def test_fit_windows_nest_and_merge():
     from cisp_warp.raster.views import fit_windows
 

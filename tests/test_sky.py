@@ -57,6 +57,13 @@ def test_latlong_lookup_matches_twin_and_convention(device, rng):
     assert dirs[0, 0, 1] > 0.98 and dirs[-1, 0, 1] < -0.98
     np.testing.assert_allclose(dirs[4, 8], [0, 0, 1], atol=0.2)
     np.testing.assert_allclose(sky_radiance_np(plain, dirs.reshape(-1, 3)), tex.reshape(-1, 3), rtol=1e-6)
+    # no sky: zero (+0.0, as the black map's bilinear sum gives) without reading the map
+    none = sky_map(None, device)
+    assert none.present == 0 and sky_map(sky, device).present == 1
+    out.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    wp.launch(_lookup, len(d), inputs=[none, wp.array(d.astype(np.float32), dtype=wp.vec3, device=device), out],
+              device=device)
+    assert np.all(out.numpy() == 0.0) and not np.signbit(out.numpy()).any()
 
 
 def test_sh_irradiance_is_exact_for_uniform_and_linear_skies():
@@ -109,6 +116,60 @@ def test_uniform_sky_on_an_open_plane_gives_pi_L_and_occlusion_darkens(device):
     assert under.sum() > 5 and open_.sum() > 5
     assert e[under].max() < 0.5  # the roof covers all but the grazing directions
     assert e[open_].min() > 0.9 and e.max() <= 1.0 + 1e-5
+
+
+def test_sky_irradiance_is_kept_only_while_its_inputs_stand_still(device):
+    """A frame with the camera the irradiance was computed for and static opaque geometry keeps it (a poisoned buffer
+    stays poisoned: the kernel did not run); a moved camera recomputes it, equal bit for bit to a fresh renderer's
+    frame, also after frames that left the sky out; moving opaque geometry, or the first frame, always computes."""
+    from dataclasses import replace
+
+    L = (2.0, 3.0, 4.0)
+    floor = (analytic.quad(0, 0, 0, (4, 0, 0), (0, 0, -4)), 0)
+    roof = (analytic.quad(0, 0.3, 0, (1, 0, 0), (0, 0, 1)), 0)
+    settings = RenderSettings(method="none", sky_maps=16, sky_map_size=64)
+    scene = lambda eye: _sky_scene([floor, roof], Sky("/Sky", L), eye=eye, target=(0.0, 0.0, -1.0))  # noqa: E731
+    eye0, eye1 = (0.0, 0.4, 3.8), (0.3, 0.5, 3.6)
+    r = Renderer(scene(eye0), settings, device=device)
+    r.render_frame()
+    first = r.sky_irradiance.numpy().copy()
+    assert (first > 0).any()
+    r.sky_irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    r.render_frame()  # same camera: kept
+    assert np.all(r.sky_irradiance.numpy() == -1.0)
+    r.sky_irradiance.assign(first)
+    r.render_frame()
+    np.testing.assert_array_equal(r.sky_irradiance.numpy(), first)
+    r.set_camera(replace(scene(eye1).camera, width=r.width, height=r.height))
+    r.render_frame()  # moved: computed
+    fresh = Renderer(scene(eye1), settings, device=device)
+    fresh.render_frame()
+    moved = r.sky_irradiance.numpy()
+    assert not np.array_equal(moved, first)
+    np.testing.assert_array_equal(moved, fresh.sky_irradiance.numpy())
+    r.sky_irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    r.render_frame()  # standing still again: kept
+    assert np.all(r.sky_irradiance.numpy() == -1.0)
+    # frames that leave the sky out (a chunk's warm-up) move the camera under it: the next full frame computes,
+    # although its camera is the last frame's
+    from cisp_warp.sequence import render_history_frame
+
+    r.sky_irradiance.assign(moved)
+    r.set_camera(replace(scene(eye0).camera, width=r.width, height=r.height))
+    render_history_frame(r)
+    r.render_frame()
+    np.testing.assert_array_equal(r.sky_irradiance.numpy(), first)
+    r.set_camera(replace(scene(eye1).camera, width=r.width, height=r.height))
+    r.render_frame()
+    r.sky.dynamic = True  # as when opaque geometry moves: maps redrawn and the irradiance computed every frame
+    r.render_frame()
+    np.testing.assert_array_equal(r.sky_irradiance.numpy(), moved)
+    # a renderer's first frame computes although both cameras it reads are the same
+    fresh.sky_irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    again = Renderer(scene(eye1), settings, device=device)
+    again.sky.irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+    again.render_frame()
+    np.testing.assert_array_equal(again.sky_irradiance.numpy(), moved)
 
 
 def test_camera_rays_that_miss_see_the_sky(device):
@@ -182,3 +243,28 @@ def test_dome_light_is_read_from_usd_with_its_texture(tmp_path):
 
     with pytest.raises(SceneError, match=r"prim '/World/Sky'.*inputs:texture:file.*does not exist"):
         load_usd(tmp_path / "s.usda")
+
+
+def test_direct_light_two_maps_a_launch_equal_one_a_launch(device):
+    """DirectLighting's paired launches (direct_light_pair) give direct_light's irradiance bit for bit: the pool
+    (sun + spot: one pair) and a point light's six cube faces with a spot (seven maps: three pairs and one alone)."""
+    from cisp_warp.scene import Light, LightKind
+    from cisp_warp.usd import load_usd
+
+    pool = load_usd("scenes_usd/pool.usda", width=48, height=36, device=device)
+    floor = (analytic.quad(0, 0, 0, (2, 0, 0), (0, 0, -2)), 0)
+    box = (analytic.quad(0, 0.4, 0, (0.3, 0, 0), (0, 0, 0.3)), 0)
+    lamps = [Light(LightKind.POINT, "lamp", intensity=50.0, position=(0.2, 1.0, 0.1), direction=(0, -1, 0)),
+             Light(LightKind.SPOT, "spot", intensity=80.0, position=(-0.5, 1.5, 0.3), direction=tuple(np.array([0.3, -1.0, -0.1]) / np.linalg.norm([0.3, -1.0, -0.1])),
+                   cone_angle=math.radians(40), cone_softness=0.1)]
+    lamp_scene = analytic.build([floor, box], _sky_scene([floor], None, eye=(0.0, 2.0, 2.5)).camera, lamps, (FLOOR,))
+    for scene, maps in ((pool, 2), (lamp_scene, 7)):
+        r = Renderer(scene, RenderSettings(method="none", rsm_size=64), device=device)
+        r.render_frame()
+        assert sum(len(lm.shadow_maps()) for lm in r.lights) == maps
+        paired = r.direct.irradiance.numpy().copy()
+        assert (paired > 0).any()
+        r.direct.pairs = False
+        r.direct.irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
+        r.direct.render(r.gbuffer, r.lights)
+        np.testing.assert_array_equal(r.direct.irradiance.numpy(), paired)

@@ -301,14 +301,19 @@ def photon_sort_keys(
     """Keys to trace photons in texel (Morton) order: neighbouring threads then start from neighbouring
     texels and mostly travel alike, which keeps a GPU warp's memory reads and march lengths coherent.
     Each photon is still photon k of the R2 sequence; only the order of the threads changes. Slots past the
-    view's photon count (launched with fixed dims) sort last."""
+    view's photon count (launched with fixed dims) sort last. A view that emits nothing this frame (an inactive
+    cascade) writes nothing: its order is sorted all the same (the sort's length is the host's) but never read, as
+    its photon_group_keys puts every slot last without reading the order and its trace returns at once."""
     k = wp.tid()
+    n_photons = cascade_photons(states[view_index], light_photons)
+    if n_photons == 0:
+        return
     light = views[view_index]
     u = r2_point(k, wp.vec2i(randoms[stream][0], randoms[stream][1]))
     i = wp.min(int(u[0] * float(light.width)), light.width - 1)
     j = wp.min(int(u[1] * float(light.height)), light.height - 1)
     keys[k] = _spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)
-    if k >= cascade_photons(states[view_index], light_photons):
+    if k >= n_photons:
         keys[k] = 0x7FFFFFFF  # after every texel's code in the sorted key bits (all ones there): sorts last
     values[k] = k
 

@@ -3,13 +3,15 @@
 Per frame, after the camera's G-buffer and before the lights' RSM views are drawn, all on the device:
 
 1. every light's pilot views (its whole views, ``pilot_size``²) are drawn;
-2. :func:`pilot_receivers` sends one photon per pilot texel and branch (reflected; refracted where the
-   surface transmits) from the surface under the texel's centre, traces it through the scene's BVH
+2. :func:`pilot_branches` sends one photon per pilot texel and branch (reflected; refracted where the
+   surface transmits; a thread each) from the surface under the texel's centre, traces it through the scene's BVH
    (further specular bounces by Fresnel probability) and keeps the camera depth [m] where it lands on
-   a surface the camera sees (the depth-visibility test of the photon stores), 0 where neither lands;
+   a surface the camera sees (the depth-visibility test of the photon stores); :func:`pilot_nearest` keeps the
+   nearer branch per texel, 0 where neither lands (:func:`pilot_receivers`, one thread per texel, is the twin);
 3. three small kernels fit the cascades to those depths (``views.fit_angle`` and ``views.fit_windows`` on the
    device): :func:`fit_reduce_angles` reduces, per pilot view and each of ``FIT_STEPS`` turns about its axis, the
-   box of the turned useful texels (and their depth range) with Warp tiles, one block each;
+   box of the turned useful texels (and their depth range) with Warp tiles, one block each, turning only each
+   column's first and last useful texel (``fit_reduce_*_naive``, every texel turned, are the twins);
    :func:`fit_reduce_cascades` picks the tightest turn and reduces each cascade's box (texels nearer than its
    split); :func:`fit_solve` (one thread per light) grows, clips, merges and nests the windows and writes the
    cascades' views and states into ``LightMaps.views`` / ``states`` / ``outside`` (see ``LightMaps``);
@@ -111,6 +113,105 @@ def pilot_receivers(
     receiver_depth[p] = nearest
 
 
+#: a branch's receiver depth in ``pilot_branches``' scratch when it lands nowhere the camera sees
+PILOT_NONE = wp.constant(float("inf"))
+#: threads per block of ``pilot_branches`` on CUDA: a 128² pilot's 2 × 16k branches in 512 blocks, spread over every
+#: SM (blocks of 256 over one branch a thread filled 64 SMs of an H100's 132 with 8 warps each)
+PILOT_BLOCK = 64
+
+
+@wp.kernel
+def pilot_branches(
+    light: ViewParams,  # a pilot (whole) view of the light
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,  # [m]
+    rsm_position: wp.array(dtype=wp.vec3),  # (P*P,) specular layer [m] (read)
+    rsm_normal: wp.array(dtype=wp.vec3),  # (P*P,) authored unit normal (read)
+    rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
+    rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
+    rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
+    rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) -1 = none (read)
+    geometry: SurfaceGeometry,
+    ws: WorldScene,
+    cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+    roughness_cutoff: float,
+    thickness: float,  # [m] depth-visibility tolerance, absolute
+    thickness_rel: float,  # relative (× depth)
+    t_max: float,  # [m]
+    max_bounces: int,
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream, the seed third (frame.FrameInputs.randoms, read)
+    stream: int,  # this pilot view's stream
+    branch_depth: wp.array(dtype=wp.float32),  # (2*P*P,) camera depth [m] where branch b of texel p lands, at
+    # b*P*P + p; PILOT_NONE where it lands nowhere the camera sees (write)
+):
+    """:func:`pilot_receivers` with one thread per texel and branch (threads 0..P²-1 reflect, P²..2P²-1 refract,
+    so a warp traces alike): twice the threads for a launch of 16k texels that filled half the GPU, and a warp
+    waits for its own branch's longest trace, not for both. :func:`pilot_nearest` takes the nearer branch."""
+    tid = wp.tid()
+    n = light.width * light.height
+    branch = tid / n
+    p = tid - branch * n
+    branch_depth[tid] = PILOT_NONE
+    cam.view = cameras[0]
+    seed = randoms[stream][2]
+    tri = rsm_tri[p]
+    if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
+        return
+    lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
+    x, n_s = surface_at_sample(lo, ld, tri, rsm_position[p], rsm_normal[p], geometry)
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(x - light_pos)
+    nn = n_s
+    eta = rsm_ior[p]
+    if wp.dot(d_in, n_s) > 0.0:
+        nn = -n_s
+        eta = 1.0 / eta
+    d = reflect(d_in, nn)
+    if branch == 1:
+        transmissive = int(ws.opacity[ws.triangle_material[tri]] < 1.0)
+        if transmissive == 0:
+            return
+        d = refract(d_in, nn, eta)
+        if wp.length(d) == 0.0:  # total internal reflection
+            return
+    tally = tally_new()  # the pilot's bookings: discarded
+    state = wp.rand_init(seed, 2 * p + branch)
+    status, y, nr, d_end, power, state = world_trace(ws, x, n_s, d, wp.vec3(1.0), state, roughness_cutoff, t_max,
+                                                     max_bounces, tally)
+    if status != WT_LANDED:
+        return
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        return
+    zc = cam.depth[pix]
+    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc or wp.dot(-d_end, cam.normal[pix]) < 0.0:
+        return
+    branch_depth[tid] = q[2]
+
+
+@wp.kernel
+def pilot_nearest(
+    branch_depth: wp.array(dtype=wp.float32),  # (V*2*P*P,) each pilot view's pilot_branches scratch in turn (read)
+    texels: int,  # P*P
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (write)
+):
+    """Texel g's receiver depth from its two branches, as :func:`pilot_receivers` keeps it: the reflected
+    branch's depth, then the refracted one's where there was none (0) or it is nearer."""
+    g = wp.tid()
+    b = g / texels
+    p = g - b * texels
+    nearest = float(0.0)
+    d0 = branch_depth[2 * b * texels + p]
+    d1 = branch_depth[(2 * b + 1) * texels + p]
+    if d0 != PILOT_NONE:
+        nearest = d0
+    if d1 != PILOT_NONE and (nearest == 0.0 or d1 < nearest):
+        nearest = d1
+    receiver_depth[g] = nearest
+
+
 #: turns about the pilot view's axis tried by the fit, in [0, 90°) (``views.fit_angle``'s ``steps``)
 FIT_STEPS = 18
 FIT_BLOCK = 256  #: threads per block of the fit's reductions on CUDA (one per block on the CPU)
@@ -144,7 +245,7 @@ def _box_reduce(umin: wp.float64, umax: wp.float64, vmin: wp.float64, vmax: wp.f
 
 
 @wp.kernel
-def fit_reduce_angles(
+def fit_reduce_angles_naive(
     receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read)
     width: int,  # P
     height: int,
@@ -153,7 +254,8 @@ def fit_reduce_angles(
     # box (min u, max u, min v, max v) [pilot pixels]; at k = FIT_STEPS (min depth, max depth, count, 0) (write)
 ):
     """One block per (pilot view, turn): the box of the useful texels (receiver depth > 0) turned by that
-    angle, each thread over a strided share of the texels, reduced with Warp tiles (``views.fit_angle``)."""
+    angle, each thread over a strided share of the texels, reduced with Warp tiles (``views.fit_angle``).
+    The twin of :func:`fit_reduce_angles` (every texel turned)."""
     b, k, lane = wp.tid()
     n = width * height
     big = wp.float64(1.0e300)
@@ -217,7 +319,7 @@ def _split(z_near: wp.float64, z_far: wp.float64, c: int, cascades: int) -> wp.f
 
 
 @wp.kernel
-def fit_reduce_cascades(
+def fit_reduce_cascades_naive(
     receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) (read)
     width: int,
     height: int,
@@ -229,7 +331,8 @@ def fit_reduce_cascades(
     angles: wp.array(dtype=wp.float64),  # (V,) the fitted turn [rad] (write)
 ):
     """One block per (pilot view, cascade): the tightest turn (``views.fit_angle``), the cascade's depth split
-    (``views.cascade_splits``) and the turned box of the useful texels it covers (``views.fit_windows``)."""
+    (``views.cascade_splits``) and the turned box of the useful texels it covers (``views.fit_windows``).
+    The twin of :func:`fit_reduce_cascades` (every texel turned)."""
     b, ci, lane = wp.tid()
     n = width * height
     angle = _fitted_angle(boxes, b)
@@ -255,6 +358,114 @@ def fit_reduce_cascades(
             vmax = wp.max(vmax, v)
             count += wp.float64(1.0)
         p += wp.block_dim()
+    box = _box_reduce(umin, umax, vmin, vmax)
+    total = wp.tile_sum(wp.tile(count))
+    if lane == 0:
+        cascade_boxes[b * cascades + ci] = box
+        cascade_counts[b * cascades + ci] = total[0]
+        if ci == 0:
+            angles[b] = angle
+
+
+@wp.func
+def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: int, height: int, lane: int, bd: int,
+                c: wp.float64, s: wp.float64, aspect: wp.float64, split: wp.float64, turn: int):
+    """This thread's share of a turned box by columns: (min u, max u, min v, max v, count, min z, max z) over the
+    useful texels (0 < z <= ``split``; an infinite ``split`` takes every z > 0) of its columns (``i = lane % width``, then every ``bd``-th) and rows
+    (``j = lane / width``, then every ``max(1, bd / width)``-th: a warp reads one row's texels side by side).
+
+    Only a column's first and last useful rows are turned (``turn`` != 0): for a turn in [0°, 90°) (c > 0, s >= 0)
+    ``_turn``'s u = (hw + c·dx) − (s·aspect)·dy falls and v = (hh + s·dx/aspect) + c·dy rises with the row,
+    operation by operation (each a correctly rounded product or sum of a monotone term), so the column's extremes
+    of u and v lie at those rows: the same values, bit for bit, as turning every texel."""
+    big = wp.float64(1.0e300)
+    umin = big
+    umax = -big
+    vmin = big
+    vmax = -big
+    zmin = big
+    zmax = -big
+    count = wp.float64(0.0)
+    groups = wp.max(1, bd / width)
+    if lane < groups * width:
+        i = lane % width
+        while i < width:
+            first = int(-1)
+            last = int(-1)
+            j = lane / width
+            while j < height:
+                z = receiver_depth[base + j * width + i]
+                if z > 0.0 and wp.float64(z) <= split:
+                    if first < 0:
+                        first = j
+                    last = j
+                    count += wp.float64(1.0)
+                    zmin = wp.min(zmin, wp.float64(z))
+                    zmax = wp.max(zmax, wp.float64(z))
+                j += groups
+            if first >= 0 and turn != 0:
+                u0, v0 = _turn(i, first, width, height, c, s, aspect)
+                u1, v1 = _turn(i, last, width, height, c, s, aspect)
+                umin = wp.min(umin, wp.min(u0, u1))
+                umax = wp.max(umax, wp.max(u0, u1))
+                vmin = wp.min(vmin, wp.min(v0, v1))
+                vmax = wp.max(vmax, wp.max(v0, v1))
+            i += bd
+    return umin, umax, vmin, vmax, count, zmin, zmax
+
+
+@wp.kernel
+def fit_reduce_angles(
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read)
+    width: int,  # P
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
+    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) per view and turn k < FIT_STEPS the useful texels' turned
+    # box (min u, max u, min v, max v) [pilot pixels]; at k = FIT_STEPS (min depth, max depth, count, 0) (write)
+):
+    """One block per (pilot view, turn): the box of the useful texels (receiver depth > 0) turned by that angle
+    (``views.fit_angle``), reduced with Warp tiles; each thread reads its columns' texels and turns only each column's
+    first and last useful texel (:func:`_column_box`). Equal, bit for bit, to :func:`fit_reduce_angles_naive`, which
+    turns every texel (a float64 division each)."""
+    b, k, lane = wp.tid()
+    c = wp.cos(_step_angle(k))
+    s = wp.sin(_step_angle(k))
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
+                                                            wp.block_dim(), c, s, aspects[b], wp.float64(PILOT_NONE),
+                                                            wp.where(k == FIT_STEPS, 0, 1))
+    if k == FIT_STEPS:
+        umin = zmin
+        umax = zmax
+    box = _box_reduce(umin, umax, vmin, vmax)
+    total = wp.tile_sum(wp.tile(count))
+    if lane == 0:
+        if k == FIT_STEPS:
+            box = wp.vec4d(box[0], box[1], total[0], wp.float64(0.0))
+        boxes[b * (FIT_STEPS + 1) + k] = box
+
+
+@wp.kernel
+def fit_reduce_cascades(
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) (read)
+    width: int,
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
+    cascades: int,
+    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) from fit_reduce_angles (read)
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) turned box of the texels nearer than each split (write)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) those texels (write)
+    angles: wp.array(dtype=wp.float64),  # (V,) the fitted turn [rad] (write)
+):
+    """One block per (pilot view, cascade): the tightest turn (``views.fit_angle``), the cascade's depth split
+    (``views.cascade_splits``) and the turned box of the useful texels it covers (``views.fit_windows``), by columns
+    as :func:`fit_reduce_angles`. Equal, bit for bit, to :func:`fit_reduce_cascades_naive`."""
+    b, ci, lane = wp.tid()
+    angle = _fitted_angle(boxes, b)
+    zs = boxes[b * (FIT_STEPS + 1) + FIT_STEPS]
+    split = _split(zs[0], zs[1], ci, cascades)
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
+                                                            wp.block_dim(), wp.cos(angle), wp.sin(angle), aspects[b],
+                                                            split, 1)
     box = _box_reduce(umin, umax, vmin, vmax)
     total = wp.tile_sum(wp.tile(count))
     if lane == 0:
@@ -469,6 +680,16 @@ class LightViewFitter:
         #: per light: its pilots' receiver depths [m], (V*P*P,) float32, and one slice per pilot view
         self.receiver_depth_all = [wp.zeros(sum(r.width * r.height for r in lm.pilot), dtype=wp.float32, device=d)
                                    for lm in self.lights]
+        #: per light: its pilots' pilot_branches scratch, (V*2*P*P,) float32, and one (2*P*P,) slice per pilot view
+        self.branch_depth_all = [wp.zeros(2 * sum(r.width * r.height for r in lm.pilot), dtype=wp.float32, device=d)
+                                 for lm in self.lights]
+        self.branch_depth = []
+        for lm, whole in zip(self.lights, self.branch_depth_all):
+            n = 2 * lm.pilot[0].width * lm.pilot[0].height
+            self.branch_depth.append([whole[i * n : (i + 1) * n] for i in range(len(lm.pilot))])
+        #: pilot_receivers (one thread per texel, both branches) instead of pilot_branches + pilot_nearest: the twin
+        self.one_thread_per_texel = False
+        self.pilot_block = PILOT_BLOCK if self.device.is_cuda else 256
         self.receiver_depth = []
         for lm, whole in zip(self.lights, self.receiver_depth_all):
             n = lm.pilot[0].width * lm.pilot[0].height
@@ -505,15 +726,24 @@ class LightViewFitter:
         self.cam.view = camera
         for lm in self.lights:
             lm.render_pilot(raster)
-        for li, lm, depths in zip(self.light_index, self.lights, self.receiver_depth):
+        for i, (li, lm, depths) in enumerate(zip(self.light_index, self.lights, self.receiver_depth)):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
             for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
                 sp = r.specular
-                wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=[
-                    r.view.params(), int(lm.light.kind), light_pos, sp.position, sp.normal, r.flux, sp.roughness,
-                    sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
-                    float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel), float(self.t_max),
-                    int(self.max_bounces), self.inputs.randoms, self.inputs.pilot_stream(li, vi), depth])
+                inputs = [r.view.params(), int(lm.light.kind), light_pos, sp.position, sp.normal, r.flux, sp.roughness,
+                          sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
+                          float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel),
+                          float(self.t_max), int(self.max_bounces), self.inputs.randoms,
+                          self.inputs.pilot_stream(li, vi)]
+                if self.one_thread_per_texel:
+                    wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=inputs + [depth])
+                else:
+                    wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
+                              inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
+            if not self.one_thread_per_texel:
+                p = lm.pilot[0]
+                wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
+                          inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
 
     def fit_device(self) -> None:
         """Fit every light's cascades to its pilots' receiver depths in three launches per light."""

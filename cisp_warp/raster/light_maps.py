@@ -91,20 +91,30 @@ def texel_solid_angles(view: ViewParams, out: wp.array(dtype=wp.float32)):
     out[p] = texel_solid_angle(view, p)
 
 
+#: texels each thread of :func:`cascade_solid_angles` covers: a view that stands still costs one flag read per
+#: thread, so fewer threads; 8 leaves ~500k threads of a 2048² view for the float64 work when it moved
+CASCADE_TEXELS_PER_THREAD = wp.constant(8)
+
+
 @wp.kernel
 def cascade_solid_angles(views: wp.array(dtype=ViewParams), states: wp.array(dtype=CascadeState), view_index: int,
-                         out: wp.array(dtype=wp.float32)):
+                         texels: int, out: wp.array(dtype=wp.float32)):
     """:func:`texel_solid_angles` of ``views[view_index]``, only when the fit moved it (``states[..].changed``):
-    launched every frame with fixed dims, it costs one read per texel when the view stands still.
+    launched every frame with fixed dims, ``ceil(texels / CASCADE_TEXELS_PER_THREAD)`` threads, thread t writing
+    texels t, t + threads, ... (coalesced); one flag read per thread when the view stands still.
 
-    ``out``: (H*W,) float32 (write when changed)."""
+    ``texels``: H*W; ``out``: (H*W,) float32 (write when changed)."""
     if states[view_index].changed == 0:
         return
     view = views[view_index]
     if view.orthographic != 0 or view.far <= INACTIVE_FAR:
         return
-    p = wp.tid()
-    out[p] = texel_solid_angle(view, p)
+    t = wp.tid()
+    threads = (texels + CASCADE_TEXELS_PER_THREAD - 1) / CASCADE_TEXELS_PER_THREAD
+    for i in range(CASCADE_TEXELS_PER_THREAD):
+        p = t + i * threads
+        if p < texels:
+            out[p] = texel_solid_angle(view, p)
 
 
 def _same_params(a: ViewParams, rec) -> bool:
@@ -301,8 +311,9 @@ class LightMaps:
         if self.light.kind == LightKind.DISTANT:
             return
         for k, r in enumerate(self.rsm):
-            wp.launch(cascade_solid_angles, dim=r.width * r.height, device=self.scene.device,
-                      inputs=[self.views, self.states, k, r.solid_angle])
+            n = r.width * r.height
+            wp.launch(cascade_solid_angles, dim=(n + CASCADE_TEXELS_PER_THREAD - 1) // CASCADE_TEXELS_PER_THREAD,
+                      device=self.scene.device, inputs=[self.views, self.states, k, n, r.solid_angle])
 
     def set_windows(self, windows: list[list[tuple[float, float, float, float]]], angles: list[float] | None = None) -> None:
         """Fit the cascades for this frame from the host (the naive twin of the device fit, ``photons.fit``):
