@@ -94,24 +94,3 @@ def test_bounds_of_an_inactive_view_are_kept(device, rng):
     got.assign(stale)
     build_bounds(depth, w, h, 0.02, 0.02, got, device, views, 1)
     np.testing.assert_array_equal(got.numpy(), stale)
-
-
-def test_tiled_bounds_equal_the_per_cell_bounds(device, rng, monkeypatch):
-    """``depth_bounds_tiled`` (CUDA: a block per cell, tile min and max) gives the bounds of its twin ``depth_bounds``
-    (one thread walks a cell), run here in real CPU blocks of 64, on a buffer whose size is not a multiple of the cell."""
-    from cisp_warp.photons import march as M
-
-    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    w, h = 70, 45
-    depth = wp.array(random_depth(rng, w, h), device=device)
-    fx, fy = M.bounds_shape(w, h, M.BOUNDS_CELL)
-    want = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
-    got = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
-    args = [None, 0, depth, w, h, 0.02, 0.02]
-    wp.launch(M.depth_bounds, dim=fx * fy, device=device, inputs=args + [want])
-    wp.launch_tiled(M.depth_bounds_tiled, dim=fx * fy, block_dim=M.BOUNDS_BLOCK, device=device, inputs=args + [got])
-    w_np, g_np = want.numpy()[: fx * fy], got.numpy()[: fx * fy]
-    if wp.get_device(device).is_cpu:
-        np.testing.assert_array_equal(g_np, w_np)
-    else:  # CUDA may contract z + t + r·z differently in the two kernels: a last-bit difference, inside the margin
-        np.testing.assert_allclose(g_np, w_np, rtol=1e-6)

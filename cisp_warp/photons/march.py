@@ -379,44 +379,6 @@ def depth_bounds(
     bounds[c] = wp.vec2(z_min * 0.999999, z_max * 1.000001)
 
 
-BOUNDS_BLOCK = 64  #: threads per block of :func:`depth_bounds_tiled`: one per texel of a fine cell (BOUNDS_CELL²)
-
-
-@wp.kernel
-def depth_bounds_tiled(
-    views: wp.array(dtype=ViewParams),  # (V,) the view the depth buffer belongs to (read; empty: always active)
-    view_index: int,  # an inactive views[view_index] (far = 0) keeps its bounds: nothing marches it this frame
-    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
-    width: int,
-    height: int,
-    thickness: float,  # [m] absolute part of the surface thickness
-    thickness_rel: float,  # relative part (× sample depth)
-    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) fine cells first: (min z_s, max z_s + thickness) [m] (write)
-):
-    """:func:`depth_bounds` (its twin) with one block of BOUNDS_BLOCK threads per fine cell, ``wp.launch_tiled``: each
-    thread reads one texel (a warp reads four rows of eight), the block takes the minimum and maximum as tile
-    reductions. The per-cell kernel has each thread walk 64 texels (168 registers on sm_90, about one wave of
-    threads at 1080p); this one spreads them over many blocks. Min and max are exact, so the bounds are the same."""
-    if view_inactive(views, view_index):
-        return
-    c, lane = wp.tid()
-    cw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
-    i = (c % cw) * BOUNDS_CELL + lane % BOUNDS_CELL
-    j = (c / cw) * BOUNDS_CELL + lane / BOUNDS_CELL
-    z_min = float(BIG_DEPTH)
-    z_max = float(0.0)
-    if i < width and j < height:
-        zs = depth[j * width + i]
-        if zs <= 0.0:
-            zs = BIG_DEPTH
-        z_min = zs
-        z_max = zs + thickness + thickness_rel * zs
-    lo = wp.tile_min(wp.tile(z_min))
-    hi = wp.tile_max(wp.tile(z_max))
-    if lane == 0:  # a hair wider, as depth_bounds
-        bounds[c] = wp.vec2(lo[0] * 0.999999, hi[0] * 1.000001)
-
-
 @wp.kernel
 def coarsen_bounds(
     views: wp.array(dtype=ViewParams),  # (V,) as for depth_bounds (read; empty: always active)
