@@ -370,13 +370,14 @@ def default_denoiser(method: str) -> str:
 
 def measure_case(case, method: str, reference: list[dict], width: int, height: int, frames: int, measured: int,
                  rsm_size: int, photons: int, device, base: PhotonSettings = PhotonSettings(),
-                 denoiser: str | None = None, splat: str = "point") -> CaseFigures:
-    """Play ``case`` with ``method`` and ``denoiser`` (:func:`render_settings`; None: the default; ``splat`` for
-    cisp and sspm) and measure it against ``reference`` (:func:`case_reference` of the same frames)."""
+                 denoiser: str | None = None, splat: str = "point", wavefront_grid: str = "rsm") -> CaseFigures:
+    """Play ``case`` with ``method`` and ``denoiser`` (:func:`render_settings`; None: the default; ``splat`` and
+    ``wavefront_grid`` for cisp and sspm) and measure it against ``reference`` (:func:`case_reference` of the same
+    frames)."""
     from . import metrics as M
 
     denoiser = denoiser or default_denoiser(method)
-    settings = render_settings(Config(method, photons, denoiser, splat), rsm_size, base)
+    settings = render_settings(Config(method, photons, denoiser, splat, wavefront_grid), rsm_size, base)
     r, shots = play_case(case, settings, width, height, frames, measured, device)
     ref_frames = case_frames(case, frames, measured)
     ref_at = dict(zip(ref_frames, reference))

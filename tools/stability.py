@@ -94,8 +94,9 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
     p.add_argument("--cases", default=None, help="comma-separated subset of the cases (default: all)")
     p.add_argument("--methods", default="cisp,sspm,caustics_map",
-                   help="comma-separated methods; cisp:wavefront, sspm:wavefront for wavefront splatting (the preset's "
-                   "photons then count grid cells per light)")
+                   help="comma-separated methods; cisp:wavefront, sspm:wavefront for wavefront splatting over the RSM grid, "
+                   "cisp:wavefront-mesh, sspm:wavefront-mesh over the water mesh (the preset's photons then count "
+                   "grid cells per light)")
     p.add_argument("--denoisers", default="caustic,svgf,own",
                    help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
     p.add_argument("--photons", type=int, default=None,
@@ -149,13 +150,15 @@ def main(argv=None) -> int:
         for m, d in runs:
             bar.set_postfix_str(f"{c.name}: {m} {d}")
             method, _, splat = m.partition(":")
+            splat, _, grid = (splat or "point").partition("-")
             f = E.measure_case(c, method, reference, w, h, frames, measured, cfg["rsm_size"], cfg["photons"], device,
-                               denoiser=d, splat=splat or "point")
+                               denoiser=d, splat=splat, wavefront_grid=grid or "rsm")
             static_error = math.nan
             if c.animated and not args.no_static:  # the same caustic held still: the error nothing moving allows
                 still = frozen(c, frames - 1)
                 static_error = E.measure_case(still, method, [reference[-1]] * 2, w, h, frames, measured, cfg["rsm_size"],
-                                              cfg["photons"], device, denoiser=d, splat=splat or "point").error
+                                              cfg["photons"], device, denoiser=d, splat=splat,
+                                              wavefront_grid=grid or "rsm").error
             rows.append({"case": c.name, "method": m, "denoiser": d, "photons": f.photons, "energy_lost": f.energy_lost,
                          "error": f.error, "static_error": static_error, "error_ratio": ratio(f.error, static_error),
                          "flicker": f.flicker, "flicker_raw": f.flicker_raw,
