@@ -453,14 +453,15 @@ def test_caustic_conserves_energy(device):
     np.testing.assert_allclose(integrated.reshape(-1, 3).sum(0), in_sum / 12, rtol=0.03)
 
 
-@pytest.mark.parametrize("levels,with_m2", [("tiled", False), ("tiled", True), ("pixel", False), ("pixel", True)])
-def test_caustic_matches_naive_twin(device, levels, with_m2):
+@pytest.mark.parametrize("levels,with_m2,atrous", [("tiled", False, 3), ("tiled", True, 3), ("pixel", False, 3),
+                                                   ("pixel", True, 3), ("tiled", True, 4)])
+def test_caustic_matches_naive_twin(device, levels, with_m2, atrous):
     """Three frames (a box with a depth edge, noisy normals, a hole, fractional camera motion, sparse photons;
     with the photons' Σ e² or without) against the float64 twin written from the equations; the gated levels
-    tiled (the default) or per pixel."""
+    tiled (the default) or per pixel; 4 levels: the step-8 level reads its inputs in sub-lattice-major order."""
     rng = np.random.default_rng(17)
     w, h = 20, 14
-    s = CausticSettings(atrous_levels=3, noise_target=0.1)
+    s = CausticSettings(atrous_levels=atrous, noise_target=0.1)
     den = CausticDenoiser(w, h, device, s, levels=levels)
     out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     hist = None
@@ -480,6 +481,8 @@ def test_caustic_matches_naive_twin(device, levels, with_m2):
         np.testing.assert_allclose(den.variance.numpy().reshape(h, w), hist["variance"], rtol=1e-4, atol=1e-6)
         np.testing.assert_allclose(res, ref, rtol=1e-5, atol=1e-5 * truth.max())
     assert np.any(hist["frames"] < 1.5) and np.any(hist["frames"] > 2.5)  # both reset and accumulated pixels
+    if atrous == 4:  # the step-8 level's sub-lattice-major copies were written (else its lattice went unused)
+        assert den.lattice is not None and np.abs(den.lattice[1].numpy()).max() > 0.0
     if with_m2:  # the photons' variance capped s² somewhere (else this compared nothing new)
         assert np.any(hist["photon_var"] > 0) and np.any(hist["moments"][..., 2] > hist["photon_var"])
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_caustic as K
-from .kernels_atrous import launch_atrous, launch_atrous_level, spare_outputs
+from .kernels_atrous import LATTICE_STEP, lattice_size, launch_atrous, launch_atrous_level, spare_outputs
 from .kernels_svgf import flip_parity
 
 
@@ -92,7 +92,9 @@ class CausticDenoiser:
     estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``temporal_variance`` (float32
     [(W/m²)²], variance of the accumulated luminance), and the à-trous levels' scratch: with ``levels="tiled"``
     (the default, :func:`.kernels_atrous.launch_atrous`) ``packed`` (2 x vec4: colour, Var, ping-ponged),
-    ``guide`` (vec4: n, z), ``level_guides`` (vec4, the guide pass's output), ``filtered_variance`` (float32);
+    ``guide`` (vec4: n, z), ``level_guides`` (vec4, the guide pass's output; at steps >= ``LATTICE_STEP`` in
+    sub-lattice-major order, a little more than H*W), ``lattice`` (2 x vec4: those levels' input and guide copied
+    in that order by their guide pass; None without such a level), ``filtered_variance`` (float32);
     with ``levels="pixel"`` (:func:`.kernels_atrous_pixel.launch_atrous_level`, three launches a level)
     ``guide_a``/``guide_b``/``color_variance`` (vec4), ``weight_sum`` (float32), ``filtered_color`` (2 x vec3),
     ``filtered_variance`` (2 x float32). Both give the same output (one naive twin).
@@ -134,7 +136,14 @@ class CausticDenoiser:
         if levels == "tiled":
             self.packed = one(wp.vec4), one(wp.vec4)
             self.guide = one(wp.vec4)
-            self.level_guides = one(wp.vec4)
+            # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order
+            # (perf_notes section 11): a little more than H*W entries each, the input and guide copied there by
+            # the level's guide pass
+            lattice = max([lattice_size(width, height, 1 << k) for k in range(settings.atrous_levels)
+                           if (1 << k) >= LATTICE_STEP], default=0)
+            self.level_guides = wp.zeros(max(n, lattice), dtype=wp.vec4, device=d)
+            self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d),
+                            wp.zeros(lattice, dtype=wp.vec4, device=d)) if lattice else None
             self.filtered_variance = one(wp.float32)
             spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
         else:
@@ -210,7 +219,7 @@ class CausticDenoiser:
                           self.level_guides, noise_target=s.noise_target,
                           color_variance_out=None if last else self.packed[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
-                          **source)
+                          lattice=self.lattice, **source)
 
     def _pixel_levels(self, out: wp.array) -> None:
         """The gated levels as per-pixel launches (:func:`.kernels_atrous_pixel.launch_atrous_level`)."""
