@@ -87,7 +87,7 @@ class CausticDenoiser:
     neighbour-difference variance s², kept change ratio), ``hist_photon_var`` (float32 [(W/m²)²], running mean
     of the window's ``photon_m2``; 0 without it); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface; for the à-trous
-    levels), ``surface`` (vec4: the same packed, for the change window), ``prev_mean``
+    levels; packed as (z, normal) in ``hist_surface``'s new row, which the change window reads), ``prev_mean``
     (vec3 [W/m²]), ``prev_pairs`` (vec3) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
     estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``temporal_variance`` (float32
     [(W/m²)²], variance of the accumulated luminance), and the à-trous levels' scratch: with ``levels="tiled"``
@@ -125,7 +125,6 @@ class CausticDenoiser:
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.depth = one(wp.float32)
         self.normal = one(wp.vec3)
-        self.surface = one(wp.vec4)
         self.prev_mean = one(wp.vec3)
         self.prev_pairs = one(wp.vec3)
         self.stats = one(wp.vec4)
@@ -188,15 +187,16 @@ class CausticDenoiser:
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
                           self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,
                           s.normal_tolerance],
-                  outputs=[self.depth, self.normal, self.surface, self.prev_mean, self.prev_pairs, self.stats])
+                  outputs=[self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats])
         m2 = photon_m2 if s.use_photon_m2 else None
-        wp.launch(K.accumulate, dim=dim, device=d,
-                  inputs=[irradiance_in, m2, self.depth, self.surface, self.prev_mean, self.prev_pairs, self.stats,
-                          self.parity, w, h,
-                          s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas, s.change_persistence,
-                          s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.hist_mean, self.hist_moments, self.hist_photon_var, self.integrated,
-                           self.temporal_variance, self.frames, self.depth_slope])
+        blocks, tiles_x = K.accumulate_blocks(w, h)
+        wp.launch_tiled(K.accumulate, dim=blocks, block_dim=K.BLOCK_THREADS, device=d,
+                        inputs=[irradiance_in, m2, self.hist_surface, self.prev_mean, self.prev_pairs, self.stats,
+                                self.parity, w, h, tiles_x,
+                                s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas, s.change_persistence,
+                                s.depth_tolerance, s.normal_tolerance],
+                        outputs=[self.hist_mean, self.hist_moments, self.hist_photon_var, self.integrated,
+                                 self.temporal_variance, self.frames, self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
         if self.levels == "tiled":
