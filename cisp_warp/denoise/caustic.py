@@ -183,7 +183,7 @@ class CausticDenoiser:
         w, h = self.width, self.height
         dim = (h, w)
         d = self.device
-        wp.launch(K.reproject_history, dim=dim, device=d,
+        wp.launch(K.reproject_history, dim=dim, block_dim=K.REPROJECT_THREADS, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
                           self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,
                           s.normal_tolerance],

@@ -109,6 +109,11 @@ REGION_POINTS = REGION_ROWS * REGION_PITCH
 # (56 B) in local memory
 wp.set_module_options({"enable_backward": False, "block_dim": BLOCK_THREADS})
 
+#: threads per block of :func:`reproject_history` (``wp.launch``'s default). Both kernels are compiled for 3
+#: blocks an SM (at most 85 registers: sm_90 80, with 56 B of spills (reproject) and 168 B, 56 of them the window's
+#: two rows (accumulate), outside the window loop); unbounded they took 112 and 109 registers, 2 blocks an SM
+REPROJECT_THREADS = 256
+
 _TILE_Y = wp.constant(TILE_Y)
 _TILE_X = wp.constant(TILE_X)
 _PITCH = wp.constant(REGION_PITCH)
@@ -222,7 +227,7 @@ def bilinear_tap(acc: BilinearSum, ok: bool, w: float, mean4: wp.vec4, moments4:
     return out
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=(REPROJECT_THREADS, 3))
 def reproject_history(
     irradiance: wp.array(dtype=wp.vec3),
     depth: wp.array(dtype=wp.float32),
@@ -629,7 +634,7 @@ def accumulate_pixel(
     slope_out[p] = region_slope(win_surface, u, z)
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=(BLOCK_THREADS, 3))
 def accumulate(
     irradiance: wp.array(dtype=wp.vec3),
     photon_m2: wp.array(dtype=wp.float32),
