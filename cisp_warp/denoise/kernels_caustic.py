@@ -211,19 +211,20 @@ class BilinearSum:
 @wp.func
 def bilinear_tap(acc: BilinearSum, ok: bool, w: float, mean4: wp.vec4, moments4: wp.vec4, var_q: float) -> BilinearSum:
     """``acc`` with one tap of weight ``w`` added if it is consistent (``ok``): its mean and n (``mean4``), moments
-    (``moments4``) and p² (``var_q``)."""
+    (``moments4``) and p² (``var_q``). Selects, not a branch: the compiler would sink each tap's loads into its
+    branch, one memory round trip a tap."""
     out = acc
-    if ok:
-        mean_q = wp.vec3(mean4[0], mean4[1], mean4[2])
-        out.sum_w = acc.sum_w + w
-        out.mean = acc.mean + w * mean_q
-        out.moments = acc.moments + w * moments4
-        out.photon_var = acc.photon_var + w * var_q
-        out.frames = acc.frames + w * mean4[3]
-        out.lo = wp.min(acc.lo, mean_q)
-        out.hi = wp.max(acc.hi, mean_q)
-        out.lo_m = wp.min(acc.lo_m, wp.vec2(moments4[0], moments4[1]))
-        out.hi_m = wp.max(acc.hi_m, wp.vec2(moments4[0], moments4[1]))
+    mean_q = wp.vec3(mean4[0], mean4[1], mean4[2])
+    m12 = wp.vec2(moments4[0], moments4[1])
+    out.sum_w = wp.where(ok, acc.sum_w + w, acc.sum_w)
+    out.mean = wp.where(ok, acc.mean + w * mean_q, acc.mean)
+    out.moments = wp.where(ok, acc.moments + w * moments4, acc.moments)
+    out.photon_var = wp.where(ok, acc.photon_var + w * var_q, acc.photon_var)
+    out.frames = wp.where(ok, acc.frames + w * mean4[3], acc.frames)
+    out.lo = wp.where(ok, wp.min(acc.lo, mean_q), acc.lo)
+    out.hi = wp.where(ok, wp.max(acc.hi, mean_q), acc.hi)
+    out.lo_m = wp.where(ok, wp.min(acc.lo_m, m12), acc.lo_m)
+    out.hi_m = wp.where(ok, wp.max(acc.hi_m, m12), acc.hi_m)
     return out
 
 
@@ -376,12 +377,11 @@ def reproject_history(
                         s_q = load_row_vec4(hist_surface, prev, q)
                         mean4 = load_row_vec4(hist_mean, prev, q)
                         moments4 = load_row_vec4(hist_moments, prev, q)
-                        if history_tap_ok(inside, s_q, mean4[3], z, n, depth_tolerance, normal_tolerance):
-                            w = wx[i] * wy[j]
-                            cubic += w * wp.vec3(mean4[0], mean4[1], mean4[2])
-                            cubic_m += w * wp.vec2(moments4[0], moments4[1])
-                        else:
-                            row_ok = False
+                        ok = history_tap_ok(inside, s_q, mean4[3], z, n, depth_tolerance, normal_tolerance)
+                        w = wx[i] * wy[j]
+                        cubic = wp.where(ok, cubic + w * wp.vec3(mean4[0], mean4[1], mean4[2]), cubic)
+                        cubic_m = wp.where(ok, cubic_m + w * wp.vec2(moments4[0], moments4[1]), cubic_m)
+                        row_ok = row_ok and ok
                     all_ok = row_ok
             if all_ok:
                 mean = wp.min(wp.max(cubic, lo), hi)
