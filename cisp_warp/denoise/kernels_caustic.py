@@ -76,7 +76,15 @@ Catmull-Rom instead, clamped per component to the 2x2 taps' range (no ringing, n
 resamples the history every frame, and bilinear fetches blur a running mean of n frames by about sqrt(n / 8)
 pixels, while Catmull-Rom keeps a band-limited caustic (the stability suite's pan: error 0.117 -> 0.080).
 
-Images are flat arrays of ``height * width`` pixels, row-major; launches use ``dim=(height, width)``.
+Layout (docs/perf_notes.md section 15): :func:`reproject_history` is per pixel; it issues the pixel's loads and
+its 2x2 footprint's 16 loads (16-byte history rows) before any branch on them, and Catmull-Rom's 4x4 a row of 4
+taps at a time. :func:`accumulate` is tiled: a block reads its tile's window region (the tile and an apron of
+``change_radius``: packed surface, ``stats`` with each point's v and 1/n computed once, ``photon_m2``) into shared
+memory and every pixel's window from there. Both give the float32 sums of the per-pixel formulation in the same
+order (outputs bitwise equal to it on the CPU).
+
+Images are flat arrays of ``height * width`` pixels, row-major; :func:`reproject_history` launches with
+``dim=(height, width)``, :func:`accumulate` with ``wp.launch_tiled`` (:func:`accumulate_blocks`).
 History arrays are (2, H*W); ``parity[0]`` names the row holding the last frame and the kernels write the
 other one (:func:`.kernels_svgf.flip_parity` swaps them at the end of the frame).
 """
@@ -328,18 +336,20 @@ def reproject_history(
     v01 = hist_photon_var[prev, q01]
     v10 = hist_photon_var[prev, q10]
     v11 = hist_photon_var[prev, q11]
+    tol_z = depth_tolerance
+    tol_n = normal_tolerance
     acc = BilinearSum()
     acc.lo = wp.vec3(3.0e38)  # per component: the smallest and largest mean and moments (m1, m2) of the 2x2 taps
     acc.hi = wp.vec3(-3.0e38)
     acc.lo_m = wp.vec2(3.0e38)
     acc.hi_m = wp.vec2(-3.0e38)
-    acc = bilinear_tap(acc, history_tap_ok(inside_x0 and inside_y0, s00, h00[3], z, n, depth_tolerance, normal_tolerance),
+    acc = bilinear_tap(acc, history_tap_ok(inside_x0 and inside_y0, s00, h00[3], z, n, tol_z, tol_n),
                        (1.0 - fx) * (1.0 - fy), h00, k00, v00)
-    acc = bilinear_tap(acc, history_tap_ok(inside_x1 and inside_y0, s01, h01[3], z, n, depth_tolerance, normal_tolerance),
+    acc = bilinear_tap(acc, history_tap_ok(inside_x1 and inside_y0, s01, h01[3], z, n, tol_z, tol_n),
                        fx * (1.0 - fy), h01, k01, v01)
-    acc = bilinear_tap(acc, history_tap_ok(inside_x0 and inside_y1, s10, h10[3], z, n, depth_tolerance, normal_tolerance),
+    acc = bilinear_tap(acc, history_tap_ok(inside_x0 and inside_y1, s10, h10[3], z, n, tol_z, tol_n),
                        (1.0 - fx) * fy, h10, k10, v10)
-    acc = bilinear_tap(acc, history_tap_ok(inside_x1 and inside_y1, s11, h11[3], z, n, depth_tolerance, normal_tolerance),
+    acc = bilinear_tap(acc, history_tap_ok(inside_x1 and inside_y1, s11, h11[3], z, n, tol_z, tol_n),
                        fx * fy, h11, k11, v11)
     sum_w = acc.sum_w
     mean = acc.mean
@@ -665,9 +675,8 @@ def accumulate(
 
     Reads ``irradiance`` (H*W vec3 [W/m²]), ``photon_m2`` (H*W float32 [(W/m²)²], Σ luminance(e)² of the
     frame's photons per pixel; None: not kept, the variance from the frames alone), this frame's G-buffer copy
-    (z [m], 0 = none; normal) in row ``1 - parity[0]`` of ``hist_surface`` from :func:`reproject_history`, with
-    its ``prev_mean`` (vec3
-    [W/m²]), ``prev_pairs`` (vec3: s², kept change ratio, p²) and ``stats`` (vec4: luminance of E, m1, m2, n).
+    (z [m], 0 = none; normal) in row ``1 - parity[0]`` of ``hist_surface`` from :func:`reproject_history`,
+    with its ``prev_mean`` (vec3 [W/m²]), ``prev_pairs`` (vec3: s², kept change ratio, p²) and ``stats`` (vec4: luminance of E, m1, m2, n).
     ``radius``: half width of the change-detection window [pixels]; ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
     ``change_sigmas`` (k): how many of their standard errors the deviations must exceed to count as change; a window pixel q is the same
     surface when its depth is within ``depth_tolerance`` (relative) and its normal's cosine at least
