@@ -198,15 +198,16 @@ def main(argv=None) -> int:
         if args.fast_math:
             wp.set_module_options({"fast_math": True}, module=module)
     if args.lattice_step is not None:
-        from cisp_warp.denoise import svgf
+        from cisp_warp.denoise import caustic, svgf
 
-        kernels_atrous.LATTICE_STEP = svgf.LATTICE_STEP = args.lattice_step if args.lattice_step > 0 else 1 << 30
+        kernels_atrous.LATTICE_STEP = svgf.LATTICE_STEP = caustic.LATTICE_STEP = \
+            args.lattice_step if args.lattice_step > 0 else 1 << 30
     if args.smoke:
         args.device, args.frames, args.warmup = "cpu", 4, 2
     device = args.device or wp.get_device().alias
     names = args.denoisers.split(",")
     sources = [(os.path.basename(s.rstrip("/")), load_gbuffer(s)) for s in args.gbuffer] or [("synthetic", synthetic(96, 64))]
-    print(f"device {device} ({wp.get_device(device).name}), Warp {wp.config.version}; SVGF levels of step >= "
+    print(f"device {device} ({wp.get_device(device).name}), Warp {wp.config.version}; levels of step >= "
           f"{kernels_atrous.LATTICE_STEP} read sub-lattice-major")
     for label, g in sources:
         h, w = g["depth"].shape
