@@ -180,7 +180,7 @@ def main(argv=None) -> int:
                    help="Warp's loop-unrolling limit for the denoise kernels (default Warp's, 16: the 5x5 taps unrolled)")
     p.add_argument("--fast-math", action="store_true", help="compile the denoise kernels with fast math (approximate exp/log/div)")
     p.add_argument("--lattice-step", type=int, default=None,
-                   help="SVGF: the smallest step whose level reads sub-lattice-major buffers (default "
+                   help="SVGF and caustic: the smallest step whose level reads sub-lattice-major buffers (default "
                         "kernels_atrous.LATTICE_STEP; 0: none)")
     args = p.parse_args(argv)
     if args.pack:
