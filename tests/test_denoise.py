@@ -453,14 +453,19 @@ def test_caustic_conserves_energy(device):
     np.testing.assert_allclose(integrated.reshape(-1, 3).sum(0), in_sum / 12, rtol=0.03)
 
 
-@pytest.mark.parametrize("levels,with_m2", [("tiled", False), ("tiled", True), ("pixel", False), ("pixel", True)])
-def test_caustic_matches_naive_twin(device, levels, with_m2):
+@pytest.mark.parametrize("levels,with_m2,atrous,radius,size", [
+    ("tiled", False, 3, 2, (20, 14)), ("tiled", True, 3, 2, (20, 14)), ("pixel", False, 3, 2, (20, 14)),
+    ("pixel", True, 3, 2, (20, 14)), ("tiled", True, 4, 2, (20, 14)), ("tiled", True, 3, 3, (35, 21)),
+    ("tiled", False, 3, 1, (35, 21))])
+def test_caustic_matches_naive_twin(device, levels, with_m2, atrous, radius, size):
     """Three frames (a box with a depth edge, noisy normals, a hole, fractional camera motion, sparse photons;
     with the photons' Σ e² or without) against the float64 twin written from the equations; the gated levels
-    tiled (the default) or per pixel."""
+    tiled (the default) or per pixel; 4 levels: the step-8 level reads its inputs in sub-lattice-major order;
+    35 x 21: accumulate's 16 x 16 tiles split the image both ways (windows across tile edges and partial tiles)
+    at the largest and the smallest change window."""
     rng = np.random.default_rng(17)
-    w, h = 20, 14
-    s = CausticSettings(atrous_levels=3, noise_target=0.1)
+    w, h = size
+    s = CausticSettings(atrous_levels=atrous, noise_target=0.1, change_radius=radius)
     den = CausticDenoiser(w, h, device, s, levels=levels)
     out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     hist = None
@@ -480,8 +485,17 @@ def test_caustic_matches_naive_twin(device, levels, with_m2):
         np.testing.assert_allclose(den.variance.numpy().reshape(h, w), hist["variance"], rtol=1e-4, atol=1e-6)
         np.testing.assert_allclose(res, ref, rtol=1e-5, atol=1e-5 * truth.max())
     assert np.any(hist["frames"] < 1.5) and np.any(hist["frames"] > 2.5)  # both reset and accumulated pixels
+    if atrous == 4:  # the step-8 level's sub-lattice-major copies were written (else its lattice went unused)
+        assert den.lattice is not None and np.abs(den.lattice[1].numpy()).max() > 0.0
     if with_m2:  # the photons' variance capped s² somewhere (else this compared nothing new)
         assert np.any(hist["photon_var"] > 0) and np.any(hist["moments"][..., 2] > hist["photon_var"])
+
+
+def test_caustic_cooperative_cpu_blocks(monkeypatch):
+    """The tiled accumulate with real multi-lane blocks on the CPU (cooperative fibers): the barrier between its
+    window region's loads and the windows is where a race would show; equals the twin like the one-lane block."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    test_caustic_matches_naive_twin("cpu", "tiled", True, 3, 3, (35, 21))
 
 
 def test_caustic_every_setting_reaches_a_kernel(device):

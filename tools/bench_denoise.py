@@ -180,7 +180,7 @@ def main(argv=None) -> int:
                    help="Warp's loop-unrolling limit for the denoise kernels (default Warp's, 16: the 5x5 taps unrolled)")
     p.add_argument("--fast-math", action="store_true", help="compile the denoise kernels with fast math (approximate exp/log/div)")
     p.add_argument("--lattice-step", type=int, default=None,
-                   help="SVGF: the smallest step whose level reads sub-lattice-major buffers (default "
+                   help="SVGF and caustic: the smallest step whose level reads sub-lattice-major buffers (default "
                         "kernels_atrous.LATTICE_STEP; 0: none)")
     args = p.parse_args(argv)
     if args.pack:
@@ -198,15 +198,16 @@ def main(argv=None) -> int:
         if args.fast_math:
             wp.set_module_options({"fast_math": True}, module=module)
     if args.lattice_step is not None:
-        from cisp_warp.denoise import svgf
+        from cisp_warp.denoise import caustic, svgf
 
-        kernels_atrous.LATTICE_STEP = svgf.LATTICE_STEP = args.lattice_step if args.lattice_step > 0 else 1 << 30
+        kernels_atrous.LATTICE_STEP = svgf.LATTICE_STEP = caustic.LATTICE_STEP = \
+            args.lattice_step if args.lattice_step > 0 else 1 << 30
     if args.smoke:
         args.device, args.frames, args.warmup = "cpu", 4, 2
     device = args.device or wp.get_device().alias
     names = args.denoisers.split(",")
     sources = [(os.path.basename(s.rstrip("/")), load_gbuffer(s)) for s in args.gbuffer] or [("synthetic", synthetic(96, 64))]
-    print(f"device {device} ({wp.get_device(device).name}), Warp {wp.config.version}; SVGF levels of step >= "
+    print(f"device {device} ({wp.get_device(device).name}), Warp {wp.config.version}; levels of step >= "
           f"{kernels_atrous.LATTICE_STEP} read sub-lattice-major")
     for label, g in sources:
         h, w = g["depth"].shape

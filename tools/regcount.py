@@ -9,6 +9,8 @@ same compiler's cubin.
     python tools/regcount.py                      # the photon kernels (cisp, sspm, reference, caustics_map, wavefront)
     python tools/regcount.py --kernels trace_sspm  # only kernels whose name contains one of these words
     python tools/regcount.py --modules cisp_warp.shade,cisp_warp.raster.kernels  # any module (blocks as launched)
+    python tools/regcount.py --modules denoise    # the denoisers' kernels (DENOISE_MODULES)
+    python tools/regcount.py --modules denoise --sass out/   # also each module's SASS (cuobjdump, if installed)
 """
 
 from __future__ import annotations
@@ -41,6 +43,14 @@ FRAME_MODULES = (
     ("cisp_warp.photons.common", 128),
     ("cisp_warp.raster.kernels", 256),
     ("cisp_warp.shade", 256),
+)
+#: the denoisers (``--modules denoise``), with the blocks their tiled kernels are launched with
+DENOISE_MODULES = (
+    ("cisp_warp.denoise.kernels_caustic", 256),
+    ("cisp_warp.denoise.kernels_atrous", 512),
+    ("cisp_warp.denoise.kernels_atrous_pixel", 256),
+    ("cisp_warp.denoise.kernels_svgf", 256),
+    ("cisp_warp.denoise.gather", 256),
 )
 
 
@@ -102,12 +112,39 @@ def compile_module(module_name: str, block_dim: int, arch: int, out_dir: Path) -
     return next(p for p in paths if p.suffix == ".cubin")
 
 
+def write_sass(cubin: Path, out: Path) -> bool:
+    """The SASS of ``cubin`` into ``out`` with ``cuobjdump -sass`` (on PATH or from the ``nvidia-cuda-cuobjdump``
+    wheel, which needs ``nvdisasm`` beside it: the ``nvidia-cuda-nvdisasm`` wheel); False if there is none."""
+    import os
+    import shutil
+    import subprocess
+
+    tool = shutil.which("cuobjdump")
+    env = dict(os.environ)
+    if tool is None:
+        try:
+            import nvidia
+
+            for base in nvidia.__path__:
+                for cand in Path(base).glob("*/bin/cuobjdump"):
+                    tool = str(cand)
+                    env["PATH"] = f"{cand.parent}{os.pathsep}{env.get('PATH', '')}"
+        except ImportError:
+            pass
+    if tool is None:
+        return False
+    res = subprocess.run([tool, "-sass", str(cubin)], capture_output=True, text=True, env=env)
+    out.write_text(res.stdout + res.stderr)
+    return res.returncode == 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--arch", type=int, default=90, help="SM architecture (90: H100/H200)")
     ap.add_argument("--modules", default=",".join(m for m, _ in PHOTON_MODULES),
                     help="comma-separated module names (blocks as in PHOTON_MODULES / FRAME_MODULES, else 128)")
     ap.add_argument("--kernels", default="", help="comma-separated words; only kernels whose name contains one")
+    ap.add_argument("--sass", default="", help="folder: write each module's SASS there (MODULE.sass)")
     args = ap.parse_args(argv)
 
     import warp as wp
@@ -115,12 +152,19 @@ def main(argv=None) -> int:
     wp.config.quiet = True
     wp.init()
     words = [w for w in args.kernels.split(",") if w]
-    block_of = dict(PHOTON_MODULES + FRAME_MODULES)
+    block_of = dict(PHOTON_MODULES + FRAME_MODULES + DENOISE_MODULES)
+    names = []
+    for m in [m for m in args.modules.split(",") if m]:
+        names += [d for d, _ in DENOISE_MODULES] if m == "denoise" else [m]
     print(f"sm_{args.arch}, Warp {wp.__version__}: registers per thread / stack frame bytes")
     with tempfile.TemporaryDirectory() as tmp:
-        for name in [m for m in args.modules.split(",") if m]:
+        for name in names:
             block = block_of.get(name, 128)
             cubin = compile_module(name, block, args.arch, Path(tmp) / name)
+            if args.sass:
+                Path(args.sass).mkdir(parents=True, exist_ok=True)
+                if not write_sass(cubin, Path(args.sass) / f"{name}.sass"):
+                    print("no cuobjdump: SASS not written")
             for kernel, u in sorted(kernel_usage(cubin).items()):
                 if words and not any(w in kernel for w in words):
                     continue

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_caustic as K
-from .kernels_atrous import launch_atrous, launch_atrous_level, spare_outputs
+from .kernels_atrous import LATTICE_STEP, lattice_size, launch_atrous, launch_atrous_level, spare_outputs
 from .kernels_svgf import flip_parity
 
 
@@ -87,12 +87,14 @@ class CausticDenoiser:
     neighbour-difference variance s², kept change ratio), ``hist_photon_var`` (float32 [(W/m²)²], running mean
     of the window's ``photon_m2``; 0 without it); ``parity`` (1 int32).
     Per frame (H*W each): ``depth``/``normal`` (G-buffer copy; depth 0 without a surface; for the à-trous
-    levels), ``surface`` (vec4: the same packed, for the change window), ``prev_mean``
+    levels; packed as (z, normal) in ``hist_surface``'s new row, which the change window reads), ``prev_mean``
     (vec3 [W/m²]), ``prev_pairs`` (vec3) and ``stats`` (vec4) of the reprojection, ``integrated`` (vec3 [W/m²], the accumulated
     estimate), ``frames`` (float32), ``depth_slope`` (float32 [m/pixel]), ``temporal_variance`` (float32
     [(W/m²)²], variance of the accumulated luminance), and the à-trous levels' scratch: with ``levels="tiled"``
     (the default, :func:`.kernels_atrous.launch_atrous`) ``packed`` (2 x vec4: colour, Var, ping-ponged),
-    ``guide`` (vec4: n, z), ``level_guides`` (vec4, the guide pass's output), ``filtered_variance`` (float32);
+    ``guide`` (vec4: n, z), ``level_guides`` (vec4, the guide pass's output; at steps >= ``LATTICE_STEP`` in
+    sub-lattice-major order, a little more than H*W), ``lattice`` (2 x vec4: those levels' input and guide copied
+    in that order by their guide pass; None without such a level), ``filtered_variance`` (float32);
     with ``levels="pixel"`` (:func:`.kernels_atrous_pixel.launch_atrous_level`, three launches a level)
     ``guide_a``/``guide_b``/``color_variance`` (vec4), ``weight_sum`` (float32), ``filtered_color`` (2 x vec3),
     ``filtered_variance`` (2 x float32). Both give the same output (one naive twin).
@@ -123,7 +125,6 @@ class CausticDenoiser:
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.depth = one(wp.float32)
         self.normal = one(wp.vec3)
-        self.surface = one(wp.vec4)
         self.prev_mean = one(wp.vec3)
         self.prev_pairs = one(wp.vec3)
         self.stats = one(wp.vec4)
@@ -134,7 +135,14 @@ class CausticDenoiser:
         if levels == "tiled":
             self.packed = one(wp.vec4), one(wp.vec4)
             self.guide = one(wp.vec4)
-            self.level_guides = one(wp.vec4)
+            # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order
+            # (perf_notes section 11): a little more than H*W entries each, the input and guide copied there by
+            # the level's guide pass
+            lattice = max([lattice_size(width, height, 1 << k) for k in range(settings.atrous_levels)
+                           if (1 << k) >= LATTICE_STEP], default=0)
+            self.level_guides = wp.zeros(max(n, lattice), dtype=wp.vec4, device=d)
+            self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d),
+                            wp.zeros(lattice, dtype=wp.vec4, device=d)) if lattice else None
             self.filtered_variance = one(wp.float32)
             spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
         else:
@@ -175,19 +183,20 @@ class CausticDenoiser:
         w, h = self.width, self.height
         dim = (h, w)
         d = self.device
-        wp.launch(K.reproject_history, dim=dim, device=d,
+        wp.launch(K.reproject_history, dim=dim, block_dim=K.REPROJECT_THREADS, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
                           self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,
                           s.normal_tolerance],
-                  outputs=[self.depth, self.normal, self.surface, self.prev_mean, self.prev_pairs, self.stats])
+                  outputs=[self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats])
         m2 = photon_m2 if s.use_photon_m2 else None
-        wp.launch(K.accumulate, dim=dim, device=d,
-                  inputs=[irradiance_in, m2, self.depth, self.surface, self.prev_mean, self.prev_pairs, self.stats,
-                          self.parity, w, h,
-                          s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas, s.change_persistence,
-                          s.depth_tolerance, s.normal_tolerance],
-                  outputs=[self.hist_mean, self.hist_moments, self.hist_photon_var, self.integrated,
-                           self.temporal_variance, self.frames, self.depth_slope])
+        blocks, tiles_x = K.accumulate_blocks(w, h)
+        wp.launch_tiled(K.accumulate, dim=blocks, block_dim=K.BLOCK_THREADS, device=d,
+                        inputs=[irradiance_in, m2, self.hist_surface, self.prev_mean, self.prev_pairs, self.stats,
+                                self.parity, w, h, tiles_x,
+                                s.change_radius, float(s.max_history), s.change_sigmas, s.pixel_sigmas, s.change_persistence,
+                                s.depth_tolerance, s.normal_tolerance],
+                        outputs=[self.hist_mean, self.hist_moments, self.hist_photon_var, self.integrated,
+                                 self.temporal_variance, self.frames, self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
         if self.levels == "tiled":
@@ -210,7 +219,7 @@ class CausticDenoiser:
                           self.level_guides, noise_target=s.noise_target,
                           color_variance_out=None if last else self.packed[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
-                          **source)
+                          lattice=self.lattice, **source)
 
     def _pixel_levels(self, out: wp.array) -> None:
         """The gated levels as per-pixel launches (:func:`.kernels_atrous_pixel.launch_atrous_level`)."""

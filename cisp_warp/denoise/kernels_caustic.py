@@ -76,7 +76,15 @@ Catmull-Rom instead, clamped per component to the 2x2 taps' range (no ringing, n
 resamples the history every frame, and bilinear fetches blur a running mean of n frames by about sqrt(n / 8)
 pixels, while Catmull-Rom keeps a band-limited caustic (the stability suite's pan: error 0.117 -> 0.080).
 
-Images are flat arrays of ``height * width`` pixels, row-major; launches use ``dim=(height, width)``.
+Layout (docs/perf_notes.md section 15): :func:`reproject_history` is per pixel; it issues the pixel's loads and
+its 2x2 footprint's 16 loads (16-byte history rows) before any branch on them, and Catmull-Rom's 4x4 a row of 4
+taps at a time. :func:`accumulate` is tiled: a block reads its tile's window region (the tile and an apron of
+``change_radius``: packed surface, ``stats`` with each point's v and 1/n computed once, ``photon_m2``) into shared
+memory and every pixel's window from there. Both give the float32 sums of the per-pixel formulation in the same
+order (outputs bitwise equal to it on the CPU).
+
+Images are flat arrays of ``height * width`` pixels, row-major; :func:`reproject_history` launches with
+``dim=(height, width)``, :func:`accumulate` with ``wp.launch_tiled`` (:func:`accumulate_blocks`).
 History arrays are (2, H*W); ``parity[0]`` names the row holding the last frame and the kernels write the
 other one (:func:`.kernels_svgf.flip_parity` swaps them at the end of the frame).
 """
@@ -85,11 +93,84 @@ from __future__ import annotations
 
 import warp as wp
 
-from .kernels_svgf import MIN_BILINEAR_WEIGHT, SPATIAL_VARIANCE_HISTORY, depth_gradient_length, luminance
+from .kernels_atrous import block_sync, load_vec4, store_vec4
+from .kernels_svgf import MIN_BILINEAR_WEIGHT, SPATIAL_VARIANCE_HISTORY, luminance
 
 #: largest half width of the change window [pixels]; ``window_row`` holds one row of it
 MAX_CHANGE_RADIUS = 3
-window_row = wp.types.vector(length=2 * MAX_CHANGE_RADIUS + 1, dtype=wp.float32)
+WINDOW_COLUMNS = 2 * MAX_CHANGE_RADIUS + 1
+window_row = wp.types.vector(length=WINDOW_COLUMNS, dtype=wp.float32)
+
+#: :func:`accumulate`'s output tile [pixels] (one thread a pixel on CUDA) and its window region in shared memory:
+#: the tile and an apron of ``change_radius`` (the table is sized for MAX_CHANGE_RADIUS; a region point is loaded
+#: once for the (2 radius + 1)² windows of up to as many tile pixels)
+TILE_Y = 16
+TILE_X = 16
+BLOCK_THREADS = TILE_Y * TILE_X
+REGION_PITCH = TILE_X + 2 * MAX_CHANGE_RADIUS
+REGION_ROWS = TILE_Y + 2 * MAX_CHANGE_RADIUS
+REGION_POINTS = REGION_ROWS * REGION_PITCH
+
+# tiles compiled for the block accumulate is launched with; no adjoints (never differentiated). The window's
+# column loop stays a loop (its range is the runtime radius): unrolled for MAX_CHANGE_RADIUS with the rows above
+# in registers it took 255 registers and spilled 544 B (sm_90); as a loop, 109 registers and the two rows above
+# (56 B) in local memory
+wp.set_module_options({"enable_backward": False, "block_dim": BLOCK_THREADS})
+
+#: threads per block of :func:`reproject_history` (``wp.launch``'s default). Both kernels are compiled for 3
+#: blocks an SM (at most 85 registers: sm_90 80, with 56 B of spills (reproject) and 168 B, 56 of them the window's
+#: two rows (accumulate), outside the window loop); unbounded they took 112 and 109 registers, 2 blocks an SM
+REPROJECT_THREADS = 256
+
+_TILE_Y = wp.constant(TILE_Y)
+_TILE_X = wp.constant(TILE_X)
+_PITCH = wp.constant(REGION_PITCH)
+_MAX_R = wp.constant(MAX_CHANGE_RADIUS)
+_REGION_N = wp.constant(REGION_POINTS)
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float4 v = __ldg(reinterpret_cast<const float4*>(reinterpret_cast<const char*>(a.data) + row * a.strides[0]) + q);
+return wp::vec4(v.x, v.y, v.z, v.w);
+#else
+return *(reinterpret_cast<const wp::vec4*>(reinterpret_cast<const char*>(a.data) + row * a.strides[0]) + q);
+#endif
+""")
+def load_row_vec4(a: wp.array2d(dtype=wp.vec4), row: int, q: int) -> wp.vec4:
+    """``a[row, q]`` of a history array (rows contiguous) in one 16-byte load on CUDA (Warp's indexing issues four
+    4-byte loads). The rows read are never written by the same launch."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+reinterpret_cast<float4*>(reinterpret_cast<char*>(a.data) + row * a.strides[0])[q] = make_float4(v[0], v[1], v[2], v[3]);
+#else
+reinterpret_cast<wp::vec4*>(reinterpret_cast<char*>(a.data) + row * a.strides[0])[q] = v;
+#endif
+""")
+def store_row_vec4(a: wp.array2d(dtype=wp.vec4), row: int, q: int, v: wp.vec4):
+    """``a[row, q] = v`` in one 16-byte store on CUDA."""
+    ...
+
+
+# per-thread reads and writes of accumulate's shared window region (one barrier after the loads; no negative-index
+# wrap)
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_region(t: wp.tile[wp.vec4, REGION_POINTS], i: int, v: wp.vec4): ...
+
+
+@wp.func_native("t.data(wp::tile_coord(i)) = v;")
+def write_region_scalar(t: wp.tile[wp.float32, REGION_POINTS], i: int, v: float): ...
+
+
+@wp.func_native("return t.data(wp::tile_coord(i));")
+def read_region(t: wp.tile[wp.vec4, REGION_POINTS], i: int) -> wp.vec4: ...
+
+
+@wp.func_native("return t.data(wp::tile_coord(i));")
+def read_region_scalar(t: wp.tile[wp.float32, REGION_POINTS], i: int) -> float: ...
 #: relative resolution of the float32 running means: deviations below it are rounding, never change
 FLOAT_RESOLUTION = wp.constant(1.0e-5)
 #: largest change ratio r kept for the next frame (α = 64/65 for a long history: a reset's worth), so that a
@@ -110,28 +191,52 @@ def catmull_rom_weights(t: float) -> wp.vec4:
 
 
 @wp.func
-def hist_frames_at(hist_mean: wp.array2d(dtype=wp.vec4), prev: int, q: int) -> float:
-    """Effective frames n of history texel q (the fourth component of ``hist_mean``)."""
-    m = hist_mean[prev, q]
-    return m[3]
+def history_tap_ok(inside: bool, s_q: wp.vec4, frames_q: float, z: float, n: wp.vec3, depth_tolerance: float,
+                   normal_tolerance: float) -> bool:
+    """Whether a history texel, ``inside`` the screen, with the packed (z, normal) ``s_q`` and effective frames
+    ``frames_q``, has a surface and a history and is the same surface as this pixel (relative depth within
+    ``depth_tolerance``, normal cosine at least ``normal_tolerance``)."""
+    z_q = s_q[0]
+    return (inside and z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z
+            and s_q[1] * n[0] + s_q[2] * n[1] + s_q[3] * n[2] >= normal_tolerance and frames_q > 0.0)
+
+
+@wp.struct
+class BilinearSum:
+    """Running sums of :func:`reproject_history`'s 2x2 footprint over its consistent taps."""
+
+    sum_w: float
+    mean: wp.vec3
+    moments: wp.vec4
+    photon_var: float
+    frames: float
+    lo: wp.vec3
+    hi: wp.vec3
+    lo_m: wp.vec2
+    hi_m: wp.vec2
 
 
 @wp.func
-def history_tap_ok(hist_surface: wp.array2d(dtype=wp.vec4), hist_mean: wp.array2d(dtype=wp.vec4), prev: int,
-                   tx: int, ty: int, width: int, height: int,
-                   z: float, n: wp.vec3, depth_tolerance: float, normal_tolerance: float) -> bool:
-    """Whether the history texel (tx, ty) is on screen, has a surface and a history, and is the same surface
-    as this pixel (relative depth within ``depth_tolerance``, normal cosine at least ``normal_tolerance``)."""
-    if tx < 0 or tx >= width or ty < 0 or ty >= height:
-        return False
-    q = ty * width + tx
-    s_q = hist_surface[prev, q]  # one 16-byte load: (z, normal)
-    z_q = s_q[0]
-    return (z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z
-            and s_q[1] * n[0] + s_q[2] * n[1] + s_q[3] * n[2] >= normal_tolerance and hist_frames_at(hist_mean, prev, q) > 0.0)
+def bilinear_tap(acc: BilinearSum, ok: bool, w: float, mean4: wp.vec4, moments4: wp.vec4, var_q: float) -> BilinearSum:
+    """``acc`` with one tap of weight ``w`` added if it is consistent (``ok``): its mean and n (``mean4``), moments
+    (``moments4``) and p² (``var_q``). Selects, not a branch: the compiler would sink each tap's loads into its
+    branch, one memory round trip a tap."""
+    out = acc
+    mean_q = wp.vec3(mean4[0], mean4[1], mean4[2])
+    m12 = wp.vec2(moments4[0], moments4[1])
+    out.sum_w = wp.where(ok, acc.sum_w + w, acc.sum_w)
+    out.mean = wp.where(ok, acc.mean + w * mean_q, acc.mean)
+    out.moments = wp.where(ok, acc.moments + w * moments4, acc.moments)
+    out.photon_var = wp.where(ok, acc.photon_var + w * var_q, acc.photon_var)
+    out.frames = wp.where(ok, acc.frames + w * mean4[3], acc.frames)
+    out.lo = wp.where(ok, wp.min(acc.lo, mean_q), acc.lo)
+    out.hi = wp.where(ok, wp.max(acc.hi, mean_q), acc.hi)
+    out.lo_m = wp.where(ok, wp.min(acc.lo_m, m12), acc.lo_m)
+    out.hi_m = wp.where(ok, wp.max(acc.hi_m, m12), acc.hi_m)
+    return out
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=(REPROJECT_THREADS, 3))
 def reproject_history(
     irradiance: wp.array(dtype=wp.vec3),
     depth: wp.array(dtype=wp.float32),
@@ -149,7 +254,6 @@ def reproject_history(
     normal_tolerance: float,
     cur_depth: wp.array(dtype=wp.float32),
     cur_normal: wp.array(dtype=wp.vec3),
-    surface: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
     prev_pairs: wp.array(dtype=wp.vec3),
     stats: wp.array(dtype=wp.vec4),
@@ -164,8 +268,8 @@ def reproject_history(
     change ratio) and ``hist_photon_var`` (float32 [(W/m²)²], p²: the running mean of the window's photon_m2).
 
     Writes ``cur_depth``/``cur_normal`` (this frame's G-buffer copy, depth 0 where ``tri_id < 0``, for the
-    à-trous levels), ``surface`` (the same packed as (z, normal) for the change window; also into row
-    ``1 - parity[0]`` of ``hist_surface``), ``prev_mean`` (vec3 [W/m²], the reprojected history mean),
+    à-trous levels), row ``1 - parity[0]`` of ``hist_surface`` (the same packed as (z, normal), also what
+    :func:`accumulate`'s change window reads), ``prev_mean`` (vec3 [W/m²], the reprojected history mean),
     ``prev_pairs`` (vec3: its s², kept change ratio and p²) and ``stats`` = (luminance of E, m1, m2, n) of the
     reprojected history (vec4; n = 0: no history, disoccluded or no surface).
 
@@ -180,24 +284,24 @@ def reproject_history(
     p = y * width + x
     prev = parity[0]
     cur = 1 - prev
+    # the pixel's inputs, loads issued together before any branch on them
     z = depth[p]
-    if z <= 0.0 or tri_id[p] < 0:
+    tri = tri_id[p]
+    n = normal[p]
+    m = motion[p]
+    lum = luminance(irradiance[p])
+    if z <= 0.0 or tri < 0:
         cur_depth[p] = 0.0
         cur_normal[p] = wp.vec3(0.0)
-        surface[p] = wp.vec4(0.0)
-        hist_surface[cur, p] = wp.vec4(0.0)
+        store_row_vec4(hist_surface, cur, p, wp.vec4(0.0))
         prev_mean[p] = wp.vec3(0.0)
         prev_pairs[p] = wp.vec3(0.0)
-        stats[p] = wp.vec4(0.0)
+        store_vec4(stats, p, wp.vec4(0.0))
         return
-    n = normal[p]
     cur_depth[p] = z
     cur_normal[p] = n
-    packed = wp.vec4(z, n[0], n[1], n[2])
-    surface[p] = packed
-    hist_surface[cur, p] = packed
+    store_row_vec4(hist_surface, cur, p, wp.vec4(z, n[0], n[1], n[2]))
 
-    m = motion[p]
     px = float(x) + m[0]
     py = float(y) + m[1]
     fx0 = wp.floor(px)
@@ -206,38 +310,56 @@ def reproject_history(
     fy = py - fy0
     x0 = int(fx0)
     y0 = int(fy0)
-    sum_w = float(0.0)
-    mean = wp.vec3(0.0)
-    moments = wp.vec4(0.0)
-    photon_var = float(0.0)
-    frames = float(0.0)
-    lo = wp.vec3(3.0e38)  # per component: the smallest and largest mean and moments (m1, m2) of the 2x2 taps
-    hi = wp.vec3(-3.0e38)
-    lo_m = wp.vec2(3.0e38)
-    hi_m = wp.vec2(-3.0e38)
-    for tap in range(4):
-        dx = tap % 2
-        dy = tap // 2
-        tx = x0 + dx
-        ty = y0 + dy
-        if history_tap_ok(hist_surface, hist_mean, prev, tx, ty, width, height, z, n,
-                          depth_tolerance, normal_tolerance):
-            q = ty * width + tx
-            w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
-            sum_w += w
-            mean4 = hist_mean[prev, q]
-            mean_q = wp.vec3(mean4[0], mean4[1], mean4[2])
-            moments4 = hist_moments[prev, q]
-            moments_q = wp.vec3(moments4[0], moments4[1], moments4[2])
-            mean += w * mean_q
-            moments += w * moments4
-            photon_var += w * hist_photon_var[prev, q]
-            frames += w * mean4[3]
-            lo = wp.min(lo, mean_q)
-            hi = wp.max(hi, mean_q)
-            lo_m = wp.min(lo_m, wp.vec2(moments_q[0], moments_q[1]))
-            hi_m = wp.max(hi_m, wp.vec2(moments_q[0], moments_q[1]))
-    lum = luminance(irradiance[p])
+    # the 2x2 footprint: its 16 loads (three 16-byte rows and p² a texel; off-screen texels read texel 0 and
+    # are not used) issued together, then tested and summed tap by tap
+    inside_x0 = x0 >= 0 and x0 < width
+    inside_x1 = x0 + 1 >= 0 and x0 + 1 < width
+    inside_y0 = y0 >= 0 and y0 < height
+    inside_y1 = y0 + 1 >= 0 and y0 + 1 < height
+    q00 = wp.where(inside_x0 and inside_y0, y0 * width + x0, 0)
+    q01 = wp.where(inside_x1 and inside_y0, y0 * width + x0 + 1, 0)
+    q10 = wp.where(inside_x0 and inside_y1, (y0 + 1) * width + x0, 0)
+    q11 = wp.where(inside_x1 and inside_y1, (y0 + 1) * width + x0 + 1, 0)
+    s00 = load_row_vec4(hist_surface, prev, q00)
+    s01 = load_row_vec4(hist_surface, prev, q01)
+    s10 = load_row_vec4(hist_surface, prev, q10)
+    s11 = load_row_vec4(hist_surface, prev, q11)
+    h00 = load_row_vec4(hist_mean, prev, q00)
+    h01 = load_row_vec4(hist_mean, prev, q01)
+    h10 = load_row_vec4(hist_mean, prev, q10)
+    h11 = load_row_vec4(hist_mean, prev, q11)
+    k00 = load_row_vec4(hist_moments, prev, q00)
+    k01 = load_row_vec4(hist_moments, prev, q01)
+    k10 = load_row_vec4(hist_moments, prev, q10)
+    k11 = load_row_vec4(hist_moments, prev, q11)
+    v00 = hist_photon_var[prev, q00]
+    v01 = hist_photon_var[prev, q01]
+    v10 = hist_photon_var[prev, q10]
+    v11 = hist_photon_var[prev, q11]
+    tol_z = depth_tolerance
+    tol_n = normal_tolerance
+    acc = BilinearSum()
+    acc.lo = wp.vec3(3.0e38)  # per component: the smallest and largest mean and moments (m1, m2) of the 2x2 taps
+    acc.hi = wp.vec3(-3.0e38)
+    acc.lo_m = wp.vec2(3.0e38)
+    acc.hi_m = wp.vec2(-3.0e38)
+    acc = bilinear_tap(acc, history_tap_ok(inside_x0 and inside_y0, s00, h00[3], z, n, tol_z, tol_n),
+                       (1.0 - fx) * (1.0 - fy), h00, k00, v00)
+    acc = bilinear_tap(acc, history_tap_ok(inside_x1 and inside_y0, s01, h01[3], z, n, tol_z, tol_n),
+                       fx * (1.0 - fy), h01, k01, v01)
+    acc = bilinear_tap(acc, history_tap_ok(inside_x0 and inside_y1, s10, h10[3], z, n, tol_z, tol_n),
+                       (1.0 - fx) * fy, h10, k10, v10)
+    acc = bilinear_tap(acc, history_tap_ok(inside_x1 and inside_y1, s11, h11[3], z, n, tol_z, tol_n),
+                       fx * fy, h11, k11, v11)
+    sum_w = acc.sum_w
+    mean = acc.mean
+    moments = acc.moments
+    photon_var = acc.photon_var
+    frames = acc.frames
+    lo = acc.lo
+    hi = acc.hi
+    lo_m = acc.lo_m
+    hi_m = acc.hi_m
     if sum_w >= MIN_BILINEAR_WEIGHT:
         inv = 1.0 / sum_w
         mean = mean * inv
@@ -245,52 +367,79 @@ def reproject_history(
         if sum_w >= 1.0 - 1.0e-6 and (fx > 0.0 or fy > 0.0):
             # the whole 4x4 footprint the same surface: Catmull-Rom, which does not blur the history
             # frame after frame as repeated bilinear fetches do, clamped per component to the 2x2 taps'
-            # range (no ringing, never negative)
+            # range (no ringing, never negative). A row of 4 taps at a time, its 12 loads issued together
+            # (sums in the same order as tap by tap); the rows stop at the first texel that is not the same
+            # surface, and then none is used
             wx = catmull_rom_weights(fx)
             wy = catmull_rom_weights(fy)
             cubic = wp.vec3(0.0)
             cubic_m = wp.vec2(0.0)
             all_ok = bool(True)
-            for tap in range(16):
-                i = tap % 4
-                j = tap // 4
-                tx = x0 - 1 + i
-                ty = y0 - 1 + j
+            for j in range(4):
                 if all_ok:
-                    if history_tap_ok(hist_surface, hist_mean, prev, tx, ty, width, height, z, n,
-                                      depth_tolerance, normal_tolerance):
-                        q = ty * width + tx
+                    ty = y0 - 1 + j
+                    inside_y = ty >= 0 and ty < height
+                    row_ok = bool(True)
+                    for i in range(4):
+                        tx = x0 - 1 + i
+                        inside = inside_y and tx >= 0 and tx < width
+                        q = wp.where(inside, ty * width + tx, 0)
+                        s_q = load_row_vec4(hist_surface, prev, q)
+                        mean4 = load_row_vec4(hist_mean, prev, q)
+                        moments4 = load_row_vec4(hist_moments, prev, q)
+                        ok = history_tap_ok(inside, s_q, mean4[3], z, n, depth_tolerance, normal_tolerance)
                         w = wx[i] * wy[j]
-                        mean4 = hist_mean[prev, q]
-                        moments4 = hist_moments[prev, q]
-                        cubic += w * wp.vec3(mean4[0], mean4[1], mean4[2])
-                        cubic_m += w * wp.vec2(moments4[0], moments4[1])
-                    else:
-                        all_ok = False
+                        cubic = wp.where(ok, cubic + w * wp.vec3(mean4[0], mean4[1], mean4[2]), cubic)
+                        cubic_m = wp.where(ok, cubic_m + w * wp.vec2(moments4[0], moments4[1]), cubic_m)
+                        row_ok = row_ok and ok
+                    all_ok = row_ok
             if all_ok:
                 mean = wp.min(wp.max(cubic, lo), hi)
                 m12 = wp.min(wp.max(cubic_m, lo_m), hi_m)
         prev_mean[p] = mean
         prev_pairs[p] = wp.vec3(moments[2] * inv, moments[3] * inv, photon_var * inv)
-        stats[p] = wp.vec4(lum, m12[0], m12[1], frames * inv)
+        store_vec4(stats, p, wp.vec4(lum, m12[0], m12[1], frames * inv))
     else:
         prev_mean[p] = wp.vec3(0.0)
         prev_pairs[p] = wp.vec3(0.0)
-        stats[p] = wp.vec4(lum, 0.0, 0.0, 0.0)
+        store_vec4(stats, p, wp.vec4(lum, 0.0, 0.0, 0.0))
 
 
-@wp.kernel
-def accumulate(
+@wp.func
+def region_one_sided(win_surface: wp.tile[wp.vec4, REGION_POINTS], z: float, v_lo: int, v_hi: int) -> float:
+    """:func:`.kernels_svgf.one_sided_slope` from the window region (0 off the image: no surface there)."""
+    s = float(-1.0)
+    z_lo = read_region(win_surface, v_lo)[0]
+    if z_lo > 0.0:
+        s = wp.abs(z - z_lo)
+    z_hi = read_region(win_surface, v_hi)[0]
+    if z_hi > 0.0:
+        d = wp.abs(z_hi - z)
+        s = wp.where(s < 0.0, d, wp.min(s, d))
+    return wp.max(s, 0.0)
+
+
+@wp.func
+def region_slope(win_surface: wp.tile[wp.vec4, REGION_POINTS], u: int, z: float) -> float:
+    """‖∇z‖ [m/pixel] of the pixel at region index ``u`` (:func:`.kernels_svgf.depth_gradient_length`)."""
+    gx = region_one_sided(win_surface, z, u - 1, u + 1)
+    gy = region_one_sided(win_surface, z, u - _PITCH, u + _PITCH)
+    return wp.sqrt(gx * gx + gy * gy)
+
+
+@wp.func
+def accumulate_pixel(
+    win_surface: wp.tile[wp.vec4, REGION_POINTS],
+    win_stats: wp.tile[wp.vec4, REGION_POINTS],
+    win_m2: wp.tile[wp.float32, REGION_POINTS],
+    keep_p2: bool,
+    p: int,
+    u: int,
+    cur: int,
     irradiance: wp.array(dtype=wp.vec3),
-    photon_m2: wp.array(dtype=wp.float32),
-    depth: wp.array(dtype=wp.float32),
-    surface: wp.array(dtype=wp.vec4),
+    stats: wp.array(dtype=wp.vec4),
     prev_mean: wp.array(dtype=wp.vec3),
     prev_pairs: wp.array(dtype=wp.vec3),
-    stats: wp.array(dtype=wp.vec4),
-    parity: wp.array(dtype=wp.int32),
-    width: int,
-    height: int,
     radius: int,
     max_history: float,
     change_sigmas: float,
@@ -306,28 +455,9 @@ def accumulate(
     frames_out: wp.array(dtype=wp.float32),
     slope_out: wp.array(dtype=wp.float32),
 ):
-    """Reactive temporal accumulation (module docstring).
-
-    Reads ``irradiance`` (H*W vec3 [W/m²]), ``photon_m2`` (H*W float32 [(W/m²)²], Σ luminance(e)² of the
-    frame's photons per pixel; None: not kept, the variance from the frames alone), this frame's G-buffer copy
-    ``depth`` ([m], 0 = none) and ``normal`` from :func:`reproject_history`, with its ``prev_mean`` (vec3
-    [W/m²]), ``prev_pairs`` (vec3: s², kept change ratio, p²) and ``stats`` (vec4: luminance of E, m1, m2, n).
-    ``radius``: half width of the change-detection window [pixels]; ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
-    ``change_sigmas`` (k): how many of their standard errors the deviations must exceed to count as change; a window pixel q is the same
-    surface when its depth is within ``depth_tolerance`` (relative) and its normal's cosine at least
-    ``normal_tolerance``.
-
-    Writes the new history into row ``1 - parity[0]`` of ``hist_mean`` (vec4: mean [W/m²], n_new) and
-    ``hist_moments`` (vec4: m1, m2, s², kept change ratio) and ``hist_photon_var`` (p², 0 without photon_m2),
-    and per pixel ``mean_out`` (vec3 [W/m²], the accumulated
-    estimate), ``variance_out`` (float32 [(W/m²)²], the variance of its luminance, σ² / n_new),
-    ``frames_out`` (n_new) and ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous levels). 0 without
-    a surface.
-    """
-    y, x = wp.tid()
-    p = y * width + x
-    cur = 1 - parity[0]
-    z = depth[p]
+    """:func:`accumulate` of pixel ``p``, index ``u`` in the shared window region (its window and slope read
+    from there)."""
+    z = read_region(win_surface, u)[0]
     if z <= 0.0:
         hist_mean[cur, p] = wp.vec4(0.0)
         hist_moments[cur, p] = wp.vec4(0.0)
@@ -337,12 +467,11 @@ def accumulate(
         frames_out[p] = 0.0
         slope_out[p] = 0.0
         return
-    s_p0 = surface[p]
+    s_p0 = read_region(win_surface, u)
     n = wp.vec3(s_p0[1], s_p0[2], s_p0[3])
     count = float(0.0)  # same-surface pixels of the window
     sum_e = float(0.0)
     sum_p2 = float(0.0)  # Σ photon_m2: the window's Monte-Carlo variance this frame, summed
-    keep_p2 = photon_m2.shape[0] > 0
     photon = float(3.0e38)  # smallest non-zero irradiance of the window: one photon's [W/m²]
     with_history = float(0.0)  # ... of which have a history
     sum_d = float(0.0)  # Σ (E − M)
@@ -361,42 +490,38 @@ def accumulate(
         left = float(-1.0)
         left2 = float(-1.0)
         for dx in range(-radius, radius + 1):
-            qx = x + dx
-            qy = y + dy
             col = dx + radius
             here = float(-1.0)
-            if qx >= 0 and qx < width and qy >= 0 and qy < height:
-                q = qy * width + qx
-                s_q = surface[q]  # (z, normal): one aligned load
-                z_q = s_q[0]
-                if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and \
-                        s_q[1] * n[0] + s_q[2] * n[1] + s_q[3] * n[2] >= normal_tolerance:
-                    s = stats[q]
-                    e = s[0]
-                    here = e
-                    count += 1.0
-                    sum_e += e
-                    if keep_p2:
-                        sum_p2 += photon_m2[q]
-                    if e > 0.0:
-                        photon = wp.min(photon, e)
-                    if left >= 0.0 and left2 >= 0.0:
-                        sum_dh += (e - 2.0 * left + left2) * (e - 2.0 * left + left2)
-                        pairs_h += 1.0
-                    if above[col] >= 0.0 and above2[col] >= 0.0:
-                        sum_dv += (e - 2.0 * above[col] + above2[col]) * (e - 2.0 * above[col] + above2[col])
-                        pairs_v += 1.0
-                    n_q = s[3]
-                    if n_q > 0.0:
-                        d = e - s[1]
-                        with_history += 1.0
-                        sum_d += d
-                        sum_d2 += d * d
-                        v = wp.max(s[2] - s[1] * s[1], 0.0) * n_q / wp.max(n_q - 1.0, 1.0)
-                        sum_var += v
-                        sum_var2 += v * v
-                        sum_m1 += s[1]
-                        sum_inv_n += 1.0 / n_q
+            v_q = u + dy * _PITCH + dx  # off the image: z = 0, not the same surface
+            s_q = read_region(win_surface, v_q)  # (z, normal)
+            z_q = s_q[0]
+            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and \
+                    s_q[1] * n[0] + s_q[2] * n[1] + s_q[3] * n[2] >= normal_tolerance:
+                s = read_region(win_stats, v_q)
+                e = s[0]
+                here = e
+                count += 1.0
+                sum_e += e
+                if keep_p2:
+                    sum_p2 += read_region_scalar(win_m2, v_q)
+                if e > 0.0:
+                    photon = wp.min(photon, e)
+                if left >= 0.0 and left2 >= 0.0:
+                    sum_dh += (e - 2.0 * left + left2) * (e - 2.0 * left + left2)
+                    pairs_h += 1.0
+                if above[col] >= 0.0 and above2[col] >= 0.0:
+                    sum_dv += (e - 2.0 * above[col] + above2[col]) * (e - 2.0 * above[col] + above2[col])
+                    pairs_v += 1.0
+                if s[3] > 0.0:  # 1/n > 0: a history (s = (E, m1, v, 1/n), region table of accumulate)
+                    d = e - s[1]
+                    with_history += 1.0
+                    sum_d += d
+                    sum_d2 += d * d
+                    v = s[2]  # max(m2 − m1², 0) n / max(n − 1, 1)
+                    sum_var += v
+                    sum_var2 += v * v
+                    sum_m1 += s[1]
+                    sum_inv_n += s[3]
             left2 = left
             left = here
             above2[col] = above[col]
@@ -413,7 +538,7 @@ def accumulate(
         var_pairs = sum_dh / pairs_h / 6.0
     elif pairs_v > 0.0:
         var_pairs = sum_dv / pairs_v / 6.0
-    s_p = stats[p]
+    s_p = load_vec4(stats, p)  # (E, m1, m2, n)
     n_prev = s_p[3]
     c = irradiance[p]
     lum = s_p[0]
@@ -516,4 +641,112 @@ def accumulate(
     mean_out[p] = mean
     variance_out[p] = sigma2_est / n_new
     frames_out[p] = n_new
-    slope_out[p] = depth_gradient_length(depth, x, y, width, height)
+    slope_out[p] = region_slope(win_surface, u, z)
+
+
+@wp.kernel(launch_bounds=(BLOCK_THREADS, 3))
+def accumulate(
+    irradiance: wp.array(dtype=wp.vec3),
+    photon_m2: wp.array(dtype=wp.float32),
+    hist_surface: wp.array2d(dtype=wp.vec4),
+    prev_mean: wp.array(dtype=wp.vec3),
+    prev_pairs: wp.array(dtype=wp.vec3),
+    stats: wp.array(dtype=wp.vec4),
+    parity: wp.array(dtype=wp.int32),
+    width: int,
+    height: int,
+    tiles_x: int,
+    radius: int,
+    max_history: float,
+    change_sigmas: float,
+    pixel_sigmas: float,
+    change_persistence: float,
+    depth_tolerance: float,
+    normal_tolerance: float,
+    hist_mean: wp.array2d(dtype=wp.vec4),
+    hist_moments: wp.array2d(dtype=wp.vec4),
+    hist_photon_var: wp.array2d(dtype=wp.float32),
+    mean_out: wp.array(dtype=wp.vec3),
+    variance_out: wp.array(dtype=wp.float32),
+    frames_out: wp.array(dtype=wp.float32),
+    slope_out: wp.array(dtype=wp.float32),
+):
+    """Reactive temporal accumulation (module docstring).
+
+    Reads ``irradiance`` (H*W vec3 [W/m²]), ``photon_m2`` (H*W float32 [(W/m²)²], Σ luminance(e)² of the
+    frame's photons per pixel; None: not kept, the variance from the frames alone), this frame's G-buffer copy
+    (z [m], 0 = none; normal) in row ``1 - parity[0]`` of ``hist_surface`` from :func:`reproject_history`,
+    with its ``prev_mean`` (vec3 [W/m²]), ``prev_pairs`` (vec3: s², kept change ratio, p²) and ``stats`` (vec4: luminance of E, m1, m2, n).
+    ``radius``: half width of the change-detection window [pixels]; ``max_history``: cap N on n (the running mean becomes an exponential one of weight 1/N);
+    ``change_sigmas`` (k): how many of their standard errors the deviations must exceed to count as change; a window pixel q is the same
+    surface when its depth is within ``depth_tolerance`` (relative) and its normal's cosine at least
+    ``normal_tolerance``.
+
+    Writes the new history into row ``1 - parity[0]`` of ``hist_mean`` (vec4: mean [W/m²], n_new) and
+    ``hist_moments`` (vec4: m1, m2, s², kept change ratio) and ``hist_photon_var`` (p², 0 without photon_m2),
+    and per pixel ``mean_out`` (vec3 [W/m²], the accumulated
+    estimate), ``variance_out`` (float32 [(W/m²)²], the variance of its luminance, σ² / n_new),
+    ``frames_out`` (n_new) and ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous levels). 0 without
+    a surface.
+
+    ``wp.launch_tiled`` over ``tiles_y * tiles_x`` blocks of ``BLOCK_THREADS`` (:func:`accumulate_blocks`): block
+    ``ty * tiles_x + tx`` takes the pixels (TILE_Y ty + i, TILE_X tx + j), i < TILE_Y, j < TILE_X. Its window
+    region (the tile and an apron of ``radius``: the packed surface, ``stats`` and ``photon_m2``, 0 off the image,
+    where a window has no pixel either) is read into shared memory once, and every pixel's window and depth
+    slope read from there.
+    """
+    block, lane = wp.tid()
+    threads = wp.block_dim()
+    cur = 1 - parity[0]
+    y0 = (block // tiles_x) * _TILE_Y
+    x0 = (block % tiles_x) * _TILE_X
+    keep_p2 = photon_m2.shape[0] > 0
+    # 1. the window region: the tile and an apron of radius, each point's three loads once (at table rows and
+    # columns MAX_CHANGE_RADIUS - radius on), then one barrier
+    win_surface = wp.tile_empty(shape=_REGION_N, dtype=wp.vec4, storage="shared")  # (z, normal)
+    win_stats = wp.tile_empty(shape=_REGION_N, dtype=wp.vec4, storage="shared")  # (luminance of E, m1, v, 1/n)
+    win_m2 = wp.tile_empty(shape=_REGION_N, dtype=wp.float32, storage="shared")  # photon_m2
+    region_x = _TILE_X + 2 * radius
+    offset = _MAX_R - radius
+    for k in range(lane, (_TILE_Y + 2 * radius) * region_x, threads):
+        i = k // region_x
+        j = k - i * region_x
+        qy = y0 - radius + i
+        qx = x0 - radius + j
+        inside = qy >= 0 and qy < height and qx >= 0 and qx < width
+        q = wp.where(inside, qy * width + qx, 0)
+        s_q = load_row_vec4(hist_surface, cur, q)
+        st_q = load_vec4(stats, q)
+        m2_q = float(0.0)
+        if keep_p2:
+            m2_q = photon_m2[q]
+        # a window pixel's terms that need divisions, once per point (not once per window that holds it): its
+        # temporal per-frame variance v and 1/n (0 without a history)
+        n_q = st_q[3]
+        var_q = wp.max(st_q[2] - st_q[1] * st_q[1], 0.0) * n_q / wp.max(n_q - 1.0, 1.0)
+        inv_n_q = float(0.0)
+        if n_q > 0.0:
+            inv_n_q = 1.0 / n_q
+        v = (i + offset) * _PITCH + j + offset
+        write_region(win_surface, v, wp.where(inside, s_q, wp.vec4(0.0)))
+        write_region(win_stats, v, wp.where(inside, wp.vec4(st_q[0], st_q[1], var_q, inv_n_q), wp.vec4(0.0)))
+        write_region_scalar(win_m2, v, wp.where(inside, m2_q, 0.0))
+    block_sync()
+    # 2. the tile's pixels
+    for k in range(lane, _TILE_Y * _TILE_X, threads):
+        i = k // _TILE_X
+        j = k - i * _TILE_X
+        y = y0 + i
+        x = x0 + j
+        if y < height and x < width:
+            accumulate_pixel(win_surface, win_stats, win_m2, keep_p2, y * width + x,
+                             (i + _MAX_R) * _PITCH + j + _MAX_R, cur, irradiance, stats, prev_mean, prev_pairs, radius,
+                             max_history, change_sigmas, pixel_sigmas, change_persistence, depth_tolerance,
+                             normal_tolerance, hist_mean, hist_moments, hist_photon_var, mean_out, variance_out,
+                             frames_out, slope_out)
+
+
+def accumulate_blocks(width: int, height: int) -> tuple[int, int]:
+    """(blocks, tiles_x) of :func:`accumulate`."""
+    tiles_x = (width + TILE_X - 1) // TILE_X
+    return tiles_x * ((height + TILE_Y - 1) // TILE_Y), tiles_x
