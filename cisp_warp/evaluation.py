@@ -46,6 +46,10 @@ REFERENCE_AOVS = MEASURED_AOVS + ("caustics_stderr",)
 METHODS = ("cisp", "sspm", "caustics_map")
 
 
+#: revision of what a cached reference holds, part of its cache key: a reference cached before its final image
+#: saw the sky (paths leaving the scene, sky irradiance at their ends) is not reused
+REFERENCE_REVISION = "sky"
+
 #: the renderer's denoisers every method is measured with, and caustics_map's own filters (seed 004)
 DENOISERS = ("caustic", "svgf", "none", "own")
 
@@ -168,7 +172,8 @@ def cached_reference(cache_dir: str | None, name: str, scenes: list[Scene], sett
     time code). Returns (one dict of AOVs per frame, meta)."""
     ps = settings.photons
     key = hashlib.blake2b("|".join([scene_digest(s) for s in scenes] + [
-        key_extra, str(settings.rsm_size), repr(ps), wp.config.version]).encode(), digest_size=10).hexdigest()
+        key_extra, str(settings.rsm_size), repr(ps), wp.config.version, REFERENCE_REVISION]).encode(),
+        digest_size=10).hexdigest()
     path = os.path.join(cache_dir, f"reference_{name}_{key}.npz") if cache_dir else None
     if path and os.path.exists(path):
         with np.load(path) as f:
@@ -221,7 +226,8 @@ def accumulated_reference(cache_dir: str | None, name: str, scene: Scene, settin
 
     ps = settings.photons
     key = hashlib.blake2b("|".join([scene_digest(scene), key_extra, str(settings.rsm_size), repr(ps),
-                                    wp.config.version, "chunks"]).encode(), digest_size=10).hexdigest()
+                                    wp.config.version, "chunks", REFERENCE_REVISION]).encode(),
+                      digest_size=10).hexdigest()
     path = os.path.join(cache_dir, f"reference_{name}_{key}.npz") if cache_dir else None
     sums, meta = None, {}
     if path and os.path.exists(path):

@@ -211,6 +211,8 @@ class Renderer:
             cls = photon_pass_class(self.settings.method)
             self.photons = cls(self.gpu, self.gbuffer, self.view, self.lights, self.settings.photons, self.device, self.t_max)
             self.photons.inputs = self.inputs
+            if hasattr(self.photons, "use_sky"):  # the reference's own final image: the methods' sky
+                self.photons.use_sky(self.sky, self.sky_map)
         ps = self.settings.photons
         self.fitter = LightViewFitter(self.gpu, self.gbuffer, self.lights, ps.roughness_cutoff, ps.thickness,
                                       ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed, inputs=self.inputs)

@@ -159,6 +159,33 @@ def sky_inputs_changed(
         changed[0] = 0
 
 
+@wp.func
+def sky_irradiance_at(
+    x: wp.vec3,  # world point [m]
+    n: wp.vec3,  # its unit normal
+    sh: wp.array(dtype=wp.vec3),  # (9,) convolved SH coefficients of the sky [W/m²]
+    views: wp.array(dtype=ViewParams),  # (K,) occlusion map views
+    directions: wp.array(dtype=wp.vec3),  # (K,) unit directions towards the sky ω_k
+    luminance: wp.array(dtype=wp.float32),  # (K,) sky luminance along ω_k [W/(m² sr)]
+    map_depth: wp.array(dtype=wp.float32),  # (K*S*S,) occlusion maps, nearest opaque depth [m]
+    map_texels: int,  # S*S
+) -> wp.vec3:
+    """Sky irradiance E0(n) · A(x, n) [W/m²] on a world point (module docstring): what
+    :func:`sky_irradiance_kernel` gives a camera pixel, and the reference (:mod:`cisp_warp.photons.world`) the
+    diffuse end of a camera path, so both see the same sky."""
+    num = float(0.0)
+    den = float(0.0)
+    for k in range(directions.shape[0]):
+        w = wp.dot(n, directions[k]) * luminance[k]
+        if w > 0.0:
+            num += w * map_visibility(views[k], map_depth, k * map_texels, x, n, directions[k])
+            den += w
+    a = float(1.0)
+    if den > 0.0:
+        a = num / den
+    return sh_irradiance(sh, n) * a
+
+
 @wp.kernel
 def sky_irradiance_kernel(
     changed: wp.array(dtype=wp.int32),  # (1,) sky_inputs_changed: 0 keeps the last frame's irradiance (read)
@@ -179,19 +206,7 @@ def sky_irradiance_kernel(
     if depth[p] <= 0.0:
         irradiance[p] = wp.vec3(0.0)
         return
-    x = position[p]
-    n = normal[p]
-    num = float(0.0)
-    den = float(0.0)
-    for k in range(directions.shape[0]):
-        w = wp.dot(n, directions[k]) * luminance[k]
-        if w > 0.0:
-            num += w * map_visibility(views[k], map_depth, k * map_texels, x, n, directions[k])
-            den += w
-    a = float(1.0)
-    if den > 0.0:
-        a = num / den
-    irradiance[p] = sh_irradiance(sh, n) * a
+    irradiance[p] = sky_irradiance_at(position[p], normal[p], sh, views, directions, luminance, map_depth, map_texels)
 
 
 def fibonacci_directions(count: int) -> np.ndarray:
@@ -341,4 +356,4 @@ class SkyLighting:
 
 
 __all__ = ["SkyLighting", "SkyMap", "fibonacci_directions", "latlong_directions", "same_view", "sh_basis",
-           "sky_map", "sky_radiance", "sky_sh_irradiance"]
+           "sky_irradiance_at", "sky_map", "sky_radiance", "sky_sh_irradiance"]

@@ -268,3 +268,30 @@ def test_direct_light_two_maps_a_launch_equal_one_a_launch(device):
         r.direct.irradiance.fill_(wp.vec3(-1.0, -1.0, -1.0))
         r.direct.render(r.gbuffer, r.lights)
         np.testing.assert_array_equal(r.direct.irradiance.numpy(), paired)
+
+
+def test_reference_final_sees_the_methods_sky(device):
+    """The reference's own final image (camera paths, photons/world.py) lights with the methods' sky: the sky's
+    radiance where a path leaves the scene, and the methods' sky irradiance at a path's diffuse end. Without them its
+    final was black wherever the camera saw the sky, and every method's FLIP against it measured that."""
+    from cisp_warp.photons import PhotonSettings
+
+    tex = np.ones((4, 8, 3), np.float32)
+    tex[:2] *= 3.0  # upper half brighter
+    floor = (analytic.quad(0, 0, 0, (2.0, 0, 0), (0, 0, -2.0)), 0)
+    scene = lambda: _sky_scene([floor], Sky("/Sky", (1.0, 1.0, 1.0), tex), eye=(0.0, 1.0, 3.0),  # noqa: E731
+                               target=(0.0, 0.5, 0.0))
+    finals = {}
+    for method in ("none", "reference"):
+        r = Renderer(scene(), RenderSettings(method=method, denoiser="none", sky_maps=8, sky_map_size=32,
+                                             photons=PhotonSettings(photons=1000, reference_photons=2000)),
+                     device=device)
+        r.render_frame()
+        finals[method] = r.aovs(include_rsm=False)
+    a, ref = finals["none"], finals["reference"]
+    sky, floor_px = a["depth"] <= 0, a["depth"] > 0
+    assert sky.sum() > 20 and floor_px.sum() > 20
+    assert ref["final"][sky].min() > 0.0
+    np.testing.assert_allclose(ref["final"][sky], a["final"][sky], rtol=1e-5)
+    # on the floor: albedo/π × the same sky irradiance (no light, no caustic), to float rounding
+    np.testing.assert_allclose(ref["final"][floor_px], a["final"][floor_px], rtol=1e-4)

@@ -24,6 +24,7 @@ from ..scene.device import SurfaceGeometry
 from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
+from ..sky import SkyMap, sky_irradiance_at, sky_radiance
 from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
                      L_OCCLUDED, L_REJECTED, L_SAMPLED, L_STORED, Tally, book, book_bounce, deposit, emit_and_bounce,
                      entry_mask, ledger_add, photon_index, r2_point, record_absorbed, record_outcome, specular_bounce,
@@ -494,10 +495,12 @@ def camera_paths(
     end_normal: wp.array(dtype=wp.vec3),  # (S*H*W,) its shading normal, facing the path (write)
     end_weight: wp.array(dtype=wp.vec3),  # (S*H*W,) albedo/π × throughput / S; 0 = the path ends nowhere (write)
     end_primary: wp.array(dtype=wp.int32),  # (S*H*W,) 1: the diffuse point is the pixel's own G-buffer surface
+    sky: SkyMap,  # the dome light's radiance (black without one)
+    end_sky: wp.array(dtype=wp.vec3),  # (S*H*W,) throughput / S × sky radiance where the path leaves the scene (write)
 ):
     """Path s of pixel p: from the eye through the pixel centre, through smooth specular surfaces
     (Fresnel chosen at random, radiance scaled by (1 − F)/η² across a boundary, by albedo at a metal)
-    to the first diffuse surface."""
+    to the first diffuse surface, or out of the scene, where it sees the sky (as the methods' composite)."""
     i = wp.tid()
     p = i / paths_per_pixel
     v = cam.view
@@ -511,12 +514,14 @@ def camera_paths(
     end_primary[i] = 0
     end_pos[i] = wp.vec3(FAR_AWAY)
     end_normal[i] = wp.vec3(0.0)
+    end_sky[i] = wp.vec3(0.0)
     eps = 1.0e-5 * t_max
     specular_seen = int(0)
     bounce = int(0)
     while bounce <= max_bounces:
         tri, y, n, g = world_hit(ws, o, d, t_max)
         if tri < 0:
+            end_sky[i] = wp.cw_mul(w, sky_radiance(sky, d))
             return
         m = ws.triangle_material[tri]
         if is_smooth_specular(ws, tri, roughness_cutoff) == 0:
@@ -593,6 +598,28 @@ def endpoint_direct(
 
 
 @wp.kernel
+def endpoint_sky(
+    sh: wp.array(dtype=wp.vec3),  # (9,) convolved SH coefficients of the sky [W/m²] (read)
+    views: wp.array(dtype=ViewParams),  # (K,) occlusion map views (read)
+    directions: wp.array(dtype=wp.vec3),  # (K,) unit directions towards the sky (read)
+    luminance: wp.array(dtype=wp.float32),  # (K,) sky luminance along them [W/(m² sr)] (read)
+    map_depth: wp.array(dtype=wp.float32),  # (K*S*S,) occlusion maps [m] (read)
+    map_texels: int,  # S*S
+    end_pos: wp.array(dtype=wp.vec3),  # (S*H*W,) (read)
+    end_normal: wp.array(dtype=wp.vec3),
+    end_weight: wp.array(dtype=wp.vec3),
+    irradiance: wp.array(dtype=wp.vec3),  # (S*H*W,) [W/m²] (accumulate)
+):
+    """Sky irradiance at each path's diffuse end: the methods' own (:func:`cisp_warp.sky.sky_irradiance_at`, the
+    same SH projection and occlusion maps), so the reference's final image and theirs light with one sky."""
+    i = wp.tid()
+    if wp.length(end_weight[i]) <= 0.0:
+        return
+    irradiance[i] = irradiance[i] + sky_irradiance_at(end_pos[i], end_normal[i], sh, views, directions, luminance,
+                                                      map_depth, map_texels)
+
+
+@wp.kernel
 def endpoint_gather(
     grid: wp.uint64,
     radius: float,  # [m] gather radius (the hash grid's cell size)
@@ -631,6 +658,7 @@ def resolve_final(
     end_primary: wp.array(dtype=wp.int32),
     end_direct: wp.array(dtype=wp.vec3),  # (S*H*W,) [W/m²]
     end_caustic: wp.array(dtype=wp.vec3),  # (S*H*W,) Σ over passes [W/m²]
+    end_sky: wp.array(dtype=wp.vec3),  # (S*H*W,) sky radiance of the paths that leave the scene, weighted (read)
     final: wp.array(dtype=wp.vec3),  # (H*W,) radiance reaching the camera [W/(m² sr)] (write)
 ):
     p = wp.tid()
@@ -640,6 +668,6 @@ def resolve_final(
         e = end_caustic[i] / float(passes)
         if end_primary[i] != 0:
             e = caustic_mean[p]
-        l = l + wp.cw_mul(end_weight[i], end_direct[i] + e)
+        l = l + wp.cw_mul(end_weight[i], end_direct[i] + e) + end_sky[i]
         i += 1
     final[p] = l

@@ -16,6 +16,7 @@ from ..raster import GBuffer, LightMaps
 from ..raster.views import View
 from ..scene import DeviceScene
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
+from ..sky import sky_map
 from . import kernels_world as K
 from .base import PhotonPass, PhotonSettings, frame_random
 
@@ -106,7 +107,8 @@ class Reference(_WorldPass):
 
     The final image follows ``paths_per_pixel`` camera paths per pixel through specular surfaces to the
     first diffuse surface; there the caustic irradiance is a density estimate over each pass's photon
-    landing points (``wp.HashGrid``, radius ``gather_radius``), the direct irradiance an exact shadow ray.
+    landing points (``wp.HashGrid``, radius ``gather_radius``), the direct irradiance an exact shadow ray, and the
+    sky's the methods' own (:meth:`use_sky`); a path that leaves the scene sees the sky's radiance.
     """
 
     name = "reference"
@@ -144,7 +146,18 @@ class Reference(_WorldPass):
         self.end_primary = wp.zeros(e, dtype=wp.int32, device=d)
         self.end_direct = wp.zeros(e, dtype=wp.vec3, device=d)
         self.end_caustic = wp.zeros(e, dtype=wp.vec3, device=d)
+        self.end_sky = wp.zeros(e, dtype=wp.vec3, device=d)
+        self.sky_map = sky_map(None, d)  #: the dome's radiance, seen by paths that leave the scene (:meth:`use_sky`)
+        self.sky = None  #: the renderer's :class:`cisp_warp.sky.SkyLighting` (:meth:`use_sky`), None without a sky
         self.progress = None  #: optional callable(passes_done, passes) for long runs
+
+    def use_sky(self, sky, radiance_map) -> None:
+        """Light the final image with the renderer's sky, as the methods' composite does: ``radiance_map`` (a
+        :class:`cisp_warp.sky.SkyMap`) where a camera path leaves the scene, and ``sky`` (its
+        :class:`cisp_warp.sky.SkyLighting`, or None) for the sky irradiance at a path's diffuse end, from the same
+        SH projection and occlusion maps (drawn by the renderer's sky stage before the photon pass)."""
+        self.sky = sky
+        self.sky_map = radiance_map
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         s = self.settings
@@ -159,7 +172,13 @@ class Reference(_WorldPass):
         _, _, path_seed = frame_random(s.seed, frame, 1 << 20)
         wp.launch(K.camera_paths, dim=e, device=d, inputs=[
             self.world, self.cam, self.paths_per_pixel, path_seed, float(s.roughness_cutoff), self.t_max,
-            int(s.max_bounces), self.end_pos, self.end_normal, self.end_weight, self.end_primary])
+            int(s.max_bounces), self.end_pos, self.end_normal, self.end_weight, self.end_primary, self.sky_map,
+            self.end_sky])
+        if self.sky is not None:
+            k = self.sky
+            wp.launch(K.endpoint_sky, dim=e, device=d, inputs=[
+                k.sh, k.view_params, k.directions, k.luminance, k.map_depth, k.map_size * k.map_size,
+                self.end_pos, self.end_normal, self.end_weight, self.end_direct])
         for lm in self.lights:
             light = lm.light
             wp.launch(K.endpoint_direct, dim=e, device=d, inputs=[
@@ -196,7 +215,7 @@ class Reference(_WorldPass):
         wp.launch(K.scale_ledger, dim=self.ledger.shape[0], device=d, inputs=[self.ledger, wp.float64(1.0 / self.passes)])
         wp.launch(K.resolve_final, dim=self.pass_map.shape[0], device=d, inputs=[
             self.paths_per_pixel, self.passes, self.photon_map, self.end_weight, self.end_primary,
-            self.end_direct, self.end_caustic, self.final])
+            self.end_direct, self.end_caustic, self.end_sky, self.final])
 
     def aovs(self, shape: tuple[int, int]) -> dict[str, np.ndarray]:
         return {"caustics_stderr": self.stderr.numpy().reshape(shape + (3,))}
