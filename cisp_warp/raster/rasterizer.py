@@ -32,6 +32,9 @@ class Rasterizer:
         self.tile_end = wp.zeros(n_sub, dtype=wp.int32, device=d)  # inclusive scan of tile_count
         # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially
         self.stride = (1 << 18) if d.is_cuda else (1 << 10)
+        #: draw with ``kernels.raster_tile_columns`` (a thread per pixel column of a tile); False: its naive twin
+        #: ``raster_tiles`` (a thread per tile), the same buffers bit for bit
+        self.columns = True
 
     def draw(self, views: wp.array, view_index: int, width: int, height: int, layer: int, visibility: wp.array,
              clear: bool = True, layer_b: int = 0, visibility_b: wp.array | None = None) -> None:
@@ -57,9 +60,15 @@ class Rasterizer:
                   inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer | layer_b), tiles_x,
                           tiles_y, self.sub_v, self.sub_bbox, self.tile_count])
         wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
-        wp.launch(K.raster_tiles, dim=self.stride, device=d,
-                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                          self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
+        if self.columns:
+            wp.launch(K.raster_tile_columns, dim=self.stride, device=d,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              self.stride // K.TILE, s.triangle_layers, int(layer), visibility, int(layer_b),
+                              visibility_b])
+        else:
+            wp.launch(K.raster_tiles, dim=self.stride, device=d,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
 
 
 def view_array(views, device) -> wp.array:
