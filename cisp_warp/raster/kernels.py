@@ -258,27 +258,46 @@ def _sub_of_item(tile_end: wp.array(dtype=wp.int32), n_sub: int, item: int) -> i
     return lo
 
 
-#: bound on the rounding of :func:`_shared_edge`, relative to the sum of its two products' magnitudes (each
-#: difference, product and the final subtraction round by at most 2^-24: 5·2^-24 ≈ 3e-7, and the bound itself is
-#: computed in float32): see :func:`_column_outside`
+@wp.func
+def _edge_terms(a: wp.vec3, b: wp.vec3) -> wp.vec4:
+    """(p0, p1, dx, dy) with ``dx·(y - p1) - dy·(x - p0)`` equal to ``_shared_edge(a, b, x, y)`` bit for bit: ``p`` is
+    the lexicographically smaller end, and the sign of the other orientation is folded into dx and dy (rounding is
+    symmetric: fl(-u + v) = -fl(u - v); a zero comes out +0 where ``_shared_edge`` gives -0, which no test or sum
+    of :func:`raster_tile_columns` tells apart)."""
+    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
+        return wp.vec4(a[0], a[1], b[0] - a[0], b[1] - a[1])
+    return wp.vec4(b[0], b[1], -(a[0] - b[0]), -(a[1] - b[1]))
+
+
+@wp.func
+def _edge_at(e: wp.vec4, x: float, y: float) -> float:
+    """:func:`_shared_edge` from its :func:`_edge_terms` (the same operations on the same values)."""
+    return e[2] * (y - e[1]) - e[3] * (x - e[0])
+
+
+#: bound on the rounding of :func:`_edge_at`, relative to the sum of its two products' magnitudes: the differences,
+#: the products and the subtraction each round by at most 2^-24 relative, 4·2^-24 ≈ 2.4e-7 in all (less with a
+#: fused multiply-add); ~4× that for room (the bound is itself computed in float32). See :func:`_edge_slack`
 EDGE_ROUNDING = wp.constant(1.0e-6)
 
 
 @wp.func
-def _column_outside(a: wp.vec3, b: wp.vec3, x: float, y0: float, y1: float) -> bool:
-    """Whether ``_shared_edge(a, b, x, y) < 0`` for every pixel centre of the column x, y in [y0, y1], proven from the
-    column's two ends: True only when no pixel of it can pass the edge test (a column it returns False for is tested
-    pixel by pixel, as before). Both orientations of ``_shared_edge`` approximate the one affine function
-    G(x, y) = (b0 - a0)(y - a1) - (b1 - a1)(x - a0), each within E = 5·2^-24·S(x, y), S the sum of the magnitudes of
-    its two products from either end (``EDGE_ROUNDING`` bounds it with room for its own rounding). G is affine along
-    the column, so at any pixel between the ends the computed value is at most max(end values) + 2E: below 0 when
-    that is. Overflow or NaN make the comparison False (tested pixel by pixel)."""
-    f0 = _shared_edge(a, b, x, y0)
-    f1 = _shared_edge(a, b, x, y1)
-    sy = wp.max(wp.max(wp.abs(y0 - a[1]), wp.abs(y1 - a[1])), wp.max(wp.abs(y0 - b[1]), wp.abs(y1 - b[1])))
-    sx = wp.max(wp.abs(x - a[0]), wp.abs(x - b[0]))
-    e = EDGE_ROUNDING * (wp.abs(b[0] - a[0]) * sy + wp.abs(b[1] - a[1]) * sx) + 1.0e-30
-    return wp.max(f0, f1) < -2.0 * e
+def _edge_slack(e: wp.vec4, box: wp.vec4i) -> float:
+    """E: at every pixel centre of ``box`` the computed :func:`_edge_at` lies within E of the exact affine function
+    G(x, y) = (q0 - p0)(y - p1) - (q1 - p1)(x - p0) of the edge's float32 ends. So along a column, where G is affine,
+    every pixel's computed value is at most max(its two ends' computed values) + 2E: when that is below zero no pixel
+    of the column can pass the edge test (:func:`raster_tile_columns` skips it). Overflow or NaN make that test
+    False (the column is tested pixel by pixel)."""
+    sy = wp.max(wp.abs(float(box[1]) + 0.5 - e[1]), wp.abs(float(box[3]) + 0.5 - e[1]))
+    sx = wp.max(wp.abs(float(box[0]) + 0.5 - e[0]), wp.abs(float(box[2]) + 0.5 - e[0]))
+    return EDGE_ROUNDING * (wp.abs(e[2]) * sy + wp.abs(e[3]) * sx) + 1.0e-30
+
+
+@wp.func
+def _column_outside(e: wp.vec4, slack: float, x: float, y0: float, y1: float) -> bool:
+    """Whether no pixel centre (x, y), y in [y0, y1], passes the edge test ``_edge_at(e, x, y) >= 0``, proven from the
+    column's two ends (:func:`_edge_slack`); False when it cannot be proven."""
+    return wp.max(_edge_at(e, x, y0), _edge_at(e, x, y1)) < -2.0 * slack
 
 
 @wp.kernel
@@ -303,9 +322,10 @@ def raster_tile_columns(
     (:func:`_column_outside`, from its two ends) is skipped: two thirds of the tiles of a triangle's bounding box
     lie outside it in the shipped scenes' views (long thin triangles). Group ``g`` of ``TILE`` threads takes the
     consecutive items ``[g·per, (g+1)·per)`` (``per`` = items / groups, rounded up): one binary search for its first
-    item; the next items are the next tiles of the same sub-triangle (its vertices kept) or of the next ones.
-    Every pixel's coverage, depth and key are computed by the same expressions as in :func:`raster_tiles`, and
-    ``atomic_min`` does not depend on the order: the buffers are the same bit for bit."""
+    item; the next items are the next tiles of the same sub-triangle (its edges kept) or of the next ones.
+    Every pixel's coverage, depth and key come from the same operations on the same values as in
+    :func:`raster_tiles` (:func:`_edge_terms`), and ``atomic_min`` does not depend on the order: the buffers are the
+    same bit for bit."""
     view = views[view_index]
     t = wp.tid()
     g = t / TILE
@@ -317,73 +337,67 @@ def raster_tile_columns(
     if item >= last:
         return
     s = _sub_of_item(tile_end, n_sub, item)
-    s_end = int(-1)  # items of sub-triangle s end here (-1: not loaded yet)
-    box = wp.vec4i(0, 0, 0, 0)
-    a = wp.vec3(0.0)
-    b = wp.vec3(0.0)
-    c = wp.vec3(0.0)
-    inv_area = float(0.0)
-    tri = wp.uint64(0)
-    to_a = int(0)
-    to_b = int(0)
-    tx0 = int(0)
-    tw = int(1)
-    tx = int(0)
-    ty = int(0)
-    while item < last:
-        if item >= s_end:  # this item starts a new sub-triangle (or the group's first item)
-            while tile_end[s] <= item:  # the next one with tiles (culled ones have none)
-                s += 1
-            start = int(0)
-            if s > 0:
-                start = tile_end[s - 1]
-            s_end = tile_end[s]
-            box = sub_bbox[s]
-            a = sub_v[3 * s + 0]
-            b = sub_v[3 * s + 1]
-            c = sub_v[3 * s + 2]
-            inv_area = 1.0 / _edge(a, b, c[0], c[1])
-            tri = wp.uint64(s / 2)
-            tri_layers = layers[s / 2]
-            to_a = wp.where((tri_layers & mask) != 0, 1, 0)
-            to_b = wp.where((tri_layers & mask_b) != 0, 1, 0)
-            tx0 = box[0] / TILE
-            tw = box[2] / TILE - tx0 + 1
-            local = item - start
-            tx = tx0 + local % tw
-            ty = box[1] / TILE + local / tw
-        i = tx * TILE + col
-        j_lo = wp.max(ty * TILE, box[1])
-        j_hi = wp.min(ty * TILE + TILE - 1, box[3])
-        item += 1
-        tx += 1
-        if tx - tx0 == tw:  # the next item is the next row of tiles
-            tx = tx0
-            ty += 1
-        if i < box[0] or i > box[2]:
-            continue
-        x = float(i) + 0.5
-        y0 = float(j_lo) + 0.5
-        y1 = float(j_hi) + 0.5
-        if _column_outside(b, c, x, y0, y1) or _column_outside(c, a, x, y0, y1) or _column_outside(a, b, x, y0, y1):
-            continue
-        for j in range(j_lo, j_hi + 1):
-            y = float(j) + 0.5
-            w0 = _shared_edge(b, c, x, y)
-            w1 = _shared_edge(c, a, x, y)
-            w2 = _shared_edge(a, b, x, y)
-            if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
-                depth = z
-                if view.orthographic == 0:
-                    depth = 1.0 / z
-                if depth > 0.0 and depth <= view.far:
-                    q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
-                    key = (q << wp.uint64(32)) | tri
-                    if to_a != 0:
-                        wp.atomic_min(visibility, j * view.width + i, key)
-                    if to_b != 0:
-                        wp.atomic_min(visibility_b, j * view.width + i, key)
+    while item < last:  # one sub-triangle's items of this group a round
+        while tile_end[s] <= item:  # the next sub-triangle with tiles (culled ones have none)
+            s += 1
+        start = int(0)
+        if s > 0:
+            start = tile_end[s - 1]
+        end = wp.min(tile_end[s], last)
+        box = sub_bbox[s]
+        a = sub_v[3 * s + 0]
+        b = sub_v[3 * s + 1]
+        c = sub_v[3 * s + 2]
+        inv_area = 1.0 / _edge(a, b, c[0], c[1])
+        e0 = _edge_terms(b, c)
+        e1 = _edge_terms(c, a)
+        e2 = _edge_terms(a, b)
+        slack0 = _edge_slack(e0, box)
+        slack1 = _edge_slack(e1, box)
+        slack2 = _edge_slack(e2, box)
+        tri = wp.uint64(s / 2)
+        tri_layers = layers[s / 2]
+        to_a = (tri_layers & mask) != 0
+        to_b = (tri_layers & mask_b) != 0
+        tx0 = box[0] / TILE
+        tw = box[2] / TILE - tx0 + 1
+        local = item - start
+        tx = tx0 + local % tw
+        ty = box[1] / TILE + local / tw
+        while item < end:  # its tiles, row by row
+            i = tx * TILE + col
+            j_lo = wp.max(ty * TILE, box[1])
+            j_hi = wp.min(ty * TILE + TILE - 1, box[3])
+            item += 1
+            tx += 1
+            if tx - tx0 == tw:  # the next item is the next row of tiles
+                tx = tx0
+                ty += 1
+            if i < box[0] or i > box[2]:
+                continue
+            x = float(i) + 0.5
+            y0 = float(j_lo) + 0.5
+            y1 = float(j_hi) + 0.5
+            if (_column_outside(e0, slack0, x, y0, y1) or _column_outside(e1, slack1, x, y0, y1)
+                    or _column_outside(e2, slack2, x, y0, y1)):
+                continue
+            for j in range(j_lo, j_hi + 1):
+                y = float(j) + 0.5
+                w0 = _edge_at(e0, x, y)
+                w1 = _edge_at(e1, x, y)
+                w2 = _edge_at(e2, x, y)
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
+                    depth = z
+                    if view.orthographic == 0:
+                        depth = 1.0 / z
+                    if depth > 0.0 and depth <= view.far:
+                        q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
+                        key = (q << wp.uint64(32)) | tri
+                        if to_a:
+                            wp.atomic_min(visibility, j * view.width + i, key)
+                        if to_b:
+                            wp.atomic_min(visibility_b, j * view.width + i, key)
 
 
 @wp.func
