@@ -300,6 +300,11 @@ def _column_outside(e: wp.vec4, slack: float, x: float, y0: float, y1: float) ->
     return wp.max(_edge_at(e, x, y0), _edge_at(e, x, y1)) < -2.0 * slack
 
 
+#: threads of a warp: :func:`raster_tile_columns` gives each warp ``WARP_TILES`` adjacent tiles at a time
+WARP = 32
+WARP_TILES = WARP // TILE
+
+
 @wp.kernel
 def raster_tile_columns(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -308,7 +313,7 @@ def raster_tile_columns(
     sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
     tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
     n_sub: int,
-    groups: int,  # launched threads / TILE
+    warps: int,  # launched threads / WARP
     layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
     mask: int,  # layers drawn into ``visibility``
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
@@ -316,28 +321,31 @@ def raster_tile_columns(
     visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
 ):
     """:func:`raster_tiles` (its twin) with ``TILE`` threads per (sub-triangle, tile) work item, one per pixel column
-    of the tile, each walking its column down the tile's rows: the threads of a tile depth-test one row's ``TILE``
-    adjacent pixels together, so a warp's atomics go to 4 runs of 64 bytes instead of 32 scattered pixels, and a
-    warp's lanes agree on the row loop. A column no pixel of which can pass one of the three edge tests
-    (:func:`_column_outside`, from its two ends) is skipped: two thirds of the tiles of a triangle's bounding box
-    lie outside it in the shipped scenes' views (long thin triangles). Group ``g`` of ``TILE`` threads takes the
-    consecutive items ``[g·per, (g+1)·per)`` (``per`` = items / groups, rounded up): one binary search for its first
-    item; the next items are the next tiles of the same sub-triangle (its edges kept) or of the next ones.
+    of the tile, each walking its column down the tile's rows. A warp (``WARP`` consecutive threads) takes the
+    consecutive items ``[w·per, (w+1)·per)`` (``per`` = items / warps, rounded up to a multiple of ``WARP_TILES``),
+    ``WARP_TILES`` at a time: adjacent tiles of one sub-triangle, so its lanes test 32 adjacent pixels of a row
+    together (one 256-byte run of atomics instead of 32 scattered pixels) and agree on the row loop. A column no
+    pixel of which can pass one of the three edge tests (:func:`_column_outside`, from its two ends) is skipped:
+    two thirds of the tiles of a triangle's bounding box lie outside it in the shipped scenes' views (long thin
+    triangles), in runs along the tile rows, so a warp skips them together. One binary search per warp for its
+    first item; its next items are the next tiles of the same sub-triangle (its edges kept) or of the next ones.
     Every pixel's coverage, depth and key come from the same operations on the same values as in
     :func:`raster_tiles` (:func:`_edge_terms`), and ``atomic_min`` does not depend on the order: the buffers are the
     same bit for bit."""
     view = views[view_index]
     t = wp.tid()
-    g = t / TILE
-    col = t - g * TILE
+    w = t / WARP
+    lane = t - w * WARP
+    quad = lane / TILE  # this thread's tile of the warp's WARP_TILES
+    col = lane - quad * TILE
     total = tile_end[n_sub - 1]
-    per = (total + groups - 1) / groups
-    item = g * per
-    last = wp.min(item + per, total)
+    per = ((total + warps - 1) / warps + WARP_TILES - 1) / WARP_TILES * WARP_TILES
+    last = wp.min(w * per + per, total)
+    item = w * per + quad
     if item >= last:
         return
     s = _sub_of_item(tile_end, n_sub, item)
-    while item < last:  # one sub-triangle's items of this group a round
+    while item < last:  # one sub-triangle's items of this warp a round
         while tile_end[s] <= item:  # the next sub-triangle with tiles (culled ones have none)
             s += 1
         start = int(0)
@@ -364,14 +372,14 @@ def raster_tile_columns(
         local = item - start
         tx = tx0 + local % tw
         ty = box[1] / TILE + local / tw
-        while item < end:  # its tiles, row by row
+        while item < end:  # its tiles, row by row, WARP_TILES at a time
             i = tx * TILE + col
             j_lo = wp.max(ty * TILE, box[1])
             j_hi = wp.min(ty * TILE + TILE - 1, box[3])
-            item += 1
-            tx += 1
-            if tx - tx0 == tw:  # the next item is the next row of tiles
-                tx = tx0
+            item += WARP_TILES
+            tx += WARP_TILES
+            while tx - tx0 >= tw:  # past the row of tiles: on to the next
+                tx -= tw
                 ty += 1
             if i < box[0] or i > box[2]:
                 continue

@@ -30,7 +30,8 @@ class Rasterizer:
         self.sub_bbox = wp.zeros(n_sub, dtype=wp.vec4i, device=d)  # their pixel boxes
         self.tile_count = wp.zeros(n_sub, dtype=wp.int32, device=d)  # 8x8 tiles each touches
         self.tile_end = wp.zeros(n_sub, dtype=wp.int32, device=d)  # inclusive scan of tile_count
-        # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially
+        # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially (a multiple
+        # of kernels.WARP: the column raster hands work out by warps)
         self.stride = (1 << 18) if d.is_cuda else (1 << 10)
         #: draw with ``kernels.raster_tile_columns`` (a thread per pixel column of a tile); False: its naive twin
         #: ``raster_tiles`` (a thread per tile), the same buffers bit for bit
@@ -63,7 +64,7 @@ class Rasterizer:
         if self.columns:
             wp.launch(K.raster_tile_columns, dim=self.stride, device=d,
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                              self.stride // K.TILE, s.triangle_layers, int(layer), visibility, int(layer_b),
+                              self.stride // K.WARP, s.triangle_layers, int(layer), visibility, int(layer_b),
                               visibility_b])
         else:
             wp.launch(K.raster_tiles, dim=self.stride, device=d,
