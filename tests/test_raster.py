@@ -288,17 +288,27 @@ def test_rsm_resolve_flux_is_the_flux_pass(device):
         assert any((r.flux.numpy() > 0).any() for r in lm.rsm)
 
 
+@wp.func
+def _shared_edge_as_written(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
+    """The shared edge function as it was first written (main before the column raster): the reference."""
+    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
+        return RK._edge(a, b, x, y)
+    return -RK._edge(b, a, x, y)
+
+
 @wp.kernel
 def _edge_probe(a: wp.array(dtype=wp.vec3), b: wp.array(dtype=wp.vec3), xy: wp.array(dtype=wp.vec2),
                 shared: wp.array(dtype=wp.float32), terms: wp.array(dtype=wp.float32)):
     k = wp.tid()
-    shared[k] = RK._shared_edge(a[k], b[k], xy[k][0], xy[k][1])
+    shared[k] = _shared_edge_as_written(a[k], b[k], xy[k][0], xy[k][1])
     terms[k] = RK._edge_at(RK._edge_terms(a[k], b[k]), xy[k][0], xy[k][1])
 
 
 def test_edge_terms_are_the_shared_edge(device, rng):
-    """The column raster's edge values (orientation folded into the terms) equal ``_shared_edge`` bit for bit (up to the
-    sign of a zero), both orientations, with pixel centres on the edge and vertices with long fractions."""
+    """The edge values with the orientation folded into the terms (``_edge_terms``, what ``_shared_edge`` and the
+    column raster evaluate) equal the shared edge function as first written bit for bit on the CPU (up to the sign
+    of a zero), both orientations, with pixel centres on the edge and vertices with long fractions. (On CUDA the
+    written form could contract differently per orientation: compared there only to 1 ulp of the products.)"""
     n = 4000
     a = (rng.uniform(-50, 300, (n, 3)) + rng.uniform(0, 1, (n, 3)) / 3).astype(np.float32)
     b = (rng.uniform(-50, 300, (n, 3)) + rng.uniform(0, 1, (n, 3)) / 7).astype(np.float32)
@@ -312,7 +322,11 @@ def test_edge_terms_are_the_shared_edge(device, rng):
                   inputs=[wp.array(p, dtype=wp.vec3, device=device), wp.array(q, dtype=wp.vec3, device=device),
                           wp.array(xy, dtype=wp.vec2, device=device)] + out)
         shared, terms = out[0].numpy(), out[1].numpy()
-        assert np.array_equal(shared, terms)  # == : +0 and -0 alike
+        if wp.get_device(device).is_cpu:
+            assert np.array_equal(shared, terms)  # == : +0 and -0 alike
+        else:
+            scale = np.abs(b[:, :2] - a[:, :2]).sum(1) * (np.abs(xy - a[:, :2]).sum(1) + np.abs(xy - b[:, :2]).sum(1))
+            assert np.all(np.abs(shared - terms) <= 1.2e-7 * scale + 1e-30)
         assert (shared != 0).sum() > n // 2
 
 

@@ -157,15 +157,32 @@ def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
 
 
 @wp.func
+def _edge_terms(a: wp.vec3, b: wp.vec3) -> wp.vec4:
+    """(p0, p1, dx, dy) with ``dx·(y - p1) - dy·(x - p0)`` equal to ``_shared_edge(a, b, x, y)`` bit for bit: ``p`` is
+    the lexicographically smaller end, and the sign of the other orientation is folded into dx and dy (rounding is
+    symmetric: fl(-u + v) = -fl(u - v); a zero comes out +0 where ``_shared_edge`` gives -0, which no test or sum
+    of :func:`raster_tile_columns` tells apart)."""
+    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
+        return wp.vec4(a[0], a[1], b[0] - a[0], b[1] - a[1])
+    return wp.vec4(b[0], b[1], -(a[0] - b[0]), -(a[1] - b[1]))
+
+
+@wp.func
+def _edge_at(e: wp.vec4, x: float, y: float) -> float:
+    """:func:`_shared_edge` from its :func:`_edge_terms` (the same operations on the same values)."""
+    return e[2] * (y - e[1]) - e[3] * (x - e[0])
+
+
+@wp.func
 def _shared_edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
     """:func:`_edge` evaluated from the edge's lexicographically smaller end, so that the two triangles sharing
     edge ab (one walks it a->b, the other b->a) get bit-for-bit opposite values: a pixel centre on the edge is
-    covered by at least one of them. Evaluated from either end as written, the rounding differs (and CUDA
-    contracts the products into FMAs): a centre exactly on the edge could come out negative for both, a crack
-    of uncovered pixels along the diagonal of a quad."""
-    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
-        return _edge(a, b, x, y)
-    return -_edge(b, a, x, y)
+    covered by at least one of them. Evaluated from either end as written, the rounding differs: a centre exactly
+    on the edge could come out negative for both, a crack of uncovered pixels along the diagonal of a quad. The
+    other orientation's sign is folded into the terms (:func:`_edge_terms`), so both evaluate one expression: on
+    CUDA, which contracts products into FMAs, ``-(u - v)`` written out contracted one product for one orientation
+    and the other for the other (seen in the sm_90 code), and opposite values were not guaranteed there."""
+    return _edge_at(_edge_terms(a, b), x, y)
 
 
 @wp.kernel
@@ -256,23 +273,6 @@ def _sub_of_item(tile_end: wp.array(dtype=wp.int32), n_sub: int, item: int) -> i
         else:
             lo = mid + 1
     return lo
-
-
-@wp.func
-def _edge_terms(a: wp.vec3, b: wp.vec3) -> wp.vec4:
-    """(p0, p1, dx, dy) with ``dx·(y - p1) - dy·(x - p0)`` equal to ``_shared_edge(a, b, x, y)`` bit for bit: ``p`` is
-    the lexicographically smaller end, and the sign of the other orientation is folded into dx and dy (rounding is
-    symmetric: fl(-u + v) = -fl(u - v); a zero comes out +0 where ``_shared_edge`` gives -0, which no test or sum
-    of :func:`raster_tile_columns` tells apart)."""
-    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
-        return wp.vec4(a[0], a[1], b[0] - a[0], b[1] - a[1])
-    return wp.vec4(b[0], b[1], -(a[0] - b[0]), -(a[1] - b[1]))
-
-
-@wp.func
-def _edge_at(e: wp.vec4, x: float, y: float) -> float:
-    """:func:`_shared_edge` from its :func:`_edge_terms` (the same operations on the same values)."""
-    return e[2] * (y - e[1]) - e[3] * (x - e[0])
 
 
 #: bound on the rounding of :func:`_edge_at`, relative to the sum of its two products' magnitudes: the differences,
