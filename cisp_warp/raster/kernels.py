@@ -6,8 +6,10 @@ over [0, far] (2^32 steps, so ordering is exact to far·2.3e-10), the low 32 bit
 with that triangle, so depth, position and barycentrics are exact, not quantised.
 
 Large triangles do not serialise onto one thread: setup counts the 8x8-pixel tiles each (clipped)
-triangle's bounding box touches, an exclusive scan turns counts into offsets, and a grid-stride
-kernel hands out (triangle, tile) work items, finding each item's triangle by binary search.
+triangle's bounding box touches, an inclusive scan turns counts into offsets, and the tile kernel hands
+out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run of consecutive items, 4
+adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
+``raster_tiles``, its naive twin, a thread per item found by binary search.
 """
 
 from __future__ import annotations
