@@ -186,6 +186,8 @@ class Renderer:
         fitted = self.settings.method in FITTED_METHODS
         views = self.settings.light_views if fitted else LightViewSettings(fit="scene")
         self.lights = [LightMaps(self.gpu, light, self.settings.rsm_size, views) for light in scene.lights]
+        for lm in self.lights:  # the RSM views' opaque triangle ids: read by the caustics map only
+            lm.write_opaque_tri = self.settings.method == "caustics_map"
         self.direct = DirectLighting(self.gbuffer, self.device)
         n = cam.width * cam.height
         self.sky = None

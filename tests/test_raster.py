@@ -286,3 +286,131 @@ def test_rsm_resolve_flux_is_the_flux_pass(device):
                               float(light.cone_angle), float(light.cone_softness), r.solid_angle, r.specular.tri_id, twin])
             np.testing.assert_array_equal(r.flux.numpy(), twin.numpy())
         assert any((r.flux.numpy() > 0).any() for r in lm.rsm)
+
+
+@wp.func
+def _shared_edge_as_written(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
+    """The shared edge function as it was first written (main before the column raster): the reference."""
+    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
+        return RK._edge(a, b, x, y)
+    return -RK._edge(b, a, x, y)
+
+
+@wp.kernel
+def _edge_probe(a: wp.array(dtype=wp.vec3), b: wp.array(dtype=wp.vec3), xy: wp.array(dtype=wp.vec2),
+                shared: wp.array(dtype=wp.float32), terms: wp.array(dtype=wp.float32)):
+    k = wp.tid()
+    shared[k] = _shared_edge_as_written(a[k], b[k], xy[k][0], xy[k][1])
+    terms[k] = RK._edge_at(RK._edge_terms(a[k], b[k]), xy[k][0], xy[k][1])
+
+
+def test_edge_terms_are_the_shared_edge(device, rng):
+    """The edge values with the orientation folded into the terms (``_edge_terms``, what ``_shared_edge`` and the
+    column raster evaluate) equal the shared edge function as first written bit for bit on the CPU (up to the sign
+    of a zero), both orientations, with pixel centres on the edge and vertices with long fractions. (On CUDA the
+    written form could contract differently per orientation: compared there only to 1 ulp of the products.)"""
+    n = 4000
+    a = (rng.uniform(-50, 300, (n, 3)) + rng.uniform(0, 1, (n, 3)) / 3).astype(np.float32)
+    b = (rng.uniform(-50, 300, (n, 3)) + rng.uniform(0, 1, (n, 3)) / 7).astype(np.float32)
+    b[: n // 4, 0] = a[: n // 4, 0]  # vertical edges: the tie-break on y
+    t = rng.uniform(0, 1, (n, 1)).astype(np.float32)
+    xy = (a[:, :2] + t * (b[:, :2] - a[:, :2])).astype(np.float32)  # on the edge, up to rounding
+    xy[n // 2:] = (np.floor(rng.uniform(0, 256, (n - n // 2, 2))) + 0.5).astype(np.float32)
+    out = [wp.zeros(n, dtype=wp.float32, device=device) for _ in range(2)]
+    for p, q in ((a, b), (b, a)):
+        wp.launch(_edge_probe, dim=n, device=device,
+                  inputs=[wp.array(p, dtype=wp.vec3, device=device), wp.array(q, dtype=wp.vec3, device=device),
+                          wp.array(xy, dtype=wp.vec2, device=device)] + out)
+        shared, terms = out[0].numpy(), out[1].numpy()
+        if wp.get_device(device).is_cpu:
+            assert np.array_equal(shared, terms)  # == : +0 and -0 alike
+        else:
+            scale = np.abs(b[:, :2] - a[:, :2]).sum(1) * (np.abs(xy - a[:, :2]).sum(1) + np.abs(xy - b[:, :2]).sum(1))
+            assert np.all(np.abs(shared - terms) <= 1.2e-7 * scale + 1e-30)
+        assert (shared != 0).sum() > n // 2
+
+
+@wp.kernel
+def _column_probe(sub_v: wp.array(dtype=wp.vec3), sub_bbox: wp.array(dtype=wp.vec4i), out: wp.array(dtype=wp.int32)):
+    """Per (triangle, pixel column, tile row): 1 covered, 2 skipped as outside, 4 no pixel covered."""
+    s, i, ty = wp.tid()
+    box = sub_bbox[s]
+    col = box[0] + i
+    j_lo = wp.max(ty * RK.TILE, box[1])
+    j_hi = wp.min(ty * RK.TILE + RK.TILE - 1, box[3])
+    if col > box[2] or j_lo > j_hi:
+        return
+    a, b, c = sub_v[3 * s], sub_v[3 * s + 1], sub_v[3 * s + 2]
+    e0, e1, e2 = RK._edge_terms(b, c), RK._edge_terms(c, a), RK._edge_terms(a, b)
+    x = float(col) + 0.5
+    y0 = float(j_lo) + 0.5
+    y1 = float(j_hi) + 0.5
+    flags = int(0)
+    if (RK._column_outside(e0, RK._edge_slack(e0, box), x, y0, y1) or RK._column_outside(e1, RK._edge_slack(e1, box), x, y0, y1)
+            or RK._column_outside(e2, RK._edge_slack(e2, box), x, y0, y1)):
+        flags = flags | 2
+    hit = int(0)
+    for j in range(j_lo, j_hi + 1):
+        y = float(j) + 0.5
+        if RK._shared_edge(b, c, x, y) >= 0.0 and RK._shared_edge(c, a, x, y) >= 0.0 and RK._shared_edge(a, b, x, y) >= 0.0:
+            hit = 1
+    if hit == 0:
+        flags = flags | 4
+    out[(s * 64 + i) * 8 + ty] = flags | hit
+
+
+def test_columns_skipped_only_where_nothing_is_covered(device, rng):
+    """``_column_outside`` skips no column with a covered pixel centre (long thin triangles, edges through pixel
+    centres, vertices far off screen), and skips most columns with none (it is what makes the column raster fast)."""
+    n = 300
+    v = rng.uniform(-20, 84, (n, 3, 3)).astype(np.float32)
+    v[: n // 3, 1] = v[: n // 3, 0] + rng.uniform(-3, 3, (n // 3, 3)).astype(np.float32)  # slivers
+    v[n // 3: n // 2, :, :2] = np.round(v[n // 3: n // 2, :, :2] * 2) / 2  # vertices on pixel centres and edges
+    v[n // 2: n // 2 + 20, 2, :2] = rng.uniform(-3e4, 3e4, (20, 2)).astype(np.float32)  # far off screen
+    area = (v[:, 1, 0] - v[:, 0, 0]) * (v[:, 2, 1] - v[:, 0, 1]) - (v[:, 2, 0] - v[:, 0, 0]) * (v[:, 1, 1] - v[:, 0, 1])
+    v[area < 0] = v[area < 0][:, [0, 2, 1]]  # counter-clockwise, as setup_triangles leaves them
+    lo = np.clip(np.ceil(v[..., :2].min(1) - 0.5), 0, 63).astype(np.int32)
+    hi = np.clip(np.floor(v[..., :2].max(1) - 0.5), 0, 63).astype(np.int32)
+    box = np.concatenate([lo, hi], 1)
+    keep = (box[:, 0] <= box[:, 2]) & (box[:, 1] <= box[:, 3]) & (np.abs(area) > 1e-3)
+    v, box = v[keep], box[keep]
+    m = len(v)
+    out = wp.zeros(m * 64 * 8, dtype=wp.int32, device=device)
+    wp.launch(_column_probe, dim=(m, 64, 8), device=device,
+              inputs=[wp.array(v.reshape(-1, 3), dtype=wp.vec3, device=device), wp.array(box, dtype=wp.vec4i, device=device), out])
+    f = out.numpy()
+    covered, skipped, empty = (f & 1) > 0, (f & 2) > 0, (f & 4) > 0
+    assert covered.sum() > 1000 and empty.sum() > 1000
+    assert not (covered & skipped).any(), "a column with a covered pixel was skipped"
+    assert (skipped & empty).sum() >= 0.9 * empty.sum()
+
+
+@pytest.mark.parametrize("stride", [64, 1024, 1 << 14])
+def test_column_raster_is_the_tile_raster(device, stride):
+    """``raster_tile_columns`` (a thread per pixel column, columns outside an edge skipped, a group of threads over
+    consecutive items) fills both layers' buffers exactly as its twin ``raster_tiles``, for perspective and
+    orthographic views, near-clipped and full-screen triangles and one-pixel slivers, with groups that take many
+    items (stride 64: groups cross many sub-triangles) or at most one (1 << 14: most groups idle)."""
+    cam = Camera(look_at_matrix((0, 0, 0), (0, 0, -1)), fov_y=math.radians(60), near=0.05, far=50.0, width=80, height=60)
+    big = (np.array([[-50.0, -40.0, -6.0], [60.0, -30.0, -7.0], [0.0, 50.0, 2.0]]), np.array([[0, 1, 2]]), 0)
+    sliver = (np.array([[-1.0, 0.1, -2.0], [1.0, 0.13, -2.0], [1.0, 0.1, -2.0]]), np.array([[0, 1, 2]]), 1)
+    ds = DeviceScene(make_scene([big, sliver] + box_room(), cam), device)  # the room hides the big one: drawn all the same
+    raster = Rasterizer(ds)
+    raster.stride, raster.column_threads = stride, None  # both kernels launch `stride` threads, on every device
+    views = [camera_view(cam).params()] + [camera_view(Camera(look_at_matrix(v["eye"], v["target"]), fov_y=math.radians(70),
+                                                              ortho_height=1.2, near=0.02, far=10.0, width=72, height=40,
+                                                              orthographic=v["ortho"])).params() for v in VIEWS.values()]
+    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
+    for k, vp in enumerate(views):
+        n = vp.width * vp.height
+        arr = wp.array([vp], dtype=ViewParams, device=device)
+        out = []
+        for columns in (False, True):
+            raster.columns = columns
+            bufs = [wp.full(n, RK.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device) for _ in range(2)]
+            raster.draw(arr, 0, vp.width, vp.height, LAYER_OPAQUE, bufs[0], clear=False, layer_b=LAYER_SPECULAR,
+                        visibility_b=bufs[1])
+            out.append([b.numpy() for b in bufs])
+        for naive, fast in zip(*out):
+            np.testing.assert_array_equal(fast, naive, err_msg=f"view {k}")
+        assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()

@@ -3,6 +3,7 @@
 
     python tools/bench_raster.py                       # flooded Cornell box, 1920x1080, RSM 2048², default device
     python tools/bench_raster.py --device cpu --smoke  # seconds, tiny sizes
+    python tools/bench_raster.py --scene scenes_usd/pool.usda --naive   # the tile walk's naive twin (raster_tiles)
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ def main(argv=None) -> int:
     p.add_argument("--rsm-size", type=int, default=2048)
     p.add_argument("--frames", type=int, default=20, help="timed frames (after 3 warm-up frames)")
     p.add_argument("--smoke", action="store_true", help="tiny sizes and 2 frames: a quick check that it runs")
+    p.add_argument("--naive", action="store_true", help="draw with raster_tiles (a thread per tile), the twin of "
+                   "raster_tile_columns")
     args = p.parse_args(argv)
     if args.smoke:
         args.width, args.height, args.rsm_size, args.frames = 64, 36, 64, 2
@@ -39,6 +42,7 @@ def main(argv=None) -> int:
     scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
     gpu = DeviceScene(scene, device)
     raster = Rasterizer(gpu)
+    raster.columns = not args.naive
     view = camera_view(scene.camera)
     cams = view_array([view, view], device)  # the camera, this frame and the last
     gbuf = GBuffer.allocate(view.width, view.height, device)
@@ -53,7 +57,8 @@ def main(argv=None) -> int:
             with timer.stage(f"RSM {lm.light.safe_name} ({len(lm.rsm)} view(s) of {args.rsm_size}²)"):
                 lm.render(raster)
     print(f"device: {device.alias} ({device.name}); scene {os.path.basename(args.scene)}: "
-          f"{scene.triangle_count} triangles; median of {args.frames} frames")
+          f"{scene.triangle_count} triangles; median of {args.frames} frames; "
+          f"{'raster_tiles (naive twin)' if args.naive else 'raster_tile_columns'}")
     print(f"{'view':<48}{'ms':>10}")
     for name, ms in timer.medians().items():
         print(f"{name:<48}{ms:10.3f}")

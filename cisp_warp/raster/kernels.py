@@ -6,8 +6,10 @@ over [0, far] (2^32 steps, so ordering is exact to far·2.3e-10), the low 32 bit
 with that triangle, so depth, position and barycentrics are exact, not quantised.
 
 Large triangles do not serialise onto one thread: setup counts the 8x8-pixel tiles each (clipped)
-triangle's bounding box touches, an exclusive scan turns counts into offsets, and a grid-stride
-kernel hands out (triangle, tile) work items, finding each item's triangle by binary search.
+triangle's bounding box touches, an inclusive scan turns counts into offsets, and the tile kernel hands
+out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run of consecutive items, 4
+adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
+``raster_tiles``, its naive twin, a thread per item found by binary search.
 """
 
 from __future__ import annotations
@@ -157,15 +159,32 @@ def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
 
 
 @wp.func
+def _edge_terms(a: wp.vec3, b: wp.vec3) -> wp.vec4:
+    """(p0, p1, dx, dy) with ``dx·(y - p1) - dy·(x - p0)`` equal to ``_shared_edge(a, b, x, y)`` bit for bit: ``p`` is
+    the lexicographically smaller end, and the sign of the other orientation is folded into dx and dy (rounding is
+    symmetric: fl(-u + v) = -fl(u - v); a zero comes out +0 where ``_shared_edge`` gives -0, which no test or sum
+    of :func:`raster_tile_columns` tells apart)."""
+    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
+        return wp.vec4(a[0], a[1], b[0] - a[0], b[1] - a[1])
+    return wp.vec4(b[0], b[1], -(a[0] - b[0]), -(a[1] - b[1]))
+
+
+@wp.func
+def _edge_at(e: wp.vec4, x: float, y: float) -> float:
+    """:func:`_shared_edge` from its :func:`_edge_terms` (the same operations on the same values)."""
+    return e[2] * (y - e[1]) - e[3] * (x - e[0])
+
+
+@wp.func
 def _shared_edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
     """:func:`_edge` evaluated from the edge's lexicographically smaller end, so that the two triangles sharing
     edge ab (one walks it a->b, the other b->a) get bit-for-bit opposite values: a pixel centre on the edge is
-    covered by at least one of them. Evaluated from either end as written, the rounding differs (and CUDA
-    contracts the products into FMAs): a centre exactly on the edge could come out negative for both, a crack
-    of uncovered pixels along the diagonal of a quad."""
-    if a[0] < b[0] or (a[0] == b[0] and a[1] < b[1]):
-        return _edge(a, b, x, y)
-    return -_edge(b, a, x, y)
+    covered by at least one of them. Evaluated from either end as written, the rounding differs: a centre exactly
+    on the edge could come out negative for both, a crack of uncovered pixels along the diagonal of a quad. The
+    other orientation's sign is folded into the terms (:func:`_edge_terms`), so both evaluate one expression: on
+    CUDA, which contracts products into FMAs, ``-(u - v)`` written out contracted one product for one orientation
+    and the other for the other (seen in the sm_90 code), and opposite values were not guaranteed there."""
+    return _edge_at(_edge_terms(a, b), x, y)
 
 
 @wp.kernel
@@ -184,7 +203,9 @@ def raster_tiles(
     visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
 ):
     """Grid-stride over (sub-triangle, tile) work items; depth-test every covered pixel centre, into the buffer of
-    each layer the triangle belongs to (two layers drawn in one pass share the set-up, scan and tile walk)."""
+    each layer the triangle belongs to (two layers drawn in one pass share the set-up, scan and tile walk). The naive
+    twin of :func:`raster_tile_columns` (``Rasterizer.columns = False``): one thread per tile, a binary search per
+    item."""
     view = views[view_index]
     item = wp.tid()
     total = tile_end[n_sub - 1]
@@ -240,6 +261,153 @@ def raster_tiles(
                         if to_b:
                             wp.atomic_min(visibility_b, j * view.width + i, key)
         item += stride
+
+
+@wp.func
+def _sub_of_item(tile_end: wp.array(dtype=wp.int32), n_sub: int, item: int) -> int:
+    """The sub-triangle whose tiles hold work item ``item``: the first ``s`` with ``tile_end[s] > item``."""
+    lo = int(0)
+    hi = n_sub - 1
+    while lo < hi:
+        mid = (lo + hi) / 2
+        if tile_end[mid] > item:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+#: bound on the rounding of :func:`_edge_at`, relative to the sum of its two products' magnitudes: the differences,
+#: the products and the subtraction each round by at most 2^-24 relative, 4·2^-24 ≈ 2.4e-7 in all (less with a
+#: fused multiply-add); ~4× that for room (the bound is itself computed in float32). See :func:`_edge_slack`
+EDGE_ROUNDING = wp.constant(1.0e-6)
+
+
+@wp.func
+def _edge_slack(e: wp.vec4, box: wp.vec4i) -> float:
+    """E: at every pixel centre of ``box`` the computed :func:`_edge_at` lies within E of the exact affine function
+    G(x, y) = (q0 - p0)(y - p1) - (q1 - p1)(x - p0) of the edge's float32 ends. So along a column, where G is affine,
+    every pixel's computed value is at most max(its two ends' computed values) + 2E: when that is below zero no pixel
+    of the column can pass the edge test (:func:`raster_tile_columns` skips it). Overflow or NaN make that test
+    False (the column is tested pixel by pixel)."""
+    sy = wp.max(wp.abs(float(box[1]) + 0.5 - e[1]), wp.abs(float(box[3]) + 0.5 - e[1]))
+    sx = wp.max(wp.abs(float(box[0]) + 0.5 - e[0]), wp.abs(float(box[2]) + 0.5 - e[0]))
+    return EDGE_ROUNDING * (wp.abs(e[2]) * sy + wp.abs(e[3]) * sx) + 1.0e-30
+
+
+@wp.func
+def _column_outside(e: wp.vec4, slack: float, x: float, y0: float, y1: float) -> bool:
+    """Whether no pixel centre (x, y), y in [y0, y1], passes the edge test ``_edge_at(e, x, y) >= 0``, proven from the
+    column's two ends (:func:`_edge_slack`); False when it cannot be proven."""
+    return wp.max(_edge_at(e, x, y0), _edge_at(e, x, y1)) < -2.0 * slack
+
+
+#: threads of a warp: :func:`raster_tile_columns` gives each warp ``WARP_TILES`` adjacent tiles at a time
+WARP = 32
+WARP_TILES = WARP // TILE
+
+
+@wp.kernel
+def raster_tile_columns(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    warps: int,  # launched threads / WARP
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
+):
+    """:func:`raster_tiles` (its twin) with ``TILE`` threads per (sub-triangle, tile) work item, one per pixel column
+    of the tile, each walking its column down the tile's rows. A warp (``WARP`` consecutive threads) takes the
+    consecutive items ``[w·per, (w+1)·per)`` (``per`` = items / warps, rounded up to a multiple of ``WARP_TILES``),
+    ``WARP_TILES`` at a time: adjacent tiles of one sub-triangle, so its lanes test 32 adjacent pixels of a row
+    together (one 256-byte run of atomics instead of 32 scattered pixels) and agree on the row loop. A column no
+    pixel of which can pass one of the three edge tests (:func:`_column_outside`, from its two ends) is skipped:
+    two thirds of the tiles of a triangle's bounding box lie outside it in the shipped scenes' views (long thin
+    triangles), in runs along the tile rows, so a warp skips them together. One binary search per warp for its
+    first item; its next items are the next tiles of the same sub-triangle (its edges kept) or of the next ones.
+    Every pixel's coverage, depth and key come from the same operations on the same values as in
+    :func:`raster_tiles` (:func:`_edge_terms`), and ``atomic_min`` does not depend on the order: the buffers are the
+    same bit for bit."""
+    view = views[view_index]
+    t = wp.tid()
+    w = t / WARP
+    lane = t - w * WARP
+    quad = lane / TILE  # this thread's tile of the warp's WARP_TILES
+    col = lane - quad * TILE
+    total = tile_end[n_sub - 1]
+    per = ((total + warps - 1) / warps + WARP_TILES - 1) / WARP_TILES * WARP_TILES
+    last = wp.min(w * per + per, total)
+    item = w * per + quad
+    if item >= last:
+        return
+    s = _sub_of_item(tile_end, n_sub, item)
+    while item < last:  # one sub-triangle's items of this warp a round
+        while tile_end[s] <= item:  # the next sub-triangle with tiles (culled ones have none)
+            s += 1
+        start = int(0)
+        if s > 0:
+            start = tile_end[s - 1]
+        end = wp.min(tile_end[s], last)
+        box = sub_bbox[s]
+        a = sub_v[3 * s + 0]
+        b = sub_v[3 * s + 1]
+        c = sub_v[3 * s + 2]
+        inv_area = 1.0 / _edge(a, b, c[0], c[1])
+        e0 = _edge_terms(b, c)
+        e1 = _edge_terms(c, a)
+        e2 = _edge_terms(a, b)
+        slack0 = _edge_slack(e0, box)
+        slack1 = _edge_slack(e1, box)
+        slack2 = _edge_slack(e2, box)
+        tri = wp.uint64(s / 2)
+        tri_layers = layers[s / 2]
+        to_a = (tri_layers & mask) != 0
+        to_b = (tri_layers & mask_b) != 0
+        tx0 = box[0] / TILE
+        tw = box[2] / TILE - tx0 + 1
+        local = item - start
+        tx = tx0 + local % tw
+        ty = box[1] / TILE + local / tw
+        while item < end:  # its tiles, row by row, WARP_TILES at a time
+            i = tx * TILE + col
+            j_lo = wp.max(ty * TILE, box[1])
+            j_hi = wp.min(ty * TILE + TILE - 1, box[3])
+            item += WARP_TILES
+            tx += WARP_TILES
+            while tx - tx0 >= tw:  # past the row of tiles: on to the next
+                tx -= tw
+                ty += 1
+            if i < box[0] or i > box[2]:
+                continue
+            x = float(i) + 0.5
+            y0 = float(j_lo) + 0.5
+            y1 = float(j_hi) + 0.5
+            if (_column_outside(e0, slack0, x, y0, y1) or _column_outside(e1, slack1, x, y0, y1)
+                    or _column_outside(e2, slack2, x, y0, y1)):
+                continue
+            for j in range(j_lo, j_hi + 1):
+                y = float(j) + 0.5
+                w0 = _edge_at(e0, x, y)
+                w1 = _edge_at(e1, x, y)
+                w2 = _edge_at(e2, x, y)
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
+                    depth = z
+                    if view.orthographic == 0:
+                        depth = 1.0 / z
+                    if depth > 0.0 and depth <= view.far:
+                        q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
+                        key = (q << wp.uint64(32)) | tri
+                        if to_a:
+                            wp.atomic_min(visibility, j * view.width + i, key)
+                        if to_b:
+                            wp.atomic_min(visibility_b, j * view.width + i, key)
 
 
 @wp.func

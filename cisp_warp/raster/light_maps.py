@@ -212,6 +212,10 @@ class LightMaps:
         self.outside_angle = wp.zeros(n_pilot, dtype=wp.float32, device=d)
         self._shadows: list[_ShadowView] = []
         self._make_shadows(whole)
+        #: resolve each RSM view's ``opaque_tri`` (its opaque triangle per texel): only the caustics map reads it, so a
+        #: renderer of another method sets False and the opaque resolve writes 4 B per texel fewer (the array then
+        #: keeps what it held; it is not an AOV of :meth:`RSMView.numpy`)
+        self.write_opaque_tri = True
 
     # ---- host views of the device state (tests, tools: each is a device->host copy)
 
@@ -379,7 +383,8 @@ class LightMaps:
         raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility, clear=False,
                     layer_b=LAYER_SPECULAR, visibility_b=r.specular.visibility)  # both layers in one pass
         wp.launch(K.resolve_depth, dim=n, device=s.device,
-                  inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth, r.opaque_tri])
+                  inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth,
+                          r.opaque_tri if self.write_opaque_tri else None])
         sp = r.specular  # its layer, the shadow depth (nearest of both layers) and the flux per texel, in one pass
         wp.launch(K.resolve_rsm_specular, dim=n, device=s.device,
                   inputs=[views, k, sp.visibility, r.opaque_depth, s.points, s.normals, s.indices, s.triangle_material,

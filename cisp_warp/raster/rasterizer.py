@@ -19,6 +19,11 @@ from . import kernels as K
 from .views import View
 
 
+#: blocks of 256 threads of ``kernels.raster_tile_columns`` resident on one SM: 65536 registers / (74 registers x 256)
+#: (sm_90 cubin, ``tools/regcount.py --modules cisp_warp.raster.kernels``)
+COLUMN_BLOCKS_PER_SM = 3
+
+
 class Rasterizer:
     """Visibility-buffer rasterizer over one :class:`DeviceScene`; its scratch is allocated once."""
 
@@ -30,8 +35,15 @@ class Rasterizer:
         self.sub_bbox = wp.zeros(n_sub, dtype=wp.vec4i, device=d)  # their pixel boxes
         self.tile_count = wp.zeros(n_sub, dtype=wp.int32, device=d)  # 8x8 tiles each touches
         self.tile_end = wp.zeros(n_sub, dtype=wp.int32, device=d)  # inclusive scan of tile_count
-        # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially
+        # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially (a multiple
+        # of kernels.WARP: the column raster hands work out by warps)
         self.stride = (1 << 18) if d.is_cuda else (1 << 10)
+        #: draw with ``kernels.raster_tile_columns`` (a thread per pixel column of a tile); False: its naive twin
+        #: ``raster_tiles`` (a thread per tile), the same buffers bit for bit
+        self.columns = True
+        #: threads of the column raster on CUDA: one resident wave (``COLUMN_BLOCKS_PER_SM`` blocks of 256 an SM), so
+        #: that its equal chunks of work end together (2^18 threads were 2.6 waves); None: ``stride``
+        self.column_threads = d.sm_count * COLUMN_BLOCKS_PER_SM * 256 if d.is_cuda and d.sm_count > 0 else None
 
     def draw(self, views: wp.array, view_index: int, width: int, height: int, layer: int, visibility: wp.array,
              clear: bool = True, layer_b: int = 0, visibility_b: wp.array | None = None) -> None:
@@ -57,9 +69,16 @@ class Rasterizer:
                   inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer | layer_b), tiles_x,
                           tiles_y, self.sub_v, self.sub_bbox, self.tile_count])
         wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
-        wp.launch(K.raster_tiles, dim=self.stride, device=d,
-                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                          self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
+        if self.columns:
+            threads = self.column_threads or self.stride
+            wp.launch(K.raster_tile_columns, dim=threads, device=d,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              threads // K.WARP, s.triangle_layers, int(layer), visibility, int(layer_b),
+                              visibility_b])
+        else:
+            wp.launch(K.raster_tiles, dim=self.stride, device=d,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
 
 
 def view_array(views, device) -> wp.array:
