@@ -187,6 +187,26 @@ def _shared_edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
     return _edge_at(_edge_terms(a, b), x, y)
 
 
+@wp.func
+def write_fragment(view: ViewParams, a: wp.vec3, b: wp.vec3, c: wp.vec3, w0: float, w1: float, w2: float,
+                   inv_area: float, tri: wp.uint64, to_a: bool, to_b: bool, p: int,
+                   visibility: wp.array(dtype=wp.uint64), visibility_b: wp.array(dtype=wp.uint64)):
+    """Depth-test covered pixel ``p`` (edge weights ``w0..w2`` of the screen triangle ``a, b, c``, whose [2] is 1/depth,
+    or depth when orthographic): its key (quantised depth | triangle id) into each layer's buffer it is drawn to, by
+    ``atomic_min``; shared by :func:`raster_tiles` and :func:`raster_tile_columns`."""
+    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
+    depth = z
+    if view.orthographic == 0:
+        depth = 1.0 / z
+    if depth > 0.0 and depth <= view.far:
+        q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
+        key = (q << wp.uint64(32)) | tri
+        if to_a:
+            wp.atomic_min(visibility, p, key)
+        if to_b:
+            wp.atomic_min(visibility_b, p, key)
+
+
 @wp.kernel
 def raster_tiles(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -249,17 +269,8 @@ def raster_tiles(
                 w1 = _shared_edge(c, a, x, y)
                 w2 = _shared_edge(a, b, x, y)
                 if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
-                    depth = z
-                    if view.orthographic == 0:
-                        depth = 1.0 / z
-                    if depth > 0.0 and depth <= view.far:
-                        q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
-                        key = (q << wp.uint64(32)) | tri
-                        if to_a:
-                            wp.atomic_min(visibility, j * view.width + i, key)
-                        if to_b:
-                            wp.atomic_min(visibility_b, j * view.width + i, key)
+                    write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * view.width + i, visibility,
+                                   visibility_b)
         item += stride
 
 
@@ -397,17 +408,8 @@ def raster_tile_columns(
                 w1 = _edge_at(e1, x, y)
                 w2 = _edge_at(e2, x, y)
                 if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
-                    depth = z
-                    if view.orthographic == 0:
-                        depth = 1.0 / z
-                    if depth > 0.0 and depth <= view.far:
-                        q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
-                        key = (q << wp.uint64(32)) | tri
-                        if to_a:
-                            wp.atomic_min(visibility, j * view.width + i, key)
-                        if to_b:
-                            wp.atomic_min(visibility_b, j * view.width + i, key)
+                    write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * view.width + i, visibility,
+                                   visibility_b)
 
 
 @wp.func
