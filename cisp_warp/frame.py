@@ -13,7 +13,7 @@ array           shape, dtype                   holds
 ``randoms``     (S,) vec3i                     per stream: (scramble x, scramble y, seed) as int32 bit patterns;
                                                stream ``rsm_stream(li, vi)`` of light li's RSM view vi
                                                (``photons.base.frame_random``), then ``pilot_stream(li, b)`` of its
-                                               pilot view b (scramble 0, seed ``seed·7919 + frame·131 + b``)
+                                               pilot view b (scramble 0, seed ``seed·7919 + frame·131 + b`` mod 2^32, as int32)
 ==============  =============================  ====================================================================
 """
 
@@ -26,6 +26,13 @@ from .raster.views import ViewParams
 
 _ALIGN = 16
 
+
+
+def int32_bits(x: int) -> int:
+    """``x`` mod 2^32 as the int32 of the same bits: any seed and frame number give a valid stream seed (Python
+    ints have no bound; ``np.int32(x)`` refuses x outside [-2^31, 2^31) and the seeds of those that fit keep their
+    value)."""
+    return (int(x) + (1 << 31)) % (1 << 32) - (1 << 31)
 
 class FrameInputs:
     """The per-frame device inputs of one renderer (or one photon pass driven alone); allocated once."""
@@ -65,7 +72,7 @@ class FrameInputs:
             for vi in range(n_rsm):
                 out[self.rsm_stream(li, vi)] = frame_random(self.seed, frame, li * 64 + vi)
             for b in range(n_pilot):
-                out[self.pilot_stream(li, b), 2] = np.int32(self.seed * 7919 + frame * 131 + b)
+                out[self.pilot_stream(li, b), 2] = int32_bits(self.seed * 7919 + frame * 131 + b)
         return out
 
     def write(self, frame: int, camera: ViewParams, prev_camera: ViewParams) -> None:

@@ -159,3 +159,23 @@ def test_photon_m2_is_kept_by_point_stores_only(device):
                                            photons=PhotonSettings(photons=2_000, reference_photons=4_000)),
                      device=device)
         assert (r.photons.photon_m2 is not None) == kept, method
+
+
+def test_every_seed_in_range_renders_and_others_are_refused(device):
+    """Seeds past int32 (the pilot streams' seed·7919 + frame·131 wraps mod 2^32) render a finite frame that the
+    same seed reproduces; a negative, fractional, boolean or 2^63-and-above seed is one clear SceneError."""
+    from cisp_warp.errors import SceneError
+
+    scene, _ = flat_water(30.0)
+    for seed in (271_300, 1 << 62):
+        settings = RenderSettings(rsm_size=32, photons=PhotonSettings(photons=2_000, seed=seed))
+        maps = []
+        for _ in range(2):
+            r = Renderer(scene, settings, device=device)
+            r.render_frame()
+            maps.append(r.photons.photon_map.numpy())
+        assert np.isfinite(maps[0]).all() and maps[0].sum() > 0
+        np.testing.assert_array_equal(maps[0], maps[1])
+    for bad in (-1, 1 << 63, 1.5, True):
+        with pytest.raises(SceneError, match="seed must be an integer"):
+            RenderSettings(photons=PhotonSettings(photons=2_000, seed=bad))

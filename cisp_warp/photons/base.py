@@ -54,6 +54,8 @@ class PhotonSettings:
     def validate(self) -> None:
         if not isinstance(self.photons, (int, np.integer)) or self.photons < 1 or self.photons > 1 << 28:
             raise SceneError(f"--photons must be an integer in [1, 2^28], got {self.photons!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 1 << 63:
+            raise SceneError(f"--seed must be an integer in [0, 2^63), got {self.seed!r}")
         if self.footprint not in ("exact", "paper"):
             raise SceneError(f"footprint must be 'exact' or 'paper', got {self.footprint!r}")
         if self.splat not in ("point", "wavefront"):
