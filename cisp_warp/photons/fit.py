@@ -45,6 +45,67 @@ from .world import world_scene
 wp.set_module_options({"enable_backward": False})  # forward only (world_trace books into a tally by reference)
 
 
+@wp.func
+def pilot_branch(
+    light: ViewParams,
+    light_kind: int,
+    light_pos: wp.vec3,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
+    ws: WorldScene,
+    cam: CameraBuffers,
+    roughness_cutoff: float,
+    thickness: float,
+    thickness_rel: float,
+    t_max: float,
+    max_bounces: int,
+    seed: int,
+    p: int,
+    branch: int,  # 0 reflected, 1 refracted
+) -> float:
+    """Camera depth [m] where branch ``branch`` of pilot texel ``p`` lands on a surface the camera sees (traced in
+    world space from the texel's exact surface point), 0 where it lands nowhere seen or the texel sends no light
+    (arguments as :func:`pilot_receivers`'; ``cam.view`` is this frame's camera)."""
+    tri = rsm_tri[p]
+    if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
+        return 0.0
+    lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
+    x, n_s = surface_at_sample(lo, ld, tri, rsm_position[p], rsm_normal[p], geometry)
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(x - light_pos)
+    nn = n_s
+    eta = rsm_ior[p]
+    if wp.dot(d_in, n_s) > 0.0:
+        nn = -n_s
+        eta = 1.0 / eta
+    d = reflect(d_in, nn)
+    if branch == 1:
+        if ws.opacity[ws.triangle_material[tri]] >= 1.0:  # opaque: no refracted branch
+            return 0.0
+        d = refract(d_in, nn, eta)
+        if wp.length(d) == 0.0:  # total internal reflection
+            return 0.0
+    tally = tally_new()  # the pilot's bookings: discarded
+    state = wp.rand_init(seed, 2 * p + branch)
+    status, y, nr, d_end, power, state = world_trace(ws, x, n_s, d, wp.vec3(1.0), state, roughness_cutoff, t_max,
+                                                     max_bounces, tally)
+    if status != WT_LANDED:
+        return 0.0
+    pix, q = camera_pixel(cam, y)
+    if pix < 0:
+        return 0.0
+    zc = cam.depth[pix]
+    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc or wp.dot(-d_end, cam.normal[pix]) < 0.0:
+        return 0.0
+    return q[2]
+
+
 @wp.kernel
 def pilot_receivers(
     light: ViewParams,  # a pilot (whole) view of the light
@@ -73,43 +134,13 @@ def pilot_receivers(
     receiver_depth[p] = 0.0
     cam.view = cameras[0]
     seed = randoms[stream][2]
-    tri = rsm_tri[p]
-    if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
-        return
-    lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
-    x, n = surface_at_sample(lo, ld, tri, rsm_position[p], rsm_normal[p], geometry)
-    d_in = wp.normalize(ld)
-    if light_kind != 0:
-        d_in = wp.normalize(x - light_pos)
-    nn = n
-    eta = rsm_ior[p]
-    if wp.dot(d_in, n) > 0.0:
-        nn = -n
-        eta = 1.0 / eta
-    transmissive = int(ws.opacity[ws.triangle_material[tri]] < 1.0)
     nearest = float(0.0)
-    tally = tally_new()  # the pilot's bookings: discarded
     for branch in range(2):
-        d = reflect(d_in, nn)
-        if branch == 1:
-            if transmissive == 0:
-                continue
-            d = refract(d_in, nn, eta)
-            if wp.length(d) == 0.0:  # total internal reflection
-                continue
-        state = wp.rand_init(seed, 2 * p + branch)
-        status, y, nr, d_end, power, state = world_trace(ws, x, n, d, wp.vec3(1.0), state, roughness_cutoff, t_max,
-                                                         max_bounces, tally)
-        if status != WT_LANDED:
-            continue
-        pix, q = camera_pixel(cam, y)
-        if pix < 0:
-            continue
-        zc = cam.depth[pix]
-        if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc or wp.dot(-d_end, cam.normal[pix]) < 0.0:
-            continue
-        if nearest == 0.0 or q[2] < nearest:
-            nearest = q[2]
+        z = pilot_branch(light, light_kind, light_pos, rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
+                         geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces, seed, p,
+                         branch)
+        if z > 0.0 and (nearest == 0.0 or z < nearest):
+            nearest = z
     receiver_depth[p] = nearest
 
 
@@ -154,41 +185,11 @@ def pilot_branches(
     p = tid - branch * n
     branch_depth[tid] = PILOT_NONE
     cam.view = cameras[0]
-    seed = randoms[stream][2]
-    tri = rsm_tri[p]
-    if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
-        return
-    lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
-    x, n_s = surface_at_sample(lo, ld, tri, rsm_position[p], rsm_normal[p], geometry)
-    d_in = wp.normalize(ld)
-    if light_kind != 0:
-        d_in = wp.normalize(x - light_pos)
-    nn = n_s
-    eta = rsm_ior[p]
-    if wp.dot(d_in, n_s) > 0.0:
-        nn = -n_s
-        eta = 1.0 / eta
-    d = reflect(d_in, nn)
-    if branch == 1:
-        transmissive = int(ws.opacity[ws.triangle_material[tri]] < 1.0)
-        if transmissive == 0:
-            return
-        d = refract(d_in, nn, eta)
-        if wp.length(d) == 0.0:  # total internal reflection
-            return
-    tally = tally_new()  # the pilot's bookings: discarded
-    state = wp.rand_init(seed, 2 * p + branch)
-    status, y, nr, d_end, power, state = world_trace(ws, x, n_s, d, wp.vec3(1.0), state, roughness_cutoff, t_max,
-                                                     max_bounces, tally)
-    if status != WT_LANDED:
-        return
-    pix, q = camera_pixel(cam, y)
-    if pix < 0:
-        return
-    zc = cam.depth[pix]
-    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc or wp.dot(-d_end, cam.normal[pix]) < 0.0:
-        return
-    branch_depth[tid] = q[2]
+    z = pilot_branch(light, light_kind, light_pos, rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
+                     geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces,
+                     randoms[stream][2], p, branch)
+    if z > 0.0:
+        branch_depth[tid] = z
 
 
 @wp.kernel

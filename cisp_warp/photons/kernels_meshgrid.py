@@ -298,12 +298,9 @@ def mesh_corner(grid: MeshGrid, p: int):
 
 
 @wp.func
-def corner_start(grid: MeshGrid, k: int, ij: wp.vec2i, points: wp.array(dtype=wp.vec3),
-                 normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)):
-    """Corner ``ij`` of grid triangle ``k``: (scene triangle, point [m], unit normal, geometric normal on the
-    normal's side)."""
-    tri = grid.tris[k]
-    x, nrm = lattice_point(grid, points, normals, indices, k, ij)
+def corner_normals(tri: int, nrm: wp.vec3, points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)):
+    """(unit normal, geometric normal on its side) of a corner on scene triangle ``tri`` with interpolated normal
+    ``nrm`` (the geometric one where ``nrm`` vanishes)."""
     a = points[indices[3 * tri]]
     ng = wp.normalize(wp.cross(points[indices[3 * tri + 1]] - a, points[indices[3 * tri + 2]] - a))
     n = ng
@@ -311,6 +308,17 @@ def corner_start(grid: MeshGrid, k: int, ij: wp.vec2i, points: wp.array(dtype=wp
         n = wp.normalize(nrm)
     if wp.dot(n, ng) < 0.0:
         ng = -ng
+    return n, ng
+
+
+@wp.func
+def corner_start(grid: MeshGrid, k: int, ij: wp.vec2i, points: wp.array(dtype=wp.vec3),
+                 normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)):
+    """Corner ``ij`` of grid triangle ``k``: (scene triangle, point [m], unit normal, geometric normal on the
+    normal's side)."""
+    tri = grid.tris[k]
+    x, nrm = lattice_point(grid, points, normals, indices, k, ij)
+    n, ng = corner_normals(tri, nrm, points, indices)
     return tri, x, n, ng
 
 

@@ -13,8 +13,8 @@ import warp as wp
 
 from ..raster.light_maps import CascadeState
 from ..raster.views import ViewParams
-from .kernels_meshgrid import (MeshGrid, corner_lattice, corner_slot, lattice_point_uv, light_direction, owner_view,
-                               sub_cell)
+from .kernels_meshgrid import (MeshGrid, corner_lattice, corner_normals, corner_slot, lattice_point_uv,
+                               light_direction, owner_view, sub_cell)
 from .kernels_splat import TRI_REFINE, splat_corners
 from .kernels_wavefront import LedgerRows, Records, ledger_flush, trace_corner_cisp, trace_corner_world
 from .kernels_world import CameraBuffers, WorldScene
@@ -59,13 +59,7 @@ def refine_corner(grid: MeshGrid, m: int, refine_list: wp.array(dtype=wp.int32),
     v = float(ca[1]) + float(cb[1] - ca[1]) * fi + float(cc[1] - ca[1]) * fj
     tri = grid.tris[k]
     x, nrm = lattice_point_uv(grid, points, normals, indices, k, u, v)
-    a = points[indices[3 * tri]]
-    ng = wp.normalize(wp.cross(points[indices[3 * tri + 1]] - a, points[indices[3 * tri + 2]] - a))
-    n = ng
-    if wp.length_sq(nrm) > 1.0e-20:
-        n = wp.normalize(nrm)
-    if wp.dot(n, ng) < 0.0:
-        ng = -ng
+    n, ng = corner_normals(tri, nrm, points, indices)
     return sheet, tri, x, n, ng
 
 
