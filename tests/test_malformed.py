@@ -107,6 +107,38 @@ def test_parse_that_runs_past_its_deadline_is_a_scene_error(valid_stage, monkeyp
         load_usd(valid_stage, device="cpu")
 
 
+def test_guarded_parse_is_not_blocked_by_the_callers_usd_threads(monkeypatch):
+    """The parse child is forked by the parse server, not by the caller: a caller whose other thread
+    composes stages (USD's workers holding their locks at the moment of a fork) once left a forked
+    child waiting on a lock until its deadline (CI: well-formed corpus files 'did not finish within
+    30 s'; 4 in 100 checks here with the fork from the caller)."""
+    import threading
+
+    from pxr import Usd
+
+    from cisp_warp.usd import guard
+
+    monkeypatch.setattr(guard, "PARSE_SECONDS", 10.0)
+    scene = str(Path(__file__).resolve().parents[1] / "scenes_usd" / "pool.usda")
+    stop = threading.Event()
+
+    def churn():
+        while not stop.is_set():
+            stage = Usd.Stage.Open(scene)
+            sum(1 for _ in stage.Traverse())
+            del stage
+
+    thread = threading.Thread(target=churn, daemon=True)
+    thread.start()
+    try:
+        for _ in range(40):
+            monkeypatch.setattr(guard, "_PASSED", {})
+            guard.check_layers(str(CORPUS / "inf_points.usda"))  # parses; its error is the importer's
+    finally:
+        stop.set()
+        thread.join()
+
+
 def _load_generator():
     spec = importlib.util.spec_from_file_location("make_corpus", CORPUS / "make_corpus.py")
     module = importlib.util.module_from_spec(spec)

@@ -14,7 +14,8 @@ crash it. So before the stage is composed, :func:`check_layers`
 2. composes the stage once and counts its prims (instance proxies included): at most ``MAX_PRIMS``,
    so references that multiply each other (a prim that references two copies of a prim that
    references two copies ...) are refused before the importer traverses them;
-3. does both, which parse every layer, in a forked child with a memory cap
+3. does both, which parse every layer, in a child process with a memory cap, forked by a parse server
+   of its own (a process that never composes a stage, see :class:`_Server`)
    (``RLIMIT_AS``: ``PARSE_MEMORY_BYTES`` plus ``PARSE_BYTES_PER_FILE_BYTE`` per byte of the files)
    and a deadline (``PARSE_SECONDS`` plus ``PARSE_SECONDS_PER_MB``): a parse that runs past it, dies
    of a signal or runs out of memory is a :class:`SceneError` naming the file.
@@ -27,6 +28,7 @@ costs about 0.1 s for the shipped scenes). A stage whose files have not changed 
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import resource
@@ -206,62 +208,59 @@ def _vm_bytes() -> int:
         return 0
 
 
-def check_layers(path: str) -> None:
-    """Run :func:`walk_layers` on ``path`` in a forked child with a deadline and a memory cap (see the
-    module docstring); raises :class:`SceneError` naming the file when the walk fails in any way."""
-    root = os.path.abspath(path)
-    if _still_passed(root):
-        return
-    if not hasattr(os, "fork"):
-        _PASSED[root] = walk_layers(path)[2]
-        count_prims(path)
-        return
-    size = os.path.getsize(path)
-    deadline = PARSE_SECONDS + PARSE_SECONDS_PER_MB * size / 1e6
-    cap = _vm_bytes() + PARSE_MEMORY_BYTES + PARSE_BYTES_PER_FILE_BYTE * size
+_LIMITS = ("MAX_LAYER_BYTES", "MAX_TOTAL_BYTES", "MAX_LAYERS", "MAX_PRIMS")
+
+
+def _parse(request: dict) -> dict:
+    """The guarded parse of one request, in a child of the parse server: the walk and the prim count,
+    or the reason they failed, as a dict; sends ``{"phase": "compose"}`` between them."""
+    for name in _LIMITS:  # the caller's limits (tests lower them)
+        globals()[name] = request[name]
+    path = request["path"]
+    try:
+        layers, nbytes, signatures = walk_layers(path)
+        request["phase"]()
+        prims = count_prims(path)
+        return {"ok": True, "layers": layers, "bytes": nbytes, "prims": prims, "signatures": signatures}
+    except SceneError as exc:
+        return {"reason": exc.reason, "file": exc.file, "prim": exc.prim}
+    except MemoryError:
+        return {"reason": "parsing it ran out of memory"}
+    except Tf.ErrorException as exc:
+        from .stage import tf_reason
+
+        return {"reason": f"not a readable USD file ({tf_reason(exc)})"}
+    except Exception as exc:  # noqa: BLE001 - reported as the file's fault, by type and text
+        return {"reason": f"USD failed to parse it ({type(exc).__name__}: {str(exc)[:300]})"}
+
+
+def _run_child(request: dict) -> dict:
+    """Fork a child that runs :func:`_parse` under the request's memory cap; wait for it until the
+    request's deadline. Returns the child's answer, or ``{"timeout": phase}`` / ``{"crash": name,
+    "phase": phase}``. Runs in the parse server, which has no threads that could hold a lock."""
     read_end, write_end = os.pipe()
-    with warnings.catch_warnings():  # Python 3.12+ warns of fork in a threaded process: the child only parses
-        warnings.simplefilter("ignore", DeprecationWarning)
-        pid = os.fork()
-    if pid == 0:  # the child: parse, report one line of JSON, leave without running any cleanup
-        os.close(read_end)
+    pid = os.fork()
+    if pid == 0:  # the child: parse, report JSON lines, leave without running any cleanup
         try:
+            os.close(read_end)
+            cap = _vm_bytes() + request["budget"]
             try:
                 resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
             except (ValueError, OSError):
                 pass
-            try:
-                layers, nbytes, signatures = walk_layers(path)
-                os.write(write_end, b'{"phase": "compose"}\n')
-                prims = count_prims(path)
-                msg = {"ok": True, "layers": layers, "bytes": nbytes, "prims": prims, "signatures": signatures}
-            except SceneError as exc:
-                msg = {"reason": exc.reason, "file": exc.file, "prim": exc.prim}
-            except MemoryError:
-                msg = {"reason": "parsing it ran out of memory"}
-            except Tf.ErrorException as exc:
-                from .stage import tf_reason
-
-                msg = {"reason": f"not a readable USD file ({tf_reason(exc)})"}
-            except Exception as exc:  # noqa: BLE001 - reported as the file's fault, by type and text
-                msg = {"reason": f"USD failed to parse it ({type(exc).__name__}: {str(exc)[:300]})"}
-            os.write(write_end, json.dumps(msg).encode() + b"\n")
+            request["phase"] = lambda: os.write(write_end, b'{"phase": "compose"}\n')
+            os.write(write_end, json.dumps(_parse(request)).encode() + b"\n")
         finally:
             os._exit(0)
     os.close(write_end)
-    chunks, t0, status = [], time.monotonic(), None
+    chunks, t0 = [], time.monotonic()
     try:
         while True:
-            left = deadline - (time.monotonic() - t0)
+            left = request["deadline"] - (time.monotonic() - t0)
             if left <= 0.0:
                 os.kill(pid, signal.SIGKILL)
                 os.waitpid(pid, 0)
-                if b"compose" in b"".join(chunks):
-                    raise SceneError(f"composing the stage did not finish within {deadline:.0f} s: its references "
-                                     "or instances multiply into far too many prims", file=path)
-                raise SceneError(f"USD's parser did not finish within {deadline:.0f} s: the file is malformed "
-                                 "(e.g. an array of the wrong shape that the parser cannot recover from) or "
-                                 "far too large", file=path)
+                return {"timeout": True, "phase": b"phase" in b"".join(chunks)}
             ready, _, _ = select.select([read_end], [], [], min(left, 1.0))
             if ready:
                 data = os.read(read_end, 1 << 16)
@@ -272,14 +271,123 @@ def check_layers(path: str) -> None:
     finally:
         os.close(read_end)
     lines = [ln for ln in b"".join(chunks).decode("utf-8", "replace").splitlines() if ln.strip()]
-    text = lines[-1] if lines and "phase" not in lines[-1] else ""
-    if os.WIFSIGNALED(status) or not text:
-        sig = os.WTERMSIG(status) if os.WIFSIGNALED(status) else None
-        name = signal.Signals(sig).name if sig else "no answer"
-        step = "composing the stage" if any("phase" in ln for ln in lines) else "parsing it"
-        raise SceneError(f"USD crashed {step} ({name}; out of memory past {cap / 2**30:.1f} GiB, or a corrupt "
-                         "file)", file=path)
-    msg = json.loads(text)
+    if lines and "phase" not in lines[-1] and not os.WIFSIGNALED(status):
+        return json.loads(lines[-1])
+    name = signal.Signals(os.WTERMSIG(status)).name if os.WIFSIGNALED(status) else "no answer"
+    return {"crash": name, "phase": len(lines) > 0}
+
+
+def _serve() -> None:
+    """The parse server's loop: one JSON request a line on stdin, one JSON answer a line on the
+    original stdout (stdout itself goes to stderr, so nothing USD prints can break the protocol);
+    ends at end of input, i.e. when its caller closes the pipe or exits."""
+    import sys
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the caller's; the server ends with its pipe
+    answers = os.fdopen(os.dup(1), "w", buffering=1)
+    os.dup2(2, 1)
+    answers.write("ready\n")
+    for line in sys.stdin:
+        answers.write(json.dumps(_run_child(json.loads(line))) + "\n")
+
+
+class _Server:
+    """The parse server, a process of its own started on first use (``python -c ... _serve()``).
+
+    The parse children are forked from that server, never from the caller: the caller has USD's worker
+    threads (and Warp's, BLAS's), and a thread that holds a lock at the moment of a fork leaves that
+    lock held forever in the child. A child forked from a busy test process could so wait out its
+    deadline on a well-formed file (seen in CI: two files of the malformed corpus 'did not finish
+    within 30 s'). The server never composes a stage and never starts a thread."""
+
+    STARTUP_SECONDS = 120.0  #: the server's start (Python, USD, Warp imports) on a loaded machine [s]
+
+    def __init__(self):
+        import subprocess
+        import sys
+        import threading
+
+        self.lock = threading.Lock()
+        code = "import sys, json; sys.path[:0] = json.loads(sys.argv[1]); from cisp_warp.usd.guard import _serve; _serve()"
+        self.proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(sys.path)], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True, bufsize=1, close_fds=True)
+        atexit.register(self.close)
+        if self._read_line(self.STARTUP_SECONDS) != "ready":
+            self.close()
+            raise SceneError("the USD parse helper process did not start (run `python -c \"import "
+                             "cisp_warp.usd.guard\"` to see why)")
+
+    def _read_line(self, timeout: float) -> str | None:
+        ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+        line = self.proc.stdout.readline() if ready else ""
+        return line.strip() or None
+
+    def ask(self, request: dict) -> dict | None:
+        """The server's answer to ``request``, or None when the server died or fell silent."""
+        with self.lock:
+            try:
+                self.proc.stdin.write(json.dumps(request) + "\n")
+                self.proc.stdin.flush()
+            except (BrokenPipeError, OSError):
+                return None
+            line = self._read_line(request["deadline"] + 30.0)
+            return json.loads(line) if line else None
+
+    def close(self) -> None:
+        for stream in (self.proc.stdin, self.proc.stdout):
+            try:
+                stream.close()
+            except OSError:
+                pass
+        try:
+            self.proc.kill()
+            self.proc.wait()
+        except OSError:
+            pass
+
+
+_SERVER: _Server | None = None
+
+
+def _ask_server(request: dict) -> dict:
+    global _SERVER
+    if _SERVER is None or _SERVER.proc.poll() is not None:
+        _SERVER = _Server()
+    answer = _SERVER.ask(request)
+    if answer is None:  # the server died or hung: a fresh one serves the next request
+        _SERVER.close()
+        _SERVER = None
+        answer = {"crash": "the parse helper process stopped", "phase": False}
+    return answer
+
+
+def check_layers(path: str) -> None:
+    """Run :func:`walk_layers` and :func:`count_prims` on ``path`` in a child process with a deadline
+    and a memory cap (see the module docstring); raises :class:`SceneError` naming the file when they
+    fail in any way."""
+    root = os.path.abspath(path)
+    if _still_passed(root):
+        return
+    if not hasattr(os, "fork"):
+        _PASSED[root] = walk_layers(path)[2]
+        count_prims(path)
+        return
+    size = os.path.getsize(path)
+    request = {"path": root, "deadline": PARSE_SECONDS + PARSE_SECONDS_PER_MB * size / 1e6,
+               "budget": PARSE_MEMORY_BYTES + PARSE_BYTES_PER_FILE_BYTE * size}
+    request.update({name: globals()[name] for name in _LIMITS})
+    msg = _ask_server(request)
+    if "timeout" in msg:
+        if msg["phase"]:
+            raise SceneError(f"composing the stage did not finish within {request['deadline']:.0f} s: its "
+                             "references or instances multiply into far too many prims", file=path)
+        raise SceneError(f"USD's parser did not finish within {request['deadline']:.0f} s: the file is malformed "
+                         "(e.g. an array of the wrong shape that the parser cannot recover from) or far too large",
+                         file=path)
+    if "crash" in msg:
+        step = "composing the stage" if msg["phase"] else "parsing it"
+        raise SceneError(f"USD crashed {step} ({msg['crash']}; out of memory past {request['budget'] / 2**30:.1f} "
+                         "GiB more, or a corrupt file)", file=path)
     if not msg.get("ok"):
         raise SceneError(msg["reason"], file=msg.get("file") or path, prim=msg.get("prim"))
     _PASSED[root] = msg["signatures"]
