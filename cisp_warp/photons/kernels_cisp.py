@@ -145,6 +145,83 @@ def march_cascade(
     return entry, x_end, pix
 
 
+NORMAL_COS = wp.constant(0.9)  #: corners (and covered pixels) on one receiver: normals within ~26°
+
+
+@wp.func
+def refine_landing(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),
+    cam_position: wp.array(dtype=wp.vec3),
+    cam_normal: wp.array(dtype=wp.vec3),
+    origin: wp.vec3,  # [m] where the photon left the specular surface
+    d: wp.vec3,  # its direction
+    x_end: wp.vec3,  # [m] where the march put it
+    pix: int,  # camera pixel of x_end
+    thickness: float,
+    thickness_rel: float,
+):
+    """The photon's ray cut with the tangent plane of the surface camera pixel ``pix`` shows (its G-buffer
+    position and normal). A march lands within a depth texel of the surface (nearest-texel depth, linear
+    between two steps): points that scatter by that much scatter a wavefront's triangle areas, where a point
+    photon's noise hides it. Kept only where the cut stays on the same surface within the thickness;
+    returns (landing point [m], its camera pixel)."""
+    n = cam_normal[pix]
+    den = wp.dot(d, n)
+    if den >= -1.0e-6:
+        return x_end, pix
+    t = wp.dot(cam_position[pix] - origin, n) / den
+    x = origin + d * t
+    tol = thickness + thickness_rel * cam_depth[pix]
+    if t <= 0.0 or wp.length(x - x_end) > tol:
+        return x_end, pix
+    q = world_project(camera, x)
+    if q[2] <= camera.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(camera.width) or q[1] >= float(camera.height):
+        return x_end, pix
+    pix2 = int(q[1]) * camera.width + int(q[0])
+    z2 = cam_depth[pix2]
+    if z2 <= 0.0 or wp.dot(cam_normal[pix2], n) < NORMAL_COS:
+        return x_end, pix
+    if wp.abs(wp.dot(x - cam_position[pix2], cam_normal[pix2])) > thickness + thickness_rel * z2:
+        return x_end, pix
+    return x, pix2
+
+
+@wp.func
+def camera_rescue(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    origin: wp.vec3,  # [m] where the photon left the specular surface
+    d: wp.vec3,  # its direction
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    entry: int,  # the cascade's entry: L_LOST_LIGHT or L_OCCLUDED
+    x_lost: wp.vec3,  # [m] where the cascade gave it up
+    pix_lost: int,  # and its camera pixel (or -1)
+):
+    """A photon the cascade lost or found occluded, marched in the camera view from where it left the
+    specular surface.
+
+    The light-view march walks on behind the light's depth buffer where the ray runs into surfaces the light
+    does not see (on the pool: the floor along the end wall in the lee of the deck, which refracted light
+    reaches and direct light does not): it crosses a false surface far below the floor or leaves the view,
+    and the reprojected end point is off the screen or behind the camera's surfaces. The photon is then lost
+    although the camera sees the floor it reaches. The camera's own depth buffer shows that floor: march the
+    ray there from its start (a crossing the camera sees along the ray is a surface the photon meets first).
+    Returns (entry, end point [m], camera pixel): ``L_STORED`` on a crossing, else the cascade's own."""
+    status, t, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, origin + d * (1.0e-4 * t_max), d,
+                                            t_max, max_steps, thickness, thickness_rel)
+    if status != MARCH_HIT:
+        return entry, x_lost, pix_lost
+    x = origin + d * (1.0e-4 * t_max + t)
+    q = world_project(camera, x)
+    pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
+    return L_STORED, x, pix
+
+
 @wp.func
 def trace_photon(
     k: int,  # photon index
@@ -185,6 +262,10 @@ def trace_photon(
                                            thickness, thickness_rel)
         if entry == L_STORED:
             pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
+        # the light view hid the ray's landing (a receiver in an occluder's lee): march it in the camera view
+        entry, x_end, pix = camera_rescue(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, origin, d,
+                                          t_max, max_steps, thickness, thickness_rel, entry, x_end, pix)
     if entry != L_STORED:
         book(tally, entry, power)
         return
