@@ -269,6 +269,10 @@ def trace_photon(
     if entry != L_STORED:
         book(tally, entry, power)
         return
+    # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
+    # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
+    x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
+                                thickness, thickness_rel)
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, photon_m2, tally) != 0:
