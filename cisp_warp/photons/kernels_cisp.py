@@ -59,8 +59,9 @@ def reproject_to_camera(
     use_cascade: int,  # 0: light view only (no camera march)
 ):
     """Step 5 of seed 000, the cascade (Fig. 7): where the light-view march that ended at ``x_end`` with ``status``
-    lands in the camera view. Returns (entry, camera pixel): ``L_STORED`` on the surface pixel ``pix`` shows,
-    ``MARCH_ON`` floating in front of the camera's surfaces (march on in the camera view: :func:`march_camera`),
+    lands in the camera view. Returns (entry, camera pixel): ``L_STORED`` on the surface pixel ``pix`` shows (a
+    light-view crossing within the thickness of it), ``MARCH_ON`` floating in front of the camera's surfaces or a
+    light-view miss within their thickness (march on in the camera view: :func:`march_camera`),
     else the ledger entry where the photon was lost (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``)."""
     if status == MARCH_STEPS:
         return L_STEPS, int(-1)
@@ -75,8 +76,11 @@ def reproject_to_camera(
     tol = thickness + thickness_rel * zc
     if zc > 0.0 and q[2] > zc + tol:
         return L_OCCLUDED, pix
-    if zc > 0.0 and q[2] >= zc - tol:
+    if zc > 0.0 and q[2] >= zc - tol and status == MARCH_HIT:
         return L_STORED, pix
+    # a miss ends in the air (where the ray left the light view), on no surface even within the thickness of one:
+    # the camera march finds where it lands (stored here, a ray leaving the light view a few cm before a wall
+    # landed that far short of it)
     if use_cascade == 0:
         return L_LOST_LIGHT, int(-1)
     return MARCH_ON, int(-1)
