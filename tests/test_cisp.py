@@ -210,3 +210,19 @@ def test_every_seed_in_range_renders_and_others_are_refused(device):
     for bad in (-1, 1 << 63, 1.5, True):
         with pytest.raises(SceneError, match="seed must be an integer"):
             RenderSettings(photons=PhotonSettings(photons=2_000, seed=bad))
+
+
+def test_landings_lie_on_the_receiver(device):
+    """A light-view crossing lies within an RSM texel's depth of the receiver (nearest-texel depth, the sun's view
+    tilted 30° over the floor, a coarse 64² RSM); cut with the tangent plane of the surface its camera pixel shows
+    (``refine_landing``), every stored photon lands on the floor plane (y = −0.5 m) to rounding."""
+    scene, _ = flat_water(30.0)
+    r = Renderer(scene, RenderSettings(rsm_size=64, photons=PhotonSettings(photons=20_000, seed=3, sort_photons=False)),
+                 device=device)
+    r.photons.record_hits = True
+    r.render_frame()
+    hits, outcome = r.photons.hits.numpy(), r.photons.outcome.numpy()
+    n = r.photons.photons_per_view(r.lights[0])
+    stored = outcome[:n, 3] == int(L_STORED)
+    assert stored.sum() > 1000
+    np.testing.assert_allclose(hits[:n][stored, 1], -0.5, atol=1e-4)
