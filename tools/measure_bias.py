@@ -122,6 +122,10 @@ def main(argv=None) -> int:
     p.add_argument("--photons", default="200k", help="photons per light and frame (default 200k)")
     p.add_argument("--frames", type=int, default=16, help="frames averaged (default 16)")
     p.add_argument("--seed", type=int, default=0, help="the renderer's seed (default 0)")
+    p.add_argument("--thickness", type=float, default=None,
+                   help="the depth buffers' absolute surface thickness [m] (default: PhotonSettings')")
+    p.add_argument("--thickness-rel", type=float, default=None,
+                   help="their relative thickness (x depth) (default: PhotonSettings')")
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
     p.add_argument("--out", default="bias", help="output folder (default ./bias)")
     p.add_argument("--refdir", default=None, help="reference cache folder (default OUT/references)")
@@ -199,7 +203,12 @@ def main(argv=None) -> int:
     from dataclasses import replace
 
     settings = E.render_settings(cfg, args.rsm)
-    settings = replace(settings, photons=replace(settings.photons, seed=args.seed))
+    ps = replace(settings.photons, seed=args.seed)
+    if args.thickness is not None:
+        ps = replace(ps, thickness=args.thickness)
+    if args.thickness_rel is not None:
+        ps = replace(ps, thickness_rel=args.thickness_rel)
+    settings = replace(settings, photons=ps)
     r = Renderer(spec.make(w, h), settings, device=device)
     if spec.prepare is not None:
         spec.prepare(r)
@@ -223,7 +232,8 @@ def main(argv=None) -> int:
     fig = figures(mean, noise_px, ref, mask, footprint)
     ledger = r.photons.read_ledger()
     meta = {"scene": spec.name, "method": args.method, "splat": args.splat, "width": w, "height": h, "rsm": args.rsm,
-            "photons": photons, "frames": args.frames, "seed": args.seed, "device": E.device_name(device),
+            "photons": photons, "frames": args.frames, "seed": args.seed, "thickness": ps.thickness,
+            "thickness_rel": ps.thickness_rel, "device": E.device_name(device),
             "reference_photons": rmeta["photons"], "ledger_closure": float(ledger.closure()),
             "seconds": time.perf_counter() - t0, "source": E.source_version(), **fig}
     stem = os.path.join(args.out, f"bias_{spec.name}_{args.method}_{w}x{h}_rsm{args.rsm}")
