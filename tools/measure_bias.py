@@ -124,6 +124,8 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0, help="the renderer's seed (default 0)")
     p.add_argument("--thickness", type=float, default=None,
                    help="the depth buffers' absolute surface thickness [m] (default: PhotonSettings')")
+    p.add_argument("--no-cascade", action="store_true",
+                   help="cisp: the light view only, no camera march (PhotonSettings.cascade off), for comparison")
     p.add_argument("--thickness-rel", type=float, default=None,
                    help="their relative thickness (x depth) (default: PhotonSettings')")
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
@@ -208,6 +210,8 @@ def main(argv=None) -> int:
         ps = replace(ps, thickness=args.thickness)
     if args.thickness_rel is not None:
         ps = replace(ps, thickness_rel=args.thickness_rel)
+    if args.no_cascade:
+        ps = replace(ps, cascade=False)
     settings = replace(settings, photons=ps)
     r = Renderer(spec.make(w, h), settings, device=device)
     if spec.prepare is not None:
@@ -233,7 +237,7 @@ def main(argv=None) -> int:
     ledger = r.photons.read_ledger()
     meta = {"scene": spec.name, "method": args.method, "splat": args.splat, "width": w, "height": h, "rsm": args.rsm,
             "photons": photons, "frames": args.frames, "seed": args.seed, "thickness": ps.thickness,
-            "thickness_rel": ps.thickness_rel, "device": E.device_name(device),
+            "thickness_rel": ps.thickness_rel, "cascade": ps.cascade, "device": E.device_name(device),
             "reference_photons": rmeta["photons"], "ledger_closure": float(ledger.closure()),
             "seconds": time.perf_counter() - t0, "source": E.source_version(), **fig}
     stem = os.path.join(args.out, f"bias_{spec.name}_{args.method}_{w}x{h}_rsm{args.rsm}")
