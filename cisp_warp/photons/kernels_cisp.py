@@ -149,7 +149,8 @@ def march_cascade(
     return entry, x_end, pix
 
 
-NORMAL_COS = wp.constant(0.9)  #: corners (and covered pixels) on one receiver: normals within ~26°
+#: one receiver: normals within ~26° (a refined landing's pixel; the wavefront splat's corners and covered pixels)
+NORMAL_COS = wp.constant(0.9)
 
 
 @wp.func
@@ -254,10 +255,12 @@ def trace_photon(
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
 ):
     """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
-    (:func:`reproject_to_camera`, :func:`march_camera`), validate, store; its final entry booked. Each view is read
+    (:func:`reproject_to_camera`, :func:`march_camera`), a photon the cascade lost marched in the camera view from
+    its start (:func:`camera_rescue`), the landing cut with its receiver's tangent plane (:func:`refine_landing`),
+    validate, store; its final entry booked. Each view is read
     from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
     registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
-    (sm_90, ``tools/regcount.py``)."""
+    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17)."""
     status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
                                 max_steps, thickness, thickness_rel)
     entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)

@@ -29,12 +29,12 @@ import warp as wp
 
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
-from ..raster.views import ViewParams, pixel_ray_world, world_project
+from ..raster.views import ViewParams, pixel_ray_world
 from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED,
                      L_STORED,
                      LEDGER_ENTRIES, tally_new)
-from .kernels_cisp import NORMAL_COS, camera_rescue, march_cascade, refine_landing
-from .march import MARCH_HIT, screen_march_bounded
+# NORMAL_COS is imported from here by kernels_splat
+from .kernels_cisp import NORMAL_COS, camera_rescue, march_cascade, refine_landing  # noqa: F401
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
 
