@@ -295,7 +295,9 @@ def test_caustic_denoiser_chunk_after_warmup_is_within_its_frame_to_frame_change
     assert warmup_frames(STILL) == 15 and np.isfinite(ratios[15] + ratios[0]).all(), ratios
     bound = caustic_seam_factor(16, 15)
     assert max(ratios[15]) <= bound, (bound, ratios)
-    assert ratios[0][0] > 3 * bound, (bound, ratios)  # no warm-up: the seam shows
+    # no warm-up: the seam shows (first chunk frame 6.3x the bound's 1.88 with cisp's bias of section 16, 3.9x
+    # since its fixes of perf_notes section 17; with warm-up at most 0.96)
+    assert ratios[0][0] > 2 * bound, (bound, ratios)
 
 
 def test_a_chunk_forgets_the_denoisers_history(tmp_path):

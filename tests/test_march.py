@@ -94,3 +94,44 @@ def test_bounds_of_an_inactive_view_are_kept(device, rng):
     got.assign(stale)
     build_bounds(depth, w, h, 0.02, 0.02, got, device, views, 1)
     np.testing.assert_array_equal(got.numpy(), stale)
+
+
+@wp.kernel
+def march_points(view: ViewParams, depth: wp.array(dtype=wp.float32), origins: wp.array(dtype=wp.vec3),
+                 dirs: wp.array(dtype=wp.vec3), bounds: wp.array(dtype=wp.vec2), out: wp.array(dtype=wp.vec4)):
+    i = wp.tid()
+    s, t, n = screen_march_bounded(view, depth, bounds, origins[i], dirs[i], 50.0, 2048, 0.02, 0.02)
+    p = origins[i] + dirs[i] * t
+    out[i] = wp.vec4(p[0], p[1], p[2], float(s))
+    s2, t2, n2 = screen_march_naive(view, depth, origins[i], dirs[i], 50.0, 2048, 0.02, 0.02)
+    if s2 != s or t2 != t:
+        out[i] = wp.vec4(0.0, 0.0, 0.0, -1.0)  # the twins disagree
+
+
+@pytest.mark.parametrize("orthographic", [False, True], ids=["perspective", "orthographic"])
+def test_crossing_lies_on_a_plane_of_constant_depth(device, rng, orthographic):
+    """Rays near the view axis advance far in depth over one step; their crossing with a plane of constant depth
+    (a floor under a spot light) must lie on it. Eq. 2 in linear depth put a perspective view's crossings short of
+    the plane (a ray from depth 0.5 over one step to 50 ended near depth 0.52 instead of 2); in 1/depth, where the
+    ray's depth is affine in screen space, they lie on it to rounding."""
+    w = h = 64
+    view = View(np.eye(4), w, h, near=0.1, far=100.0, fx=64.0 if not orthographic else 16.0,
+                fy=64.0 if not orthographic else 16.0, orthographic=orthographic)
+    n = 500
+    z0 = rng.uniform(0.3, 1.5, n)
+    lateral = rng.uniform(-0.2, 0.2, (n, 2))  # directions within ~11° of the axis: a few pixels or less
+    o = np.stack([rng.uniform(-0.1, 0.1, n), rng.uniform(-0.1, 0.1, n), -z0], 1)
+    d = np.concatenate([lateral, -np.ones((n, 1))], 1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    depth = wp.array(np.full(w * h, 2.0, np.float32), device=device)
+    bounds = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
+    build_bounds(depth, w, h, 0.02, 0.02, bounds, device)
+    out = wp.zeros(n, dtype=wp.vec4, device=device)
+    wp.launch(march_points, dim=n, device=device, inputs=[view.params(), depth,
+              wp.array(o.astype(np.float32), dtype=wp.vec3, device=device),
+              wp.array(d.astype(np.float32), dtype=wp.vec3, device=device), bounds, out])
+    r = out.numpy()
+    assert (r[:, 3] != -1).all()
+    hit = r[:, 3] == 0
+    assert hit.mean() > 0.95
+    np.testing.assert_allclose(-r[hit, 2], 2.0, atol=2e-4)

@@ -50,14 +50,14 @@ def test_caustic_outside_the_light_frustum(device):
 
 
 def test_hidden_photon_trail(device):
-    """Seed 000 §4.3: a trail hidden in the camera view is lost by CISP (booked as occluded); SSPM traces it in
-    world space and delivers the same wall caustic as without the screen."""
+    """Seed 000 §4.3: a trail hidden in the camera view is lost by the paper's cascade (booked as occluded); CISP's
+    camera rescue marches it behind the screen from the water and finds most of the wall caustic (it lost over 80%
+    before the rescue, 26% with it; docs/perf_notes.md section 17); SSPM traces it in world space and delivers the
+    same wall caustic as without the screen."""
     f = figures(device, "hidden_trail")
-    open_ = figures(device, "outside_light_frustum")
     for m in f.values():
         check_books(m)
-    assert f["cisp"].energy_lost > 0.8
-    assert f["cisp"].ledger["occluded"] > open_["cisp"].ledger["occluded"] + 0.5 * open_["cisp"].ledger["reflected"]
+    assert f["cisp"].energy_lost < 0.4
     assert abs(f["sspm"].energy_lost) < 0.1
     assert f["caustics_map"].energy_lost > 0.95
 

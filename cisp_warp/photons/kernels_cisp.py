@@ -59,8 +59,9 @@ def reproject_to_camera(
     use_cascade: int,  # 0: light view only (no camera march)
 ):
     """Step 5 of seed 000, the cascade (Fig. 7): where the light-view march that ended at ``x_end`` with ``status``
-    lands in the camera view. Returns (entry, camera pixel): ``L_STORED`` on the surface pixel ``pix`` shows,
-    ``MARCH_ON`` floating in front of the camera's surfaces (march on in the camera view: :func:`march_camera`),
+    lands in the camera view. Returns (entry, camera pixel): ``L_STORED`` on the surface pixel ``pix`` shows (a
+    light-view crossing within the thickness of it), ``MARCH_ON`` floating in front of the camera's surfaces or a
+    light-view miss within their thickness (march on in the camera view: :func:`march_camera`),
     else the ledger entry where the photon was lost (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``)."""
     if status == MARCH_STEPS:
         return L_STEPS, int(-1)
@@ -75,8 +76,11 @@ def reproject_to_camera(
     tol = thickness + thickness_rel * zc
     if zc > 0.0 and q[2] > zc + tol:
         return L_OCCLUDED, pix
-    if zc > 0.0 and q[2] >= zc - tol:
+    if zc > 0.0 and q[2] >= zc - tol and status == MARCH_HIT:
         return L_STORED, pix
+    # a miss ends in the air (where the ray left the light view), on no surface even within the thickness of one:
+    # the camera march finds where it lands (stored here, a ray leaving the light view a few cm before a wall
+    # landed that far short of it)
     if use_cascade == 0:
         return L_LOST_LIGHT, int(-1)
     return MARCH_ON, int(-1)
@@ -145,6 +149,84 @@ def march_cascade(
     return entry, x_end, pix
 
 
+#: one receiver: normals within ~26° (a refined landing's pixel; the wavefront splat's corners and covered pixels)
+NORMAL_COS = wp.constant(0.9)
+
+
+@wp.func
+def refine_landing(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),
+    cam_position: wp.array(dtype=wp.vec3),
+    cam_normal: wp.array(dtype=wp.vec3),
+    origin: wp.vec3,  # [m] where the photon left the specular surface
+    d: wp.vec3,  # its direction
+    x_end: wp.vec3,  # [m] where the march put it
+    pix: int,  # camera pixel of x_end
+    thickness: float,
+    thickness_rel: float,
+):
+    """The photon's ray cut with the tangent plane of the surface camera pixel ``pix`` shows (its G-buffer
+    position and normal). A march lands within a depth texel of the surface (nearest-texel depth, linear
+    between two steps): points that scatter by that much scatter a wavefront's triangle areas, where a point
+    photon's noise hides it. Kept only where the cut stays on the same surface within the thickness;
+    returns (landing point [m], its camera pixel)."""
+    n = cam_normal[pix]
+    den = wp.dot(d, n)
+    if den >= -1.0e-6:
+        return x_end, pix
+    t = wp.dot(cam_position[pix] - origin, n) / den
+    x = origin + d * t
+    tol = thickness + thickness_rel * cam_depth[pix]
+    if t <= 0.0 or wp.length(x - x_end) > tol:
+        return x_end, pix
+    q = world_project(camera, x)
+    if q[2] <= camera.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(camera.width) or q[1] >= float(camera.height):
+        return x_end, pix
+    pix2 = int(q[1]) * camera.width + int(q[0])
+    z2 = cam_depth[pix2]
+    if z2 <= 0.0 or wp.dot(cam_normal[pix2], n) < NORMAL_COS:
+        return x_end, pix
+    if wp.abs(wp.dot(x - cam_position[pix2], cam_normal[pix2])) > thickness + thickness_rel * z2:
+        return x_end, pix
+    return x, pix2
+
+
+@wp.func
+def camera_rescue(
+    camera: ViewParams,
+    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    origin: wp.vec3,  # [m] where the photon left the specular surface
+    d: wp.vec3,  # its direction
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    entry: int,  # the cascade's entry: L_LOST_LIGHT or L_OCCLUDED
+    x_lost: wp.vec3,  # [m] where the cascade gave it up
+    pix_lost: int,  # and its camera pixel (or -1)
+):
+    """A photon the cascade lost or found occluded, marched in the camera view from where it left the
+    specular surface.
+
+    The light-view march walks on behind the light's depth buffer where the ray runs into surfaces the light
+    does not see (on the pool: the floor along the end wall in the lee of the deck, which refracted light
+    reaches and direct light does not): it crosses a false surface far below the floor or leaves the view,
+    and the reprojected end point is off the screen or behind the camera's surfaces. The photon is then lost
+    although the camera sees the floor it reaches. The camera's own depth buffer shows that floor: march the
+    ray there from its start (a crossing the camera sees along the ray is a surface the photon meets first).
+    Returns (entry, end point [m], camera pixel): ``L_STORED`` on a crossing, else the cascade's own."""
+    status, t, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, origin + d * (1.0e-4 * t_max), d,
+                                            t_max, max_steps, thickness, thickness_rel)
+    if status != MARCH_HIT:
+        return entry, x_lost, pix_lost
+    x = origin + d * (1.0e-4 * t_max + t)
+    q = world_project(camera, x)
+    pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
+    return L_STORED, x, pix
+
+
 @wp.func
 def trace_photon(
     k: int,  # photon index
@@ -173,10 +255,12 @@ def trace_photon(
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
 ):
     """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
-    (:func:`reproject_to_camera`, :func:`march_camera`), validate, store; its final entry booked. Each view is read
+    (:func:`reproject_to_camera`, :func:`march_camera`), a photon the cascade lost marched in the camera view from
+    its start (:func:`camera_rescue`), the landing cut with its receiver's tangent plane (:func:`refine_landing`),
+    validate, store; its final entry booked. Each view is read
     from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
     registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
-    (sm_90, ``tools/regcount.py``)."""
+    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17)."""
     status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
                                 max_steps, thickness, thickness_rel)
     entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
@@ -185,9 +269,17 @@ def trace_photon(
                                            thickness, thickness_rel)
         if entry == L_STORED:
             pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
+        # the light view hid the ray's landing (a receiver in an occluder's lee): march it in the camera view
+        entry, x_end, pix = camera_rescue(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, origin, d,
+                                          t_max, max_steps, thickness, thickness_rel, entry, x_end, pix)
     if entry != L_STORED:
         book(tally, entry, power)
         return
+    # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
+    # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
+    x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
+                                thickness, thickness_rel)
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, photon_m2, tally) != 0:

@@ -29,12 +29,12 @@ import warp as wp
 
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
-from ..raster.views import ViewParams, pixel_ray_world, world_project
+from ..raster.views import ViewParams, pixel_ray_world
 from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED,
                      L_STORED,
                      LEDGER_ENTRIES, tally_new)
-from .kernels_cisp import march_cascade
-from .march import MARCH_HIT, screen_march_bounded
+# NORMAL_COS is imported from here by kernels_splat
+from .kernels_cisp import NORMAL_COS, camera_rescue, march_cascade, refine_landing  # noqa: F401
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
 
@@ -44,7 +44,6 @@ SHEET_REFRACTED = wp.constant(0)
 SHEET_REFLECTED = wp.constant(1)
 NO_PHOTON = wp.constant(-1)  #: record entry of a corner with no specular surface around it
 
-NORMAL_COS = wp.constant(0.9)  #: corners (and covered pixels) on one receiver: normals within ~26°
 
 LedgerRows = wp.types.matrix(shape=(LEDGER_ENTRIES, 3), dtype=wp.float64)  #: one thread's share of the ledger [W]
 
@@ -368,80 +367,6 @@ def clear_record(rec: Records, p: int):
     rec.entry[p] = NO_PHOTON
     rec.pix[p] = -1
     rec.throughput[p] = wp.vec3(1.0)
-
-
-@wp.func
-def refine_landing(
-    camera: ViewParams,
-    cam_depth: wp.array(dtype=wp.float32),
-    cam_position: wp.array(dtype=wp.vec3),
-    cam_normal: wp.array(dtype=wp.vec3),
-    origin: wp.vec3,  # [m] where the photon left the specular surface
-    d: wp.vec3,  # its direction
-    x_end: wp.vec3,  # [m] where the march put it
-    pix: int,  # camera pixel of x_end
-    thickness: float,
-    thickness_rel: float,
-):
-    """The photon's ray cut with the tangent plane of the surface camera pixel ``pix`` shows (its G-buffer
-    position and normal). A march lands within a depth texel of the surface (nearest-texel depth, linear
-    between two steps): points that scatter by that much scatter a wavefront's triangle areas, where a point
-    photon's noise hides it. Kept only where the cut stays on the same surface within the thickness;
-    returns (landing point [m], its camera pixel)."""
-    n = cam_normal[pix]
-    den = wp.dot(d, n)
-    if den >= -1.0e-6:
-        return x_end, pix
-    t = wp.dot(cam_position[pix] - origin, n) / den
-    x = origin + d * t
-    tol = thickness + thickness_rel * cam_depth[pix]
-    if t <= 0.0 or wp.length(x - x_end) > tol:
-        return x_end, pix
-    q = world_project(camera, x)
-    if q[2] <= camera.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(camera.width) or q[1] >= float(camera.height):
-        return x_end, pix
-    pix2 = int(q[1]) * camera.width + int(q[0])
-    z2 = cam_depth[pix2]
-    if z2 <= 0.0 or wp.dot(cam_normal[pix2], n) < NORMAL_COS:
-        return x_end, pix
-    if wp.abs(wp.dot(x - cam_position[pix2], cam_normal[pix2])) > thickness + thickness_rel * z2:
-        return x_end, pix
-    return x, pix2
-
-
-@wp.func
-def camera_rescue(
-    camera: ViewParams,
-    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
-    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-    origin: wp.vec3,  # [m] where the photon left the specular surface
-    d: wp.vec3,  # its direction
-    t_max: float,
-    max_steps: int,
-    thickness: float,
-    thickness_rel: float,
-    entry: int,  # the cascade's entry: L_LOST_LIGHT or L_OCCLUDED
-    x_lost: wp.vec3,  # [m] where the cascade gave it up
-    pix_lost: int,  # and its camera pixel (or -1)
-):
-    """A photon the cascade lost or found occluded, marched in the camera view from where it left the
-    specular surface.
-
-    The light-view march walks on behind the light's depth buffer where the ray runs into surfaces the light
-    does not see (on the pool: the floor along the end wall in the lee of the deck, which refracted light
-    reaches and direct light does not): it crosses a false surface far below the floor or leaves the view,
-    and the reprojected end point is off the screen or behind the camera's surfaces. The photon is then lost
-    although the camera sees the floor it reaches. The camera's own depth buffer shows that floor: march the
-    ray there from its start (a crossing the camera sees along the ray is a surface the photon meets first).
-    Returns (entry, end point [m], camera pixel): ``L_STORED`` on a crossing, else the cascade's own."""
-    status, t, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, origin + d * (1.0e-4 * t_max), d,
-                                            t_max, max_steps, thickness, thickness_rel)
-    if status != MARCH_HIT:
-        return entry, x_lost, pix_lost
-    x = origin + d * (1.0e-4 * t_max + t)
-    q = world_project(camera, x)
-    pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
-    return L_STORED, x, pix
 
 
 @wp.func

@@ -134,10 +134,18 @@ def screen_march_naive(
         # the ray's depth over this step, [min, max], overlaps the surface's [zs, zs + thickness]
         if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
             u = float(1.0)
-            if diff_prev < 0.0 and diff >= 0.0:
-                u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
-            elif zr != zr_prev:
-                u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
+            if view.orthographic != 0:  # depth is linear in screen space: the ray's and a plane's
+                if diff_prev < 0.0 and diff >= 0.0:
+                    u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
+                elif zr != zr_prev:
+                    u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
+            else:  # 1/depth is: eq. 2 in 1/depth, exact for the ray and for a plane between the samples
+                zs_prev = zr_prev - diff_prev
+                if diff_prev < 0.0 and diff >= 0.0 and zs_prev < BIG_DEPTH:
+                    a = 1.0 / zr_prev - 1.0 / zs_prev
+                    u = a / (a - (1.0 / zr - 1.0 / zs))
+                elif zr != zr_prev:
+                    u = wp.clamp((1.0 / zr_prev - 1.0 / zs) / (1.0 / zr_prev - 1.0 / zr), 0.0, 1.0)
             s_hit = s_prev + (s - s_prev) * u
             lam = s_hit
             if view.orthographic == 0:
@@ -165,16 +173,32 @@ def _ray_depth(orthographic: int, z0: float, z1: float, k0: float, k1: float, s:
 
 
 @wp.func
-def _crossing(zr_prev: float, zr: float, zs: float, diff_prev: float, thickness: float, thickness_rel: float) -> float:
+def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, thickness: float,
+              thickness_rel: float) -> float:
     """Where along a step the ray crosses the surface, u in [0, 1], or -1 when the ray's depth over the step,
-    [min, max], does not overlap the surface's [zs, zs + thickness]."""
+    [min, max], does not overlap the surface's [zs, zs + thickness].
+
+    Eq. 2 of seed 000 (two segments between the last two steps: the ray's depth and the samples') in the quantity
+    that is linear in screen space: depth for an orthographic view, 1/depth for a perspective one, where both the
+    ray's and a plane's 1/depth are affine in the screen coordinates. Linear depth there puts the crossing of a
+    ray that advances far in depth over one step (near the view axis) short of the surface: a ray from depth 0.6
+    to 1.2 over the step crossing a floor at 0.95 ended at depth 0.85, 10 cm above it (docs/perf_notes.md
+    section 17). After a sample with no surface (BIG_DEPTH) the crossing is that with the current sample's depth."""
     diff = zr - zs
     if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
         u = float(1.0)
-        if diff_prev < 0.0 and diff >= 0.0:
-            u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
-        elif zr != zr_prev:
-            u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
+        if orthographic != 0:
+            if diff_prev < 0.0 and diff >= 0.0:
+                u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
+            elif zr != zr_prev:
+                u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
+        else:
+            zs_prev = zr_prev - diff_prev
+            if diff_prev < 0.0 and diff >= 0.0 and zs_prev < BIG_DEPTH:
+                a = 1.0 / zr_prev - 1.0 / zs_prev
+                u = a / (a - (1.0 / zr - 1.0 / zs))  # eq. 2 in 1/depth
+            elif zr != zr_prev:
+                u = wp.clamp((1.0 / zr_prev - 1.0 / zs) / (1.0 / zr_prev - 1.0 / zr), 0.0, 1.0)  # within this pixel
         return u
     return -1.0
 
@@ -277,7 +301,7 @@ def screen_march(
         zsc = _buffer_depth(view, depth, pc[0], pc[1])
         zsd = _buffer_depth(view, depth, pd[0], pd[1])
         zr = _ray_depth(ortho, z0, z1, k0, k1, sa)
-        u = _crossing(zr_prev, zr, zsa, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, thickness, thickness_rel)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sa - s_prev) * u), i
         s_prev = sa
@@ -286,7 +310,7 @@ def screen_march(
         if i + 1 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sb)
-        u = _crossing(zr_prev, zr, zsb, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, thickness, thickness_rel)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sb - s_prev) * u), i + 1
         s_prev = sb
@@ -295,7 +319,7 @@ def screen_march(
         if i + 2 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sc)
-        u = _crossing(zr_prev, zr, zsc, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, thickness, thickness_rel)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sc - s_prev) * u), i + 2
         s_prev = sc
@@ -304,7 +328,7 @@ def screen_march(
         if i + 3 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sd)
-        u = _crossing(zr_prev, zr, zsd, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, thickness, thickness_rel)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sd - s_prev) * u), i + 3
         s_prev = sd
@@ -563,7 +587,7 @@ def screen_march_bounded(
                 if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
                     sp_prev = s0 + ds * s_prev
                     diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
-                u = _crossing(zr_prev, zr, zs, diff_prev, thickness, thickness_rel)
+                u = _crossing(ortho, zr_prev, zr, zs, diff_prev, thickness, thickness_rel)
                 return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
             s_prev = s
             zr_prev = zr
