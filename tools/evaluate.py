@@ -90,6 +90,11 @@ def file_digest(path: str) -> str:
         return hashlib.blake2b(f.read(), digest_size=8).hexdigest()
 
 
+def run_key(r: dict) -> tuple:
+    """What a row of results.json measures: scene, method, splat, grid, photons, denoiser (--merge replaces by it)."""
+    return (r["scene"], r["method"], r.get("splat", "point"), r.get("wavefront_grid"), r["photons"], r["denoiser"])
+
+
 def scene_specs(names: list[str]) -> list[SceneSpec]:
     from cisp_warp import analytic
     from cisp_warp.usd import load_usd
@@ -258,8 +263,8 @@ def main(argv=None) -> int:
                    "reference (FLIP still compares with the reference's final image)")
     p.add_argument("--no-flip", action="store_true", help="skip FLIP (it is the slowest figure at full size)")
     p.add_argument("--merge", action="store_true",
-                   help="keep the rows of other scenes already in OUT/results.json (same preset, device and size), "
-                   "so that a long preset can run one scene per command")
+                   help="keep the rows already in OUT/results.json (same preset, device and size) that this call does "
+                   "not measure again (another scene, method, splat or grid), so that a long preset can run in parts")
     p.add_argument("--replot", action="store_true", help="only redraw OUT/pareto.png from OUT/results.json")
     p.add_argument("--all", action="store_true", help="then run tools/stability.py with the same preset, device and out")
     args = p.parse_args(argv)
@@ -381,8 +386,8 @@ def main(argv=None) -> int:
         with open(previous) as f:
             old = json.load(f)
         if (old["device"], old["preset"]) == (dev_name, args.preset):
-            done = {spec.name for spec in specs}
-            kept = [r for r in old["runs"] if r["scene"] not in done and (r["width"], r["height"]) == (w, h)]
+            done = {run_key(r) for r in rows}
+            kept = [r for r in old["runs"] if run_key(r) not in done and (r["width"], r["height"]) == (w, h)]
             rows = [{"splat": "point", **r} for r in kept] + rows
             references = {**{k: v for k, v in old["references"].items() if k not in done}, **references}
             wall += old.get("wall_seconds", 0.0)

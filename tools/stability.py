@@ -105,8 +105,8 @@ def main(argv=None) -> int:
     p.add_argument("--no-static", action="store_true",
                    help="skip the static twins of the animated cases (their error held still: half the time)")
     p.add_argument("--merge", action="store_true",
-                   help="keep the rows of other cases already in OUT/stability.json (same preset and device), so "
-                   "that a long preset can run a few cases per command")
+                   help="keep the rows already in OUT/stability.json (same preset and device) that this call does "
+                   "not measure again (another case, method or denoiser), so that a long preset can run in parts")
     args = p.parse_args(argv)
     if args.smoke:
         args.preset = "smoke"
@@ -176,8 +176,10 @@ def main(argv=None) -> int:
             old = json.load(fh)
         if (old["device"], old["preset"]) == (dev_name, args.preset):
             done = {c.name for c in cases}
+            measured = {(r["case"], r["method"], r["denoiser"]) for r in rows}
             order = [c.name for c in CASES]
-            rows = sorted([r for r in old["rows"] if r["case"] not in done] + rows, key=lambda r: order.index(r["case"]))
+            rows = sorted([r for r in old["rows"] if (r["case"], r["method"], r["denoiser"]) not in measured] + rows,
+                          key=lambda r: order.index(r["case"]))
             references = {**{k: v for k, v in old["references"].items() if k not in done}, **references}
             case_info = {**{k: v for k, v in old["cases"].items() if k not in done}, **case_info}
             wall += old.get("wall_seconds", 0.0)
