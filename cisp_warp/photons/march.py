@@ -49,6 +49,44 @@ def _buffer_depth(view: ViewParams, depth: wp.array(dtype=wp.float32), sx: float
     return z
 
 
+#: least thickness a back-face layer leaves a surface, in pixel footprints at its depth (see :func:`surface_far`)
+MIN_THICKNESS_PX = wp.constant(0.25)
+
+
+@wp.func
+def _texel_index(view: ViewParams, sx: float, sy: float) -> int:
+    """Pixel index of the texel holding continuous pixel coordinates (sx, sy), clamped to the image."""
+    i = wp.clamp(int(wp.floor(sx)), 0, view.width - 1)
+    j = wp.clamp(int(wp.floor(sy)), 0, view.height - 1)
+    return j * view.width + i
+
+
+@wp.func
+def surface_far(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int, zs: float, thickness: float,
+                thickness_rel: float) -> float:
+    """Depth [m] of the far side of the surface of pixel ``p`` (front depth ``zs``): ``zs`` + the constant thickness
+    (``thickness`` + ``thickness_rel``·``zs``), or, where ``depth`` carries a back-face layer behind its H*W front
+    depths (``GBuffer.depth_layers``: 2·H*W long) and it holds a back face behind this pixel, that back face when it
+    is nearer: a closed object is no thicker than itself (at its rim back − front goes to 0, where the constant
+    thickness took photons passing just behind it as landing on it; docs/perf_notes.md section 21). Never thinner
+    than ``MIN_THICKNESS_PX`` of the pixel's footprint: front and back are exact ray hits at the pixel's centre, but
+    the march samples a texel anywhere in it and a landing is reprojected from anywhere in it, where a silhouette
+    pixel's thickness differs from its centre's by up to the surface's depth change across the pixel; a quarter
+    footprint keeps a ray grazing the rim from slipping between the two layers by rounding alone, without giving
+    back the thickness that lets photons through. A plain H*W depth buffer (light views, the composite's lookups)
+    keeps the constant thickness."""
+    far = zs + thickness + thickness_rel * zs
+    n = view.width * view.height
+    if depth.shape[0] > n:
+        zb = depth[n + p]
+        if zb > 0.0:
+            foot = float(1.0) / view.fx
+            if view.orthographic == 0:
+                foot = zs / view.fx
+            far = wp.min(far, wp.max(zb, zs + MIN_THICKNESS_PX * foot))
+    return far
+
+
 @wp.func
 def screen_march_naive(
     view: ViewParams,
@@ -131,8 +169,9 @@ def screen_march_naive(
             zr = 1.0 / (k0 + (k1 - k0) * s)
         zs = _buffer_depth(view, depth, sp[0], sp[1])
         diff = zr - zs
-        # the ray's depth over this step, [min, max], overlaps the surface's [zs, zs + thickness]
-        if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+        # the ray's depth over this step, [min, max], overlaps the surface's [zs, its far side]
+        if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= surface_far(
+                view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel):
             u = float(1.0)
             if view.orthographic != 0:  # depth is linear in screen space: the ray's and a plane's
                 if diff_prev < 0.0 and diff >= 0.0:
@@ -173,10 +212,9 @@ def _ray_depth(orthographic: int, z0: float, z1: float, k0: float, k1: float, s:
 
 
 @wp.func
-def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, thickness: float,
-              thickness_rel: float) -> float:
+def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, z_far: float) -> float:
     """Where along a step the ray crosses the surface, u in [0, 1], or -1 when the ray's depth over the step,
-    [min, max], does not overlap the surface's [zs, zs + thickness].
+    [min, max], does not overlap the surface's [zs, z_far] (:func:`surface_far`).
 
     Eq. 2 of seed 000 (two segments between the last two steps: the ray's depth and the samples') in the quantity
     that is linear in screen space: depth for an orthographic view, 1/depth for a perspective one, where both the
@@ -185,7 +223,7 @@ def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev
     to 1.2 over the step crossing a floor at 0.95 ended at depth 0.85, 10 cm above it (docs/perf_notes.md
     section 17). After a sample with no surface (BIG_DEPTH) the crossing is that with the current sample's depth."""
     diff = zr - zs
-    if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+    if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
         u = float(1.0)
         if orthographic != 0:
             if diff_prev < 0.0 and diff >= 0.0:
@@ -297,11 +335,15 @@ def screen_march(
         pc = s0 + ds * sc
         pd = s0 + ds * sd
         zsa = _buffer_depth(view, depth, pa[0], pa[1])
+        zfa = surface_far(view, depth, _texel_index(view, pa[0], pa[1]), zsa, thickness, thickness_rel)
         zsb = _buffer_depth(view, depth, pb[0], pb[1])
+        zfb = surface_far(view, depth, _texel_index(view, pb[0], pb[1]), zsb, thickness, thickness_rel)
         zsc = _buffer_depth(view, depth, pc[0], pc[1])
+        zfc = surface_far(view, depth, _texel_index(view, pc[0], pc[1]), zsc, thickness, thickness_rel)
         zsd = _buffer_depth(view, depth, pd[0], pd[1])
+        zfd = surface_far(view, depth, _texel_index(view, pd[0], pd[1]), zsd, thickness, thickness_rel)
         zr = _ray_depth(ortho, z0, z1, k0, k1, sa)
-        u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, zfa)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sa - s_prev) * u), i
         s_prev = sa
@@ -310,7 +352,7 @@ def screen_march(
         if i + 1 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sb)
-        u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, zfb)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sb - s_prev) * u), i + 1
         s_prev = sb
@@ -319,7 +361,7 @@ def screen_march(
         if i + 2 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sc)
-        u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, zfc)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sc - s_prev) * u), i + 2
         s_prev = sc
@@ -328,7 +370,7 @@ def screen_march(
         if i + 3 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sd)
-        u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, zfd)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sd - s_prev) * u), i + 3
         s_prev = sd
@@ -378,7 +420,9 @@ def depth_bounds(
     (z_s + thickness + thickness_rel·z_s, computed as :func:`screen_march` does), holes counting as BIG_DEPTH. A
     ray whose depth over a stretch of steps stays in front of the first or behind the second cannot hit in
     that cell, so :func:`screen_march_bounded` skips those steps. :func:`coarsen_bounds` then fills the
-    coarse cells."""
+    coarse cells. A depth buffer carrying a back-face layer (:func:`surface_far`) is bounded by its constant
+    thickness all the same: the layer only ever brings a surface's far side nearer, so these bounds still hold
+    (exact skips, a little fewer of them behind closed objects) without a second read per texel."""
     if view_inactive(views, view_index):
         return
     c = wp.tid()
@@ -583,11 +627,12 @@ def screen_march_bounded(
             sp = s0 + ds * s
             zr = _ray_depth(ortho, z0, z1, k0, k1, s)
             zs = _buffer_depth(view, depth, sp[0], sp[1])
-            if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+            z_far = surface_far(view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel)
+            if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
                 if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
                     sp_prev = s0 + ds * s_prev
                     diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
-                u = _crossing(ortho, zr_prev, zr, zs, diff_prev, thickness, thickness_rel)
+                u = _crossing(ortho, zr_prev, zr, zs, diff_prev, z_far)
                 return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
             s_prev = s
             zr_prev = zr
