@@ -87,7 +87,7 @@ class CISP(PhotonPass):
             self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds, b.lights.views, b.view_index)
             self.launch_photons(K.trace_photons, b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
-                r.depth_layers, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                 sc.geometry, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
                 self.inputs.cameras, gbuffer.depth_layers, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,

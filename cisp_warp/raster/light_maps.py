@@ -216,10 +216,6 @@ class LightMaps:
         #: renderer of another method sets False and the opaque resolve writes 4 B per texel fewer (the array then
         #: keeps what it held; it is not an AOV of :meth:`RSMView.numpy`)
         self.write_opaque_tri = True
-        #: draw each RSM view's back-face layer (``RSMView.depth_layers``; it needs ``opaque_tri``, written then
-        #: whatever ``write_opaque_tri`` says). False: the layer stays 0, the light-view march keeps the constant
-        #: thickness everywhere
-        self.back_faces = True
 
     # ---- host views of the device state (tests, tools: each is a device->host copy)
 
@@ -388,11 +384,7 @@ class LightMaps:
                     layer_b=LAYER_SPECULAR, visibility_b=r.specular.visibility)  # both layers in one pass
         wp.launch(K.resolve_depth, dim=n, device=s.device,
                   inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth,
-                          r.opaque_tri if self.write_opaque_tri or self.back_faces else None])
-        if self.back_faces:  # into the visibility buffer the resolve left clear
-            raster.draw_back(views, k, r.width, r.height, LAYER_OPAQUE, r.opaque_depth, r.visibility)
-            wp.launch(K.resolve_back, dim=n, device=s.device,
-                      inputs=[views, k, r.visibility, s.points, s.normals, s.indices, r.opaque_tri, r.depth_layers])
+                          r.opaque_tri if self.write_opaque_tri else None])
         sp = r.specular  # its layer, the shadow depth (nearest of both layers) and the flux per texel, in one pass
         wp.launch(K.resolve_rsm_specular, dim=n, device=s.device,
                   inputs=[views, k, sp.visibility, r.opaque_depth, s.points, s.normals, s.indices, s.triangle_material,
