@@ -183,21 +183,20 @@ class GBuffer(_Buffers):
     #: nearest opaque back face behind the front surface (0 = none: an open surface, or nothing behind). The
     #: screen-space tests that take it (``photons.march.surface_far``) bound a closed object's thickness by it
     depth_layers: wp.array = None
-    back_visibility: wp.array = None  #: (H*W,) uint64 (scratch of the back-face pass)
     #: draw the back-face layer (False: its half of ``depth_layers`` stays 0, every surface keeps the constant
     #: thickness, as before the layer existed)
     back_faces: bool = True
 
     @staticmethod
     def allocate(width: int, height: int, device) -> "GBuffer":
-        check_memory(width * height * 172, f"a {width}x{height} G-buffer", device)
+        check_memory(width * height * 164, f"a {width}x{height} G-buffer", device)
         hw = (height, width)
         n = width * height
         layers = wp.zeros(2 * n, dtype=wp.float32, device=device)
         return GBuffer(width, height, visibility_buffer(n, device), layers[0:n],
                        _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device),
                        _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device), _pixels(hw, wp.vec2, device),
-                       SpecularLayer.allocate(width, height, device), layers, visibility_buffer(n, device))
+                       SpecularLayer.allocate(width, height, device), layers)
 
     def render(self, raster: Rasterizer, views, prev_view=None) -> None:
         """Fill both layers for the camera ``views[0]``; motion is measured against ``views[1]``, the previous
@@ -214,9 +213,10 @@ class GBuffer(_Buffers):
                           self.depth, self.position, self.normal, self.albedo, self.roughness, self.tri_id, self.motion])
         self.water.resolve(s, views, 0, self.depth)
         if self.back_faces:
-            raster.draw_back(views, 0, self.width, self.height, LAYER_OPAQUE, self.depth, self.back_visibility)
+            # into the opaque layer's visibility buffer, which its resolve left clear
+            raster.draw_back(views, 0, self.width, self.height, LAYER_OPAQUE, self.depth, self.visibility)
             wp.launch(K.resolve_back, dim=self.width * self.height, device=s.device,
-                      inputs=[views, 0, self.back_visibility, s.points, s.normals, s.indices, self.tri_id,
+                      inputs=[views, 0, self.visibility, s.points, s.normals, s.indices, self.tri_id,
                               self.depth_layers])
 
     def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
@@ -225,7 +225,6 @@ class GBuffer(_Buffers):
         n = self.width * self.height
         out[prefix + "back_depth"] = self.depth_layers.numpy()[n:].reshape(self.height, self.width)
         out.pop(prefix + "visibility", None)
-        out.pop(prefix + "back_visibility", None)
         out.pop(prefix + "water_visibility", None)
         return out
 
