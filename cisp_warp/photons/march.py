@@ -12,6 +12,9 @@ compared with the buffer's z_s at that pixel:
   steps), or within the pixel when the ray runs along the view axis, and the march reports a hit;
 * otherwise the ray is in front of the surface, or passes behind it: go on.
 
+The surface's far side is z_s + thickness, or, for a depth buffer that carries a back-face layer (the camera's
+``GBuffer.depth_layers``), half way to the nearest back face behind it where that is nearer (:func:`surface_far`).
+
 Testing the depth *range* of each step rather than its end point matters for rays close to the
 view axis, which advance far in depth per pixel.
 
@@ -51,8 +54,6 @@ def _buffer_depth(view: ViewParams, depth: wp.array(dtype=wp.float32), sx: float
 
 #: least thickness a back-face layer leaves a surface, in pixel footprints at its depth (see :func:`surface_far`)
 MIN_THICKNESS_PX = wp.constant(0.25)
-MARCH_SOLID = wp.constant(1.0)  #: :func:`surface_far`'s share of the way to the back face for a marched ray
-LANDING_SHARE = wp.constant(0.5)  #: and for a landing point (on a surface)
 
 
 @wp.func
@@ -65,23 +66,22 @@ def _texel_index(view: ViewParams, sx: float, sy: float) -> int:
 
 @wp.func
 def surface_far(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int, zs: float, thickness: float,
-                thickness_rel: float, share: float) -> float:
-    """Depth [m] of the far side of the surface of pixel ``p`` (front depth ``zs``): ``zs`` + the constant thickness
-    (``thickness`` + ``thickness_rel``·``zs``), or, where ``depth`` carries a back-face layer behind its H*W front
-    depths (``GBuffer.depth_layers``: 2·H*W long) and it holds a back face behind this pixel, that back face when it
-    is nearer: a closed object is no thicker than itself (at its rim back − front goes to 0, where the constant
-    thickness took photons passing just behind it as landing on it; docs/perf_notes.md section 21). Never thinner
-    than ``MIN_THICKNESS_PX`` of the pixel's footprint: front and back are exact ray hits at the pixel's centre, but
-    the march samples a texel anywhere in it and a landing is reprojected from anywhere in it, where a silhouette
-    pixel's thickness differs from its centre's by up to the surface's depth change across the pixel; a quarter
-    footprint keeps a ray grazing the rim from slipping between the two layers by rounding alone, without giving
-    back the thickness that lets photons through. A plain H*W depth buffer (light views, the composite's lookups)
-    keeps the constant thickness.
+                thickness_rel: float) -> float:
+    """Depth [m] of the far side of the surface of pixel ``p`` (front depth ``zs``) for the screen-space tests: ``zs``
+    + the constant thickness (``thickness`` + ``thickness_rel``·``zs``), or, where ``depth`` carries a back-face
+    layer behind its H*W front depths (``GBuffer.depth_layers``: 2·H*W long) and it holds a back face ``zb`` behind
+    this pixel, half way to that back face when that is nearer (docs/perf_notes.md section 21).
 
-    ``share``: the part of the way to the back face that counts: 1 for a ray (``MARCH_SOLID``: a ray whose depth
-    lies between the front and the back face at a pixel is inside the object there), 1/2 for a point known to lie
-    on a surface (``LANDING_SHARE``: a landing whose depth is nearer the back face than the front is on the
-    object's far side, hidden: the ball's lit top seen from below its rim)."""
+    Half way: along the pixel's ray a closed object spans [zs, zb]; a point of its surface at a depth nearer ``zb``
+    is on its far side, hidden from the view (the lit top of a ball seen from below its rim: a landing there, or a
+    ray entering the object there, was stored on the rim with the constant thickness); a ray whose depth at the
+    pixel lies in the near half has entered through the visible side. At the rim zb − zs goes to 0 and so does the
+    thickness, where the constant 6.4 cm (at 2.2 m) took photons passing just behind a 12 cm ball as landing on it.
+
+    Never thinner than ``MIN_THICKNESS_PX`` of the pixel's footprint at ``zs``, for numerical safety: front and back
+    are float32 ray hits rounded apart (~1e-7 relative) and the march's crossing arithmetic rounds as well; a
+    quarter footprint (2-3 mm at 2.2 m, 192 pixels across) is far above those roundings and far below the constant
+    thickness. A plain H*W depth buffer (light views, the composite's lookups) keeps the constant thickness."""
     far = zs + thickness + thickness_rel * zs
     n = view.width * view.height
     if depth.shape[0] > n:
@@ -90,7 +90,7 @@ def surface_far(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int, zs:
             foot = float(1.0) / view.fx
             if view.orthographic == 0:
                 foot = zs / view.fx
-            far = wp.min(far, wp.max(zs + share * (zb - zs), zs + MIN_THICKNESS_PX * foot))
+            far = wp.min(far, wp.max(zs + 0.5 * (zb - zs), zs + MIN_THICKNESS_PX * foot))
     return far
 
 
@@ -178,7 +178,7 @@ def screen_march_naive(
         diff = zr - zs
         # the ray's depth over this step, [min, max], overlaps the surface's [zs, its far side]
         if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= surface_far(
-                view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel, MARCH_SOLID):
+                view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel):
             u = float(1.0)
             if view.orthographic != 0:  # depth is linear in screen space: the ray's and a plane's
                 if diff_prev < 0.0 and diff >= 0.0:
@@ -342,13 +342,13 @@ def screen_march(
         pc = s0 + ds * sc
         pd = s0 + ds * sd
         zsa = _buffer_depth(view, depth, pa[0], pa[1])
-        zfa = surface_far(view, depth, _texel_index(view, pa[0], pa[1]), zsa, thickness, thickness_rel, MARCH_SOLID)
+        zfa = surface_far(view, depth, _texel_index(view, pa[0], pa[1]), zsa, thickness, thickness_rel)
         zsb = _buffer_depth(view, depth, pb[0], pb[1])
-        zfb = surface_far(view, depth, _texel_index(view, pb[0], pb[1]), zsb, thickness, thickness_rel, MARCH_SOLID)
+        zfb = surface_far(view, depth, _texel_index(view, pb[0], pb[1]), zsb, thickness, thickness_rel)
         zsc = _buffer_depth(view, depth, pc[0], pc[1])
-        zfc = surface_far(view, depth, _texel_index(view, pc[0], pc[1]), zsc, thickness, thickness_rel, MARCH_SOLID)
+        zfc = surface_far(view, depth, _texel_index(view, pc[0], pc[1]), zsc, thickness, thickness_rel)
         zsd = _buffer_depth(view, depth, pd[0], pd[1])
-        zfd = surface_far(view, depth, _texel_index(view, pd[0], pd[1]), zsd, thickness, thickness_rel, MARCH_SOLID)
+        zfd = surface_far(view, depth, _texel_index(view, pd[0], pd[1]), zsd, thickness, thickness_rel)
         zr = _ray_depth(ortho, z0, z1, k0, k1, sa)
         u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, zfa)
         if u >= 0.0:
@@ -634,7 +634,7 @@ def screen_march_bounded(
             sp = s0 + ds * s
             zr = _ray_depth(ortho, z0, z1, k0, k1, s)
             zs = _buffer_depth(view, depth, sp[0], sp[1])
-            z_far = surface_far(view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel, MARCH_SOLID)
+            z_far = surface_far(view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel)
             if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
                 if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
                     sp_prev = s0 + ds * s_prev
