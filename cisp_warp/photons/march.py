@@ -35,6 +35,9 @@ from ..raster.views import ViewParams
 MARCH_HIT = wp.constant(0)  #: crossed a surface of the depth buffer
 MARCH_EXIT = wp.constant(1)  #: left the view (image border, near plane) or reached t_max
 MARCH_STEPS = wp.constant(2)  #: ran out of steps before either
+#: entered the hidden (far) half of a closed object: a surface the view cannot see, where the ray ends (only with a
+#: back-face layer behind the depth: :func:`surface_far`)
+MARCH_HIDDEN = wp.constant(3)
 
 BIG_DEPTH = wp.constant(1.0e30)
 #: diff_prev of :func:`screen_march_bounded` after a skip, until read: no depth difference comes near it (depths and
@@ -62,6 +65,22 @@ def _texel_index(view: ViewParams, sx: float, sy: float) -> int:
     i = wp.clamp(int(wp.floor(sx)), 0, view.width - 1)
     j = wp.clamp(int(wp.floor(sy)), 0, view.height - 1)
     return j * view.width + i
+
+
+@wp.func
+def back_depth(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int) -> float:
+    """The back-face layer's depth [m] at pixel ``p`` (0 = none, or a plain H*W depth buffer)."""
+    n = view.width * view.height
+    if depth.shape[0] > n:
+        return depth[n + p]
+    return 0.0
+
+
+@wp.func
+def _hidden(zr_prev: float, zr: float, zs: float, zb: float) -> bool:
+    """Whether the ray's depth over a step, [min, max], reaches into [zs, zb], the span of a closed object along the
+    pixel's ray, when it did not cross the visible half (tested first): it is in the object's hidden half."""
+    return zb > 0.0 and wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zb
 
 
 @wp.func
@@ -197,6 +216,11 @@ def screen_march_naive(
             if view.orthographic == 0:
                 lam = s_hit * k1 / ((1.0 - s_hit) * k0 + s_hit * k1)
             return MARCH_HIT, lam * t1, i
+        if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
+            lam_h = s_prev
+            if view.orthographic == 0:
+                lam_h = s_prev * k1 / ((1.0 - s_prev) * k0 + s_prev * k1)
+            return MARCH_HIDDEN, lam_h * t1, i
         s_prev = s
         zr_prev = zr
         diff_prev = diff
@@ -353,6 +377,8 @@ def screen_march(
         u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, zfa)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sa - s_prev) * u), i
+        if _hidden(zr_prev, zr, zsa, back_depth(view, depth, _texel_index(view, pa[0], pa[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
         s_prev = sa
         zr_prev = zr
         diff_prev = zr - zsa
@@ -362,6 +388,8 @@ def screen_march(
         u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, zfb)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sb - s_prev) * u), i + 1
+        if _hidden(zr_prev, zr, zsb, back_depth(view, depth, _texel_index(view, pb[0], pb[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 1
         s_prev = sb
         zr_prev = zr
         diff_prev = zr - zsb
@@ -371,6 +399,8 @@ def screen_march(
         u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, zfc)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sc - s_prev) * u), i + 2
+        if _hidden(zr_prev, zr, zsc, back_depth(view, depth, _texel_index(view, pc[0], pc[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 2
         s_prev = sc
         zr_prev = zr
         diff_prev = zr - zsc
@@ -380,6 +410,8 @@ def screen_march(
         u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, zfd)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sd - s_prev) * u), i + 3
+        if _hidden(zr_prev, zr, zsd, back_depth(view, depth, _texel_index(view, pd[0], pd[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 3
         s_prev = sd
         zr_prev = zr
         diff_prev = zr - zsd
@@ -449,6 +481,8 @@ def depth_bounds(
                         zs = BIG_DEPTH
                     z_min = wp.min(z_min, zs)
                     z_max = wp.max(z_max, zs + thickness + thickness_rel * zs)
+                    if depth.shape[0] > width * height:  # a back-face layer: a ray ends in an object's far half too
+                        z_max = wp.max(z_max, depth[width * height + j * width + i])
     # a hair wider (1e-6 relative) than the exact bounds: a kernel elsewhere may round z_s + thickness one ulp
     # apart (CUDA fuses multiply-adds as it sees fit); wider bounds only skip less
     bounds[c] = wp.vec2(z_min * 0.999999, z_max * 1.000001)
@@ -641,6 +675,8 @@ def screen_march_bounded(
                     diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
                 u = _crossing(ortho, zr_prev, zr, zs, diff_prev, z_far)
                 return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
+            if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
+                return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
             s_prev = s
             zr_prev = zr
             diff_prev = zr - zs
