@@ -8,8 +8,8 @@ import trimesh
 import warp as wp
 
 from cisp_warp.raster import kernels as RK
-from cisp_warp.raster import (GBuffer, LightMaps, Rasterizer, View, ViewParams, camera_view, light_views, raycast_back_view,
-                              raycast_view)
+from cisp_warp.raster import (GBuffer, LightMaps, Rasterizer, View, ViewParams, camera_view, light_views,
+                              raycast_back_view, raycast_view)
 from cisp_warp.scene import LAYER_OPAQUE, LAYER_SPECULAR, Camera, DeviceScene, Light, LightKind, Material, Scene
 from cisp_warp.scene.model import look_at_matrix
 
