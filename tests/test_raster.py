@@ -115,6 +115,11 @@ def test_back_face_layer_matches_its_ray_cast(device, name):
     room_tris = len(trimesh.creation.box((2.0, 2.0, 2.0)).faces)  # the room's faces come first
     on_room = (a["tri_id"] >= 0) & (a["tri_id"] < room_tris)
     assert on_room.sum() > 0.5 * on_room.size and not has[on_room].any()  # walls facing in: nothing behind them
+    g.back_faces = False  # switched off: no layer (not the last frame's), the depth as before
+    g.render(Rasterizer(ds), view.params(), view.params())
+    off = g.numpy()
+    assert not off["back_depth"].any()
+    np.testing.assert_array_equal(off["depth"], a["depth"])
 
 
 def test_thin_and_fullscreen_triangles(device):

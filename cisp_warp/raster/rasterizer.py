@@ -183,8 +183,8 @@ class GBuffer(_Buffers):
     #: nearest opaque back face behind the front surface (0 = none: an open surface, or nothing behind). The
     #: screen-space tests that take it (``photons.march.surface_far``) bound a closed object's thickness by it
     depth_layers: wp.array = None
-    #: draw the back-face layer (False: its half of ``depth_layers`` stays 0, every surface keeps the constant
-    #: thickness, as before the layer existed)
+    #: draw the back-face layer (False: its half of ``depth_layers`` is zeroed each frame instead, every surface keeps
+    #: the constant thickness, as before the layer existed)
     back_faces: bool = True
 
     @staticmethod
@@ -212,7 +212,9 @@ class GBuffer(_Buffers):
                           s.triangle_material, s.albedo, s.roughness,
                           self.depth, self.position, self.normal, self.albedo, self.roughness, self.tri_id, self.motion])
         self.water.resolve(s, views, 0, self.depth)
-        if self.back_faces:
+        if not self.back_faces:
+            self.depth_layers[self.width * self.height:].zero_()
+        else:
             # into the opaque layer's visibility buffer, which its resolve left clear
             raster.draw_back(views, 0, self.width, self.height, LAYER_OPAQUE, self.depth, self.visibility)
             wp.launch(K.resolve_back, dim=self.width * self.height, device=s.device,
