@@ -37,11 +37,21 @@ def random_depth(rng, w, h):
     return z.reshape(-1)
 
 
+def back_layer(rng, front):
+    """A back-face layer behind ``front`` (``GBuffer.depth_layers``' second half): on most pixels a back face from a
+    hair (below the least thickness ``surface_far`` keeps) to 0.2 m behind, on the rest none (0)."""
+    back = front + rng.choice([1e-4, 0.005, 0.03, 0.2], front.size) * rng.random(front.size)
+    back[(rng.random(front.size) < 0.3) | (front <= 0.0)] = 0.0
+    return back.astype(np.float32)
+
+
 @pytest.mark.parametrize("orthographic", [False, True], ids=["perspective", "orthographic"])
 @pytest.mark.parametrize("max_steps", [2048, 7], ids=["steps2048", "steps7"])
-def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps):
+@pytest.mark.parametrize("layers", [1, 2], ids=["front", "back_layer"])
+def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps, layers):
     """The batched march and the march that skips cells by their depth bounds end every ray where the naive
-    march ends it: same status, end point and step count."""
+    march ends it: same status, end point and step count; with a back-face layer behind the depth too (its bounds
+    built from the front depths and the constant thickness)."""
     w, h, n = 150, 100, 2000  # not multiples of the cells
     view = View(np.eye(4), w, h, near=0.1, far=100.0, fx=20.0 if orthographic else 80.0,
                 fy=20.0 if orthographic else 80.0, orthographic=orthographic)
@@ -57,7 +67,8 @@ def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     args = [wp.array(a.astype(np.float32), dtype=wp.vec3, device=device) for a in (o, d)]
     fast, bounded, naive = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(3))
-    depth = wp.array(random_depth(rng, w, h), device=device)
+    front = random_depth(rng, w, h)
+    depth = wp.array(front if layers == 1 else np.concatenate([front, back_layer(rng, front)]), device=device)
     bounds = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
     build_bounds(depth, w, h, 0.02, 0.02, bounds, device)
     wp.launch(march_both, dim=n, device=device,
@@ -65,10 +76,21 @@ def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps
     v = naive.numpy()
     for f in (fast.numpy(), bounded.numpy()):
         compare(f, v, device, max_steps)
+    if layers == 2:
+        # the layer only brings surfaces' far sides nearer: a ray that hits with it hits without it, no later; and
+        # some rays end in an object's hidden half instead (MARCH_HIDDEN), or hit later (they passed behind a thin one)
+        f1 = wp.zeros(n, dtype=wp.vec3, device=device)
+        wp.launch(march_both, dim=n, device=device, inputs=[view.params(), wp.array(front, device=device), *args,
+                                                           max_steps, bounds, f1, f1, f1])
+        v1 = f1.numpy()
+        hit = v[:, 0] == 0
+        assert np.all(v1[hit, 0] == 0) and np.all(v1[hit, 2] <= v[hit, 2])
+        assert (v[:, 0] == 3).sum() >= (10 if max_steps > 7 else 1)
+        assert (v1[:, 0] == 3).sum() == 0  # never without a back-face layer
 
 
 def compare(f, v, device, max_steps):
-    for status in range(3):  # hit, exit and (with 7 steps) out-of-steps all occur
+    for status in range(3):  # hit, exit and (with 7 steps) out-of-steps all occur (and hidden with a back layer)
         assert (v[:, 0] == status).sum() > (10 if status != 2 or max_steps == 7 else -1)
     if wp.get_device(device).is_cpu:
         np.testing.assert_array_equal(f, v)

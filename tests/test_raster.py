@@ -8,7 +8,8 @@ import trimesh
 import warp as wp
 
 from cisp_warp.raster import kernels as RK
-from cisp_warp.raster import GBuffer, LightMaps, Rasterizer, View, ViewParams, camera_view, light_views, raycast_view
+from cisp_warp.raster import (GBuffer, LightMaps, Rasterizer, View, ViewParams, camera_view, light_views,
+                              raycast_back_view, raycast_view)
 from cisp_warp.scene import LAYER_OPAQUE, LAYER_SPECULAR, Camera, DeviceScene, Light, LightKind, Material, Scene
 from cisp_warp.scene.model import look_at_matrix
 
@@ -86,6 +87,39 @@ def test_raster_matches_raycast_room(device, name):
     frac_w, rel_w, n_w = agreement(scene, view, LAYER_SPECULAR, "water_depth", "water_tri_id", device)
     assert n_w > 0
     assert rel_w <= 1e-4
+
+
+@pytest.mark.parametrize("name", sorted(VIEWS))
+def test_back_face_layer_matches_its_ray_cast(device, name):
+    """The back-face layer (``Rasterizer.draw_back`` + ``kernels.resolve_back``) against its naive twin (every
+    triangle against every pixel's ray): the nearest back face behind the front surface. In the room (walls facing
+    in, nothing behind them) only the sphere's and the box's pixels have one, at or behind their front."""
+    v = VIEWS[name]
+    cam = Camera(look_at_matrix(v["eye"], v["target"]), fov_y=math.radians(70), ortho_height=1.2, near=0.02, far=10.0,
+                 width=48, height=32, orthographic=v["ortho"])
+    scene = make_scene(box_room(), cam)
+    view = camera_view(cam)
+    ds = DeviceScene(scene, device)
+    g = GBuffer.allocate(view.width, view.height, device)
+    g.render(Rasterizer(ds), view.params(), view.params())
+    a = g.numpy()
+    back = a["back_depth"]
+    twin = raycast_back_view(ds, view, LAYER_OPAQUE, a["depth"], a["tri_id"])
+    has, has_twin = back > 0, twin > 0
+    assert (has == has_twin).mean() >= 0.99, f"back layer present on {(has == has_twin).mean():.4f} alike"
+    both = has & has_twin
+    assert both.sum() > 20  # the sphere and the box are in view
+    rel = np.abs(back[both] - twin[both]) / twin[both]
+    assert np.quantile(rel, 0.99) <= 1e-4, f"back depth differs by {np.quantile(rel, 0.99):.2e} relative"
+    assert np.all(back[has] >= a["depth"][has])
+    room_tris = len(trimesh.creation.box((2.0, 2.0, 2.0)).faces)  # the room's faces come first
+    on_room = (a["tri_id"] >= 0) & (a["tri_id"] < room_tris)
+    assert on_room.sum() > 0.5 * on_room.size and not has[on_room].any()  # walls facing in: nothing behind them
+    g.back_faces = False  # switched off: no layer (not the last frame's), the depth as before
+    g.render(Rasterizer(ds), view.params(), view.params())
+    off = g.numpy()
+    assert not off["back_depth"].any()
+    np.testing.assert_array_equal(off["depth"], a["depth"])
 
 
 def test_thin_and_fullscreen_triangles(device):

@@ -53,7 +53,8 @@ class CISP(PhotonPass):
 
             cam = CameraBuffers()
             cam.view = camera_view.params()
-            cam.depth, cam.position, cam.normal = gbuffer.depth, gbuffer.position, gbuffer.normal
+            # the depth with its back-face layer behind it (march.surface_far)
+            cam.depth, cam.position, cam.normal = gbuffer.depth_layers, gbuffer.position, gbuffer.normal
             cam.solid_angle = self.solid_angle
             self.wavefront = make_wavefront(self, cam)
         # depth bounds per 8x8 cell of every light view's opaque depth and of the camera's, rebuilt each frame:
@@ -88,7 +89,7 @@ class CISP(PhotonPass):
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                 sc.geometry, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
-                self.inputs.cameras, gbuffer.depth, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
+                self.inputs.cameras, gbuffer.depth_layers, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),

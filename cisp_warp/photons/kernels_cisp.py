@@ -15,7 +15,7 @@ from ..raster.views import ViewParams, read_again, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
-from .march import MARCH_HIT, MARCH_STEPS, screen_march_bounded
+from .march import MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, screen_march_bounded, surface_far
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
@@ -74,7 +74,8 @@ def reproject_to_camera(
     pix = int(q[1]) * camera.width + int(q[0])
     zc = cam_depth[pix]
     tol = thickness + thickness_rel * zc
-    if zc > 0.0 and q[2] > zc + tol:
+    # behind the surface's far side (a point on a closed object's far half: hidden, march.surface_far)
+    if zc > 0.0 and q[2] > surface_far(camera, cam_depth, pix, zc, thickness, thickness_rel):
         return L_OCCLUDED, pix
     if zc > 0.0 and q[2] >= zc - tol and status == MARCH_HIT:
         return L_STORED, pix
@@ -104,6 +105,8 @@ def march_camera(
                                              thickness, thickness_rel)
     if status == MARCH_STEPS:
         return L_STEPS, x_end, steps
+    if status == MARCH_HIDDEN:  # it ends on a closed object's far side, which the camera does not see
+        return L_OCCLUDED, x_end, steps
     if status != MARCH_HIT:
         return L_LOST_CAMERA, x_end, steps
     return L_STORED, x_end + d * t2, steps

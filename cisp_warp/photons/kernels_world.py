@@ -24,6 +24,7 @@ from ..scene.device import SurfaceGeometry
 from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR
+from .march import surface_far
 from ..sky import SkyMap, sky_irradiance_at, sky_radiance
 from .common import (ALL_ENTRIES, EMISSION_ENTRIES, L_ABSORBED, L_BOUNCES, L_CULLED_ROUGH, L_ESCAPED, L_LOST_CAMERA,
                      L_OCCLUDED, L_REJECTED, L_SAMPLED, L_STORED, Tally, book, book_bounce, deposit, emit_and_bounce,
@@ -170,7 +171,10 @@ def camera_receiver(cam: CameraBuffers, y: wp.vec3, thickness: float, thickness_
     if pix < 0:
         return L_LOST_CAMERA, pix
     zc = cam.depth[pix]
-    if zc <= 0.0 or wp.abs(q[2] - zc) > thickness + thickness_rel * zc:
+    # within the thickness in front of the surface, and behind it no farther than its far side (where the camera's
+    # depth carries its back-face layer, half way to a closed object's back face: march.surface_far)
+    if zc <= 0.0 or zc - q[2] > thickness + thickness_rel * zc or q[2] > surface_far(cam.view, cam.depth, pix, zc,
+                                                                                     thickness, thickness_rel):
         return L_OCCLUDED, pix
     return L_STORED, pix
 

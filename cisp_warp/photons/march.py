@@ -12,6 +12,9 @@ compared with the buffer's z_s at that pixel:
   steps), or within the pixel when the ray runs along the view axis, and the march reports a hit;
 * otherwise the ray is in front of the surface, or passes behind it: go on.
 
+The surface's far side is z_s + thickness, or, for a depth buffer that carries a back-face layer (the camera's
+``GBuffer.depth_layers``), half way to the nearest back face behind it where that is nearer (:func:`surface_far`).
+
 Testing the depth *range* of each step rather than its end point matters for rays close to the
 view axis, which advance far in depth per pixel.
 
@@ -32,6 +35,9 @@ from ..raster.views import ViewParams
 MARCH_HIT = wp.constant(0)  #: crossed a surface of the depth buffer
 MARCH_EXIT = wp.constant(1)  #: left the view (image border, near plane) or reached t_max
 MARCH_STEPS = wp.constant(2)  #: ran out of steps before either
+#: entered the hidden (far) half of a closed object: a surface the view cannot see, where the ray ends (only with a
+#: back-face layer behind the depth: :func:`surface_far`)
+MARCH_HIDDEN = wp.constant(3)
 
 BIG_DEPTH = wp.constant(1.0e30)
 #: diff_prev of :func:`screen_march_bounded` after a skip, until read: no depth difference comes near it (depths and
@@ -47,6 +53,64 @@ def _buffer_depth(view: ViewParams, depth: wp.array(dtype=wp.float32), sx: float
     if z <= 0.0:
         return BIG_DEPTH
     return z
+
+
+#: least thickness a back-face layer leaves a surface, in pixel footprints at its depth (see :func:`surface_far`)
+MIN_THICKNESS_PX = wp.constant(0.25)
+
+
+@wp.func
+def _texel_index(view: ViewParams, sx: float, sy: float) -> int:
+    """Pixel index of the texel holding continuous pixel coordinates (sx, sy), clamped to the image."""
+    i = wp.clamp(int(wp.floor(sx)), 0, view.width - 1)
+    j = wp.clamp(int(wp.floor(sy)), 0, view.height - 1)
+    return j * view.width + i
+
+
+@wp.func
+def back_depth(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int) -> float:
+    """The back-face layer's depth [m] at pixel ``p`` (0 = none, or a plain H*W depth buffer)."""
+    n = view.width * view.height
+    if depth.shape[0] > n:
+        return depth[n + p]
+    return 0.0
+
+
+@wp.func
+def _hidden(zr_prev: float, zr: float, zs: float, zb: float) -> bool:
+    """Whether the ray's depth over a step, [min, max], reaches into [zs, zb], the span of a closed object along the
+    pixel's ray, when it did not cross the visible half (tested first): it is in the object's hidden half."""
+    return zb > 0.0 and wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zb
+
+
+@wp.func
+def surface_far(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int, zs: float, thickness: float,
+                thickness_rel: float) -> float:
+    """Depth [m] of the far side of the surface of pixel ``p`` (front depth ``zs``) for the screen-space tests: ``zs``
+    + the constant thickness (``thickness`` + ``thickness_rel``·``zs``), or, where ``depth`` carries a back-face
+    layer behind its H*W front depths (``GBuffer.depth_layers``: 2·H*W long) and it holds a back face ``zb`` behind
+    this pixel, half way to that back face when that is nearer (docs/perf_notes.md section 21).
+
+    Half way: along the pixel's ray a closed object spans [zs, zb]; a point of its surface at a depth nearer ``zb``
+    is on its far side, hidden from the view (the lit top of a ball seen from below its rim: a landing there, or a
+    ray entering the object there, was stored on the rim with the constant thickness); a ray whose depth at the
+    pixel lies in the near half has entered through the visible side. At the rim zb − zs goes to 0 and so does the
+    thickness, where the constant 6.4 cm (at 2.2 m) took photons passing just behind a 12 cm ball as landing on it.
+
+    Never thinner than ``MIN_THICKNESS_PX`` of the pixel's footprint at ``zs``, for numerical safety: front and back
+    are float32 ray hits rounded apart (~1e-7 relative) and the march's crossing arithmetic rounds as well; a
+    quarter footprint (2-3 mm at 2.2 m, 192 pixels across) is far above those roundings and far below the constant
+    thickness. A plain H*W depth buffer (light views, the composite's lookups) keeps the constant thickness."""
+    far = zs + thickness + thickness_rel * zs
+    n = view.width * view.height
+    if depth.shape[0] > n:
+        zb = depth[n + p]
+        if zb > 0.0:
+            foot = float(1.0) / view.fx
+            if view.orthographic == 0:
+                foot = zs / view.fx
+            far = wp.min(far, wp.max(zs + 0.5 * (zb - zs), zs + MIN_THICKNESS_PX * foot))
+    return far
 
 
 @wp.func
@@ -131,8 +195,9 @@ def screen_march_naive(
             zr = 1.0 / (k0 + (k1 - k0) * s)
         zs = _buffer_depth(view, depth, sp[0], sp[1])
         diff = zr - zs
-        # the ray's depth over this step, [min, max], overlaps the surface's [zs, zs + thickness]
-        if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+        # the ray's depth over this step, [min, max], overlaps the surface's [zs, its far side]
+        if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= surface_far(
+                view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel):
             u = float(1.0)
             if view.orthographic != 0:  # depth is linear in screen space: the ray's and a plane's
                 if diff_prev < 0.0 and diff >= 0.0:
@@ -151,6 +216,11 @@ def screen_march_naive(
             if view.orthographic == 0:
                 lam = s_hit * k1 / ((1.0 - s_hit) * k0 + s_hit * k1)
             return MARCH_HIT, lam * t1, i
+        if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
+            lam_h = s_prev
+            if view.orthographic == 0:
+                lam_h = s_prev * k1 / ((1.0 - s_prev) * k0 + s_prev * k1)
+            return MARCH_HIDDEN, lam_h * t1, i
         s_prev = s
         zr_prev = zr
         diff_prev = diff
@@ -173,10 +243,9 @@ def _ray_depth(orthographic: int, z0: float, z1: float, k0: float, k1: float, s:
 
 
 @wp.func
-def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, thickness: float,
-              thickness_rel: float) -> float:
+def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, z_far: float) -> float:
     """Where along a step the ray crosses the surface, u in [0, 1], or -1 when the ray's depth over the step,
-    [min, max], does not overlap the surface's [zs, zs + thickness].
+    [min, max], does not overlap the surface's [zs, z_far] (:func:`surface_far`).
 
     Eq. 2 of seed 000 (two segments between the last two steps: the ray's depth and the samples') in the quantity
     that is linear in screen space: depth for an orthographic view, 1/depth for a perspective one, where both the
@@ -185,7 +254,7 @@ def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev
     to 1.2 over the step crossing a floor at 0.95 ended at depth 0.85, 10 cm above it (docs/perf_notes.md
     section 17). After a sample with no surface (BIG_DEPTH) the crossing is that with the current sample's depth."""
     diff = zr - zs
-    if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+    if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
         u = float(1.0)
         if orthographic != 0:
             if diff_prev < 0.0 and diff >= 0.0:
@@ -297,40 +366,52 @@ def screen_march(
         pc = s0 + ds * sc
         pd = s0 + ds * sd
         zsa = _buffer_depth(view, depth, pa[0], pa[1])
+        zfa = surface_far(view, depth, _texel_index(view, pa[0], pa[1]), zsa, thickness, thickness_rel)
         zsb = _buffer_depth(view, depth, pb[0], pb[1])
+        zfb = surface_far(view, depth, _texel_index(view, pb[0], pb[1]), zsb, thickness, thickness_rel)
         zsc = _buffer_depth(view, depth, pc[0], pc[1])
+        zfc = surface_far(view, depth, _texel_index(view, pc[0], pc[1]), zsc, thickness, thickness_rel)
         zsd = _buffer_depth(view, depth, pd[0], pd[1])
+        zfd = surface_far(view, depth, _texel_index(view, pd[0], pd[1]), zsd, thickness, thickness_rel)
         zr = _ray_depth(ortho, z0, z1, k0, k1, sa)
-        u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, zfa)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sa - s_prev) * u), i
+        if _hidden(zr_prev, zr, zsa, back_depth(view, depth, _texel_index(view, pa[0], pa[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
         s_prev = sa
         zr_prev = zr
         diff_prev = zr - zsa
         if i + 1 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sb)
-        u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, zfb)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sb - s_prev) * u), i + 1
+        if _hidden(zr_prev, zr, zsb, back_depth(view, depth, _texel_index(view, pb[0], pb[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 1
         s_prev = sb
         zr_prev = zr
         diff_prev = zr - zsb
         if i + 2 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sc)
-        u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, zfc)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sc - s_prev) * u), i + 2
+        if _hidden(zr_prev, zr, zsc, back_depth(view, depth, _texel_index(view, pc[0], pc[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 2
         s_prev = sc
         zr_prev = zr
         diff_prev = zr - zsc
         if i + 3 > n:
             break
         zr = _ray_depth(ortho, z0, z1, k0, k1, sd)
-        u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, thickness, thickness_rel)
+        u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, zfd)
         if u >= 0.0:
             return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sd - s_prev) * u), i + 3
+        if _hidden(zr_prev, zr, zsd, back_depth(view, depth, _texel_index(view, pd[0], pd[1]))):
+            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 3
         s_prev = sd
         zr_prev = zr
         diff_prev = zr - zsd
@@ -378,7 +459,9 @@ def depth_bounds(
     (z_s + thickness + thickness_rel·z_s, computed as :func:`screen_march` does), holes counting as BIG_DEPTH. A
     ray whose depth over a stretch of steps stays in front of the first or behind the second cannot hit in
     that cell, so :func:`screen_march_bounded` skips those steps. :func:`coarsen_bounds` then fills the
-    coarse cells."""
+    coarse cells. A depth buffer carrying a back-face layer (:func:`surface_far`) is bounded by its constant
+    thickness all the same: the layer only ever brings a surface's far side nearer, so these bounds still hold
+    (exact skips, a little fewer of them behind closed objects) without a second read per texel."""
     if view_inactive(views, view_index):
         return
     c = wp.tid()
@@ -398,6 +481,8 @@ def depth_bounds(
                         zs = BIG_DEPTH
                     z_min = wp.min(z_min, zs)
                     z_max = wp.max(z_max, zs + thickness + thickness_rel * zs)
+                    if depth.shape[0] > width * height:  # a back-face layer: a ray ends in an object's far half too
+                        z_max = wp.max(z_max, depth[width * height + j * width + i])
     # a hair wider (1e-6 relative) than the exact bounds: a kernel elsewhere may round z_s + thickness one ulp
     # apart (CUDA fuses multiply-adds as it sees fit); wider bounds only skip less
     bounds[c] = wp.vec2(z_min * 0.999999, z_max * 1.000001)
@@ -583,12 +668,15 @@ def screen_march_bounded(
             sp = s0 + ds * s
             zr = _ray_depth(ortho, z0, z1, k0, k1, s)
             zs = _buffer_depth(view, depth, sp[0], sp[1])
-            if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= zs + thickness + thickness_rel * zs:
+            z_far = surface_far(view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel)
+            if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
                 if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
                     sp_prev = s0 + ds * s_prev
                     diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
-                u = _crossing(ortho, zr_prev, zr, zs, diff_prev, thickness, thickness_rel)
+                u = _crossing(ortho, zr_prev, zr, zs, diff_prev, z_far)
                 return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
+            if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
+                return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
             s_prev = s
             zr_prev = zr
             diff_prev = zr - zs

@@ -42,7 +42,8 @@ class _WorldPass(PhotonPass):
         self.world = world_scene(scene)
         self.cam = K.CameraBuffers()
         self.cam.view = camera_view.params()
-        self.cam.depth, self.cam.position, self.cam.normal = gbuffer.depth, gbuffer.position, gbuffer.normal
+        # the depth with its back-face layer behind it (march.surface_far: camera_receiver's visibility test)
+        self.cam.depth, self.cam.position, self.cam.normal = gbuffer.depth_layers, gbuffer.position, gbuffer.normal
         self.cam.solid_angle = self.solid_angle
 
 

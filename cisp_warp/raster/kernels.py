@@ -80,6 +80,26 @@ def _emit(
     tile_count[slot] = (i1 / TILE - i0 / TILE + 1) * (j1 / TILE - j0 / TILE + 1)
 
 
+@wp.func
+def faces_away(view: ViewParams, t: int, points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+               indices: wp.array(dtype=wp.int32)) -> bool:
+    """Whether triangle ``t`` shows the view its back: its geometric normal, turned to the side of its authored
+    (outward) vertex normals, points away from the eye (perspective: from the eye to the triangle's plane; the
+    sign is the same at every point of the plane) or along the view axis (orthographic). The scene's surfaces are
+    two-sided for shading; only this back-face layer asks which side is outside."""
+    p0 = points[indices[3 * t]]
+    p1 = points[indices[3 * t + 1]]
+    p2 = points[indices[3 * t + 2]]
+    ng = wp.cross(p1 - p0, p2 - p0)
+    na = normals[indices[3 * t]] + normals[indices[3 * t + 1]] + normals[indices[3 * t + 2]]
+    if wp.dot(ng, na) < 0.0:
+        ng = -ng
+    nv = wp.transform_vector(view.world_to_view, ng)
+    if view.orthographic != 0:
+        return nv[2] < 0.0  # the view looks along -z: the normal points away from the eye
+    return wp.dot(nv, view_point(view, p0)) > 0.0
+
+
 @wp.kernel
 def setup_triangles(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -93,6 +113,8 @@ def setup_triangles(
     sub_v: wp.array(dtype=wp.vec3),  # (6T,) screen vertices (px, py, 1/depth or depth) (write)
     sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) pixel box i0, j0, i1, j1 (write)
     tile_count: wp.array(dtype=wp.int32),  # (2T,) tiles touched, 0 = culled (write)
+    normals: wp.array(dtype=wp.vec3),  # (V,) authored (outward) vertex normals (read; only when back_only != 0)
+    back_only: int,  # 1: only the triangles that face away from the view (:func:`faces_away`), 0: all
 ):
     """Near-clip each triangle of the layer into at most two, project them, count their tiles."""
     view = views[view_index]
@@ -101,6 +123,9 @@ def setup_triangles(
     tile_count[2 * t + 1] = 0
     if (layers[t] & layer_mask) == 0 or view.far <= 0.0:  # far = 0: an inactive view (light_maps.INACTIVE_FAR), nothing drawn
         return
+    if back_only != 0:
+        if not faces_away(view, t, points, normals, indices):
+            return
     a = view_point(view, points[indices[3 * t]])
     b = view_point(view, points[indices[3 * t + 1]])
     c = view_point(view, points[indices[3 * t + 2]])
@@ -271,6 +296,69 @@ def raster_tiles(
                 if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
                     write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * view.width + i, visibility,
                                    visibility_b)
+        item += stride
+
+
+@wp.kernel
+def raster_back_tiles(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) of a set-up with back_only = 1 (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    stride: int,
+    front_depth: wp.array(dtype=wp.float32),  # (H*W,) the resolved front layer's depth [m], 0 = none (read)
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id of the back layer (atomic min)
+):
+    """The back-face layer: as :func:`raster_tiles` (a thread per (sub-triangle, tile) item, the set-up having kept
+    only the triangles that face away), but a fragment counts only at or behind the pixel's front surface
+    (depth >= front depth), so the atomic min keeps the nearest back face behind it. Pixels with no front surface
+    are skipped. One pass over the back-facing triangles of one layer; its own naive twin is
+    ``raycast.raycast_back_depth`` (every triangle against every pixel's ray)."""
+    view = views[view_index]
+    item = wp.tid()
+    total = tile_end[n_sub - 1]
+    while item < total:
+        s = _sub_of_item(tile_end, n_sub, item)
+        start = int(0)
+        if s > 0:
+            start = tile_end[s - 1]
+        box = sub_bbox[s]
+        tx0 = box[0] / TILE
+        ty0 = box[1] / TILE
+        tw = box[2] / TILE - tx0 + 1
+        local = item - start
+        tx = tx0 + local % tw
+        ty = ty0 + local / tw
+        a = sub_v[3 * s + 0]
+        b = sub_v[3 * s + 1]
+        c = sub_v[3 * s + 2]
+        inv_area = 1.0 / _edge(a, b, c[0], c[1])
+        tri = wp.uint64(s / 2)
+        i_lo = wp.max(tx * TILE, box[0])
+        i_hi = wp.min(tx * TILE + TILE - 1, box[2])
+        j_lo = wp.max(ty * TILE, box[1])
+        j_hi = wp.min(ty * TILE + TILE - 1, box[3])
+        for j in range(j_lo, j_hi + 1):
+            y = float(j) + 0.5
+            for i in range(i_lo, i_hi + 1):
+                x = float(i) + 0.5
+                p = j * view.width + i
+                zf = front_depth[p]
+                if zf > 0.0:
+                    w0 = _shared_edge(b, c, x, y)
+                    w1 = _shared_edge(c, a, x, y)
+                    w2 = _shared_edge(a, b, x, y)
+                    if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                        z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
+                        depth = z
+                        if view.orthographic == 0:
+                            depth = 1.0 / z
+                        if depth >= zf and depth <= view.far:
+                            q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0))
+                                          * wp.float64(DEPTH_STEPS))
+                            wp.atomic_min(visibility, p, (q << wp.uint64(32)) | tri)
         item += stride
 
 
@@ -510,6 +598,35 @@ def resolve_depth(
     depth[p] = t
     if tri_id.shape[0] > 0:
         tri_id[p] = tri
+
+
+@wp.kernel
+def resolve_back(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) back layer of :func:`raster_back_tiles` (read, then reset)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    front_tri: wp.array(dtype=wp.int32),  # (H*W,) the front layer's triangle, -1 = none (read)
+    depth_layers: wp.array(dtype=wp.float32),  # (2·H*W,) front depth [m] (read), then the back depth (write)
+):
+    """Depth of the nearest back face behind the front surface per pixel, into ``depth_layers[H*W + p]`` (0 = none:
+    no back face behind, or a front surface that itself faces away, seen from its inside: an open surface or a
+    sheet, whose back layer would be the surface itself). The exact ray hit, as :func:`resolve_depth`, not below
+    the front depth (the raster's fragment depth and the exact hit round differently)."""
+    view = views[view_index]
+    if view.far <= 0.0:
+        return
+    p = wp.tid()
+    n = view.width * view.height
+    tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
+    zb = float(0.0)
+    ft = front_tri[p]
+    if tri >= 0 and ft >= 0:
+        if not faces_away(view, ft, points, normals, indices):
+            zb = wp.max(t, depth_layers[p])
+    depth_layers[n + p] = zb
 
 
 @wp.kernel

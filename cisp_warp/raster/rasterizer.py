@@ -67,7 +67,7 @@ class Rasterizer:
         tiles_y = (height + K.TILE - 1) // K.TILE
         wp.launch(K.setup_triangles, dim=s.triangle_count, device=d,
                   inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer | layer_b), tiles_x,
-                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count])
+                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, 0])
         wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
         if self.columns:
             threads = self.column_threads or self.stride
@@ -79,6 +79,26 @@ class Rasterizer:
             wp.launch(K.raster_tiles, dim=self.stride, device=d,
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
                               self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
+
+
+    def draw_back(self, views: wp.array, view_index: int, width: int, height: int, layer: int,
+                  front_depth: wp.array, visibility: wp.array) -> None:
+        """The back-face layer of ``layer`` behind the resolved front depth ``front_depth`` (H*W float32, 0 = none)
+        into ``visibility`` (clear, as :func:`visibility_buffer` makes it and ``kernels.resolve_back`` leaves it):
+        per pixel the nearest fragment of a triangle that faces away from the view (``kernels.faces_away``) at or
+        behind the front surface. The same set-up and scan as :meth:`draw`, culled to back faces, then
+        ``kernels.raster_back_tiles``."""
+        d = self.scene.device
+        s = self.scene
+        tiles_x = (width + K.TILE - 1) // K.TILE
+        tiles_y = (height + K.TILE - 1) // K.TILE
+        wp.launch(K.setup_triangles, dim=s.triangle_count, device=d,
+                  inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer), tiles_x,
+                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, 1])
+        wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
+        wp.launch(K.raster_back_tiles, dim=self.stride, device=d,
+                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                          self.stride, front_depth, visibility])
 
 
 def view_array(views, device) -> wp.array:
@@ -159,15 +179,24 @@ class GBuffer(_Buffers):
     tri_id: wp.array  #: (H*W,) int32; -1 = no surface
     motion: wp.array  #: (H*W,) vec2 [pixels]: where this surface point was in the previous frame, minus here
     water: SpecularLayer  #: nearest specular surface in front of the opaque one
+    #: (2·H*W,) float32 [m]: ``depth`` (its first half: ``depth`` is a view of it), then per pixel the depth of the
+    #: nearest opaque back face behind the front surface (0 = none: an open surface, or nothing behind). The
+    #: screen-space tests that take it (``photons.march.surface_far``) bound a closed object's thickness by it
+    depth_layers: wp.array = None
+    #: draw the back-face layer (False: its half of ``depth_layers`` is zeroed each frame instead, every surface keeps
+    #: the constant thickness, as before the layer existed)
+    back_faces: bool = True
 
     @staticmethod
     def allocate(width: int, height: int, device) -> "GBuffer":
-        check_memory(width * height * 160, f"a {width}x{height} G-buffer", device)
+        check_memory(width * height * 164, f"a {width}x{height} G-buffer", device)
         hw = (height, width)
-        return GBuffer(width, height, visibility_buffer(width * height, device), _pixels(hw, wp.float32, device),
+        n = width * height
+        layers = wp.zeros(2 * n, dtype=wp.float32, device=device)
+        return GBuffer(width, height, visibility_buffer(n, device), layers[0:n],
                        _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device),
                        _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device), _pixels(hw, wp.vec2, device),
-                       SpecularLayer.allocate(width, height, device))
+                       SpecularLayer.allocate(width, height, device), layers)
 
     def render(self, raster: Rasterizer, views, prev_view=None) -> None:
         """Fill both layers for the camera ``views[0]``; motion is measured against ``views[1]``, the previous
@@ -183,10 +212,20 @@ class GBuffer(_Buffers):
                           s.triangle_material, s.albedo, s.roughness,
                           self.depth, self.position, self.normal, self.albedo, self.roughness, self.tri_id, self.motion])
         self.water.resolve(s, views, 0, self.depth)
+        if not self.back_faces:
+            self.depth_layers[self.width * self.height:].zero_()
+        else:
+            # into the opaque layer's visibility buffer, which its resolve left clear
+            raster.draw_back(views, 0, self.width, self.height, LAYER_OPAQUE, self.depth, self.visibility)
+            wp.launch(K.resolve_back, dim=self.width * self.height, device=s.device,
+                      inputs=[views, 0, self.visibility, s.points, s.normals, s.indices, self.tri_id,
+                              self.depth_layers])
 
     def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
         out = super().numpy(prefix)
         out.update(self.water.numpy(prefix + "water_"))
+        n = self.width * self.height
+        out[prefix + "back_depth"] = self.depth_layers.numpy()[n:].reshape(self.height, self.width)
         out.pop(prefix + "visibility", None)
         out.pop(prefix + "water_visibility", None)
         return out
