@@ -255,25 +255,7 @@ def raster_tiles(
     item = wp.tid()
     total = tile_end[n_sub - 1]
     while item < total:
-        lo = int(0)
-        hi = n_sub - 1
-        while lo < hi:
-            mid = (lo + hi) / 2
-            if tile_end[mid] > item:
-                hi = mid
-            else:
-                lo = mid + 1
-        s = lo
-        start = int(0)
-        if s > 0:
-            start = tile_end[s - 1]
-        box = sub_bbox[s]
-        tx0 = box[0] / TILE
-        ty0 = box[1] / TILE
-        tw = box[2] / TILE - tx0 + 1
-        local = item - start
-        tx = tx0 + local % tw
-        ty = ty0 + local / tw
+        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
         a = sub_v[3 * s + 0]
         b = sub_v[3 * s + 1]
         c = sub_v[3 * s + 2]
@@ -282,10 +264,6 @@ def raster_tiles(
         tri_layers = layers[s / 2]
         to_a = (tri_layers & mask) != 0
         to_b = (tri_layers & mask_b) != 0
-        i_lo = wp.max(tx * TILE, box[0])
-        i_hi = wp.min(tx * TILE + TILE - 1, box[2])
-        j_lo = wp.max(ty * TILE, box[1])
-        j_hi = wp.min(ty * TILE + TILE - 1, box[3])
         for j in range(j_lo, j_hi + 1):
             y = float(j) + 0.5
             for i in range(i_lo, i_hi + 1):
@@ -320,26 +298,12 @@ def raster_back_tiles(
     item = wp.tid()
     total = tile_end[n_sub - 1]
     while item < total:
-        s = _sub_of_item(tile_end, n_sub, item)
-        start = int(0)
-        if s > 0:
-            start = tile_end[s - 1]
-        box = sub_bbox[s]
-        tx0 = box[0] / TILE
-        ty0 = box[1] / TILE
-        tw = box[2] / TILE - tx0 + 1
-        local = item - start
-        tx = tx0 + local % tw
-        ty = ty0 + local / tw
+        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
         a = sub_v[3 * s + 0]
         b = sub_v[3 * s + 1]
         c = sub_v[3 * s + 2]
         inv_area = 1.0 / _edge(a, b, c[0], c[1])
         tri = wp.uint64(s / 2)
-        i_lo = wp.max(tx * TILE, box[0])
-        i_hi = wp.min(tx * TILE + TILE - 1, box[2])
-        j_lo = wp.max(ty * TILE, box[1])
-        j_hi = wp.min(ty * TILE + TILE - 1, box[3])
         for j in range(j_lo, j_hi + 1):
             y = float(j) + 0.5
             for i in range(i_lo, i_hi + 1):
@@ -374,6 +338,25 @@ def _sub_of_item(tile_end: wp.array(dtype=wp.int32), n_sub: int, item: int) -> i
         else:
             lo = mid + 1
     return lo
+
+
+@wp.func
+def _tile_of_item(tile_end: wp.array(dtype=wp.int32), n_sub: int, sub_bbox: wp.array(dtype=wp.vec4i), item: int):
+    """Work item ``item`` of a tiled raster pass: its sub-triangle ``s`` (:func:`_sub_of_item`) and the pixel
+    range (i_lo, i_hi, j_lo, j_hi) of its tile, clipped to the sub-triangle's box."""
+    s = _sub_of_item(tile_end, n_sub, item)
+    start = int(0)
+    if s > 0:
+        start = tile_end[s - 1]
+    box = sub_bbox[s]
+    tx0 = box[0] / TILE
+    ty0 = box[1] / TILE
+    tw = box[2] / TILE - tx0 + 1
+    local = item - start
+    tx = tx0 + local % tw
+    ty = ty0 + local / tw
+    return (s, wp.max(tx * TILE, box[0]), wp.min(tx * TILE + TILE - 1, box[2]), wp.max(ty * TILE, box[1]),
+            wp.min(ty * TILE + TILE - 1, box[3]))
 
 
 #: bound on the rounding of :func:`_edge_at`, relative to the sum of its two products' magnitudes: the differences,
