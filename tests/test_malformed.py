@@ -199,3 +199,16 @@ def test_references_that_multiply_are_refused(tmp_path, monkeypatch):
     path.write_text("".join(text))
     with pytest.raises(SceneError, match=r"laughs\.usda.*more than 100 prims"):
         load_usd(path, device="cpu")
+
+
+def test_parse_helper_that_cannot_start_is_one_scene_error(valid_stage, monkeypatch):
+    """No Python to start the parse server with: one SceneError naming the file and the executable, no traceback."""
+    import sys
+
+    from cisp_warp.usd import guard
+
+    monkeypatch.setattr(guard, "_SERVER", None)
+    monkeypatch.setattr(guard, "_PASSED", {})
+    monkeypatch.setattr(sys, "executable", "/nonexistent/python3")
+    with pytest.raises(SceneError, match=r"valid\.usda.*parse helper process could not start.*nonexistent"):
+        guard.check_layers(str(valid_stage))

@@ -309,8 +309,12 @@ class _Server:
 
         self.lock = threading.Lock()
         code = "import sys, json; sys.path[:0] = json.loads(sys.argv[1]); from cisp_warp.usd.guard import _serve; _serve()"
-        self.proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(sys.path)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True, bufsize=1, close_fds=True)
+        try:
+            self.proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(sys.path)], stdin=subprocess.PIPE,
+                                         stdout=subprocess.PIPE, text=True, bufsize=1, close_fds=True)
+        except OSError as exc:
+            raise SceneError(f"the USD parse helper process could not start ({sys.executable!r}: {exc.strerror})") \
+                from None
         atexit.register(self.close)
         if self._read_line(self.STARTUP_SECONDS) != "ready":
             self.close()
@@ -376,7 +380,10 @@ def check_layers(path: str) -> None:
     request = {"path": root, "deadline": PARSE_SECONDS + PARSE_SECONDS_PER_MB * size / 1e6,
                "budget": PARSE_MEMORY_BYTES + PARSE_BYTES_PER_FILE_BYTE * size}
     request.update({name: globals()[name] for name in _LIMITS})
-    msg = _ask_server(request)
+    try:
+        msg = _ask_server(request)
+    except SceneError as exc:  # the helper itself failed: named with the file it was to check
+        raise SceneError(exc.reason, file=path) from None
     if "timeout" in msg:
         if msg["phase"]:
             raise SceneError(f"composing the stage did not finish within {request['deadline']:.0f} s: its "
