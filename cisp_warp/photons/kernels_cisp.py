@@ -15,7 +15,8 @@ from ..raster.views import ViewParams, read_again, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
-from .march import MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, screen_march_bounded, surface_far
+from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, screen_march_bounded, screen_march_bounded_plain,
+                    surface_far)
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
@@ -39,8 +40,8 @@ def march_light(
     """Step 4 of seed 000 for one photon: march the light view's opaque depth from a hair off the surface.
     Returns (march status, end point [m]): the crossing on ``MARCH_HIT``, else the last point inside the view."""
     o = origin + d * (1.0e-4 * t_max)
-    status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
-                                                 thickness, thickness_rel)
+    status, t_end, steps = screen_march_bounded_plain(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max,
+                                                       max_steps, thickness, thickness_rel)  # no back-face layer
     return status, o + d * t_end
 
 
