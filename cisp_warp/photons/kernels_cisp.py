@@ -89,6 +89,18 @@ def reproject_to_camera(
 
 
 @wp.func
+def _camera_entry(status: int) -> int:
+    """:func:`march_camera`'s entry for its march's ``status``."""
+    if status == MARCH_STEPS:
+        return L_STEPS
+    if status == MARCH_HIDDEN:  # it ends on a closed object's far side, which the camera does not see
+        return L_OCCLUDED
+    if status != MARCH_HIT:
+        return L_LOST_CAMERA
+    return L_STORED
+
+
+@wp.func
 def march_camera(
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),  # (H*W,) the camera's opaque depth [m] (read)
@@ -104,12 +116,9 @@ def march_camera(
     ``L_STORED`` with the crossing, or ``L_STEPS`` / ``L_LOST_CAMERA`` with ``x_end``."""
     status, t2, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
                                              thickness, thickness_rel)
-    if status == MARCH_STEPS:
-        return L_STEPS, x_end, steps
-    if status == MARCH_HIDDEN:  # it ends on a closed object's far side, which the camera does not see
-        return L_OCCLUDED, x_end, steps
-    if status != MARCH_HIT:
-        return L_LOST_CAMERA, x_end, steps
+    entry = _camera_entry(status)
+    if entry != L_STORED:
+        return entry, x_end, steps
     return L_STORED, x_end + d * t2, steps
 
 
@@ -232,6 +241,15 @@ def camera_rescue(
 
 
 @wp.func
+def _rescue_pass(entry: int, use_cascade: int) -> int:
+    """1 where :func:`trace_photon` marches the photon again in the camera view from its start (:func:`camera_rescue`:
+    the cascade lost it to the light view or found it occluded), else 2 (no more camera marches)."""
+    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
+        return 1
+    return 2
+
+
+@wp.func
 def trace_photon(
     k: int,  # photon index
     origin: wp.vec3,  # [m] on the specular surface
@@ -264,19 +282,36 @@ def trace_photon(
     validate, store; its final entry booked. Each view is read
     from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
     registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
-    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17)."""
+    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17). The cascade's
+    camera march and the rescue's share one inlined march (a loop of up to two passes): 440 -> 304 B (section 23)."""
     status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
                                 max_steps, thickness, thickness_rel)
     entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
-    if entry == MARCH_ON:
-        entry, x_end, steps = march_camera(cameras[0], cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
-                                           thickness, thickness_rel)
-        if entry == L_STORED:
-            pix = camera_pixel(read_again(cameras, 0, steps), x_end)
-    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
-        # the light view hid the ray's landing (a receiver in an occluder's lee): march it in the camera view
-        entry, x_end, pix = camera_rescue(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, origin, d,
-                                          t_max, max_steps, thickness, thickness_rel, entry, x_end, pix)
+    # the camera marches at one call site (one inlined march, not two: the trace's stack frame 440 -> 304 B at its
+    # launch bound, docs/perf_notes.md section 23): pass 0 is the cascade's (:func:`march_camera`, from x_end), pass
+    # 1 the rescue of a photon the light view hid (:func:`camera_rescue`, from its start: a receiver in an occluder's
+    # lee); the same arithmetic as those funcs, which the wavefront grid calls
+    camera_pass = int(0)
+    if entry != MARCH_ON:
+        camera_pass = _rescue_pass(entry, use_cascade)
+    while camera_pass < 2:
+        o_m = x_end
+        if camera_pass == 1:
+            o_m = origin + d * (1.0e-4 * t_max)
+        status, t_m, steps = screen_march_bounded(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, o_m, d,
+                                                  t_max, max_steps, thickness, thickness_rel)
+        if camera_pass == 0:
+            entry = _camera_entry(status)
+            if entry == L_STORED:
+                x_end = x_end + d * t_m
+                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+            camera_pass = _rescue_pass(entry, use_cascade)
+        else:
+            if status == MARCH_HIT:
+                x_end = origin + d * (1.0e-4 * t_max + t_m)
+                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+                entry = L_STORED
+            camera_pass = 2
     if entry != L_STORED:
         book(tally, entry, power)
         return
