@@ -13,7 +13,7 @@ import numpy as np
 import warp as wp
 
 from .optics import fresnel_dielectric, reflect, refract
-from .photons.march import MARCH_HIT, screen_march_bounded
+from .photons.march import MARCH_HIT, screen_march_bounded_plain
 from .raster.views import ViewParams, pixel_ray_world, read_again, view_eye_world, world_project
 from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
@@ -199,8 +199,8 @@ def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth:
 
     Returns (found, radiance); not found when the ray leaves the image or runs out of steps.
     """
-    status, t, steps = screen_march_bounded(read_again(cameras, 0, anchor), depth, depth_bounds, o, d, t_max, max_steps,
-                                            thickness, 0.02)
+    status, t, steps = screen_march_bounded_plain(read_again(cameras, 0, anchor), depth, depth_bounds, o, d, t_max,
+                                                  max_steps, thickness, 0.02)  # the front depths only (H*W)
     if status != MARCH_HIT:
         return int(0), wp.vec3(0.0)
     camera = read_again(cameras, 0, steps)

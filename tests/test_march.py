@@ -7,7 +7,8 @@ import pytest
 import warp as wp
 
 from cisp_warp.photons.cisp import build_bounds
-from cisp_warp.photons.march import bounds_size, screen_march, screen_march_bounded, screen_march_naive
+from cisp_warp.photons.march import (bounds_size, screen_march, screen_march_bounded, screen_march_bounded_plain,
+                                     screen_march_naive, screen_march_naive_plain, screen_march_plain)
 from cisp_warp.raster.views import View, ViewParams
 
 
@@ -22,6 +23,21 @@ def march_both(view: ViewParams, depth: wp.array(dtype=wp.float32), origins: wp.
     s, t, n = screen_march_bounded(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     bounded[i] = wp.vec3(float(s), t, float(n))
     s, t, n = screen_march_naive(view, depth, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    naive[i] = wp.vec3(float(s), t, float(n))
+
+
+@wp.kernel
+def march_plain(view: ViewParams, depth: wp.array(dtype=wp.float32), origins: wp.array(dtype=wp.vec3),
+                dirs: wp.array(dtype=wp.vec3), max_steps: int,
+                bounds: wp.array(dtype=wp.vec2), fast: wp.array(dtype=wp.vec3), bounded: wp.array(dtype=wp.vec3),
+                naive: wp.array(dtype=wp.vec3)):
+    """The marches compiled for a plain depth buffer (no back-face layer code)."""
+    i = wp.tid()
+    s, t, n = screen_march_plain(view, depth, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    fast[i] = wp.vec3(float(s), t, float(n))
+    s, t, n = screen_march_bounded_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    bounded[i] = wp.vec3(float(s), t, float(n))
+    s, t, n = screen_march_naive_plain(view, depth, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     naive[i] = wp.vec3(float(s), t, float(n))
 
 
@@ -76,6 +92,17 @@ def test_fast_marches_equal_the_naive_march(device, rng, orthographic, max_steps
     v = naive.numpy()
     for f in (fast.numpy(), bounded.numpy()):
         compare(f, v, device, max_steps)
+    if layers == 1:
+        # the marches compiled without the layer's code: the same as the general ones on a plain buffer, bit for bit
+        # (one body, the layer's code dropped at compile time), and their fast twins equal their naive one
+        plain = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(3)]
+        wp.launch(march_plain, dim=n, device=device, inputs=[view.params(), depth, *args, max_steps, bounds, *plain])
+        plain = [a.numpy() for a in plain]
+        for f in plain[:2]:
+            compare(f, plain[2], device, max_steps)
+        if wp.get_device(device).is_cpu:
+            for f, g in zip(plain, (fast.numpy(), bounded.numpy(), v)):
+                np.testing.assert_array_equal(f, g)
     if layers == 2:
         # the layer only brings surfaces' far sides nearer: a ray that hits with it hits without it, no later; and
         # some rays end in an object's hidden half instead (MARCH_HIDDEN), or hit later (they passed behind a thin one)

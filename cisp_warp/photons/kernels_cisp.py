@@ -15,7 +15,8 @@ from ..raster.views import ViewParams, read_again, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
-from .march import MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, screen_march_bounded, surface_far
+from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, screen_march_bounded, screen_march_bounded_plain,
+                    surface_far)
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
@@ -39,8 +40,8 @@ def march_light(
     """Step 4 of seed 000 for one photon: march the light view's opaque depth from a hair off the surface.
     Returns (march status, end point [m]): the crossing on ``MARCH_HIT``, else the last point inside the view."""
     o = origin + d * (1.0e-4 * t_max)
-    status, t_end, steps = screen_march_bounded(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max, max_steps,
-                                                 thickness, thickness_rel)
+    status, t_end, steps = screen_march_bounded_plain(light, rsm_opaque_depth, rsm_depth_bounds, o, d, t_max,
+                                                       max_steps, thickness, thickness_rel)  # no back-face layer
     return status, o + d * t_end
 
 
@@ -61,7 +62,7 @@ def reproject_to_camera(
     """Step 5 of seed 000, the cascade (Fig. 7): where the light-view march that ended at ``x_end`` with ``status``
     lands in the camera view. Returns (entry, camera pixel): ``L_STORED`` on the surface pixel ``pix`` shows (a
     light-view crossing within the thickness of it), ``MARCH_ON`` floating in front of the camera's surfaces or a
-    light-view miss within their thickness (march on in the camera view: :func:`march_camera`),
+    light-view miss within their thickness (march on in the camera view: :func:`camera_marches`),
     else the ledger entry where the photon was lost (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``)."""
     if status == MARCH_STEPS:
         return L_STEPS, int(-1)
@@ -88,28 +89,16 @@ def reproject_to_camera(
 
 
 @wp.func
-def march_camera(
-    camera: ViewParams,
-    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) the camera's opaque depth [m] (read)
-    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-    x_end: wp.vec3,  # [m] where the light-view march ended, in front of the camera's surfaces
-    d: wp.vec3,  # unit direction after the bounce
-    t_max: float,
-    max_steps: int,
-    thickness: float,
-    thickness_rel: float,
-):
-    """The cascade's second chance: march on from ``x_end`` in the camera view. Returns (entry, end point [m], steps):
-    ``L_STORED`` with the crossing, or ``L_STEPS`` / ``L_LOST_CAMERA`` with ``x_end``."""
-    status, t2, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
-                                             thickness, thickness_rel)
+def _camera_entry(status: int) -> int:
+    """The entry of a photon whose cascade march in the camera view (pass 0 of :func:`camera_marches`) ended with
+    ``status``."""
     if status == MARCH_STEPS:
-        return L_STEPS, x_end, steps
+        return L_STEPS
     if status == MARCH_HIDDEN:  # it ends on a closed object's far side, which the camera does not see
-        return L_OCCLUDED, x_end, steps
+        return L_OCCLUDED
     if status != MARCH_HIT:
-        return L_LOST_CAMERA, x_end, steps
-    return L_STORED, x_end + d * t2, steps
+        return L_LOST_CAMERA
+    return L_STORED
 
 
 @wp.func
@@ -117,39 +106,6 @@ def camera_pixel(camera: ViewParams, x: wp.vec3) -> int:
     """The camera pixel a camera-march crossing ``x`` [m] lies in (clamped to the image)."""
     q = world_project(camera, x)
     return wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
-
-
-@wp.func
-def march_cascade(
-    light: ViewParams,
-    camera: ViewParams,
-    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (H_l*W_l,) the light view's opaque depth [m] (read)
-    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
-    cam_depth: wp.array(dtype=wp.float32),  # (H*W,) the camera's opaque depth [m] (read)
-    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-    origin: wp.vec3,  # [m] where the photon leaves the specular surface
-    d: wp.vec3,  # unit direction after the bounce
-    t_max: float,
-    max_steps: int,
-    thickness: float,
-    thickness_rel: float,
-    use_cascade: int,  # 0: light view only (no camera march)
-):
-    """Steps 4-5 of seed 000 for one photon: march the light view (:func:`march_light`), reproject the end point
-    into the camera view (:func:`reproject_to_camera`), march on there (:func:`march_camera`). Returns (ledger entry
-    where the photon ends, end point [m], camera pixel): the entry is ``L_STORED`` when the photon reached the
-    surface camera pixel ``pix`` shows (validation and the store are the caller's), else where it was lost
-    (``L_STEPS``, ``L_LOST_*``, ``L_OCCLUDED``). For callers that hold both views anyway (the wavefront grid);
-    :func:`trace_photon` runs the same steps reading each view where it needs it."""
-    status, x_end = march_light(light, rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max, max_steps, thickness,
-                                thickness_rel)
-    entry, pix = reproject_to_camera(camera, cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
-    if entry == MARCH_ON:
-        entry, x_end, steps = march_camera(camera, cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps, thickness,
-                                           thickness_rel)
-        if entry == L_STORED:
-            pix = camera_pixel(camera, x_end)
-    return entry, x_end, pix
 
 
 #: one receiver: normals within ~26° (a refined landing's pixel; the wavefront splat's corners and covered pixels)
@@ -196,7 +152,16 @@ def refine_landing(
 
 
 @wp.func
-def camera_rescue(
+def _rescue_pass(entry: int, use_cascade: int) -> int:
+    """1 where the photon is marched again in the camera view from its start (pass 1 of :func:`camera_marches`: the
+    cascade lost it to the light view or found it occluded), else 2 (no more camera marches)."""
+    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
+        return 1
+    return 2
+
+
+@wp.func
+def camera_marches(
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
     cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
@@ -206,28 +171,50 @@ def camera_rescue(
     max_steps: int,
     thickness: float,
     thickness_rel: float,
-    entry: int,  # the cascade's entry: L_LOST_LIGHT or L_OCCLUDED
-    x_lost: wp.vec3,  # [m] where the cascade gave it up
-    pix_lost: int,  # and its camera pixel (or -1)
+    use_cascade: int,
+    entry: int,  # :func:`reproject_to_camera`'s entry
+    x_end: wp.vec3,  # [m] where the light-view march ended
+    pix: int,  # and its camera pixel (or -1)
 ):
-    """A photon the cascade lost or found occluded, marched in the camera view from where it left the
-    specular surface.
+    """Steps 5-6 of seed 000 after :func:`reproject_to_camera`, in the camera view, at one call site of the march
+    (a loop of up to two passes: one inlined march, not two; docs/perf_notes.md section 23):
 
-    The light-view march walks on behind the light's depth buffer where the ray runs into surfaces the light
-    does not see (on the pool: the floor along the end wall in the lee of the deck, which refracted light
-    reaches and direct light does not): it crosses a false surface far below the floor or leaves the view,
-    and the reprojected end point is off the screen or behind the camera's surfaces. The photon is then lost
-    although the camera sees the floor it reaches. The camera's own depth buffer shows that floor: march the
-    ray there from its start (a crossing the camera sees along the ray is a surface the photon meets first).
-    Returns (entry, end point [m], camera pixel): ``L_STORED`` on a crossing, else the cascade's own."""
-    status, t, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, origin + d * (1.0e-4 * t_max), d,
-                                            t_max, max_steps, thickness, thickness_rel)
-    if status != MARCH_HIT:
-        return entry, x_lost, pix_lost
-    x = origin + d * (1.0e-4 * t_max + t)
-    q = world_project(camera, x)
-    pix = wp.clamp(int(q[1]), 0, camera.height - 1) * camera.width + wp.clamp(int(q[0]), 0, camera.width - 1)
-    return L_STORED, x, pix
+    * pass 0, the cascade's second chance where ``entry`` is ``MARCH_ON``: march on from ``x_end``; ``L_STORED``
+      with the crossing, else ``L_STEPS``, ``L_OCCLUDED`` (it ends on a closed object's far side, which the camera
+      does not see: ``MARCH_HIDDEN``) or ``L_LOST_CAMERA`` with ``x_end`` (:func:`_camera_entry`);
+    * pass 1, the rescue of a photon the cascade lost to the light view or found occluded (``L_LOST_LIGHT``,
+      ``L_OCCLUDED``, with ``use_cascade``): the light-view march walks on behind the light's depth buffer where
+      the ray runs into surfaces the light does not see (on the pool: the floor along the end wall in the lee of
+      the deck, which refracted light reaches and direct light does not): it crosses a false surface far below
+      the floor or leaves the view, and the reprojected end point is off the screen or behind the camera's
+      surfaces, although the camera sees the floor it reaches. The camera's own depth buffer shows that floor:
+      march the ray there from its start (a crossing the camera sees along the ray is a surface the photon meets
+      first): ``L_STORED`` on a crossing, else the entry it had.
+
+    Returns (entry, end point [m], camera pixel). :func:`trace_photon` runs the same passes reading the camera
+    where it needs it (``read_again``)."""
+    camera_pass = int(0)
+    if entry != MARCH_ON:
+        camera_pass = _rescue_pass(entry, use_cascade)
+    while camera_pass < 2:
+        o_m = x_end
+        if camera_pass == 1:
+            o_m = origin + d * (1.0e-4 * t_max)
+        status, t_m, steps = screen_march_bounded(camera, cam_depth, cam_depth_bounds, o_m, d, t_max, max_steps,
+                                                  thickness, thickness_rel)
+        if camera_pass == 0:
+            entry = _camera_entry(status)
+            if entry == L_STORED:
+                x_end = x_end + d * t_m
+                pix = camera_pixel(camera, x_end)
+            camera_pass = _rescue_pass(entry, use_cascade)
+        else:
+            if status == MARCH_HIT:
+                x_end = origin + d * (1.0e-4 * t_max + t_m)
+                pix = camera_pixel(camera, x_end)
+                entry = L_STORED
+            camera_pass = 2
+    return entry, x_end, pix
 
 
 @wp.func
@@ -258,24 +245,38 @@ def trace_photon(
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
 ):
     """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
-    (:func:`reproject_to_camera`, :func:`march_camera`), a photon the cascade lost marched in the camera view from
-    its start (:func:`camera_rescue`), the landing cut with its receiver's tangent plane (:func:`refine_landing`),
+    (:func:`reproject_to_camera`, pass 0 of :func:`camera_marches`), a photon the cascade lost marched in the camera
+    view from its start (pass 1), the landing cut with its receiver's tangent plane (:func:`refine_landing`),
     validate, store; its final entry booked. Each view is read
     from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
     registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
-    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17)."""
+    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17). The cascade's
+    camera march and the rescue's share one inlined march (a loop of up to two passes): 440 -> 304 B (section 23)."""
     status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
                                 max_steps, thickness, thickness_rel)
     entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
-    if entry == MARCH_ON:
-        entry, x_end, steps = march_camera(cameras[0], cam_depth, cam_depth_bounds, x_end, d, t_max, max_steps,
-                                           thickness, thickness_rel)
-        if entry == L_STORED:
-            pix = camera_pixel(read_again(cameras, 0, steps), x_end)
-    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
-        # the light view hid the ray's landing (a receiver in an occluder's lee): march it in the camera view
-        entry, x_end, pix = camera_rescue(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, origin, d,
-                                          t_max, max_steps, thickness, thickness_rel, entry, x_end, pix)
+    # :func:`camera_marches`' two passes, reading the camera where needed (it is not held through the march)
+    camera_pass = int(0)
+    if entry != MARCH_ON:
+        camera_pass = _rescue_pass(entry, use_cascade)
+    while camera_pass < 2:
+        o_m = x_end
+        if camera_pass == 1:
+            o_m = origin + d * (1.0e-4 * t_max)
+        status, t_m, steps = screen_march_bounded(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, o_m, d,
+                                                  t_max, max_steps, thickness, thickness_rel)
+        if camera_pass == 0:
+            entry = _camera_entry(status)
+            if entry == L_STORED:
+                x_end = x_end + d * t_m
+                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+            camera_pass = _rescue_pass(entry, use_cascade)
+        else:
+            if status == MARCH_HIT:
+                x_end = origin + d * (1.0e-4 * t_max + t_m)
+                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+                entry = L_STORED
+            camera_pass = 2
     if entry != L_STORED:
         book(tally, entry, power)
         return

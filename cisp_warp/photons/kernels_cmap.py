@@ -23,7 +23,7 @@ from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_pr
 from .common import (EMISSION_ENTRIES, FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED,
                      Tally, book, emit_and_bounce, entry_mask, ledger_add, photon_index,
                      pixel_footprint, tally_new)
-from .march import MARCH_HIT, MARCH_STEPS, screen_march
+from .march import MARCH_HIT, MARCH_STEPS, screen_march_plain
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
@@ -101,7 +101,8 @@ def trace_to_caustic_map_photon(
     the rest are ``stored``: splatted into the caustic map in light space.
     """
     o = origin + d * (1.0e-4 * t_max)  # start a hair off the specular surface, as CISP does
-    status, t_end, steps = screen_march(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness, thickness_rel)
+    status, t_end, steps = screen_march_plain(light, rsm_opaque_depth, o, d, t_max, max_steps, thickness,
+                                             thickness_rel)  # a light view: no back-face layer
     if status == MARCH_STEPS:
         book(tally, L_STEPS, power)
         return

@@ -30,11 +30,10 @@ import warp as wp
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world
-from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED, L_REFRACTED, L_SAMPLED,
-                     L_STORED,
+from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED,
                      LEDGER_ENTRIES, tally_new)
 # NORMAL_COS is imported from here by kernels_splat
-from .kernels_cisp import NORMAL_COS, camera_rescue, march_cascade, refine_landing  # noqa: F401
+from .kernels_cisp import NORMAL_COS, camera_marches, march_light, refine_landing, reproject_to_camera  # noqa: F401
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
 
@@ -394,16 +393,16 @@ def trace_corner_cisp(
     rec: Records,  # (write) slot p, cleared by the caller
 ):
     """A corner photon of either grid (RSM or mesh) from its surface point: its sheet's bounce, CISP's
-    light-view march and cascade (:func:`march_cascade`), the camera rescue and the landing refined onto
+    light-view march and cascade with the camera rescue (:func:`camera_marches`) and the landing refined onto
     the receiver's tangent plane, recorded in slot ``p``."""
     ok, d = grid_bounce(sheet, d_in, n, transmissive, ior)
     if ok == 0:
         return
-    entry, x_end, pix = march_cascade(light, camera, rsm_opaque_depth, rsm_depth_bounds, cam_depth, cam_depth_bounds,
-                                      origin, d, t_max, max_steps, thickness, thickness_rel, use_cascade)
-    if (entry == L_LOST_LIGHT or entry == L_OCCLUDED) and use_cascade != 0:
-        entry, x_end, pix = camera_rescue(camera, cam_depth, cam_depth_bounds, origin, d, t_max, max_steps, thickness,
-                                          thickness_rel, entry, x_end, pix)
+    status, x_end = march_light(light, rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max, max_steps, thickness,
+                                thickness_rel)
+    entry, pix = reproject_to_camera(camera, cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
+    entry, x_end, pix = camera_marches(camera, cam_depth, cam_depth_bounds, origin, d, t_max, max_steps, thickness,
+                                       thickness_rel, use_cascade, entry, x_end, pix)
     if entry == L_STORED:
         x_end, pix = refine_landing(camera, cam_depth, cam_position, cam_normal, origin, d, x_end, pix, thickness,
                                     thickness_rel)

@@ -14,6 +14,9 @@ compared with the buffer's z_s at that pixel:
 
 The surface's far side is z_s + thickness, or, for a depth buffer that carries a back-face layer (the camera's
 ``GBuffer.depth_layers``), half way to the nearest back face behind it where that is nearer (:func:`surface_far`).
+The marches exist twice (:func:`_make_marches`): these, which test for the layer at run time, and ``*_plain``, the
+same body compiled without the layer's code, for the depth buffers that never carry one (light views, the
+composite's camera depth): no registers or stack spent on it there.
 
 Testing the depth *range* of each step rather than its end point matters for rays close to the
 view axis, which advance far in depth per pixel.
@@ -113,124 +116,6 @@ def surface_far(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int, zs:
     return far
 
 
-@wp.func
-def screen_march_naive(
-    view: ViewParams,
-    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
-    o: wp.vec3,  # world origin [m]
-    d: wp.vec3,  # world direction
-    t_max: float,
-    max_steps: int,
-    thickness: float,  # [m] absolute part of the surface thickness
-    thickness_rel: float,  # relative part (× sample depth)
-):
-    """March ``o + d·t`` for t in (0, t_max], one step at a time. Returns (status, t_end, steps taken).
-
-    On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view. The twin of
-    :func:`screen_march`.
-    """
-    p0 = wp.transform_point(view.world_to_view, o)
-    dv = wp.transform_vector(view.world_to_view, d)
-    z0 = -p0[2]
-    rate = -dv[2]  # d(depth)/dt
-    t1 = t_max
-    near = view.near * 1.0001
-    if z0 < near:
-        return MARCH_EXIT, float(0.0), int(0)
-    if rate < 0.0:
-        t1 = wp.min(t1, (z0 - near) / (-rate))
-    if view.orthographic == 0:
-        t1 = wp.min(t1, 1.0e6)
-    p1 = p0 + dv * t1
-    z1 = -p1[2]
-    s0 = wp.vec2(0.0)
-    s1 = wp.vec2(0.0)
-    k0 = float(1.0)
-    k1 = float(1.0)
-    if view.orthographic != 0:
-        s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
-        s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
-    else:
-        k0 = 1.0 / z0
-        k1 = 1.0 / z1
-        s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
-        s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
-    # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
-    w = float(view.width)
-    h = float(view.height)
-    if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
-        return MARCH_EXIT, float(0.0), int(0)
-    ds = s1 - s0
-    s_end = float(1.0)
-    if ds[0] > 0.0:
-        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-    elif ds[0] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-    if ds[1] > 0.0:
-        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-    elif ds[1] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
-    s_end = wp.max(s_end, 0.0)
-    pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
-    n = int(wp.ceil(pixels))
-    status = MARCH_EXIT
-    if n > max_steps:
-        n = max_steps
-        status = MARCH_STEPS
-    n = wp.max(n, 1)
-    ds_step = s_end / float(n)
-    if pixels > float(max_steps):
-        ds_step = s_end / pixels
-    s_prev = float(0.0)
-    zr_prev = z0
-    diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
-    s_last = float(0.0)
-    for i in range(1, n + 1):
-        s = ds_step * float(i)
-        sp = s0 + ds * s
-        zr = float(0.0)
-        if view.orthographic != 0:
-            zr = z0 + (z1 - z0) * s
-        else:
-            zr = 1.0 / (k0 + (k1 - k0) * s)
-        zs = _buffer_depth(view, depth, sp[0], sp[1])
-        diff = zr - zs
-        # the ray's depth over this step, [min, max], overlaps the surface's [zs, its far side]
-        if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= surface_far(
-                view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel):
-            u = float(1.0)
-            if view.orthographic != 0:  # depth is linear in screen space: the ray's and a plane's
-                if diff_prev < 0.0 and diff >= 0.0:
-                    u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
-                elif zr != zr_prev:
-                    u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
-            else:  # 1/depth is: eq. 2 in 1/depth, exact for the ray and for a plane between the samples
-                zs_prev = zr_prev - diff_prev
-                if diff_prev < 0.0 and diff >= 0.0 and zs_prev < BIG_DEPTH:
-                    a = 1.0 / zr_prev - 1.0 / zs_prev
-                    u = a / (a - (1.0 / zr - 1.0 / zs))
-                elif zr != zr_prev:
-                    u = wp.clamp((1.0 / zr_prev - 1.0 / zs) / (1.0 / zr_prev - 1.0 / zr), 0.0, 1.0)
-            s_hit = s_prev + (s - s_prev) * u
-            lam = s_hit
-            if view.orthographic == 0:
-                lam = s_hit * k1 / ((1.0 - s_hit) * k0 + s_hit * k1)
-            return MARCH_HIT, lam * t1, i
-        if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
-            lam_h = s_prev
-            if view.orthographic == 0:
-                lam_h = s_prev * k1 / ((1.0 - s_prev) * k0 + s_prev * k1)
-            return MARCH_HIDDEN, lam_h * t1, i
-        s_prev = s
-        zr_prev = zr
-        diff_prev = diff
-        s_last = s
-    lam_last = s_last
-    if view.orthographic == 0:
-        lam_last = s_last * k1 / ((1.0 - s_last) * k0 + s_last * k1)
-    return status, lam_last * t1, n
-
-
 MARCH_BATCH = 4  #: depth samples :func:`screen_march` reads before testing them
 
 
@@ -279,144 +164,6 @@ def _segment_t(orthographic: int, k0: float, k1: float, t1: float, s: float) -> 
     if orthographic == 0:
         lam = s * k1 / ((1.0 - s) * k0 + s * k1)
     return lam * t1
-
-
-@wp.func
-def screen_march(
-    view: ViewParams,
-    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
-    o: wp.vec3,  # world origin [m]
-    d: wp.vec3,  # world direction
-    t_max: float,
-    max_steps: int,
-    thickness: float,  # [m] absolute part of the surface thickness
-    thickness_rel: float,  # relative part (× sample depth)
-):
-    """March ``o + d·t`` for t in (0, t_max]. Returns (status, t_end, steps taken).
-
-    On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view. Reads
-    MARCH_BATCH depth samples ahead (clamped to the image, so reads past the last step are harmless and
-    untested); the same result as :func:`screen_march_naive`.
-    """
-    p0 = wp.transform_point(view.world_to_view, o)
-    dv = wp.transform_vector(view.world_to_view, d)
-    z0 = -p0[2]
-    rate = -dv[2]  # d(depth)/dt
-    t1 = t_max
-    near = view.near * 1.0001
-    if z0 < near:
-        return MARCH_EXIT, float(0.0), int(0)
-    if rate < 0.0:
-        t1 = wp.min(t1, (z0 - near) / (-rate))
-    if view.orthographic == 0:
-        t1 = wp.min(t1, 1.0e6)
-    p1 = p0 + dv * t1
-    z1 = -p1[2]
-    s0 = wp.vec2(0.0)
-    s1 = wp.vec2(0.0)
-    k0 = float(1.0)
-    k1 = float(1.0)
-    if view.orthographic != 0:
-        s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
-        s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
-    else:
-        k0 = 1.0 / z0
-        k1 = 1.0 / z1
-        s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
-        s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
-    # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
-    w = float(view.width)
-    h = float(view.height)
-    if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
-        return MARCH_EXIT, float(0.0), int(0)
-    ds = s1 - s0
-    s_end = float(1.0)
-    if ds[0] > 0.0:
-        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-    elif ds[0] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-    if ds[1] > 0.0:
-        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-    elif ds[1] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
-    s_end = wp.max(s_end, 0.0)
-    pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
-    n = int(wp.ceil(pixels))
-    status = MARCH_EXIT
-    if n > max_steps:
-        n = max_steps
-        status = MARCH_STEPS
-    n = wp.max(n, 1)
-    ds_step = s_end / float(n)
-    if pixels > float(max_steps):
-        ds_step = s_end / pixels
-    ortho = view.orthographic
-    s_prev = float(0.0)
-    zr_prev = z0
-    diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
-    i = int(1)
-    while i <= n:
-        # the batch's reads first (independent of each other), then its tests in step order
-        sa = ds_step * float(i)
-        sb = ds_step * float(i + 1)
-        sc = ds_step * float(i + 2)
-        sd = ds_step * float(i + 3)
-        pa = s0 + ds * sa
-        pb = s0 + ds * sb
-        pc = s0 + ds * sc
-        pd = s0 + ds * sd
-        zsa = _buffer_depth(view, depth, pa[0], pa[1])
-        zfa = surface_far(view, depth, _texel_index(view, pa[0], pa[1]), zsa, thickness, thickness_rel)
-        zsb = _buffer_depth(view, depth, pb[0], pb[1])
-        zfb = surface_far(view, depth, _texel_index(view, pb[0], pb[1]), zsb, thickness, thickness_rel)
-        zsc = _buffer_depth(view, depth, pc[0], pc[1])
-        zfc = surface_far(view, depth, _texel_index(view, pc[0], pc[1]), zsc, thickness, thickness_rel)
-        zsd = _buffer_depth(view, depth, pd[0], pd[1])
-        zfd = surface_far(view, depth, _texel_index(view, pd[0], pd[1]), zsd, thickness, thickness_rel)
-        zr = _ray_depth(ortho, z0, z1, k0, k1, sa)
-        u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, zfa)
-        if u >= 0.0:
-            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sa - s_prev) * u), i
-        if _hidden(zr_prev, zr, zsa, back_depth(view, depth, _texel_index(view, pa[0], pa[1]))):
-            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
-        s_prev = sa
-        zr_prev = zr
-        diff_prev = zr - zsa
-        if i + 1 > n:
-            break
-        zr = _ray_depth(ortho, z0, z1, k0, k1, sb)
-        u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, zfb)
-        if u >= 0.0:
-            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sb - s_prev) * u), i + 1
-        if _hidden(zr_prev, zr, zsb, back_depth(view, depth, _texel_index(view, pb[0], pb[1]))):
-            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 1
-        s_prev = sb
-        zr_prev = zr
-        diff_prev = zr - zsb
-        if i + 2 > n:
-            break
-        zr = _ray_depth(ortho, z0, z1, k0, k1, sc)
-        u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, zfc)
-        if u >= 0.0:
-            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sc - s_prev) * u), i + 2
-        if _hidden(zr_prev, zr, zsc, back_depth(view, depth, _texel_index(view, pc[0], pc[1]))):
-            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 2
-        s_prev = sc
-        zr_prev = zr
-        diff_prev = zr - zsc
-        if i + 3 > n:
-            break
-        zr = _ray_depth(ortho, z0, z1, k0, k1, sd)
-        u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, zfd)
-        if u >= 0.0:
-            return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sd - s_prev) * u), i + 3
-        if _hidden(zr_prev, zr, zsd, back_depth(view, depth, _texel_index(view, pd[0], pd[1]))):
-            return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 3
-        s_prev = sd
-        zr_prev = zr
-        diff_prev = zr - zsd
-        i += MARCH_BATCH
-    return status, _segment_t(ortho, k0, k1, t1, s_prev), n
 
 
 BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of :func:`depth_bounds`
@@ -553,132 +300,419 @@ def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_s
         tl = _texel(view, s0, ds, ds_step * float(last))
     return last, ci, cj
 
+def _make_marches(back_layer: bool):
+    """The three marches (:func:`screen_march_naive`, :func:`screen_march`, :func:`screen_march_bounded`) for a depth
+    buffer that may carry a back-face layer (``back_layer`` True: the far side and the hidden-half test of
+    :func:`surface_far` and ``MARCH_HIDDEN``, decided at run time by the array's length), or compiled for a plain
+    H*W depth buffer only (False: the constant thickness, never ``MARCH_HIDDEN``; no layer code in the kernel). One
+    body for both (``wp.static`` drops the layer's code at compile time), so the two agree bit for bit on a plain
+    buffer. The plain ones are for the marches that never have a layer: the light views, the composite's lookups,
+    the caustics map (docs/perf_notes.md section 23)."""
 
-@wp.func
-def screen_march_bounded(
-    view: ViewParams,
-    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
-    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) :func:`depth_bounds` of ``depth`` with these thicknesses (read)
-    o: wp.vec3,  # world origin [m]
-    d: wp.vec3,  # world direction
-    t_max: float,
-    max_steps: int,
-    thickness: float,  # [m] absolute part of the surface thickness
-    thickness_rel: float,  # relative part (× sample depth)
-):
-    """:func:`screen_march_naive`, skipping the steps depth bounds prove hitless. Returns (status, t_end, steps
-    taken), the same as the naive march: a step tests the ray's depth range over it against the surface at its
-    sample; while the ray's depth over all the steps whose samples lie in one cell stays in front of the cell's
-    nearest surface or behind its farthest back face, none of them can hit, and the march jumps to the first
-    step past the cell (the ray's depth is monotonic along the segment, so its range over those steps is that
-    of their two ends). It tries the coarse cell first, then the fine one, else tests the fine cell's steps one
-    by one."""
-    p0 = wp.transform_point(view.world_to_view, o)
-    dv = wp.transform_vector(view.world_to_view, d)
-    z0 = -p0[2]
-    rate = -dv[2]  # d(depth)/dt
-    t1 = t_max
-    near = view.near * 1.0001
-    if z0 < near:
-        return MARCH_EXIT, float(0.0), int(0)
-    if rate < 0.0:
-        t1 = wp.min(t1, (z0 - near) / (-rate))
-    if view.orthographic == 0:
-        t1 = wp.min(t1, 1.0e6)
-    p1 = p0 + dv * t1
-    z1 = -p1[2]
-    s0 = wp.vec2(0.0)
-    s1 = wp.vec2(0.0)
-    k0 = float(1.0)
-    k1 = float(1.0)
-    if view.orthographic != 0:
-        s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
-        s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
-    else:
-        k0 = 1.0 / z0
-        k1 = 1.0 / z1
-        s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
-        s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
-    w = float(view.width)
-    h = float(view.height)
-    if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
-        return MARCH_EXIT, float(0.0), int(0)
-    ds = s1 - s0
-    s_end = float(1.0)
-    if ds[0] > 0.0:
-        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-    elif ds[0] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-    if ds[1] > 0.0:
-        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-    elif ds[1] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
-    s_end = wp.max(s_end, 0.0)
-    pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
-    n = int(wp.ceil(pixels))
-    status = MARCH_EXIT
-    if n > max_steps:
-        n = max_steps
-        status = MARCH_STEPS
-    n = wp.max(n, 1)
-    ds_step = s_end / float(n)
-    if pixels > float(max_steps):
-        ds_step = s_end / pixels
-    ortho = view.orthographic
-    fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
-    coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
-    coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
-    inv_step = wp.vec2(0.0)  # 1 / (screen pixels per step) along each axis, for the cell exits
-    if ds[0] != 0.0:
-        inv_step[0] = 1.0 / (ds[0] * ds_step)
-    if ds[1] != 0.0:
-        inv_step[1] = 1.0 / (ds[1] * ds_step)
-    s_prev = float(0.0)
-    zr_prev = z0
-    diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
-    failed_coarse = int(-1)  # the coarse cell (index) whose bounds last failed: not tested again
-    i = int(1)
-    while i <= n:
-        tx = _texel(view, s0, ds, ds_step * float(i))
-        # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
-        last = n
-        skip = False
-        zr_last = float(0.0)
-        if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
-            last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
-            b = bounds[coarse_0 + cj * coarse_x + ci]
-            zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-            skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
-            if not skip:
-                failed_coarse = cj * coarse_x + ci
-        if not skip:
-            last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
-            b = bounds[cj * fine_x + ci]
-            zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-            skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
-        if skip:
-            # no step i..last can hit: continue after them, as the naive march would
-            s_prev = ds_step * float(last)
-            zr_prev = zr_last
-            diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
-            i = last + 1
-            continue
-        while i <= last:
+    @wp.func
+    def _far(view: ViewParams, depth: wp.array(dtype=wp.float32), sx: float, sy: float, zs: float, thickness: float,
+             thickness_rel: float) -> float:
+        """The far side of the surface the sample at (sx, sy) reads (front depth ``zs``): :func:`surface_far`."""
+        if wp.static(back_layer):
+            return surface_far(view, depth, _texel_index(view, sx, sy), zs, thickness, thickness_rel)
+        return zs + thickness + thickness_rel * zs
+
+    @wp.func
+    def screen_march_naive(
+        view: ViewParams,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
+        o: wp.vec3,  # world origin [m]
+        d: wp.vec3,  # world direction
+        t_max: float,
+        max_steps: int,
+        thickness: float,  # [m] absolute part of the surface thickness
+        thickness_rel: float,  # relative part (× sample depth)
+    ):
+        """March ``o + d·t`` for t in (0, t_max], one step at a time. Returns (status, t_end, steps taken).
+
+        On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view. The twin of
+        :func:`screen_march`.
+        """
+        p0 = wp.transform_point(view.world_to_view, o)
+        dv = wp.transform_vector(view.world_to_view, d)
+        z0 = -p0[2]
+        rate = -dv[2]  # d(depth)/dt
+        t1 = t_max
+        near = view.near * 1.0001
+        if z0 < near:
+            return MARCH_EXIT, float(0.0), int(0)
+        if rate < 0.0:
+            t1 = wp.min(t1, (z0 - near) / (-rate))
+        if view.orthographic == 0:
+            t1 = wp.min(t1, 1.0e6)
+        p1 = p0 + dv * t1
+        z1 = -p1[2]
+        s0 = wp.vec2(0.0)
+        s1 = wp.vec2(0.0)
+        k0 = float(1.0)
+        k1 = float(1.0)
+        if view.orthographic != 0:
+            s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
+            s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
+        else:
+            k0 = 1.0 / z0
+            k1 = 1.0 / z1
+            s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
+            s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
+        # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
+        w = float(view.width)
+        h = float(view.height)
+        if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
+            return MARCH_EXIT, float(0.0), int(0)
+        ds = s1 - s0
+        s_end = float(1.0)
+        if ds[0] > 0.0:
+            s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
+        elif ds[0] < 0.0:
+            s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
+        if ds[1] > 0.0:
+            s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
+        elif ds[1] < 0.0:
+            s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+        s_end = wp.max(s_end, 0.0)
+        pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
+        n = int(wp.ceil(pixels))
+        status = MARCH_EXIT
+        if n > max_steps:
+            n = max_steps
+            status = MARCH_STEPS
+        n = wp.max(n, 1)
+        ds_step = s_end / float(n)
+        if pixels > float(max_steps):
+            ds_step = s_end / pixels
+        s_prev = float(0.0)
+        zr_prev = z0
+        diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+        s_last = float(0.0)
+        for i in range(1, n + 1):
             s = ds_step * float(i)
             sp = s0 + ds * s
-            zr = _ray_depth(ortho, z0, z1, k0, k1, s)
+            zr = float(0.0)
+            if view.orthographic != 0:
+                zr = z0 + (z1 - z0) * s
+            else:
+                zr = 1.0 / (k0 + (k1 - k0) * s)
             zs = _buffer_depth(view, depth, sp[0], sp[1])
-            z_far = surface_far(view, depth, _texel_index(view, sp[0], sp[1]), zs, thickness, thickness_rel)
+            diff = zr - zs
+            # the ray's depth over this step, [min, max], overlaps the surface's [zs, its far side]
+            z_far = _far(view, depth, sp[0], sp[1], zs, thickness, thickness_rel)
             if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
-                if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
-                    sp_prev = s0 + ds * s_prev
-                    diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
-                u = _crossing(ortho, zr_prev, zr, zs, diff_prev, z_far)
-                return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
-            if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
-                return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
+                u = float(1.0)
+                if view.orthographic != 0:  # depth is linear in screen space: the ray's and a plane's
+                    if diff_prev < 0.0 and diff >= 0.0:
+                        u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
+                    elif zr != zr_prev:
+                        u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
+                else:  # 1/depth is: eq. 2 in 1/depth, exact for the ray and for a plane between the samples
+                    zs_prev = zr_prev - diff_prev
+                    if diff_prev < 0.0 and diff >= 0.0 and zs_prev < BIG_DEPTH:
+                        a = 1.0 / zr_prev - 1.0 / zs_prev
+                        u = a / (a - (1.0 / zr - 1.0 / zs))
+                    elif zr != zr_prev:
+                        u = wp.clamp((1.0 / zr_prev - 1.0 / zs) / (1.0 / zr_prev - 1.0 / zr), 0.0, 1.0)
+                s_hit = s_prev + (s - s_prev) * u
+                lam = s_hit
+                if view.orthographic == 0:
+                    lam = s_hit * k1 / ((1.0 - s_hit) * k0 + s_hit * k1)
+                return MARCH_HIT, lam * t1, i
+            if wp.static(back_layer):  # compiled out for a plain depth buffer
+                if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
+                    lam_h = s_prev
+                    if view.orthographic == 0:
+                        lam_h = s_prev * k1 / ((1.0 - s_prev) * k0 + s_prev * k1)
+                    return MARCH_HIDDEN, lam_h * t1, i
             s_prev = s
             zr_prev = zr
-            diff_prev = zr - zs
-            i += 1
-    return status, _segment_t(ortho, k0, k1, t1, s_prev), n
+            diff_prev = diff
+            s_last = s
+        lam_last = s_last
+        if view.orthographic == 0:
+            lam_last = s_last * k1 / ((1.0 - s_last) * k0 + s_last * k1)
+        return status, lam_last * t1, n
+
+
+    @wp.func
+    def screen_march(
+        view: ViewParams,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
+        o: wp.vec3,  # world origin [m]
+        d: wp.vec3,  # world direction
+        t_max: float,
+        max_steps: int,
+        thickness: float,  # [m] absolute part of the surface thickness
+        thickness_rel: float,  # relative part (× sample depth)
+    ):
+        """March ``o + d·t`` for t in (0, t_max]. Returns (status, t_end, steps taken).
+
+        On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view. Reads
+        MARCH_BATCH depth samples ahead (clamped to the image, so reads past the last step are harmless and
+        untested); the same result as :func:`screen_march_naive`.
+        """
+        p0 = wp.transform_point(view.world_to_view, o)
+        dv = wp.transform_vector(view.world_to_view, d)
+        z0 = -p0[2]
+        rate = -dv[2]  # d(depth)/dt
+        t1 = t_max
+        near = view.near * 1.0001
+        if z0 < near:
+            return MARCH_EXIT, float(0.0), int(0)
+        if rate < 0.0:
+            t1 = wp.min(t1, (z0 - near) / (-rate))
+        if view.orthographic == 0:
+            t1 = wp.min(t1, 1.0e6)
+        p1 = p0 + dv * t1
+        z1 = -p1[2]
+        s0 = wp.vec2(0.0)
+        s1 = wp.vec2(0.0)
+        k0 = float(1.0)
+        k1 = float(1.0)
+        if view.orthographic != 0:
+            s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
+            s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
+        else:
+            k0 = 1.0 / z0
+            k1 = 1.0 / z1
+            s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
+            s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
+        # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
+        w = float(view.width)
+        h = float(view.height)
+        if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
+            return MARCH_EXIT, float(0.0), int(0)
+        ds = s1 - s0
+        s_end = float(1.0)
+        if ds[0] > 0.0:
+            s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
+        elif ds[0] < 0.0:
+            s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
+        if ds[1] > 0.0:
+            s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
+        elif ds[1] < 0.0:
+            s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+        s_end = wp.max(s_end, 0.0)
+        pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
+        n = int(wp.ceil(pixels))
+        status = MARCH_EXIT
+        if n > max_steps:
+            n = max_steps
+            status = MARCH_STEPS
+        n = wp.max(n, 1)
+        ds_step = s_end / float(n)
+        if pixels > float(max_steps):
+            ds_step = s_end / pixels
+        ortho = view.orthographic
+        s_prev = float(0.0)
+        zr_prev = z0
+        diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+        i = int(1)
+        while i <= n:
+            # the batch's reads first (independent of each other), then its tests in step order
+            sa = ds_step * float(i)
+            sb = ds_step * float(i + 1)
+            sc = ds_step * float(i + 2)
+            sd = ds_step * float(i + 3)
+            pa = s0 + ds * sa
+            pb = s0 + ds * sb
+            pc = s0 + ds * sc
+            pd = s0 + ds * sd
+            zsa = _buffer_depth(view, depth, pa[0], pa[1])
+            zfa = _far(view, depth, pa[0], pa[1], zsa, thickness, thickness_rel)
+            zsb = _buffer_depth(view, depth, pb[0], pb[1])
+            zfb = _far(view, depth, pb[0], pb[1], zsb, thickness, thickness_rel)
+            zsc = _buffer_depth(view, depth, pc[0], pc[1])
+            zfc = _far(view, depth, pc[0], pc[1], zsc, thickness, thickness_rel)
+            zsd = _buffer_depth(view, depth, pd[0], pd[1])
+            zfd = _far(view, depth, pd[0], pd[1], zsd, thickness, thickness_rel)
+            zr = _ray_depth(ortho, z0, z1, k0, k1, sa)
+            u = _crossing(ortho, zr_prev, zr, zsa, diff_prev, zfa)
+            if u >= 0.0:
+                return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sa - s_prev) * u), i
+            if wp.static(back_layer):  # compiled out for a plain depth buffer
+                if _hidden(zr_prev, zr, zsa, back_depth(view, depth, _texel_index(view, pa[0], pa[1]))):
+                    return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
+            s_prev = sa
+            zr_prev = zr
+            diff_prev = zr - zsa
+            if i + 1 > n:
+                break
+            zr = _ray_depth(ortho, z0, z1, k0, k1, sb)
+            u = _crossing(ortho, zr_prev, zr, zsb, diff_prev, zfb)
+            if u >= 0.0:
+                return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sb - s_prev) * u), i + 1
+            if wp.static(back_layer):  # compiled out for a plain depth buffer
+                if _hidden(zr_prev, zr, zsb, back_depth(view, depth, _texel_index(view, pb[0], pb[1]))):
+                    return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 1
+            s_prev = sb
+            zr_prev = zr
+            diff_prev = zr - zsb
+            if i + 2 > n:
+                break
+            zr = _ray_depth(ortho, z0, z1, k0, k1, sc)
+            u = _crossing(ortho, zr_prev, zr, zsc, diff_prev, zfc)
+            if u >= 0.0:
+                return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sc - s_prev) * u), i + 2
+            if wp.static(back_layer):  # compiled out for a plain depth buffer
+                if _hidden(zr_prev, zr, zsc, back_depth(view, depth, _texel_index(view, pc[0], pc[1]))):
+                    return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 2
+            s_prev = sc
+            zr_prev = zr
+            diff_prev = zr - zsc
+            if i + 3 > n:
+                break
+            zr = _ray_depth(ortho, z0, z1, k0, k1, sd)
+            u = _crossing(ortho, zr_prev, zr, zsd, diff_prev, zfd)
+            if u >= 0.0:
+                return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (sd - s_prev) * u), i + 3
+            if wp.static(back_layer):  # compiled out for a plain depth buffer
+                if _hidden(zr_prev, zr, zsd, back_depth(view, depth, _texel_index(view, pd[0], pd[1]))):
+                    return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i + 3
+            s_prev = sd
+            zr_prev = zr
+            diff_prev = zr - zsd
+            i += MARCH_BATCH
+        return status, _segment_t(ortho, k0, k1, t1, s_prev), n
+
+
+    @wp.func
+    def screen_march_bounded(
+        view: ViewParams,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read)
+        bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) :func:`depth_bounds` of ``depth``, these thicknesses (read)
+        o: wp.vec3,  # world origin [m]
+        d: wp.vec3,  # world direction
+        t_max: float,
+        max_steps: int,
+        thickness: float,  # [m] absolute part of the surface thickness
+        thickness_rel: float,  # relative part (× sample depth)
+    ):
+        """:func:`screen_march_naive`, skipping the steps depth bounds prove hitless. Returns (status, t_end, steps
+        taken), the same as the naive march: a step tests the ray's depth range over it against the surface at its
+        sample; while the ray's depth over all the steps whose samples lie in one cell stays in front of the cell's
+        nearest surface or behind its farthest back face, none of them can hit, and the march jumps to the first
+        step past the cell (the ray's depth is monotonic along the segment, so its range over those steps is that
+        of their two ends). It tries the coarse cell first, then the fine one, else tests the fine cell's steps one
+        by one."""
+        p0 = wp.transform_point(view.world_to_view, o)
+        dv = wp.transform_vector(view.world_to_view, d)
+        z0 = -p0[2]
+        rate = -dv[2]  # d(depth)/dt
+        t1 = t_max
+        near = view.near * 1.0001
+        if z0 < near:
+            return MARCH_EXIT, float(0.0), int(0)
+        if rate < 0.0:
+            t1 = wp.min(t1, (z0 - near) / (-rate))
+        if view.orthographic == 0:
+            t1 = wp.min(t1, 1.0e6)
+        p1 = p0 + dv * t1
+        z1 = -p1[2]
+        s0 = wp.vec2(0.0)
+        s1 = wp.vec2(0.0)
+        k0 = float(1.0)
+        k1 = float(1.0)
+        if view.orthographic != 0:
+            s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
+            s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
+        else:
+            k0 = 1.0 / z0
+            k1 = 1.0 / z1
+            s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
+            s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
+        w = float(view.width)
+        h = float(view.height)
+        if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
+            return MARCH_EXIT, float(0.0), int(0)
+        ds = s1 - s0
+        s_end = float(1.0)
+        if ds[0] > 0.0:
+            s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
+        elif ds[0] < 0.0:
+            s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
+        if ds[1] > 0.0:
+            s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
+        elif ds[1] < 0.0:
+            s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+        s_end = wp.max(s_end, 0.0)
+        pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
+        n = int(wp.ceil(pixels))
+        status = MARCH_EXIT
+        if n > max_steps:
+            n = max_steps
+            status = MARCH_STEPS
+        n = wp.max(n, 1)
+        ds_step = s_end / float(n)
+        if pixels > float(max_steps):
+            ds_step = s_end / pixels
+        ortho = view.orthographic
+        fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
+        coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
+        coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+        inv_step = wp.vec2(0.0)  # 1 / (screen pixels per step) along each axis, for the cell exits
+        if ds[0] != 0.0:
+            inv_step[0] = 1.0 / (ds[0] * ds_step)
+        if ds[1] != 0.0:
+            inv_step[1] = 1.0 / (ds[1] * ds_step)
+        s_prev = float(0.0)
+        zr_prev = z0
+        diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+        failed_coarse = int(-1)  # the coarse cell (index) whose bounds last failed: not tested again
+        i = int(1)
+        while i <= n:
+            tx = _texel(view, s0, ds, ds_step * float(i))
+            # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
+            last = n
+            skip = False
+            zr_last = float(0.0)
+            if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
+                b = bounds[coarse_0 + cj * coarse_x + ci]
+                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+                if not skip:
+                    failed_coarse = cj * coarse_x + ci
+            if not skip:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
+                b = bounds[cj * fine_x + ci]
+                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+            if skip:
+                # no step i..last can hit: continue after them, as the naive march would
+                s_prev = ds_step * float(last)
+                zr_prev = zr_last
+                diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
+                i = last + 1
+                continue
+            while i <= last:
+                s = ds_step * float(i)
+                sp = s0 + ds * s
+                zr = _ray_depth(ortho, z0, z1, k0, k1, s)
+                zs = _buffer_depth(view, depth, sp[0], sp[1])
+                z_far = _far(view, depth, sp[0], sp[1], zs, thickness, thickness_rel)
+                if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
+                    if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
+                        sp_prev = s0 + ds * s_prev
+                        diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
+                    u = _crossing(ortho, zr_prev, zr, zs, diff_prev, z_far)
+                    return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
+                if wp.static(back_layer):  # compiled out for a plain depth buffer
+                    if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
+                        return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
+                s_prev = s
+                zr_prev = zr
+                diff_prev = zr - zs
+                i += 1
+        return status, _segment_t(ortho, k0, k1, t1, s_prev), n
+
+
+    return screen_march_naive, screen_march, screen_march_bounded
+
+
+#: the marches of a depth buffer that may carry a back-face layer (the camera's ``GBuffer.depth_layers``)
+screen_march_naive, screen_march, screen_march_bounded = _make_marches(True)
+#: the same marches compiled for a plain H*W depth buffer (light views, the composite, the caustics map)
+screen_march_naive_plain, screen_march_plain, screen_march_bounded_plain = _make_marches(False)
