@@ -44,6 +44,8 @@ sys.path.insert(0, os.path.join(ROOT, "tools"))
 
 import warp as wp  # noqa: E402
 
+from cisp_warp.denoise.kernels_svgf import luminance  # noqa: E402
+
 
 @wp.kernel
 def accumulate(photon_map: wp.array(dtype=wp.vec3), sum_e: wp.array(dtype=wp.vec3d),
@@ -52,7 +54,7 @@ def accumulate(photon_map: wp.array(dtype=wp.vec3), sum_e: wp.array(dtype=wp.vec
     p = wp.tid()
     e = photon_map[p]
     sum_e[p] = sum_e[p] + wp.vec3d(wp.float64(e[0]), wp.float64(e[1]), wp.float64(e[2]))
-    y = wp.float64(0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2])
+    y = wp.float64(luminance(e))
     sum_y2[p] = sum_y2[p] + y * y
 
 

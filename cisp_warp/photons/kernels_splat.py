@@ -24,7 +24,8 @@ import warp as wp
 from ..raster.views import world_project
 from .common import (FOOTPRINT_PAPER, L_ABSORBED, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STORED,
                      pixel_footprint)
-from .kernels_wavefront import NORMAL_COS, Grid, LedgerRows, Records, grid_corners, ledger_flush, rows_add
+from .kernels_cisp import NORMAL_COS
+from .kernels_wavefront import Grid, LedgerRows, Records, grid_corners, ledger_flush, rows_add
 from .kernels_world import CameraBuffers
 
 wp.set_module_options({"enable_backward": False})

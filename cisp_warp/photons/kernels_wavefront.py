@@ -32,8 +32,7 @@ from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.views import ViewParams, pixel_ray_world
 from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED,
                      LEDGER_ENTRIES, tally_new)
-# NORMAL_COS is imported from here by kernels_splat
-from .kernels_cisp import NORMAL_COS, camera_marches, march_light, refine_landing, reproject_to_camera  # noqa: F401
+from .kernels_cisp import camera_marches, march_light, refine_landing, reproject_to_camera
 from .kernels_world import (WT_LANDED, CameraBuffers, WorldScene, camera_receiver, is_smooth_specular, world_hit,
                             world_trace)
 

@@ -300,6 +300,7 @@ def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_s
         tl = _texel(view, s0, ds, ds_step * float(last))
     return last, ci, cj
 
+
 def _make_marches(back_layer: bool):
     """The three marches (:func:`screen_march_naive`, :func:`screen_march`, :func:`screen_march_bounded`) for a depth
     buffer that may carry a back-face layer (``back_layer`` True: the far side and the hidden-half test of

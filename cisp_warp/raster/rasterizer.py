@@ -63,12 +63,7 @@ class Rasterizer:
             visibility.fill_(K.EMPTY_KEY_VALUE)
             if layer_b != 0:
                 visibility_b.fill_(K.EMPTY_KEY_VALUE)
-        tiles_x = (width + K.TILE - 1) // K.TILE
-        tiles_y = (height + K.TILE - 1) // K.TILE
-        wp.launch(K.setup_triangles, dim=s.triangle_count, device=d,
-                  inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer | layer_b), tiles_x,
-                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, 0])
-        wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
+        self._setup(views, view_index, width, height, layer | layer_b, back_only=False)
         if self.columns:
             threads = self.column_threads or self.stride
             wp.launch(K.raster_tile_columns, dim=threads, device=d,
@@ -80,6 +75,17 @@ class Rasterizer:
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
                               self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
 
+    def _setup(self, views: wp.array, view_index: int, width: int, height: int, layer_mask: int,
+               back_only: bool) -> None:
+        """Near-clip and project the triangles of ``layer_mask`` (only those facing away from the view with
+        ``back_only``) into ``sub_v`` / ``sub_bbox``, count their tiles and scan the counts into ``tile_end``."""
+        s = self.scene
+        tiles_x = (width + K.TILE - 1) // K.TILE
+        tiles_y = (height + K.TILE - 1) // K.TILE
+        wp.launch(K.setup_triangles, dim=s.triangle_count, device=s.device,
+                  inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer_mask), tiles_x,
+                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, int(back_only)])
+        wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
 
     def draw_back(self, views: wp.array, view_index: int, width: int, height: int, layer: int,
                   front_depth: wp.array, visibility: wp.array) -> None:
@@ -90,12 +96,7 @@ class Rasterizer:
         ``kernels.raster_back_tiles``."""
         d = self.scene.device
         s = self.scene
-        tiles_x = (width + K.TILE - 1) // K.TILE
-        tiles_y = (height + K.TILE - 1) // K.TILE
-        wp.launch(K.setup_triangles, dim=s.triangle_count, device=d,
-                  inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer), tiles_x,
-                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, 1])
-        wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
+        self._setup(views, view_index, width, height, layer, back_only=True)
         wp.launch(K.raster_back_tiles, dim=self.stride, device=d,
                   inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
                           self.stride, front_depth, visibility])

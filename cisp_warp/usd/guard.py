@@ -36,7 +36,6 @@ import select
 import signal
 import stat
 import time
-import warnings
 
 from pxr import Sdf, Tf
 
