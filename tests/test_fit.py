@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+import warp as wp
 
 from cisp_warp import analytic
 from cisp_warp.raster import LightViewSettings
@@ -76,7 +77,8 @@ def test_device_fit_matches_numpy_fit(device, scene, cascades):
 @pytest.mark.parametrize("scene", ["pool", "point_closeup", "cornell"])
 def test_pilot_branches_equal_one_thread_per_texel(device, scene):
     """The pilot traced one thread per texel and branch (pilot_branches + pilot_nearest) gives the one-thread-per-
-    texel kernel's receiver depths bit for bit (the twin, pilot_receivers), with some texels seen by both branches."""
+    texel kernel's receiver depths bit for bit on the CPU, to an ulp on CUDA (the twin, pilot_receivers), with some
+    texels seen by both branches."""
     r = Renderer(SCENES[scene](device), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000),
                  device=device)
     r.render_frame()
@@ -90,7 +92,10 @@ def test_pilot_branches_equal_one_thread_per_texel(device, scene):
     f.trace_pilots(r.raster, r.view_params, 0)
     assert any((d > 0).any() for d in split)
     for a, b in zip(split, f.receiver_depth_all):
-        np.testing.assert_array_equal(a, b.numpy())
+        if wp.get_device(device).is_cuda:  # CUDA's FMA contraction differs between the kernels: an ulp here and there
+            np.testing.assert_allclose(a, b.numpy(), rtol=1e-6, atol=0)
+        else:
+            np.testing.assert_array_equal(a, b.numpy())
     if scene == "pool":
         assert both > 0  # the refracted branch competes with a reflected one somewhere
 

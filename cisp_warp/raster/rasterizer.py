@@ -38,9 +38,10 @@ class Rasterizer:
         # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially (a multiple
         # of kernels.WARP: the column raster hands work out by warps)
         self.stride = (1 << 18) if d.is_cuda else (1 << 10)
-        #: draw with ``kernels.raster_tile_columns`` (a thread per pixel column of a tile); False: its naive twin
-        #: ``raster_tiles`` (a thread per tile), the same buffers bit for bit
-        self.columns = True
+        #: True: draw with ``kernels.raster_tile_columns`` (a thread per pixel column of a tile); False (default): its
+        #: twin ``raster_tiles`` (a thread per tile; the same buffers bit for bit on the CPU). The column raster lost on
+        #: the H100 (perf_notes section 24: pool 1.09 -> 1.81 ms, Cornell 0.40 -> 0.62 ms per frame), so it is opt-in
+        self.columns = False
         #: threads of the column raster on CUDA: one resident wave (``COLUMN_BLOCKS_PER_SM`` blocks of 256 an SM), so
         #: that its equal chunks of work end together (2^18 threads were 2.6 waves); None: ``stride``
         self.column_threads = d.sm_count * COLUMN_BLOCKS_PER_SM * 256 if d.is_cuda and d.sm_count > 0 else None
