@@ -94,6 +94,10 @@ SUM_X = TILE_X + 4
 #: (:func:`lattice_index`), written so by their guide pass when the caller gives the buffers: a row of a tile is
 #: then 16 contiguous bytes a point instead of one 16-byte load per 32-byte sector (or per 128-byte line)
 LATTICE_STEP = 8
+#: a last level of this step and above writes its output packed (one 16-byte store a pixel) and :func:`unpack_level`
+#: writes the public colour and variance densely, when the caller gives a scratch: the level's own stores of them
+#: (four 4-byte stores a pixel, ``step`` pixels apart) each take a sector of their own
+UNPACK_STEP = 8
 
 # Constant-range loops (the 12 forward taps, the 3x3 Gaussian) are unrolled, so every tap's offset, kernel
 # weight and distance is a constant; the loops that spread work over the block are not (their range is not
@@ -695,6 +699,18 @@ def atrous_level(
         k += threads
 
 
+@wp.kernel
+def unpack_level(color_variance: wp.array(dtype=wp.vec4), color_out: wp.array(dtype=wp.vec3),
+                 variance_out: wp.array(dtype=wp.float32)):
+    """A level's packed output (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) as the public colour (H*W
+    vec3 [W/m²]) and variance (H*W float32), 0 without a surface, as :func:`atrous_level` writes them itself;
+    dense over ``dim=height * width``."""
+    p = wp.tid()
+    cv = load_vec4(color_variance, p)
+    color_out[p] = wp.vec3(cv[0], cv[1], cv[2])
+    variance_out[p] = wp.where(cv[3] < 0.0, 0.0, cv[3])
+
+
 _SPARE: dict = {}
 
 
@@ -725,7 +741,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   color_out: wp.array | None = None, variance_out: wp.array | None = None,
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
-                  lattice: tuple | None = None) -> None:
+                  lattice: tuple | None = None, unpack_from: wp.array | None = None) -> None:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -739,7 +755,11 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
 
     ``lattice`` = (color_variance, guide) scratch (vec4, at least :func:`lattice_size` entries each, and ``aux``
     as many): at a step of ``LATTICE_STEP`` or more with a packed input, the guide pass copies the input and the
-    guide there in the step's sub-lattice-major order and writes ``aux`` so, and the level reads them densely."""
+    guide there in the step's sub-lattice-major order and writes ``aux`` so, and the level reads them densely.
+
+    ``unpack_from`` (H*W vec4 scratch, aliasing no input; only with ``color_out`` and no ``color_variance_out``): at
+    a step of ``UNPACK_STEP`` or more the level writes its output packed there and :func:`unpack_level` writes
+    ``color_out`` and ``variance_out`` densely (the same values)."""
     d = slope.device
     spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
@@ -774,6 +794,9 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                       cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice])
     if use_lattice:
         color_variance, guide = cv_lattice, guide_lattice
+    unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
+    if unpack:
+        color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
     wp.launch_tiled(atrous_level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, float(sigma_depth),
                             float(sigma_normal), 1.0 / float(sigma_luminance), int(conserve_energy), int(gated),
@@ -783,3 +806,5 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"], int(use_lattice)])
+    if unpack:
+        wp.launch(unpack_level, dim=height * width, device=d, inputs=[color_variance_out, *unpack_out])
