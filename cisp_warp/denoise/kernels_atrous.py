@@ -20,8 +20,8 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
 sub-lattice, in shared memory (Warp shared tiles):
 
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
-   ``(n, z)`` and the guide pass's terms, and within 2 of the tile (where the filter's taps reach) the input
-   (colour, Var): two or three 16-byte loads a point, two points a thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
+   ``(n, z)``, the guide pass's terms and the input (colour, Var), three 16-byte loads a point, two points a
+   thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
    tile has any pixel to filter;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
@@ -111,7 +111,6 @@ wp.set_module_options({"max_unroll": FORWARD_TAPS, "enable_backward": False, "bl
 _TILE_Y = wp.constant(TILE_Y)
 _TILE_X = wp.constant(TILE_X)
 _GUIDE_X = wp.constant(GUIDE_X)
-_GUIDE_Y = wp.constant(GUIDE_Y)
 _PITCH = wp.constant(GUIDE_PITCH)
 _GUIDE_N = wp.constant(GUIDE_PIXELS)
 _GUIDE_REAL = wp.constant(GUIDE_Y * GUIDE_X)
@@ -194,21 +193,6 @@ def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
     """``a[p]`` of a contiguous vec4 array in one 16-byte load on CUDA (Warp's own indexing issues four 4-byte
     loads, and the level's loads are strided across a warp: each of the four touches as many sectors as one
     16-byte load would)."""
-    ...
-
-
-@wp.func_native("""
-if (!c)
-    return wp::vec4(0.0f);
-#if defined(__CUDA_ARCH__)
-const float4 v = __ldg(reinterpret_cast<const float4*>(a.data) + p);
-return wp::vec4(v.x, v.y, v.z, v.w);
-#else
-return a.data[p];
-#endif
-""")
-def load_vec4_if(a: wp.array(dtype=wp.vec4), p: int, c: bool) -> wp.vec4:
-    """:func:`load_vec4` where ``c``, else 0 and no load (a predicated load: the condition is no loaded value)."""
     ...
 
 
@@ -555,10 +539,9 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
                 signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
                 s: float) -> int:
     """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
-    guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface: guide depth 0, where
-    the input's Var is NO_SURFACE; ``cv`` is read only within 2 of the tile, where the filter's taps reach);
-    returns 1 if the point is a pixel of the output tile that some gate lets be filtered."""
-    surface = inside and gs[3] > 0.0
+    guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns 1 if the
+    point is a pixel of the output tile that some gate lets be filtered."""
+    surface = inside and cv[3] >= 0.0
     if not surface:
         write_guide(guide_s, k, wp.vec4(0.0))
         write_guide(guide_d, k, wp.vec4(0.0))
@@ -646,9 +629,8 @@ def atrous_level(
         in1 = r1 < _GUIDE_REAL and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
         p0 = wp.where(in0, wp.where(lattice != 0, (lattice_row + sy0 + i0) * sub_w + sx0 + j0, y0 * width + x0), 0)
         p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
-        # the signal only within 2 of the tile (the filter's taps); the guides over the whole region
-        cv0 = load_vec4_if(color_variance, p0, i0 >= 2 and i0 < _GUIDE_Y - 2 and j0 >= 2 and j0 < _GUIDE_X - 2)
-        cv1 = load_vec4_if(color_variance, p1, i1 >= 2 and i1 < _GUIDE_Y - 2 and j1 >= 2 and j1 < _GUIDE_X - 2)
+        cv0 = load_vec4(color_variance, p0)
+        cv1 = load_vec4(color_variance, p1)
         gs0 = load_vec4(guide, p0)
         gs1 = load_vec4(guide, p1)
         ax0 = load_vec4(aux, p0)
