@@ -207,7 +207,8 @@ class CausticDenoiser:
 
     def _tiled_levels(self, out: wp.array) -> None:
         """The gated levels as tiled launches (:func:`.kernels_atrous.launch_atrous`): the first level's guide pass
-        packs the accumulated estimate, levels ping-pong it packed, the last one writes ``out``."""
+        packs the accumulated estimate, levels ping-pong it packed, the last one writes ``out`` (at a step of
+        ``UNPACK_STEP`` or more packed into the free ping-pong buffer, unpacked densely)."""
         s = self.settings
         w, h = self.width, self.height
         for level in range(s.atrous_levels):
@@ -219,7 +220,7 @@ class CausticDenoiser:
                           self.level_guides, noise_target=s.noise_target,
                           color_variance_out=None if last else self.packed[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
-                          lattice=self.lattice, **source)
+                          lattice=self.lattice, unpack_from=self.packed[(level + 1) % 2] if last else None, **source)
 
     def _pixel_levels(self, out: wp.array) -> None:
         """The gated levels as per-pixel launches (:func:`.kernels_atrous_pixel.launch_atrous_level`)."""

@@ -24,8 +24,9 @@ sub-lattice, in shared memory (Warp shared tiles):
    thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
    tile has any pixel to filter;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
-   per pixel, three at a time with the pixel's guides in registers and the offsets, kernel weights and
-   distances known to the compiler) and kept in shared memory;
+   per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
+   their taps once for both; offsets, kernel weights and distances known to the compiler) and kept in shared
+   memory;
 3. 1 / W_q, W_q = Σ_r w_qr, for the tile plus its apron of 2 (sums of the shared pair weights);
 4. the filter of the tile's pixels from the same pair weights, branch-free over the 24 taps:
    c'_p = c_p + Σ_{q≠p} A_pq (c_q − c_p), Var'_p = Σ_q A_pq² Var_q, with
@@ -47,10 +48,14 @@ first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1
 surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
 
-Costs (H100, 1920x1080, docs/perf_notes.md sections 9 and 11): SVGF's 5 levels 1.00 ms on the Cornell box,
-1.47 ms on the pool. Per pixel a level evaluates 20.6 pair weights (~45 instructions each on the common path), 24 filter taps
-(~13) and reads 1.9 guides; it runs at about half the issue rate, the rest being the block's phases waiting on
-memory and barriers with two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
+Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11 and 24): SVGF's 5 levels (``atrous_level`` +
+``unpack_level``) 0.73 ms on the Cornell box, 1.16 ms on the pool, plus 0.22 / 0.25 ms of guide passes. Of the
+pool's 1.16: 0.43 the blocks' guide loads, barriers and the filter phase's reads, whether or not they filter (a
+dense kernel that reads three vec4 a pixel and writes one runs 0.050 ms a level), 0.05 their stores, ~0.50 the pair weights and
+weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two, which is why the pool (96%
+of its blocks) costs more than the Cornell box (41%). Per pixel a level evaluates 20.6 pair weights (~45
+instructions each on the common path), 24 filter taps (~13) and reads 1.9 guides; two blocks an SM (the shared
+tables, 101 KB, and 64 registers a thread allow no more).
 """
 
 from __future__ import annotations
@@ -83,8 +88,8 @@ PAIR_ROWS = TILE_Y + 6
 PAIR_PIXELS = PAIR_ROWS * GUIDE_PITCH
 #: forward tap offsets per pixel: (0, 1), (0, 2), (1, −2..2), (2, −2..2); the other 12 are their mirrors
 FORWARD_TAPS = 12
-#: forward taps a thread evaluates per item of step 2 (with the pixel's guides held in registers; 3 spill)
-TAPS_PER_ITEM = 3
+#: points of a pair row an item of step 2 takes (a run along the row, all forward taps, guides in registers)
+RUN = 2
 #: region whose weight sums are needed: the tile and an apron of 2
 SUM_Y = TILE_Y + 4
 SUM_X = TILE_X + 4
@@ -93,6 +98,10 @@ SUM_X = TILE_X + 4
 #: (:func:`lattice_index`), written so by their guide pass when the caller gives the buffers: a row of a tile is
 #: then 16 contiguous bytes a point instead of one 16-byte load per 32-byte sector (or per 128-byte line)
 LATTICE_STEP = 8
+#: a last level of this step and above writes its output packed (one 16-byte store a pixel) and :func:`unpack_level`
+#: writes the public colour and variance densely, when the caller gives a scratch: the level's own stores of them
+#: (four 4-byte stores a pixel, ``step`` pixels apart) each take a sector of their own
+UNPACK_STEP = 8
 
 # Constant-range loops (the 12 forward taps, the 3x3 Gaussian) are unrolled, so every tap's offset, kernel
 # weight and distance is a constant; the loops that spread work over the block are not (their range is not
@@ -109,8 +118,9 @@ _GUIDE_HALF = wp.constant((GUIDE_Y * GUIDE_X + 1) // 2)
 _EMPTY_N = wp.constant(GUIDE_Y * 4)
 _PAIR_PIXELS = wp.constant(PAIR_PIXELS)
 _PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
-_PAIR_POINTS = wp.constant(PAIR_ROWS * GUIDE_X)
-_ITEM_N = wp.constant(FORWARD_TAPS // TAPS_PER_ITEM * PAIR_ROWS * GUIDE_X)
+assert GUIDE_X % RUN == 0
+_RUNS_X = wp.constant(GUIDE_X // RUN)
+_RUN_N = wp.constant(PAIR_ROWS * GUIDE_X // RUN)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: W_p's own term h(0)² = (3/8)²
@@ -326,15 +336,14 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, kern
 
 
 @wp.func
-def forward_pair(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], gs_p: wp.vec4,
-                 gd_p: wp.vec4, u: int, f: int, active: bool, s: float, two_over_step: float, depth_eps: float,
-                 sigma_normal: float, gated: int) -> float:
-    """w(u, u + forward tap ``f``); 0 where p is not ``active`` (no surface, or a closed gate)."""
+def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: int, active: bool, s: float,
+               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int) -> float:
+    """w(p, p + forward tap ``f``) from the loaded guides of p and q; 0 where p is not ``active`` (no surface, or
+    a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold."""
     if not active:
         return 0.0
-    v = u + forward_offset(f)
-    return pair_weight(gs_p, gd_p, read_guide(guide_s, v), read_guide(guide_d, v), forward_kernel(f),
-                       s * forward_distance(f), two_over_step, depth_eps, sigma_normal, gated)
+    return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_kernel(f), s * forward_distance(f), two_over_step, depth_eps,
+                       sigma_normal, gated)
 
 
 @wp.func
@@ -345,33 +354,39 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
     and ``inv_weight_sum`` (shared, 1 / W_q of the tile and an apron of 2, at their guide index)."""
     two_over_step = 2.0 / s
-    # 2. forward pair weights, once per unordered pair; an item is a pixel u and three of its forward taps,
-    # items ordered by tap group so that a warp's threads take the same branch
+    # 2. forward pair weights, once per unordered pair. An item is a run of two points u, u + 1 of a row and
+    # all 24 of their forward taps, with both points' guides in registers: the q of a tap row are read once for
+    # both (16 guide points read from shared memory for 24 pairs; one point and 3 taps an item read 4 for 3)
     k = lane
-    while k < _ITEM_N:
-        g = k // _PAIR_POINTS
-        r = k - g * _PAIR_POINTS
-        i = r // _GUIDE_X
-        u = i * _PITCH + r - i * _GUIDE_X + 2
-        gs_p = read_guide(guide_s, u)
-        gd_p = read_guide(guide_d, u)
-        active = gs_p[3] > 0.0 and (gated == 0 or gd_p[3] * two_over_step > 1.0)
-        if g == 0:
-            write_pair(pair, 0 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 0, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 1 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 1, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 2 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 2, active, s, two_over_step, depth_eps, sigma_normal, gated))
-        elif g == 1:
-            write_pair(pair, 3 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 3, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 4 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 4, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 5 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 5, active, s, two_over_step, depth_eps, sigma_normal, gated))
-        elif g == 2:
-            write_pair(pair, 6 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 6, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 7 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 7, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 8 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 8, active, s, two_over_step, depth_eps, sigma_normal, gated))
-        else:
-            write_pair(pair, 9 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 9, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 10 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 10, active, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, 11 * _PAIR_PIXELS + u, forward_pair(guide_s, guide_d, gs_p, gd_p, u, 11, active, s, two_over_step, depth_eps, sigma_normal, gated))
+    while k < _RUN_N:
+        i = k // _RUNS_X
+        u = i * _PITCH + 2 * (k - i * _RUNS_X) + 2
+        gs_1 = read_guide(guide_s, u)
+        gd_1 = read_guide(guide_d, u)
+        gs_2 = read_guide(guide_s, u + 1)
+        gd_2 = read_guide(guide_d, u + 1)
+        active_1 = gs_1[3] > 0.0 and (gated == 0 or gd_1[3] * two_over_step > 1.0)
+        active_2 = gs_2[3] > 0.0 and (gated == 0 or gd_2[3] * two_over_step > 1.0)
+        # row 0: taps (0, 1) and (0, 2); u + 1 is p_1's first q
+        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated))
+        for j in range(2):  # q = u + 2 + j: p_1's tap (0, 2) (j = 0), p_2's tap (0, 1 + j)
+            gs_q = read_guide(guide_s, u + 2 + j)
+            gd_q = read_guide(guide_d, u + 2 + j)
+            if j == 0:
+                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated))
+            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated))
+        # rows 1 and 2: q = u + dy PITCH + dx, dx = -2 .. 3: p_1's tap (dy, dx) for dx <= 2 (f = 5 dy - 1 + dx),
+        # p_2's tap (dy, dx - 1) for dx >= -1
+        for t in range(12):
+            dy = 1 + t // 6
+            dx = t % 6 - 2
+            v = u + dy * _PITCH + dx
+            gs_q = read_guide(guide_s, v)
+            gd_q = read_guide(guide_d, v)
+            if dx <= 2:
+                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated))
+            if dx >= -1:
+                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated))
         k += threads
     block_sync()
 
@@ -688,6 +703,18 @@ def atrous_level(
         k += threads
 
 
+@wp.kernel
+def unpack_level(color_variance: wp.array(dtype=wp.vec4), color_out: wp.array(dtype=wp.vec3),
+                 variance_out: wp.array(dtype=wp.float32)):
+    """A level's packed output (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) as the public colour (H*W
+    vec3 [W/m²]) and variance (H*W float32), 0 without a surface, as :func:`atrous_level` writes them itself;
+    dense over ``dim=height * width``."""
+    p = wp.tid()
+    cv = load_vec4(color_variance, p)
+    color_out[p] = wp.vec3(cv[0], cv[1], cv[2])
+    variance_out[p] = wp.where(cv[3] < 0.0, 0.0, cv[3])
+
+
 _SPARE: dict = {}
 
 
@@ -718,7 +745,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   color_out: wp.array | None = None, variance_out: wp.array | None = None,
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
-                  lattice: tuple | None = None) -> None:
+                  lattice: tuple | None = None, unpack_from: wp.array | None = None) -> None:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -732,7 +759,11 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
 
     ``lattice`` = (color_variance, guide) scratch (vec4, at least :func:`lattice_size` entries each, and ``aux``
     as many): at a step of ``LATTICE_STEP`` or more with a packed input, the guide pass copies the input and the
-    guide there in the step's sub-lattice-major order and writes ``aux`` so, and the level reads them densely."""
+    guide there in the step's sub-lattice-major order and writes ``aux`` so, and the level reads them densely.
+
+    ``unpack_from`` (H*W vec4 scratch, aliasing no input; only with ``color_out`` and no ``color_variance_out``): at
+    a step of ``UNPACK_STEP`` or more the level writes its output packed there and :func:`unpack_level` writes
+    ``color_out`` and ``variance_out`` densely (the same values)."""
     d = slope.device
     spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
@@ -767,6 +798,9 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                       cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice])
     if use_lattice:
         color_variance, guide = cv_lattice, guide_lattice
+    unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
+    if unpack:
+        color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
     wp.launch_tiled(atrous_level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, float(sigma_depth),
                             float(sigma_normal), 1.0 / float(sigma_luminance), int(conserve_energy), int(gated),
@@ -776,3 +810,5 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"], int(use_lattice)])
+    if unpack:
+        wp.launch(unpack_level, dim=height * width, device=d, inputs=[color_variance_out, *unpack_out])

@@ -60,7 +60,8 @@ class SVGF:
     Per frame (H*W each): ``depth``/``normal`` (the G-buffer copy the filters read; depth 0 without a
     surface), ``integrated`` (vec3 [W/m²], temporal accumulation), ``moments`` (vec2), ``history`` (int32),
     ``depth_slope`` (float32 [m/pixel]), ``guide`` (vec4: n, z [m]) and ``color_variance`` (2 x vec4: colour,
-    Var; the à-trous levels' packed input and output, ping-ponged), ``level_guides`` (vec4: a level's ‖∇z‖,
+    Var; the à-trous levels' packed input and output, ping-ponged; a last level of step >= ``UNPACK_STEP``
+    writes its output there packed, unpacked into ``out`` densely), ``level_guides`` (vec4: a level's ‖∇z‖,
     g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a little more
     than H*W), ``lattice`` (2 x vec4: those levels' input and guide copied in that order by their guide pass;
     None with fewer levels), ``filtered_variance`` (float32: luminance variance of the last level, or of
@@ -155,5 +156,5 @@ class SVGF:
                           color_variance_out=None if last else self.color_variance[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
                           hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
-                          lattice=self.lattice)
+                          lattice=self.lattice, unpack_from=self.color_variance[(level + 1) % 2] if last else None)
         wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
