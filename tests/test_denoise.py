@@ -340,7 +340,7 @@ def test_caustic_static_converges_to_long_run_mean(device, with_m2):
     g = plane(hole=False)
     truth = caustic_pattern()
     photon = 1.0  # W/m² per photon: 2 to 32 photons per pixel and frame
-    den = CausticDenoiser(W, H, device)
+    den = CausticDenoiser(W, H, device, CausticSettings(noise_target=0.03, noise_target_m2=0.03))
     svgf = SVGF(W, H, device)
     out = wp.zeros(W * H, dtype=wp.vec3, device=device)
     out_svgf = wp.zeros(W * H, dtype=wp.vec3, device=device)
@@ -368,7 +368,7 @@ def test_caustic_static_converges_to_long_run_mean(device, with_m2):
           f"noise {floor:.3f}; SVGF {err_svgf[-1]:.3f}")
     assert err[-1] < 0.45 * err[7] and err[-1] < 1.3 * floor
     # the filter gives way where the estimate has converged (the bands: 1536 photons per pixel, 2.6% noise,
-    # below the 3% target): there the output is the accumulated estimate
+    # below the 3% target set here): there the output is the accumulated estimate
     bands = truth > 20.0
     kept = np.abs(res[..., 1] - integrated) <= 1e-5 * np.abs(integrated)
     print(f"output = accumulated estimate on {np.mean(kept[bands]):.2f} of the bands, {np.mean(kept):.2f} overall")
@@ -515,19 +515,21 @@ def test_caustic_every_setting_reaches_a_kernel(device):
         frames.append((g, e, poisson_m2(e, 2.0)))
     changed = dict(use_photon_m2=False,
                    max_history=3, change_radius=1, change_sigmas=0.5, pixel_sigmas=0.5, change_persistence=0.0,
-                   atrous_levels=2, noise_target=0.3,
+                   atrous_levels=2, noise_target=0.3, noise_target_m2=0.3,
                    sigma_depth=0.1, sigma_normal=4.0, sigma_luminance=0.5, depth_tolerance=0.01,
                    normal_tolerance=0.999)
     assert set(changed) == {f.name for f in fields(CausticSettings)}
 
-    def sequence(settings):
+    def sequence(settings, with_m2=True):
         den = CausticDenoiser(W, H, device, settings)
         out = wp.zeros(W * H, dtype=wp.vec3, device=device)
-        return np.stack([run_frame(den, g, e, out, m2).copy() for g, e, m2 in frames])
+        return np.stack([run_frame(den, g, e, out, m2 if with_m2 else None).copy() for g, e, m2 in frames])
 
-    base = sequence(CausticSettings())
+    base = {True: sequence(CausticSettings()), False: sequence(CausticSettings(), False)}
     for name, value in changed.items():
-        assert not np.allclose(sequence(replace(CausticSettings(), **{name: value})), base, rtol=1e-4, atol=0), name
+        with_m2 = name != "noise_target"  # τ of the frames without the photons' Σ e²
+        assert not np.allclose(sequence(replace(CausticSettings(), **{name: value}), with_m2), base[with_m2],
+                               rtol=1e-4, atol=0), name
 
 
 def test_caustic_settings_validation():
@@ -591,7 +593,7 @@ def test_caustic_camera_pan_keeps_the_caustic_sharp(device):
     assert err < 1.5 * floor and err_out < 0.5 * err_raw
 
 
-@pytest.mark.parametrize("photon,with_m2", [(0.05, False), (0.5, False), (0.5, True)])
+@pytest.mark.parametrize("photon,with_m2", [(0.05, False), (0.05, True), (0.5, False), (0.5, True)])
 def test_caustic_moving_caustic_never_worse_than_raw(device, photon, with_m2):
     """A caustic sweeping across a still floor a pixel per frame (a moving light: the motion vectors are
     zero): over the last frames the output is no further from the truth than the raw photon map, and it
@@ -657,9 +659,9 @@ def test_caustic_slow_drift_keeps_the_history_short(device):
     """A caustic drifting a third of a pixel per frame (a slowly turning sun): too slow for one frame's change
     test, so without keeping the window's change ratio from frame to frame (change_persistence) the history
     lags the caustic and the output is worse than the raw photon map (0.177 against 0.165 relative RMSE);
-    with it the output is no worse than raw (0.164)."""
+    with it the output is no worse than raw (0.164); with the photons' Σ e² and its τ, too."""
 
-    def error(settings):
+    def error(settings, with_m2=False):
         rng = np.random.default_rng(31)
         g = plane(hole=False)
         den = CausticDenoiser(W, H, device, settings)
@@ -668,7 +670,7 @@ def test_caustic_slow_drift_keeps_the_history_short(device):
         for t in range(24):
             truth = caustic_pattern(shift=0.35 * t)
             e = poisson_map(rng, truth, 0.2)
-            res = run_frame(den, g, e, out)[..., 1]
+            res = run_frame(den, g, e, out, poisson_m2(e, 0.2) if with_m2 else None)[..., 1]
             if t >= 16:
                 err.append(np.sqrt(np.mean((res - truth) ** 2)) / truth.mean())
                 err_raw.append(np.sqrt(np.mean((e[..., 1] - truth) ** 2)) / truth.mean())
@@ -676,8 +678,11 @@ def test_caustic_slow_drift_keeps_the_history_short(device):
 
     err, err_raw = error(CausticSettings())
     err_forget, _ = error(CausticSettings(change_persistence=0.0))
-    print(f"slow drift: error {err:.4f}, without persistence {err_forget:.4f}, raw {err_raw:.4f}")
+    err_m2, _ = error(CausticSettings(), with_m2=True)  # the photons' Σ e² given: its own, lower τ
+    print(f"slow drift: error {err:.4f}, without persistence {err_forget:.4f}, with photon_m2 {err_m2:.4f}, "
+          f"raw {err_raw:.4f}")
     assert err <= err_raw < err_forget
+    assert err_m2 <= err_raw
 
 
 def test_caustic_stays_finite_after_a_history_of_vanishing_irradiance(device):
@@ -705,8 +710,8 @@ def test_caustic_photon_m2_of_zero_is_no_information(device):
     surf = g["depth"] > 0
     truth = caustic_pattern()
     outs = {}
-    for mode in ("none", "zeros", "m2"):
-        den = CausticDenoiser(W, H, device)
+    for mode in ("none", "zeros", "m2"):  # one τ for all three: the runs differ by the variance estimate only
+        den = CausticDenoiser(W, H, device, CausticSettings(noise_target_m2=CausticSettings().noise_target))
         out = wp.zeros(W * H, dtype=wp.vec3, device=device)
         rng = np.random.default_rng(6)
         seq = []
@@ -733,7 +738,7 @@ def test_caustic_photon_m2_follows_a_caustic_the_differences_take_for_noise(devi
     def error(speed, with_m2):
         rng = np.random.default_rng(12)
         g = plane(hole=False)
-        den = CausticDenoiser(W, H, device)
+        den = CausticDenoiser(W, H, device, CausticSettings(noise_target_m2=CausticSettings().noise_target))  # one τ
         out = wp.zeros(W * H, dtype=wp.vec3, device=device)
         err = []
         for t in range(24):

@@ -49,7 +49,13 @@ class CausticSettings:
     change_persistence: float = 0.7  #: factor by which the window's change ratio r = b²/σ², kept with the
     #: history, fades a frame; a frame's r is at least what is left (a caustic that moved keeps moving)
     atrous_levels: int = 4  #: à-trous levels, spacings 1, 2, 4, ... pixels (0: temporal accumulation only)
-    noise_target: float = 0.05  #: relative noise the spatial footprint aims at (R from Var / (4π τ² μ²))
+    noise_target: float = 0.05  #: relative noise τ the spatial footprint aims at (R from Var / (4π τ² μ²)), where the
+    #: frame's variance comes from neighbour differences alone (no ``photon_m2``): they count a caustic's own
+    #: gradient as noise (2-8x the Poisson variance on sharp bands, perf_notes section 19), so R comes out wide
+    noise_target_m2: float = 0.015  #: τ where the photons' Σ e² caps the variance (``photon_m2`` given and
+    #: ``use_photon_m2``, as the renderer does): the variance is honest there and the footprint may aim lower.
+    #: H100, 1080p, 2M photons, 16 frames: 0.05 -> 0.015 took the pool 0.106 -> 0.086, the Cornell box 0.090 ->
+    #: 0.079 relative RMSE (perf_notes section 25)
     sigma_depth: float = 1.0  #: σ_z of the depth edge stop (in units of the depth gradient)
     sigma_normal: float = 128.0  #: σ_n, exponent of the normal edge stop
     sigma_luminance: float = 2.0  #: σ_l, luminance edge stop in standard deviations of the mean
@@ -57,6 +63,11 @@ class CausticSettings:
     normal_tolerance: float = 0.9  #: reprojection and change window: smallest cosine between normals
     use_photon_m2: bool = True  #: cap each frame's variance estimate by the photons' own, Σ e² per pixel (the
     #: photon pass's ``photon_m2``), where :meth:`CausticDenoiser.denoise` is given it
+
+    def target(self, photon_m2_given: bool) -> float:
+        """The spatial footprint's τ for a frame with (``photon_m2_given`` and ``use_photon_m2``) or without the
+        photons' Σ e²."""
+        return self.noise_target_m2 if photon_m2_given and self.use_photon_m2 else self.noise_target
 
     def __post_init__(self):
         if self.max_history < 2:
@@ -69,8 +80,8 @@ class CausticSettings:
             raise ValueError("change_sigmas and pixel_sigmas must be > 0")
         if not 0.0 <= self.change_persistence < 1.0:
             raise ValueError("change_persistence must lie in [0, 1)")
-        if self.noise_target <= 0.0:
-            raise ValueError("noise_target must be > 0")
+        if self.noise_target <= 0.0 or self.noise_target_m2 <= 0.0:
+            raise ValueError("noise_target and noise_target_m2 must be > 0")
         if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
             raise ValueError("sigma_depth, sigma_normal and sigma_luminance must be > 0")
         if self.depth_tolerance <= 0.0 or not (-1.0 <= self.normal_tolerance <= 1.0):
@@ -199,13 +210,14 @@ class CausticDenoiser:
                                  self.temporal_variance, self.frames, self.depth_slope])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
+        tau = s.target(photon_m2 is not None)
         if self.levels == "tiled":
-            self._tiled_levels(out)
+            self._tiled_levels(out, tau)
         else:
-            self._pixel_levels(out)
+            self._pixel_levels(out, tau)
         wp.launch(flip_parity, dim=1, device=d, inputs=[self.parity])
 
-    def _tiled_levels(self, out: wp.array) -> None:
+    def _tiled_levels(self, out: wp.array, tau: float) -> None:
         """The gated levels as tiled launches (:func:`.kernels_atrous.launch_atrous`): the first level's guide pass
         packs the accumulated estimate, levels ping-pong it packed, the last one writes ``out`` (at a step of
         ``UNPACK_STEP`` or more packed into the free ping-pong buffer, unpacked densely)."""
@@ -217,12 +229,12 @@ class CausticDenoiser:
                                                pack_into=(self.packed[0], self.guide))
             launch_atrous(self.packed[level % 2] if level > 0 else None, self.guide if level > 0 else None,
                           self.depth_slope, w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True,
-                          self.level_guides, noise_target=s.noise_target,
+                          self.level_guides, noise_target=tau,
                           color_variance_out=None if last else self.packed[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
                           lattice=self.lattice, unpack_from=self.packed[(level + 1) % 2] if last else None, **source)
 
-    def _pixel_levels(self, out: wp.array) -> None:
+    def _pixel_levels(self, out: wp.array, tau: float) -> None:
         """The gated levels as per-pixel launches (:func:`.kernels_atrous_pixel.launch_atrous_level`)."""
         s = self.settings
         w, h = self.width, self.height
@@ -233,5 +245,5 @@ class CausticDenoiser:
             launch_atrous_level(color_src, variance_src, self.depth, self.normal, self.depth_slope,
                                 w, h, 1 << level, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True,
                                 self.guide_a, self.guide_b, self.color_variance, self.weight_sum, color_dst, self.filtered_variance[dst],
-                                noise_target=s.noise_target)
+                                noise_target=tau)
             color_src, variance_src = color_dst, self.filtered_variance[dst]

@@ -322,6 +322,7 @@ def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.nd
     color, variance = t["mean"], t["variance"]
     for level in range(s.atrous_levels):
         color, variance = atrous_level_naive(color, variance, t["depth"], t["normal"], 1 << level, s.sigma_depth,
-                                             s.sigma_normal, s.sigma_luminance, True, noise_target=s.noise_target,
+                                             s.sigma_normal, s.sigma_luminance, True,
+                                             noise_target=s.target(photon_m2 is not None),
                                              slope=t["slope"])
     return color, t
