@@ -414,7 +414,11 @@ def _make_trace_photons(queued: bool):
         """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
         ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
         no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
-        added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
+        added per block by ``ledger_add_outcomes`` after this kernel and :func:`rescue_photons` (no float64 block
+        reductions after the march). Queued (:func:`trace_photons`): a photon the cascade lost to the light view or
+        found occluded keeps that entry and its ray goes to ``rescue_queue[rescue_count[count_index] + rank]``, ranked
+        by an int block scan with one atomic a block, for :func:`rescue_photons` (on the CPU a block is one thread:
+        the queue is in photon order)."""
         block, lane = wp.tid()
         t = block * wp.block_dim() + lane
         light = light_views[view_index]
