@@ -49,9 +49,8 @@ class CISP(PhotonPass):
         #: count in ``stream_counts``); False: the one-kernel trace, K.trace_photons_inline (the naive twin, tests)
         self.rescue_queued = True
         self.rescue_queue = wp.zeros(n_hits, dtype=K.RescueRay, device=self.device)
-        #: threads of K.rescue_photons on CUDA: one wave at its launch bounds, each walking the queue with a stride
-        self.rescue_max_threads = (C.PHOTON_LAUNCH_BOUNDS[0] * C.PHOTON_LAUNCH_BOUNDS[1] * self.device.sm_count
-                                   if self.device.is_cuda else None)
+        #: most threads of K.rescue_photons (each walking the queue with that stride); None: a thread per slot
+        self.rescue_max_threads = None
         self.wavefront = None
         if settings.splat == "point":
             self.keep_photon_m2(gbuffer.width * gbuffer.height)
