@@ -90,53 +90,6 @@ def test_hidden_photon_trail_is_marched_behind_the_screen(device):
     assert wall_power(r2, a2) < 0.01 * l0["reflected"][0]
 
 
-@pytest.mark.parametrize("block", [1, 32])
-def test_rescue_queue_equals_the_one_kernel_trace(device, block, monkeypatch):
-    """The camera rescue in a pass of its own (``trace_photons`` queues the photons the cascade lost to the light view
-    or found occluded, ``rescue_photons`` marches only those) against the one-kernel trace (``trace_photons_inline``,
-    its naive twin), on the hidden-trail scene, where the reflected photons reach the wall only through the rescue:
-    every photon's outcome and landing the same, the ledger the same, the photon map to the order of its float adds
-    (rescued photons are deposited after the trace's). Blocks of 32 rank the queue by a block scan and one atomic a
-    block, as on CUDA; the queue then holds exactly the photons the cascade lost."""
-    from cisp_warp.photons.common import L_LOST_LIGHT, L_REJECTED
-
-    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    runs = []
-    for queued in (False, True):
-        settings = RenderSettings(rsm_size=64, photons=PhotonSettings(photons=20_000, seed=3, sort_photons=False))
-        r = Renderer(wall_scene(occluder=True), settings, device=device)
-        p = r.photons
-        if wp.get_device(device).is_cpu:
-            p.ledger_block = block
-        p.rescue_queued = queued
-        p.record_hits = True
-        r.render_frame()
-        runs.append((r, p.read_ledger(), p.photon_map.numpy(), p.outcome.numpy(), p.hits.numpy()))
-    (r0, l0, m0, o0, h0), (r1, l1, m1, o1, h1) = runs
-    p = r1.photons
-    n = p.photons_per_view(r1.lights[0])
-    counts = p.stream_counts.numpy()
-    assert (counts > 0).sum() == 1  # one cascade emits (the other is fitted out): its queue is the one left
-    count = int(counts.max())
-    slots = p.rescue_queue.numpy()[:count]["slot"]
-    assert np.array_equal(np.sort(slots), np.unique(slots))  # each lost photon queued once
-    lost = np.isin(o1[:n, 3], [L_LOST_LIGHT, L_OCCLUDED])
-    assert set(np.flatnonzero(lost)) <= set(slots.tolist())  # every photon left lost was queued
-    rescued = o1[slots, 3]
-    assert np.isin(rescued, [L_LOST_LIGHT, L_OCCLUDED, L_STORED, L_REJECTED]).all()
-    assert (rescued == L_STORED).sum() > 500  # the rescue stores the wall's caustic here (938 of 1623)
-    assert l1.closure() < 1e-5
-    if device == "cpu":
-        np.testing.assert_array_equal(o1[:n], o0[:n])
-        np.testing.assert_array_equal(h1[:n], h0[:n])
-        np.testing.assert_array_equal(l1.values, l0.values)
-    else:  # CUDA contracts multiply-adds by code shape: a rare photon may round across a pixel or surface
-        assert (o1[:n, 3] == o0[:n, 3]).mean() > 0.999
-        np.testing.assert_allclose(l1.values, l0.values, rtol=1e-3, atol=1e-6 * l0["sampled"].max())
-    atol = 1e-6 * m0.max() if device == "cpu" else 1e-3 * m0.max()
-    np.testing.assert_allclose(m1, m0, rtol=1e-5, atol=atol)
-
-
 @wp.kernel
 def reproject_cases(camera: ViewParams, depth: wp.array(dtype=wp.float32), points: wp.array(dtype=wp.vec3),
                     status: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.int32)):

@@ -185,16 +185,12 @@ class PhotonPass:
         #: (H*W,) float32 Σ luminance(e)² [(W/m²)²] of the photons stored per pixel (common.deposit), zeroed with
         #: the photon map; allocated by the methods that keep it (:meth:`keep_photon_m2`), else None
         self.photon_m2 = None
-        # the frame's accumulators, zeroed together by one memset in begin(): the striped ledger, the ledger, each
-        # light's brightest texel, and a counter per random stream; views of one float64 buffer (``_accumulators``),
-        # in this order
+        # the frame's accumulators, zeroed together by one memset in begin(): the striped ledger, the ledger, and
+        # each light's brightest texel; views of one float64 buffer (``_accumulators``), in this order
         self.ledger_stripes = C.LEDGER_STRIPES if self.device.is_cuda else 1
         n_rows = self.ledger_stripes * C.LEDGER_ROW
         n_lum = max(1, (len(lights) + 1) // 2)  # float64 words holding the float32 maxima
-        n_streams = max(1, sum(len(lm.rsm) + len(lm.pilot) for lm in lights))  # as FrameInputs numbers them
-        n_count = (n_streams + 1) // 2  # float64 words holding the int32 counters
-        self._accumulators = wp.zeros(3 * n_rows + 3 * C.LEDGER_ENTRIES + n_lum + n_count, dtype=wp.float64,
-                                      device=self.device)
+        self._accumulators = wp.zeros(3 * n_rows + 3 * C.LEDGER_ENTRIES + n_lum, dtype=wp.float64, device=self.device)
         base = self._accumulators.ptr
         #: (stripes * LEDGER_ROW,) vec3d: the striped ledger the photon kernels add to (block b: stripe b % stripes),
         #: summed into ``ledger`` by :meth:`fold_ledger`. One stripe on the CPU: entries added in photon order
@@ -207,10 +203,7 @@ class PhotonPass:
         #: (lights,) float32: each light's brightest whole-view texel luminance [W] this frame (max_luminance)
         self.max_lum = wp.array(ptr=base + 24 * n_rows + 24 * C.LEDGER_ENTRIES, dtype=wp.float32,
                                 shape=(len(lights),), device=self.device)
-        #: (streams,) int32: a count per random stream (an RSM view's photons), zeroed each frame: CISP's rescue queue
-        self.stream_counts = wp.array(ptr=base + 24 * n_rows + 24 * C.LEDGER_ENTRIES + 8 * n_lum, dtype=wp.int32,
-                                      shape=(n_streams,), device=self.device)
-        for alias in (self.ledger_rows, self.ledger, self._ledger_entries, self.max_lum, self.stream_counts):
+        for alias in (self.ledger_rows, self.ledger, self._ledger_entries, self.max_lum):
             alias._owner = self._accumulators  # views of it (host copies via numpy() too) keep the memory alive
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -275,7 +268,7 @@ class PhotonPass:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
-        self._accumulators.zero_()  # ledger stripes, ledger, max_lum and the stream counts: one memset
+        self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
         if self.photon_m2 is not None:
             self.photon_m2.zero_()
         for li, lm in enumerate(self.lights):

@@ -7,7 +7,6 @@ import warp as wp
 from ..raster import GBuffer, LightMaps
 from ..raster.views import View
 from ..scene import DeviceScene
-from . import common as C
 from . import kernels_cisp as K
 from . import march as M
 from .base import Ledger, PhotonPass, PhotonSettings, camera_pixel_solid_angle, frame_random
@@ -45,12 +44,6 @@ class CISP(PhotonPass):
         self.record_hits = False
         #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_photons)
         self.outcome = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
-        #: (N,) the photons the cascade lost, queued by K.trace_photons for K.rescue_photons (a view at a time; its
-        #: count in ``stream_counts``); False: the one-kernel trace, K.trace_photons_inline (the naive twin, tests)
-        self.rescue_queued = True
-        self.rescue_queue = wp.zeros(n_hits, dtype=K.RescueRay, device=self.device)
-        #: most threads of K.rescue_photons (each walking the queue with that stride); None: a thread per slot
-        self.rescue_max_threads = None
         self.wavefront = None
         if settings.splat == "point":
             self.keep_photon_m2(gbuffer.width * gbuffer.height)
@@ -92,8 +85,7 @@ class CISP(PhotonPass):
             sp = r.specular
             rsm_bounds = self.rsm_bounds[b.light_index][b.view_index]
             self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds, b.lights.views, b.view_index)
-            trace = K.trace_photons if self.rescue_queued else K.trace_photons_inline
-            self.launch_photons(trace, b.slots, inputs=[
+            self.launch_photons(K.trace_photons, b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                 sc.geometry, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
@@ -101,20 +93,5 @@ class CISP(PhotonPass):
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None, self.outcome,
-                self.rescue_queue, self.stream_counts, b.stream])
-            if self.rescue_queued and s.cascade:
-                self._rescue(gbuffer, b)
+                self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None, self.outcome])
             self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)
-
-    def _rescue(self, gbuffer: GBuffer, b) -> None:
-        """Launch K.rescue_photons over the photons of batch ``b`` that K.trace_photons queued: a fixed number of
-        threads (their count stays on the device), each walking the queue with a stride."""
-        s = self.settings
-        threads = b.slots if self.rescue_max_threads is None else min(b.slots, self.rescue_max_threads)
-        wp.launch(K.rescue_photons, dim=max(1, threads), block_dim=C.PHOTON_LAUNCH_BOUNDS[0], device=self.device,
-                  inputs=[self.inputs.cameras, gbuffer.depth_layers, self.cam_bounds, gbuffer.position, gbuffer.normal,
-                          self.solid_angle, self.rescue_queue, self.stream_counts, b.stream, max(1, threads), b.order,
-                          self.use_order, int(s.max_steps), float(s.thickness), float(s.thickness_rel), self.t_max,
-                          self.footprint_mode, self.photon_map, self.photon_m2,
-                          self.hits if self.record_hits else None, self.outcome])

@@ -217,314 +217,169 @@ def camera_marches(
     return entry, x_end, pix
 
 
-@wp.struct
-class RescueRay:
-    """A photon queued for the camera rescue (pass 1 of :func:`camera_marches`) by :func:`trace_photons`: its ray
-    and its slot. Its power is its outcome record's (the entry the cascade left it, written by the trace), which
-    :func:`rescue_photons` overwrites when the rescue stores it (docs/perf_notes.md section 24)."""
-
-    origin: wp.vec3  #: [m] where the photon left the specular surface
-    d: wp.vec3  #: its unit direction
-    slot: wp.int32  #: its thread (outcome record) in the trace
-
-
 @wp.func
-def store_photon(
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+def trace_photon(
     k: int,  # photon index
-    origin: wp.vec3,  # [m] where the photon left the specular surface
-    d: wp.vec3,  # its unit direction
-    power: wp.vec3,  # [W]
-    x_end: wp.vec3,  # [m] the crossing a march found
-    pix: int,  # its camera pixel
+    origin: wp.vec3,  # [m] on the specular surface
+    d: wp.vec3,  # unit direction after the bounce
+    power: wp.vec3,  # [W] after the bounce
+    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (read)
+    view_index: int,  # the view the photon left from
+    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (Hl*Wl,) light view's opaque depth [m] (read)
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
     cam_depth: wp.array(dtype=wp.float32),
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
     cam_position: wp.array(dtype=wp.vec3),
     cam_normal: wp.array(dtype=wp.vec3),
-    cam_solid_angle: wp.array(dtype=wp.float32),
-    thickness: float,
-    thickness_rel: float,
-    footprint_mode: int,
-    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
-    tally: wp.ref[Tally],  # the photon's final entry, L_STORED or L_REJECTED (write)
-    hits: wp.array(dtype=wp.vec4),  # (n_photons,) landing point and pixel (write where stored; empty: none)
-):
-    """Steps 6-7 of a photon whose march crossed a camera surface: the landing cut with the tangent plane of the
-    surface its pixel shows (:func:`refine_landing`: a light-view crossing lies within an RSM texel's depth of the
-    surface; the G-buffer holds it to the camera's pixel), validated against the camera's surface normal and stored
-    as irradiance over the pixel's footprint (``common.deposit``)."""
-    x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
-                                thickness, thickness_rel)
-    if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle,
-               footprint_mode, photon_map, photon_m2, tally) != 0:
-        if hits.shape[0] > 0:
-            hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
-
-
-def _make_trace_photon(queued: bool):
-    """:func:`trace_photon`, steps 4-7 of one emitted photon, with the rescue marched in the same thread
-    (``queued`` False: the one-kernel trace, the naive twin :func:`trace_photons_inline` keeps) or left to
-    :func:`rescue_photons` (True: the photon keeps the entry the cascade gave it and :func:`trace_photons` queues
-    it; docs/perf_notes.md section 24)."""
-
-    @wp.func
-    def trace_photon(
-        k: int,  # photon index
-        origin: wp.vec3,  # [m] on the specular surface
-        d: wp.vec3,  # unit direction after the bounce
-        power: wp.vec3,  # [W] after the bounce
-        light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (read)
-        view_index: int,  # the view the photon left from
-        rsm_opaque_depth: wp.array(dtype=wp.float32),  # (Hl*Wl,) light view's opaque depth [m] (read)
-        rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
-        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
-        cam_depth: wp.array(dtype=wp.float32),
-        cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-        cam_position: wp.array(dtype=wp.vec3),
-        cam_normal: wp.array(dtype=wp.vec3),
-        cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
-        max_steps: int,
-        thickness: float,
-        thickness_rel: float,
-        t_max: float,
-        footprint_mode: int,
-        use_cascade: int,  # 0: light view only (no camera march), for comparisons
-        photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-        photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
-        tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
-        hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
-    ):
-        """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera
-        view (:func:`reproject_to_camera`, pass 0 of :func:`camera_marches`), a photon the cascade lost marched in
-        the camera view from its start (pass 1: here, or queued for :func:`rescue_photons`), the landing cut,
-        validate, store (:func:`store_photon`); its final entry booked (a queued photon: the cascade's, which the
-        rescue may replace). Each view is read from memory where it is needed (the camera again after its march,
-        ``read_again``), so that no view is held in registers through a march that does not use it: the trace's
-        stack frame at its launch bound 336 -> 216 B (sm_90, ``tools/regcount.py``; before the rescue and the
-        refinement, docs/perf_notes.md section 17). The one-kernel trace shares the cascade's camera march and
-        the rescue's in one inlined march (a loop of up to two passes): 440 -> 304 B (section 23); the queued one
-        holds no rescue state through its marches (section 24)."""
-        status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
-                                    max_steps, thickness, thickness_rel)
-        entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel,
-                                         use_cascade)
-        if wp.static(queued):
-            # pass 0 only; a photon lost here is queued by the kernel (its entry names it: _rescue_pass)
-            if entry == MARCH_ON:
-                status, t_m, steps = screen_march_bounded(read_again(cameras, 0, pix + 1), cam_depth,
-                                                          cam_depth_bounds, x_end, d, t_max, max_steps, thickness,
-                                                          thickness_rel)
-                entry = _camera_entry(status)
-                if entry == L_STORED:
-                    x_end = x_end + d * t_m
-                    pix = camera_pixel(read_again(cameras, 0, steps), x_end)
-        else:
-            # :func:`camera_marches`' two passes, reading the camera where needed (not held through the march)
-            camera_pass = int(0)
-            if entry != MARCH_ON:
-                camera_pass = _rescue_pass(entry, use_cascade)
-            while camera_pass < 2:
-                o_m = x_end
-                if camera_pass == 1:
-                    o_m = origin + d * (1.0e-4 * t_max)
-                status, t_m, steps = screen_march_bounded(read_again(cameras, 0, pix + 1), cam_depth,
-                                                          cam_depth_bounds, o_m, d, t_max, max_steps, thickness,
-                                                          thickness_rel)
-                if camera_pass == 0:
-                    entry = _camera_entry(status)
-                    if entry == L_STORED:
-                        x_end = x_end + d * t_m
-                        pix = camera_pixel(read_again(cameras, 0, steps), x_end)
-                    camera_pass = _rescue_pass(entry, use_cascade)
-                else:
-                    if status == MARCH_HIT:
-                        x_end = origin + d * (1.0e-4 * t_max + t_m)
-                        pix = camera_pixel(read_again(cameras, 0, steps), x_end)
-                        entry = L_STORED
-                    camera_pass = 2
-        if entry != L_STORED:
-            book(tally, entry, power)
-            return
-        store_photon(cameras, k, origin, d, power, x_end, pix, cam_depth, cam_position, cam_normal, cam_solid_angle,
-                     thickness, thickness_rel, footprint_mode, photon_map, photon_m2, tally, hits)
-
-    return trace_photon
-
-
-def _make_trace_photons(queued: bool):
-    """The trace kernel, one thread per photon: :func:`trace_photons` queues the photons for the camera rescue
-    (``queued``), :func:`trace_photons_inline` (its naive twin, the trace before section 24) rescues them in the
-    same thread."""
-    trace_photon = _make_trace_photon(queued)
-
-    @wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS, name="trace_photons" if queued else "trace_photons_inline")
-    def trace_photons(
-        light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
-        states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
-        view_index: int,  # the view these photons leave from
-        light_kind: int,  # 0 distant, 1 point, 2 spot
-        light_pos: wp.vec3,
-        # RSM view of the light (flat H*W arrays)
-        rsm_opaque_depth: wp.array(dtype=wp.float32),
-        rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
-        rsm_position: wp.array(dtype=wp.vec3),
-        rsm_normal: wp.array(dtype=wp.vec3),
-        rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-        rsm_roughness: wp.array(dtype=wp.float32),
-        rsm_ior: wp.array(dtype=wp.float32),
-        rsm_tri: wp.array(dtype=wp.int32),
-        geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
-        triangle_material: wp.array(dtype=wp.int32),
-        mat_opacity: wp.array(dtype=wp.float32),
-        mat_albedo: wp.array(dtype=wp.vec3),
-        max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
-        # camera G-buffer (flat H*W arrays)
-        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
-        cam_depth: wp.array(dtype=wp.float32),
-        cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-        cam_position: wp.array(dtype=wp.vec3),
-        cam_normal: wp.array(dtype=wp.vec3),
-        cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
-        # settings
-        light_photons: int,  # the light's photons, split over its active views (cascade_photons)
-        n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
-        randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (frame.FrameInputs, read)
-        stream: int,  # this (light, view)'s stream
-        order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
-        use_order: int,
-        roughness_cutoff: float,
-        luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
-        max_steps: int,
-        thickness: float,
-        thickness_rel: float,
-        t_max: float,
-        footprint_mode: int,
-        use_cascade: int,  # 0: light view only (no camera march), for comparisons
-        # outputs
-        photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-        photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
-        ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
-        hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
-        # (write; an empty array: not recorded, as in the frame loop)
-        outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
-        rescue_queue: wp.array(dtype=RescueRay),  # (>= n_slots,) photons for rescue_photons (write, queued only)
-        rescue_count: wp.array(dtype=wp.int32),  # (S,) rays queued per stream, zeroed each frame (accumulate)
-        count_index: int,  # this view's counter: its stream
-    ):
-        """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
-        ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
-        no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
-        added per block by ``ledger_add_outcomes`` after this kernel and :func:`rescue_photons` (no float64 block
-        reductions after the march). Queued (:func:`trace_photons`): a photon the cascade lost to the light view or
-        found occluded keeps that entry and its ray goes to ``rescue_queue[rescue_count[count_index] + rank]``, ranked
-        by an int block scan with one atomic a block, for :func:`rescue_photons` (on the CPU a block is one thread:
-        the queue is in photon order)."""
-        block, lane = wp.tid()
-        t = block * wp.block_dim() + lane
-        light = light_views[view_index]
-        cascade = states[view_index]
-        n_photons = cascade_photons(cascade, light_photons)
-        if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
-            return
-        skip_window = cascade.skip_window
-        rnd = randoms[stream]
-        seed = rnd[2]  # seed of this (frame, view)'s random streams
-        scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
-        k = int(0)
-        texel = int(-1)
-        power = wp.vec3(0.0)
-        origin = wp.vec3(0.0)
-        n = wp.vec3(0.0)
-        d = wp.vec3(0.0)
-        state = wp.uint32(0)
-        emitted = tally_new()
-        if t < n_photons:
-            k = photon_index(order, use_order, t)
-            if hits.shape[0] > 0:
-                hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-            # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
-            # Fresnel as a probability (power unchanged); metals reflect with their albedo
-            texel, power, origin, n, d, state = emit_and_bounce(
-                light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
-                rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
-                max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
-        ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
-        tally = tally_new()
-        if texel >= 0:  # the views are read again where each march needs them (trace_photon)
-            trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
-                         cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
-                         thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits)
-        if t < n_slots:
-            record_outcome(outcome, t, tally)
-        if wp.static(queued):
-            # the photons the cascade lost (light view) or found occluded, compacted into the rescue queue: a
-            # block scan ranks them, one atomic a block reserves their places (no per-photon atomics)
-            lost = int(0)
-            if _rescue_pass(tally.entry, use_cascade) == 1:
-                lost = 1
-            rank = wp.untile(wp.tile_scan_exclusive(wp.tile(lost)))
-            first = wp.tile_atomic_add(rescue_count, wp.tile_sum(wp.tile(lost)), offset=count_index)
-            if lost != 0:
-                ray = RescueRay()
-                ray.origin = origin
-                ray.d = d
-                ray.slot = t
-                rescue_queue[wp.tile_extract(first, 0) + rank] = ray
-
-    return trace_photons
-
-
-#: the trace of the frame: photons the cascade loses are queued for :func:`rescue_photons`
-trace_photons = _make_trace_photons(True)
-#: its naive twin: one kernel, the rescue in the thread that lost the photon (the trace before section 24)
-trace_photons_inline = _make_trace_photons(False)
-
-
-@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
-def rescue_photons(
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
-    cam_depth: wp.array(dtype=wp.float32),  # (2*H*W,) the camera's depth and back-face layer [m] (read)
-    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-    cam_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
-    cam_normal: wp.array(dtype=wp.vec3),  # (H*W,) (read)
-    cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr] (read)
-    rescue_queue: wp.array(dtype=RescueRay),  # (>= queued,) the photons trace_photons queued (read)
-    rescue_count: wp.array(dtype=wp.int32),  # (S,) rays queued per stream (read)
-    count_index: int,  # this view's counter: its stream
-    threads: int,  # threads launched: thread i rescues rays i, i + threads, ... below the count
-    order: wp.array(dtype=wp.int32),  # (N,) photon index per trace thread when use_order (read; for hits)
-    use_order: int,
+    cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
     max_steps: int,
     thickness: float,
     thickness_rel: float,
     t_max: float,
     footprint_mode: int,
+    use_cascade: int,  # 0: light view only (no camera march), for comparisons
+    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
+    tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
+    hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
+):
+    """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
+    (:func:`reproject_to_camera`, pass 0 of :func:`camera_marches`), a photon the cascade lost marched in the camera
+    view from its start (pass 1), the landing cut with its receiver's tangent plane (:func:`refine_landing`),
+    validate, store; its final entry booked. Each view is read
+    from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
+    registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
+    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17). The cascade's
+    camera march and the rescue's share one inlined march (a loop of up to two passes): 440 -> 304 B (section 23)."""
+    status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
+                                max_steps, thickness, thickness_rel)
+    entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
+    # :func:`camera_marches`' two passes, reading the camera where needed (it is not held through the march)
+    camera_pass = int(0)
+    if entry != MARCH_ON:
+        camera_pass = _rescue_pass(entry, use_cascade)
+    while camera_pass < 2:
+        o_m = x_end
+        if camera_pass == 1:
+            o_m = origin + d * (1.0e-4 * t_max)
+        status, t_m, steps = screen_march_bounded(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, o_m, d,
+                                                  t_max, max_steps, thickness, thickness_rel)
+        if camera_pass == 0:
+            entry = _camera_entry(status)
+            if entry == L_STORED:
+                x_end = x_end + d * t_m
+                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+            camera_pass = _rescue_pass(entry, use_cascade)
+        else:
+            if status == MARCH_HIT:
+                x_end = origin + d * (1.0e-4 * t_max + t_m)
+                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+                entry = L_STORED
+            camera_pass = 2
+    if entry != L_STORED:
+        book(tally, entry, power)
+        return
+    # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
+    # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
+    x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
+                                thickness, thickness_rel)
+    # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
+    if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
+               photon_map, photon_m2, tally) != 0:
+        if hits.shape[0] > 0:
+            hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
+
+
+@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
+def trace_photons(
+    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
+    view_index: int,  # the view these photons leave from
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,
+    # RSM view of the light (flat H*W arrays)
+    rsm_opaque_depth: wp.array(dtype=wp.float32),
+    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    # camera G-buffer (flat H*W arrays)
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+    cam_depth: wp.array(dtype=wp.float32),
+    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+    cam_position: wp.array(dtype=wp.vec3),
+    cam_normal: wp.array(dtype=wp.vec3),
+    cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
+    # settings
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream
+    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+    use_order: int,
+    roughness_cutoff: float,
+    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
+    max_steps: int,
+    thickness: float,
+    thickness_rel: float,
+    t_max: float,
+    footprint_mode: int,
+    use_cascade: int,  # 0: light view only (no camera march), for comparisons
+    # outputs
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
-    hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) landing point and pixel (write where stored; empty: none)
-    outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per trace thread: final power [W] and entry (read, write)
+    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+    hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
+    # (write; an empty array: not recorded, as in the frame loop)
+    outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
 ):
-    """Pass 1 of :func:`camera_marches` for the photons :func:`trace_photons` queued (the cascade lost them to the
-    light view or found them occluded): march the camera view from the photon's start; on a crossing, store it
-    (:func:`store_photon`) and replace its outcome record (the cascade's entry, with its power) by the final entry.
-    Launched over a fixed number of threads (a few blocks per SM on CUDA: no host read of the count, so a frame can
-    be captured as a CUDA graph); each walks the queue with a stride, so the marches run packed in warps instead of
-    one lost photon idling a warp of the trace (docs/perf_notes.md section 24)."""
-    i = wp.tid()
-    count = rescue_count[count_index]
-    while i < count:
-        ray = rescue_queue[i]
-        slot = ray.slot
-        status, t_m, steps = screen_march_bounded(cameras[0], cam_depth, cam_depth_bounds,
-                                                  ray.origin + ray.d * (1.0e-4 * t_max), ray.d, t_max, max_steps,
-                                                  thickness, thickness_rel)
-        if status == MARCH_HIT:
-            x_end = ray.origin + ray.d * (1.0e-4 * t_max + t_m)
-            pix = camera_pixel(read_again(cameras, 0, steps), x_end)
-            o = outcome[slot]
-            tally = tally_new()
-            store_photon(cameras, photon_index(order, use_order, slot), ray.origin, ray.d, wp.vec3(o[0], o[1], o[2]),
-                         x_end, pix, cam_depth, cam_position, cam_normal, cam_solid_angle, thickness, thickness_rel,
-                         footprint_mode, photon_map, photon_m2, tally, hits)
-            record_outcome(outcome, slot, tally)
-        i += threads
+    """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
+    ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
+    no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
+    added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
+    block, lane = wp.tid()
+    t = block * wp.block_dim() + lane
+    light = light_views[view_index]
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
+        return
+    skip_window = cascade.skip_window
+    rnd = randoms[stream]
+    seed = rnd[2]  # seed of this (frame, view)'s random streams
+    scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
+    k = int(0)
+    texel = int(-1)
+    power = wp.vec3(0.0)
+    origin = wp.vec3(0.0)
+    n = wp.vec3(0.0)
+    d = wp.vec3(0.0)
+    state = wp.uint32(0)
+    emitted = tally_new()
+    if t < n_photons:
+        k = photon_index(order, use_order, t)
+        if hits.shape[0] > 0:
+            hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
+        # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
+        # Fresnel as a probability (power unchanged); metals reflect with their albedo
+        texel, power, origin, n, d, state = emit_and_bounce(
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
+            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
+            max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
+    ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
+    tally = tally_new()
+    if texel >= 0:  # the views are read again where each march needs them (trace_photon)
+        trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
+                     cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
+                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits)
+    if t < n_slots:
+        record_outcome(outcome, t, tally)
