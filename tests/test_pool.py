@@ -287,3 +287,18 @@ def test_bench_animation_smoke():
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     assert "StageClock.camera" in result.stdout and "rss" in result.stdout
+
+
+def test_refit_leaves_the_static_layers_bvh_as_built(device, monkeypatch):
+    """``DeviceScene.refit`` (after the water moved) refits the BVH that holds the water's triangles and leaves the
+    opaque layer's, static on the pool, as built: one refit where there were two."""
+    from cisp_warp.scene.model import LAYER_OPAQUE, LAYER_SPECULAR
+
+    ds = DeviceScene(load_usd(POOL, time_code=50, width=32, height=18), device)
+    opaque, _ = ds.bvh(LAYER_OPAQUE)
+    water, _ = ds.bvh(LAYER_SPECULAR)
+    refits = []
+    real = type(opaque).refit
+    monkeypatch.setattr(type(opaque), "refit", lambda self: (refits.append(self.id), real(self))[1])
+    ds.refit()
+    assert refits == [water.id]

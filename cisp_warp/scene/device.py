@@ -119,6 +119,7 @@ class DeviceScene:
         self.geometry.indices, self.geometry.neighbors = self.indices, self.tri_neighbors
         self.has_layer = {LAYER_OPAQUE: bool(np.any(layers & LAYER_OPAQUE)), LAYER_SPECULAR: bool(np.any(layers & LAYER_SPECULAR))}
         self._bvh: dict[int, tuple[wp.Mesh, wp.array]] = {}
+        self._bvh_dynamic: dict[int, bool] = {}  #: whether a BVH's triangles include a dynamic mesh's (refit them)
 
     @property
     def triangle_count(self) -> int:
@@ -147,9 +148,17 @@ class DeviceScene:
             idx = wp.array(self.scene.indices[tri].astype(np.int32).reshape(-1), dtype=wp.int32, device=self.device)
             mesh = wp.Mesh(points=self.points, indices=idx)
             self._bvh[layer] = (mesh, wp.array(tri, dtype=wp.int32, device=self.device))
+            # a scene without mesh ranges (built in code) says nothing of what moves: every BVH is refit
+            moving = np.full(self.scene.triangle_count, not self.scene.meshes, dtype=bool)
+            for m in self.scene.meshes:
+                if m.dynamic:
+                    moving[m.triangle_start : m.triangle_start + m.triangle_count] = True
+            self._bvh_dynamic[layer] = bool(moving[tri].any())
         return self._bvh[layer]
 
     def refit(self) -> None:
-        """Refit every BVH after points moved (never rebuilds)."""
-        for mesh, _ in self._bvh.values():
-            mesh.refit()
+        """Refit every BVH that holds a dynamic mesh's triangles after points moved (never rebuilds); a BVH of
+        static triangles only (the pool's opaque layer under its simulated water) is left as built."""
+        for layer, (mesh, _) in self._bvh.items():
+            if self._bvh_dynamic[layer]:
+                mesh.refit()
