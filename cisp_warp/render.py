@@ -28,6 +28,7 @@ from .photons.march import bounds_size
 from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import DirectLighting, composite, surface_radiance
+from .shade_hidden import HiddenSurfaces
 from .sky import SkyLighting, sky_map
 
 
@@ -199,6 +200,8 @@ class Renderer:
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
+        #: the composite's rays that screen space cannot follow, traced on the opaque layer's BVH and shaded
+        self.hidden = HiddenSurfaces(self.gpu, cam.width, cam.height, self.sky, self.device)
         self.depth_bounds = wp.zeros(bounds_size(cam.width, cam.height), dtype=wp.vec2, device=self.device)
         self.view = camera_view(cam)
         self.view_params = self.view.params()
@@ -341,9 +344,13 @@ class Renderer:
                 build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, bounds, self.device)
             wp.launch(composite, dim=n, device=self.device,
                       inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
-                              w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final])
+                              w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
+                      self.hidden.missed])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
+            else:
+                self.hidden.render(g, self.lights, self.inputs.cameras, self.surface_radiance, self.sky_map,
+                                   self.t_max, self.final)
 
     def _composite_bounds(self) -> wp.array:
         """The camera depth bounds the composite marches on: the photon pass's own (CISP builds them from this frame's

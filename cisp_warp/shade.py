@@ -62,7 +62,7 @@ def shadow_visibility(view: ViewParams, shadow_depth: wp.array(dtype=wp.float32)
 
 
 @wp.func
-def _direct(
+def direct_at(
     shadow_view: ViewParams,
     shadow_depth: wp.array(dtype=wp.float32),
     exclusive: int,
@@ -72,16 +72,12 @@ def _direct(
     light_dir: wp.vec3,
     cone_angle: float,
     cone_softness: float,
-    depth: wp.array(dtype=wp.float32),
-    position: wp.array(dtype=wp.vec3),
-    normal: wp.array(dtype=wp.vec3),
-    p: int,
+    x: wp.vec3,
+    n: wp.vec3,
 ) -> wp.vec3:
-    """Pixel ``p``'s direct irradiance [W/m²] from one shadow map of one light (zero where it adds nothing)."""
-    if depth[p] <= 0.0:
-        return wp.vec3(0.0)
-    x = position[p]
-    n = normal[p]
+    """Direct irradiance [W/m²] at world point ``x`` with unit normal ``n`` from one shadow map of one light (zero
+    where it adds nothing): the camera's surfaces (:func:`_direct`) and the hidden ones the composite's rays reach
+    (``shade_hidden.hidden_direct``)."""
     e = wp.vec3(0.0)
     to_light = -light_dir
     if kind == 0:
@@ -100,6 +96,29 @@ def _direct(
     if exclusive != 0 and inside == 0:
         return wp.vec3(0.0)
     return e * (cos_n * vis)
+
+
+@wp.func
+def _direct(
+    shadow_view: ViewParams,
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
+    cone_angle: float,
+    cone_softness: float,
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    p: int,
+) -> wp.vec3:
+    """Pixel ``p``'s direct irradiance [W/m²] from one shadow map of one light (zero where it adds nothing)."""
+    if depth[p] <= 0.0:
+        return wp.vec3(0.0)
+    return direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                     cone_softness, position[p], normal[p])
 
 
 @wp.kernel
@@ -217,6 +236,30 @@ def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth:
 COMPOSITE_LAUNCH_BOUNDS = (256, 4)
 
 
+MISSED_REFRACTED = wp.constant(1)  #: ``composite``'s ``missed`` bit: the refracted ray's march found nothing
+MISSED_REFLECTED = wp.constant(2)  #: ``composite``'s ``missed`` bit: the reflected ray's march found nothing
+
+
+@wp.func
+def water_rays(camera: ViewParams, x: wp.vec3, n_surface: wp.vec3, ior: float):
+    """A water pixel's camera ray at its surface point ``x``: (Fresnel reflectance F, reflected direction, refracted
+    direction, relative index η as the ray crosses the boundary). Seen from inside the medium the normal and η are
+    turned round; under total internal reflection F = 1 and the refracted direction is unused (zero)."""
+    v = view_eye_world(camera, x)  # towards the eye; the view plane's normal for an orthographic camera
+    n = n_surface
+    eta = ior
+    if wp.dot(v, n) < 0.0:  # seen from inside the medium
+        n = -n
+        eta = 1.0 / eta
+    f = fresnel_dielectric(wp.dot(v, n), eta)
+    d_in = -v
+    dr = reflect(d_in, n)
+    dt = wp.vec3(0.0)
+    if f < 1.0:
+        dt = refract(d_in, n, eta)
+    return f, dr, dt, eta
+
+
 @wp.kernel(launch_bounds=COMPOSITE_LAUNCH_BOUNDS)
 def composite(
     cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
@@ -232,19 +275,21 @@ def composite(
     thickness: float,
     sky: SkyMap,  # radiance of the dome light, seen where a ray finds no surface (black without one)
     final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
+    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits of the rays left to shade_hidden (write)
 ):
     """Opaque pixels show their surface; water pixels Fresnel-blend screen-space refraction and reflection.
 
     The refracted camera ray is marched through the opaque G-buffer (how caustics under water are
     seen, the ESDSL paths of seed 000 Fig. 3); radiance crossing the boundary is scaled by
-    (n_t/n_i)² (L/n² is invariant along a ray). A camera ray that meets no surface, and a reflected ray
-    that leaves the image, see the sky (``sky``; black when the scene has none); a refracted ray that
-    leaves the image or passes behind a surface sees the opaque surface behind the water pixel itself
-    (the undistorted background, the usual screen-space fallback).
+    (n_t/n_i)² (L/n² is invariant along a ray). A camera ray that meets no surface sees the sky (``sky``; black
+    when the scene has none). A reflected or refracted ray whose march finds nothing (it leaves the image, or passes
+    behind a surface) adds nothing here: its bit in ``missed`` hands it to :mod:`cisp_warp.shade_hidden`, which
+    traces it against the opaque layer and adds what it reaches.
     """
     p = wp.tid()
     camera = cameras[0]
     l = radiance[p]
+    bits = int(0)
     if depth[p] <= 0.0 and water_depth[p] <= 0.0:
         px = float(p % camera.width) + 0.5
         py = float(p // camera.width) + 0.5
@@ -252,30 +297,22 @@ def composite(
         l = sky_radiance(sky, d)
     if water_depth[p] > 0.0:
         x = water_position[p]
-        v = view_eye_world(camera, x)  # towards the eye; the view plane's normal for an orthographic camera
-        n = water_normal[p]
-        eta = water_ior[p]
-        if wp.dot(v, n) < 0.0:  # seen from inside the medium
-            n = -n
-            eta = 1.0 / eta
-        f = fresnel_dielectric(wp.dot(v, n), eta)
-        d_in = -v
+        f, dr, dt, eta = water_rays(camera, x, water_normal[p], water_ior[p])
         l = wp.vec3(0.0)
         if f > 0.0:
-            dr = reflect(d_in, n)
             found, lr = screen_space_lookup(cameras, p, depth, depth_bounds, radiance, x, dr, t_max, max_steps,
                                             thickness)
             if found == 0:
-                lr = sky_radiance(sky, dr)
+                bits = bits | MISSED_REFLECTED
             l = l + lr * f
         if f < 1.0:
-            dt = refract(d_in, n, eta)
             found, lt = screen_space_lookup(cameras, p + 1, depth, depth_bounds, radiance, x, dt, t_max, max_steps,
                                             thickness)
-            if found == 0:  # the refracted ray leaves the screen or goes behind a surface: the opaque
-                lt = radiance[p]  # surface behind this pixel stands in (undistorted), never black
+            if found == 0:
+                bits = bits | MISSED_REFRACTED
             l = l + lt * ((1.0 - f) / (eta * eta))
     final[p] = l
+    missed[p] = bits
 
 
 class DirectLighting:
@@ -317,4 +354,5 @@ class DirectLighting:
             first = 0
 
 
-__all__ = ["DirectLighting", "composite", "direct_light", "direct_light_pair", "LightKind"]
+__all__ = ["DirectLighting", "MISSED_REFLECTED", "MISSED_REFRACTED", "composite", "direct_at", "direct_light",
+           "direct_light_pair", "LightKind", "water_rays"]

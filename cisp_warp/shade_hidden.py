@@ -1,0 +1,349 @@
+"""The composite's rays that screen space cannot follow: traced against the opaque layer's BVH, shaded at what they hit.
+
+:func:`cisp_warp.shade.composite` follows a water pixel's reflected and refracted camera rays through the camera's
+depth buffer. Where that march fails (the ray leaves the image, or passes behind a surface and finds nothing it can
+see), it flags the ray in ``missed`` and adds nothing for it; this pass then finds what the ray really reaches, as
+the reference's camera paths do (``photons.kernels_world.camera_paths``), on the opaque layer's ``wp.Mesh`` BVH
+(``DeviceScene.bvh(LAYER_OPAQUE)``, built once, refit only when opaque geometry moves):
+
+============================  =====================================================================================
+the ray ...                   radiance it brings [W/(m² sr)], times its throughput (F reflected, (1 − F)/η² refracted)
+============================  =====================================================================================
+meets no opaque surface       the sky's radiance along it (``sky.sky_radiance``; black without a sky)
+lands on a surface the        that pixel's surface radiance: direct + caustic + sky, the G-buffer's own (the same
+camera sees                   test as the reference's photon store: in the pixel, within two pixel widths of its
+                              tangent plane)
+lands where the camera        albedo/π · (direct + sky irradiance) at the hit: the sky's occlusion maps
+does not see                  (``sky.sky_irradiance_at``) here, the shadow maps in :func:`hidden_direct`, one launch
+                              per map. The caustic there is unknown in screen space (no method stores photons on
+                              surfaces the camera does not see): it is left out, a known bias (docs/perf_notes.md 24)
+============================  =====================================================================================
+
+Buffers (per pixel p; slot 2p is the refracted ray, 2p + 1 the reflected one):
+
+``missed``      (H*W,) int32: bits MISSED_REFRACTED, MISSED_REFLECTED set by the composite (written for every pixel);
+                :func:`trace_hidden` adds HIDDEN_REFRACTED, HIDDEN_REFLECTED where that ray's hit awaits direct light
+``hidden_tri``  (2*H*W,) int32: scene triangle + 1 of a hidden hit, negated where the shading normal is flipped
+                to face the ray (read only where the HIDDEN bit is set)
+``hidden_uvw``  (2*H*W,) vec3: the hit's barycentrics (u, v: weights of the triangle's first and second vertex,
+                as ``wp.mesh_query_ray``) and the ray's throughput [1]
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from .raster.views import ViewParams, world_project
+from .scene.model import LAYER_OPAQUE
+from .shade import MISSED_REFLECTED, MISSED_REFRACTED, direct_at, water_rays
+from .sky import SkyMap, sky_irradiance_at, sky_radiance
+
+INV_PI = wp.constant(1.0 / math.pi)
+
+HIDDEN_REFRACTED = wp.constant(4)  #: the refracted ray landed where the camera does not see: direct light pending
+HIDDEN_REFLECTED = wp.constant(8)  #: the reflected ray likewise
+
+
+@wp.struct
+class OpaqueLayer:
+    """The opaque triangles as the hidden-surface rays see them (views of ``DeviceScene`` arrays, no copies)."""
+
+    mesh: wp.uint64  #: BVH over the opaque layer (``DeviceScene.bvh(LAYER_OPAQUE)``)
+    has_mesh: int  #: 0: the scene has no opaque triangles (``mesh`` unset; every ray meets the sky)
+    face_to_tri: wp.array(dtype=wp.int32)  #: (F,) scene triangle of each BVH face
+    points: wp.array(dtype=wp.vec3)  #: (V,) [m]
+    normals: wp.array(dtype=wp.vec3)  #: (V,) unit vertex normals
+    indices: wp.array(dtype=wp.int32)  #: (3T,)
+    triangle_material: wp.array(dtype=wp.int32)  #: (T,)
+    albedo: wp.array(dtype=wp.vec3)  #: (M,) diffuse reflectance
+
+
+@wp.struct
+class SkyOcclusion:
+    """What ``sky.sky_irradiance_at`` reads (``sky.SkyLighting``'s arrays; zeros without a sky: no irradiance)."""
+
+    sh: wp.array(dtype=wp.vec3)  #: (9,) convolved SH coefficients of the sky [W/m²]
+    views: wp.array(dtype=ViewParams)  #: (K,) occlusion map views
+    directions: wp.array(dtype=wp.vec3)  #: (K,) unit directions towards the sky
+    luminance: wp.array(dtype=wp.float32)  #: (K,) sky luminance along them [W/(m² sr)]
+    map_depth: wp.array(dtype=wp.float32)  #: (K*S*S,) occlusion maps [m]
+    map_texels: int  #: S*S
+
+
+@wp.func
+def opaque_hit(layer: OpaqueLayer, o: wp.vec3, d: wp.vec3, t_max: float):
+    """Nearest opaque triangle along ``o + d·t`` (unit ``d``), t in (0, t_max], by the BVH: (scene triangle or -1,
+    u, v, t)."""
+    q = wp.mesh_query_ray(layer.mesh, o, d, t_max)
+    if not q.result:
+        return int(-1), float(0.0), float(0.0), float(0.0)
+    return layer.face_to_tri[q.face], q.u, q.v, q.t
+
+
+@wp.func
+def opaque_hit_naive(layer: OpaqueLayer, o: wp.vec3, d: wp.vec3, t_max: float):
+    """:func:`opaque_hit`'s naive twin: every triangle of the layer (Möller-Trumbore), no BVH. Same returns; u and v
+    the weights of the first and second vertex, as ``wp.mesh_query_ray`` gives them."""
+    best = int(-1)
+    bu = float(0.0)
+    bv = float(0.0)
+    bt = t_max
+    for f in range(layer.face_to_tri.shape[0]):
+        tri = layer.face_to_tri[f]
+        p0 = layer.points[layer.indices[3 * tri]]
+        p1 = layer.points[layer.indices[3 * tri + 1]]
+        p2 = layer.points[layer.indices[3 * tri + 2]]
+        e1 = p1 - p0
+        e2 = p2 - p0
+        pv = wp.cross(d, e2)
+        det = wp.dot(e1, pv)
+        if wp.abs(det) > 1.0e-30:
+            inv = 1.0 / det
+            s = o - p0
+            b1 = wp.dot(s, pv) * inv  # weight of p1
+            qv = wp.cross(s, e1)
+            b2 = wp.dot(d, qv) * inv  # weight of p2
+            t = wp.dot(e2, qv) * inv
+            if b1 >= 0.0 and b2 >= 0.0 and b1 + b2 <= 1.0 and t > 0.0 and t <= bt:
+                best = tri
+                bt = t
+                bu = 1.0 - b1 - b2
+                bv = b1
+    if best < 0:
+        return int(-1), float(0.0), float(0.0), float(0.0)
+    return best, bu, bv, bt
+
+
+@wp.func
+def hidden_point(layer: OpaqueLayer, tri: int, u: float, v: float):
+    """(world point [m], interpolated unit shading normal, geometric normal) of triangle ``tri`` at (u, v)."""
+    i0 = layer.indices[3 * tri]
+    i1 = layer.indices[3 * tri + 1]
+    i2 = layer.indices[3 * tri + 2]
+    p0 = layer.points[i0]
+    p1 = layer.points[i1]
+    p2 = layer.points[i2]
+    w = 1.0 - u - v
+    y = p0 * u + p1 * v + p2 * w
+    ng = wp.cross(p1 - p0, p2 - p0)
+    n = layer.normals[i0] * u + layer.normals[i1] * v + layer.normals[i2] * w
+    ln = wp.length(n)
+    if ln < 1.0e-12:
+        n = wp.normalize(ng)
+    else:
+        n = n / ln
+    return y, n, ng
+
+
+@wp.func
+def seen_by_camera(camera: ViewParams, depth: wp.array(dtype=wp.float32), position: wp.array(dtype=wp.vec3),
+                   normal: wp.array(dtype=wp.vec3), y: wp.vec3) -> int:
+    """Camera pixel whose G-buffer surface is the point ``y`` (the reference's store test: ``y`` projects into the
+    pixel and lies within two pixel widths of its tangent plane), or -1."""
+    q = world_project(camera, y)
+    if q[2] <= camera.near or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(camera.width) or q[1] >= float(camera.height):
+        return -1
+    pix = int(q[1]) * camera.width + int(q[0])
+    zc = depth[pix]
+    if zc <= 0.0:
+        return -1
+    pixel_size = zc / camera.fx
+    if camera.orthographic != 0:
+        pixel_size = 1.0 / camera.fx
+    if wp.abs(wp.dot(y - position[pix], normal[pix])) > 2.0 * pixel_size:
+        return -1
+    return pix
+
+
+def _trace_hidden_kernel(naive: bool):
+    @wp.kernel(module="unique")
+    def trace_hidden(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+        water_normal: wp.array(dtype=wp.vec3),  # (H*W,) (read)
+        water_ior: wp.array(dtype=wp.float32),  # (H*W,) (read)
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
+        position: wp.array(dtype=wp.vec3),  # (H*W,) its world position [m] (read)
+        normal: wp.array(dtype=wp.vec3),  # (H*W,) its unit normal (read)
+        radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
+        sky: SkyMap,  # the dome's radiance where a ray meets nothing (black without a sky)
+        occlusion: SkyOcclusion,  # the sky's irradiance at a hidden hit
+        t_max: float,  # longest ray [m]
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read); HIDDEN_* bits added (write)
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) ±(triangle + 1) of a hidden hit (write where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (u, v, throughput) of a hidden hit (write where HIDDEN)
+        final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+    ):
+        """Each ray the composite's march could not follow: the BVH's nearest opaque hit, shaded (module docstring);
+        direct light at hidden hits is :func:`hidden_direct`'s."""
+        p = wp.tid()
+        bits = missed[p]
+        if bits == 0:
+            return
+        camera = cameras[0]
+        f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
+        x = water_position[p]
+        l = wp.vec3(0.0)
+        for k in range(2):
+            flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
+            if (bits & flag) != 0:
+                d = dr
+                w = f
+                if k == 0:
+                    d = dt
+                    w = (1.0 - f) / (eta * eta)
+                tri = int(-1)
+                u = float(0.0)
+                v = float(0.0)
+                t = float(0.0)
+                if layer.has_mesh != 0:
+                    if wp.static(naive):
+                        tri, u, v, t = opaque_hit_naive(layer, x, d, t_max)
+                    else:
+                        tri, u, v, t = opaque_hit(layer, x, d, t_max)
+                if tri < 0:
+                    l = l + sky_radiance(sky, d) * w
+                else:
+                    y, n, ng = hidden_point(layer, tri, u, v)
+                    pix = seen_by_camera(camera, depth, position, normal, y)
+                    if pix >= 0:
+                        l = l + radiance[pix] * w
+                    else:
+                        sign = int(1)  # the shading normal on the geometric one's side, then facing the ray
+                        if wp.dot(n, ng) < 0.0:
+                            sign = -sign
+                        if wp.dot(n, d) * float(sign) > 0.0:
+                            sign = -sign
+                        n = n * float(sign)
+                        rho = layer.albedo[layer.triangle_material[tri]]
+                        e_sky = sky_irradiance_at(y, n, occlusion.sh, occlusion.views, occlusion.directions,
+                                                  occlusion.luminance, occlusion.map_depth, occlusion.map_texels)
+                        l = l + wp.cw_mul(rho, e_sky) * (INV_PI * w)
+                        hidden_tri[2 * p + k] = (tri + 1) * sign
+                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
+                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
+        missed[p] = bits
+        final[p] = final[p] + l
+
+    return trace_hidden
+
+
+trace_hidden = _trace_hidden_kernel(False)
+trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
+
+
+@wp.kernel
+def hidden_direct(
+    shadow_view: ViewParams,  # one shadow map, as shade.direct_light's arguments
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
+    cone_angle: float,
+    cone_softness: float,
+    layer: OpaqueLayer,
+    missed: wp.array(dtype=wp.int32),  # (H*W,) HIDDEN_* bits (read)
+    hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read)
+    hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read)
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+):
+    """Direct light of one shadow map at each hidden hit: albedo/π · E · throughput added to the pixel (the camera's
+    own surfaces get theirs from ``shade.direct_light``, by the same function)."""
+    p = wp.tid()
+    bits = missed[p]
+    if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) == 0:
+        return
+    l = wp.vec3(0.0)
+    for k in range(2):
+        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
+            st = hidden_tri[2 * p + k]
+            uvw = hidden_uvw[2 * p + k]
+            tri = wp.abs(st) - 1
+            y, n, ng = hidden_point(layer, tri, uvw[0], uvw[1])
+            if st < 0:
+                n = -n
+            e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                          cone_softness, y, n)
+            rho = layer.albedo[layer.triangle_material[tri]]
+            l = l + wp.cw_mul(rho, e) * (INV_PI * uvw[2])
+    if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
+        final[p] = final[p] + l
+
+
+def opaque_layer(scene) -> OpaqueLayer:
+    """The kernels' view of ``scene``'s (a ``DeviceScene``) opaque layer: its BVH is ``scene.bvh(LAYER_OPAQUE)``, the
+    one the reference and SSPM trace (built once, on first use; refit only when opaque geometry moves)."""
+    layer = OpaqueLayer()
+    layer.has_mesh = int(scene.has_layer[LAYER_OPAQUE])
+    if layer.has_mesh:
+        mesh, face_map = scene.bvh(LAYER_OPAQUE)
+        layer.mesh, layer.face_to_tri = mesh.id, face_map
+    else:
+        layer.face_to_tri = wp.zeros(0, dtype=wp.int32, device=scene.device)
+    layer.points, layer.normals, layer.indices = scene.points, scene.normals, scene.indices
+    layer.triangle_material, layer.albedo = scene.triangle_material, scene.albedo
+    return layer
+
+
+def sky_occlusion(sky, device) -> SkyOcclusion:
+    """The arrays of ``sky`` (a ``sky.SkyLighting``) as :func:`trace_hidden` reads them; without a sky, zeros (its
+    irradiance is zero: SH coefficients zero, no occlusion maps)."""
+    occ = SkyOcclusion()
+    if sky is not None:
+        occ.sh, occ.views, occ.directions, occ.luminance = sky.sh, sky.view_params, sky.directions, sky.luminance
+        occ.map_depth, occ.map_texels = sky.map_depth, sky.map_size * sky.map_size
+    else:
+        occ.sh = wp.zeros(9, dtype=wp.vec3, device=device)
+        occ.views = wp.zeros(1, dtype=ViewParams, device=device)
+        occ.directions = wp.zeros(0, dtype=wp.vec3, device=device)
+        occ.luminance = wp.zeros(0, dtype=wp.float32, device=device)
+        occ.map_depth = wp.zeros(1, dtype=wp.float32, device=device)
+        occ.map_texels = 1
+    return occ
+
+
+class HiddenSurfaces:
+    """The composite's rays that screen space cannot follow, traced and shaded (module docstring). Allocated once:
+    ``missed`` (H*W int32), ``hidden_tri`` (2·H*W int32) and ``hidden_uvw`` (2·H*W vec3), 28 B a pixel."""
+
+    def __init__(self, scene, width: int, height: int, sky, device):
+        self.device = wp.get_device(device)
+        n = width * height
+        self.layer = opaque_layer(scene)
+        self.occlusion = sky_occlusion(sky, self.device)
+        self.missed = wp.zeros(n, dtype=wp.int32, device=self.device)
+        self.hidden_tri = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
+        self.hidden_uvw = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
+        self.naive = False  #: trace with :data:`trace_hidden_naive` (every triangle, no BVH): the twin, for tests
+
+    def render(self, gbuffer, lights, cameras: wp.array, radiance: wp.array, sky_map: SkyMap, t_max: float,
+               final: wp.array) -> None:
+        """Add to ``final`` what the rays flagged in ``missed`` (by ``shade.composite``, just before) reach:
+        :func:`trace_hidden`, then :func:`hidden_direct` once per shadow map of every light."""
+        w = gbuffer.water
+        n = gbuffer.width * gbuffer.height
+        kernel = trace_hidden_naive if self.naive else trace_hidden
+        wp.launch(kernel, dim=n, device=self.device, inputs=[
+            cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
+            radiance, sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, final])
+        for lm in lights:
+            light = lm.light
+            maps = lm.shadow_maps()
+            rgb = wp.vec3(*light.radiometric_rgb.astype(np.float32))
+            pos = wp.vec3(*np.asarray(light.position, np.float32))
+            axis = wp.vec3(*np.asarray(light.direction, np.float32))
+            for view, depth in maps:
+                wp.launch(hidden_direct, dim=n, device=self.device, inputs=[
+                    view, depth, int(len(maps) > 1), int(light.kind), rgb, pos, axis, float(light.cone_angle),
+                    float(light.cone_softness), self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
+
+
+__all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_direct",
+           "opaque_hit", "opaque_hit_naive", "opaque_layer", "sky_occlusion", "trace_hidden", "trace_hidden_naive"]
