@@ -27,9 +27,13 @@ from .photons.fit import LightViewFitter
 from .photons.march import bounds_size
 from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
-from .shade import DirectLighting, composite, surface_radiance
+from .shade import MISSED_REFLECTED, MISSED_REFRACTED, DirectLighting, composite, surface_radiance
 from .shade_hidden import HiddenSurfaces
 from .sky import SkyLighting, sky_map
+
+
+#: RenderSettings.hidden_rays -> the composite's MISSED_* bits of the rays handed to shade_hidden
+HIDDEN_RAYS = {"refracted": int(MISSED_REFRACTED), "both": int(MISSED_REFRACTED) | int(MISSED_REFLECTED), "none": 0}
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,10 @@ class RenderSettings:
     #: the AOVs are box-filtered down); 1 = one sample per pixel. ``cisp_warp.render`` and the CLI use 2.
     sky_maps: int = 32  #: occlusion maps of the sky term (directions over the sphere)
     sky_map_size: int = 256  #: edge of each sky occlusion map [texels]
+    #: the composite's rays traced on the opaque layer's BVH where the screen-space march finds nothing
+    #: (``shade_hidden``): "refracted" (reflected ones see the sky), "both", or "none" (the screen-space fallbacks
+    #: alone: sky, and the undistorted background behind the water pixel)
+    hidden_rays: str = "refracted"
 
     def __post_init__(self):
         photons = self.photons
@@ -108,6 +116,8 @@ class RenderSettings:
             raise SettingsError("supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
         if not _is_int(self.sky_maps, 0, 1024):
             raise SettingsError("sky_maps", f"must be an integer in [0, 1024], got {self.sky_maps!r}")
+        if self.hidden_rays not in HIDDEN_RAYS:
+            raise SettingsError("hidden_rays", f"must be one of {', '.join(HIDDEN_RAYS)}, got {self.hidden_rays!r}")
         if not _is_int(self.sky_map_size, 1, 8192):
             raise SettingsError("sky_map_size", f"must be an integer in [1, 8192], got {self.sky_map_size!r}")
         try:
@@ -202,6 +212,7 @@ class Renderer:
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
         #: the composite's rays that screen space cannot follow, traced on the opaque layer's BVH and shaded
         self.hidden = HiddenSurfaces(self.gpu, cam.width, cam.height, self.sky, self.device)
+        self._hidden_bits = HIDDEN_RAYS[self.settings.hidden_rays]  #: composite's ``hidden_rays`` bits
         self.depth_bounds = wp.zeros(bounds_size(cam.width, cam.height), dtype=wp.vec2, device=self.device)
         self.view = camera_view(cam)
         self.view_params = self.view.params()
@@ -345,12 +356,12 @@ class Renderer:
             wp.launch(composite, dim=n, device=self.device,
                       inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
                               w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
-                      self.hidden.missed])
+                              self.hidden.missed, self._hidden_bits])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
-            else:
+            elif self._hidden_bits != 0:
                 self.hidden.render(g, self.lights, self.inputs.cameras, self.surface_radiance, self.sky_map,
-                                   self.t_max, self.final)
+                                   self.t_max, self.final, getattr(self.photons, "hidden", None))
 
     def _composite_bounds(self) -> wp.array:
         """The camera depth bounds the composite marches on: the photon pass's own (CISP builds them from this frame's

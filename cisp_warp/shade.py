@@ -276,6 +276,7 @@ def composite(
     sky: SkyMap,  # radiance of the dome light, seen where a ray finds no surface (black without one)
     final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
     missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits of the rays left to shade_hidden (write)
+    hidden_rays: int,  # MISSED_* bits of the rays handed to shade_hidden when their march finds nothing
 ):
     """Opaque pixels show their surface; water pixels Fresnel-blend screen-space refraction and reflection.
 
@@ -283,8 +284,10 @@ def composite(
     seen, the ESDSL paths of seed 000 Fig. 3); radiance crossing the boundary is scaled by
     (n_t/n_i)² (L/n² is invariant along a ray). A camera ray that meets no surface sees the sky (``sky``; black
     when the scene has none). A reflected or refracted ray whose march finds nothing (it leaves the image, or passes
-    behind a surface) adds nothing here: its bit in ``missed`` hands it to :mod:`cisp_warp.shade_hidden`, which
-    traces it against the opaque layer and adds what it reaches.
+    behind a surface) and whose bit is set in ``hidden_rays`` adds nothing here: its bit in ``missed`` hands it to
+    :mod:`cisp_warp.shade_hidden`, which traces it against the opaque layer and adds what it reaches. Without its
+    bit, the screen-space fallbacks: a reflected ray sees the sky, a refracted one the opaque surface behind the
+    water pixel itself (the undistorted background).
     """
     p = wp.tid()
     camera = cameras[0]
@@ -303,13 +306,19 @@ def composite(
             found, lr = screen_space_lookup(cameras, p, depth, depth_bounds, radiance, x, dr, t_max, max_steps,
                                             thickness)
             if found == 0:
-                bits = bits | MISSED_REFLECTED
+                if (hidden_rays & MISSED_REFLECTED) != 0:
+                    bits = bits | MISSED_REFLECTED
+                else:
+                    lr = sky_radiance(sky, dr)
             l = l + lr * f
         if f < 1.0:
             found, lt = screen_space_lookup(cameras, p + 1, depth, depth_bounds, radiance, x, dt, t_max, max_steps,
                                             thickness)
             if found == 0:
-                bits = bits | MISSED_REFRACTED
+                if (hidden_rays & MISSED_REFRACTED) != 0:
+                    bits = bits | MISSED_REFRACTED
+                else:
+                    lt = radiance[p]
             l = l + lt * ((1.0 - f) / (eta * eta))
     final[p] = l
     missed[p] = bits

@@ -13,11 +13,16 @@ meets no opaque surface       the sky's radiance along it (``sky.sky_radiance``;
 lands on a surface the        that pixel's surface radiance: direct + caustic + sky, the G-buffer's own (the same
 camera sees                   test as the reference's photon store: in the pixel, within two pixel widths of its
                               tangent plane)
-lands where the camera        albedo/π · (direct + sky irradiance) at the hit: the sky's occlusion maps
+lands where the camera        albedo/π · (direct + sky + caustic irradiance) at the hit: the sky's occlusion maps
 does not see                  (``sky.sky_irradiance_at``) here, the shadow maps in :func:`hidden_direct`, one launch
-                              per map. The caustic there is unknown in screen space (no method stores photons on
-                              surfaces the camera does not see): it is left out, a known bias (docs/perf_notes.md 24)
+                              per map; the caustic from the photons the method kept where the camera does not see
+                              (``photons.hidden_flux``, one map per light view) in :func:`hidden_caustic`, one launch
+                              per light view (none for a method that keeps no such photons: caustics_map)
 ============================  =====================================================================================
+
+Which rays come here is the renderer's ``hidden_rays`` setting (``shade.composite``'s bits): by default only the
+refracted ones (docs/perf_notes.md section 31: on the pool 91% of the fallback rays are reflections, which keep the
+sky at no cost in FLIP)
 
 Buffers (per pixel p; slot 2p is the refracted ray, 2p + 1 the reflected one):
 
@@ -37,6 +42,7 @@ import numpy as np
 import warp as wp
 
 from .raster.views import ViewParams, world_project
+from .photons.hidden_flux import hidden_irradiance
 from .scene.model import LAYER_OPAQUE
 from .shade import MISSED_REFLECTED, MISSED_REFRACTED, direct_at, water_rays
 from .sky import SkyMap, sky_irradiance_at, sky_radiance
@@ -277,6 +283,42 @@ def hidden_direct(
         final[p] = final[p] + l
 
 
+@wp.kernel
+def hidden_caustic(
+    views: wp.array(dtype=ViewParams),  # (V,) one light's RSM views (LightMaps.views, read)
+    view_index: int,  # the view whose hidden flux map this launch reads
+    flux: wp.array(dtype=wp.vec3),  # its hidden flux map [W] per map texel (photons.hidden_flux, read)
+    stride: int,  # RSM texels per map texel along each axis
+    gather: int,  # the lookup's (2 gather + 1)² texels
+    layer: OpaqueLayer,
+    missed: wp.array(dtype=wp.int32),  # (H*W,) HIDDEN_* bits (read)
+    hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read)
+    hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read)
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+):
+    """The caustic of one light view's hidden photons at each hidden hit: albedo/π · E · throughput added to the
+    pixel, E from :func:`~.photons.hidden_flux.hidden_irradiance` (zero outside the view)."""
+    p = wp.tid()
+    bits = missed[p]
+    if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) == 0:
+        return
+    view = views[view_index]
+    if view.far <= 0.0:  # a fitted cascade inactive this frame: it stored nothing
+        return
+    l = wp.vec3(0.0)
+    for k in range(2):
+        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
+            st = hidden_tri[2 * p + k]
+            uvw = hidden_uvw[2 * p + k]
+            tri = wp.abs(st) - 1
+            y, n, ng = hidden_point(layer, tri, uvw[0], uvw[1])
+            e = hidden_irradiance(view, flux, stride, gather, y, n)
+            rho = layer.albedo[layer.triangle_material[tri]]
+            l = l + wp.cw_mul(rho, e) * (INV_PI * uvw[2])
+    if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
+        final[p] = final[p] + l
+
+
 def opaque_layer(scene) -> OpaqueLayer:
     """The kernels' view of ``scene``'s (a ``DeviceScene``) opaque layer: its BVH is ``scene.bvh(LAYER_OPAQUE)``, the
     one the reference and SSPM trace (built once, on first use; refit only when opaque geometry moves)."""
@@ -324,9 +366,11 @@ class HiddenSurfaces:
         self.naive = False  #: trace with :data:`trace_hidden_naive` (every triangle, no BVH): the twin, for tests
 
     def render(self, gbuffer, lights, cameras: wp.array, radiance: wp.array, sky_map: SkyMap, t_max: float,
-               final: wp.array) -> None:
+               final: wp.array, hidden_flux=None) -> None:
         """Add to ``final`` what the rays flagged in ``missed`` (by ``shade.composite``, just before) reach:
-        :func:`trace_hidden`, then :func:`hidden_direct` once per shadow map of every light."""
+        :func:`trace_hidden`, then :func:`hidden_direct` once per shadow map of every light, and
+        :func:`hidden_caustic` once per light view of ``hidden_flux`` (a ``photons.hidden_flux.HiddenFlux``; None:
+        no caustic at hidden hits)."""
         w = gbuffer.water
         n = gbuffer.width * gbuffer.height
         kernel = trace_hidden_naive if self.naive else trace_hidden
@@ -343,7 +387,15 @@ class HiddenSurfaces:
                 wp.launch(hidden_direct, dim=n, device=self.device, inputs=[
                     view, depth, int(len(maps) > 1), int(light.kind), rgb, pos, axis, float(light.cone_angle),
                     float(light.cone_softness), self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
+        if hidden_flux is None:
+            return
+        for li, lm in enumerate(lights):
+            for vi, flux in enumerate(hidden_flux.flux[li]):
+                wp.launch(hidden_caustic, dim=n, device=self.device, inputs=[
+                    lm.views, vi, flux, hidden_flux.stride[li], hidden_flux.gather, self.layer, self.missed,
+                    self.hidden_tri, self.hidden_uvw, final])
 
 
-__all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_direct",
+__all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",
+           "hidden_direct",
            "opaque_hit", "opaque_hit_naive", "opaque_layer", "sky_occlusion", "trace_hidden", "trace_hidden_naive"]

@@ -12,7 +12,8 @@ from cisp_warp.render import Renderer, RenderSettings
 from cisp_warp.scene import Camera, Light, LightKind
 from cisp_warp.scene.model import look_at_matrix
 from cisp_warp.shade import MISSED_REFLECTED, MISSED_REFRACTED
-from cisp_warp.shade_hidden import HIDDEN_REFLECTED
+from cisp_warp.photons.hidden_flux import HIDDEN_GATHER
+from cisp_warp.shade_hidden import HIDDEN_REFLECTED, HIDDEN_REFRACTED
 
 E_SUN = 1000.0  # W/m²
 SUN_DIR = np.array([0.0, -0.6, -0.8])  # travel; the wall (facing +z) sees cos = 0.8
@@ -33,8 +34,8 @@ def water_and_offscreen_wall(size=32):
     return analytic.build([water, floor, wall], cam, [sun])
 
 
-def render(scene, device, method="none", naive=False):
-    r = Renderer(scene, RenderSettings(rsm_size=128, method=method, denoiser="none",
+def render(scene, device, method="none", naive=False, hidden_rays="both"):
+    r = Renderer(scene, RenderSettings(rsm_size=128, method=method, denoiser="none", hidden_rays=hidden_rays,
                                        photons=PhotonSettings(photons=20_000, seed=3)), device=device)
     r.hidden.naive = naive
     r.render_frame()
@@ -117,3 +118,125 @@ def test_a_visible_hit_shows_what_the_march_would_have_found(device):
     close = np.isclose(got[water], want[water], rtol=1e-5, atol=1e-7).all(axis=-1)
     # a ray along the view axis may land one pixel over on CUDA (fused multiply-adds), as in test_evaluation
     assert close.mean() > 0.99, f"{(~close).sum()} of {close.size} water pixels differ; shape {shape}"
+
+
+# --- the caustic at hidden hits (photons.hidden_flux) ---
+
+SUN_TILT = np.array([0.6, -0.8, 0.0])  # travel: across the wall's plane, so no photon meets the wall, none shadows
+WALL_NEAR_Z = 0.1
+
+
+def water_over_hidden_floor(size=48):
+    """Flat water (1 m square, y = 0) 0.5 m over a floor, an opaque wall under the water (z = 0.1, facing the camera,
+    -0.5 <= y <= -0.05) that hides the floor behind it from the camera's straight view; the camera's refracted rays,
+    steeper, pass over the wall's top and reach that floor (the pool's coping, docs/perf_notes.md section 22). The sun
+    travels along +x, parallel to the wall: the floor behind it gets the water's refracted light and nothing else."""
+    water = (analytic.quad(0, 0, 0, (0.5, 0, 0), (0, 0, -0.5)), 1)
+    floor = (analytic.quad(0, -0.5, 0, (2, 0, 0), (0, 0, -2)), 0)
+    wall = (analytic.quad(0, -0.275, WALL_NEAR_Z, (0.6, 0, 0), (0, 0.225, 0)), 0)
+    cam = Camera(look_at_matrix((0.0, 1.5, 1.2), (0.0, 0.0, 0.0)), fov_y=math.radians(40), width=size, height=size,
+                 near=0.05, far=10)
+    sun = Light(LightKind.DISTANT, "sun", intensity=E_SUN, direction=tuple(SUN_TILT))
+    return analytic.build([water, floor, wall], cam, [sun])
+
+
+def refracted_floor_hits(r):
+    """Per camera pixel (flat): the refracted camera ray's floor point (y = -0.5) and its throughput (1 - F)/η²."""
+    x = r.gbuffer.water.position.numpy().astype(np.float64)
+    eye = np.array([0.0, 1.5, 1.2])
+    v = eye - x
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    f = fresnel_dielectric_np(v[:, 1], 1.33)
+    cos_t = np.sqrt(1.0 - (1.0 - v[:, 1] ** 2) / 1.33 ** 2)
+    t_dir = -v / 1.33 + np.array([0.0, 1.0, 0.0]) * (v[:, 1:2] / 1.33 - cos_t[:, None])
+    return x + t_dir * (-0.5 / t_dir[:, 1:2]), (1.0 - f) / 1.33 ** 2
+
+
+def test_hidden_floor_shows_the_refracted_sun(device):
+    """The floor behind the wall, seen only through the water: the photons landing there are booked occluded and
+    kept in light space; the refracted ray's hidden hit sees their irradiance, which under flat water is exactly
+    E = (1 - F(θ_sun)) E_sun cos θ_sun. Each band pixel shows (1 - F_cam)/η² · ρ/π · E (no direct light through the
+    water, no sky): its mean within 3% (photon noise: ~16 per map texel, 3×3 gathered, ~40 texels in the band), every
+    pixel within 25%, for cisp (light-view march) and sspm (BVH). Without the hidden rays ("none") the pixel showed
+    the wall; without stored photons (method "none") it is black."""
+    cos_sun = -SUN_TILT[1]
+    e_floor = (1.0 - fresnel_dielectric_np(np.array([cos_sun]), 1.33)[0]) * E_SUN * cos_sun
+    for method in ("cisp", "sspm"):
+        r = render(water_over_hidden_floor(), device, method=method, hidden_rays="refracted")
+        missed = r.hidden.missed.numpy()
+        floor, w = refracted_floor_hits(r)
+        # the floor under the water's light, a gather window (3 × 3 map texels of 6 × 3 cm) clear of its edge at x = -0.25
+        band = ((missed & HIDDEN_REFRACTED) != 0) & (floor[:, 0] > 0.05) & (floor[:, 0] < 0.55)
+        assert band.sum() > 20, band.sum()
+        assert (floor[band, 2] < WALL_NEAR_Z).all()  # behind the wall
+        assert not (missed & MISSED_REFLECTED).any()  # reflections keep the sky ("refracted")
+        want = w[band] * ALBEDO / math.pi * e_floor
+        got = r.final.numpy()[band]
+        ratio = got / want[:, None]
+        assert abs(ratio.mean() - 1.0) < 0.03, (method, ratio.mean())
+        assert np.abs(ratio - 1.0).max() < 0.25, (method, np.abs(ratio - 1.0).max())
+        ledger = r.photons.read_ledger()
+        assert abs(ledger.closure()) < 1e-9  # the kept photons are booked as before (occluded): the ledger closes
+        assert ledger["occluded"].sum() > 0
+    black = render(water_over_hidden_floor(), device, method="none", hidden_rays="refracted")
+    assert np.abs(black.final.numpy()[band]).max() == 0.0
+
+
+def hidden_irradiance_np(view, flux, stride, gather, y, n):
+    """numpy twin of photons.hidden_flux.hidden_irradiance (float64): project, gather, divide by the receiver's
+    area of one map texel."""
+    q = view.project(y)
+    mw, mh = -(-view.width // stride), -(-view.height // stride)
+    out = np.zeros((len(y), 3))
+    to_world = np.asarray(view.to_world, np.float64)
+    axis = -to_world[:3, 2]
+    for i in range(len(y)):
+        if q[i, 2] <= 0 or not (0 <= q[i, 0] < view.width and 0 <= q[i, 1] < view.height):
+            continue
+        ix, iy = int(q[i, 0]) // stride, int(q[i, 1]) // stride
+        js = [(jy, jx) for jy in range(iy - gather, iy + gather + 1) for jx in range(ix - gather, ix + gather + 1)
+              if 0 <= jx < mw and 0 <= jy < mh]
+        total = sum(flux[jy * mw + jx].astype(np.float64) for jy, jx in js)
+        area = stride * stride / (view.fx * view.fy)
+        ray = axis
+        if not view.orthographic:
+            eye = to_world[:3, 3]
+            ray = (y[i] - eye) / np.linalg.norm(y[i] - eye)
+            z = np.dot(y[i] - eye, axis)
+            area *= z * z * np.dot(ray, axis)
+        out[i] = total / len(js) / (area / max(abs(np.dot(ray, n[i])), 1e-6))
+    return out
+
+
+def test_hidden_caustic_matches_its_twin(device):
+    """hidden_caustic's lookup against the numpy twin, on the hidden floor's band (light views fitted to the scene:
+    their views known on the host): the added radiance per pixel to float rounding."""
+    scene = water_over_hidden_floor()
+    r = Renderer(scene, RenderSettings(rsm_size=128, method="sspm", denoiser="none", light_views="scene",
+                                       photons=PhotonSettings(photons=20_000, seed=3)), device=device)
+    r.render_frame()
+    missed = r.hidden.missed.numpy()
+    band = (missed & HIDDEN_REFRACTED) != 0
+    assert band.sum() > 20
+    # the radiance the caustic adds: render the hidden pass again with and without the flux maps
+    g = r.gbuffer
+    args = (g, r.lights, r.inputs.cameras, r.surface_radiance, r.sky_map, r.t_max)
+    base = r.final.numpy().copy()  # with it
+    missed_in = missed & (MISSED_REFRACTED | MISSED_REFLECTED)
+    r.hidden.missed.assign(missed_in)
+    r.final.zero_()
+    r.hidden.render(*args, r.final)  # without
+    added = base - r.final.numpy()
+    tri = r.hidden.hidden_tri.numpy()[0::2][band]
+    uvw = r.hidden.hidden_uvw.numpy()[0::2][band]
+    pts, idx = scene.points.astype(np.float64), scene.indices.reshape(-1, 3)
+    t = np.abs(tri) - 1
+    y = (pts[idx[t, 0]] * uvw[:, :1] + pts[idx[t, 1]] * uvw[:, 1:2] + pts[idx[t, 2]] * (1 - uvw[:, :1] - uvw[:, 1:2]))
+    n = np.tile([0.0, 1.0, 0.0], (len(y), 1))  # every hidden hit is on the floor
+    assert np.allclose(y[:, 1], -0.5, atol=1e-5)
+    lm, hf = r.lights[0], r.photons.hidden
+    e = sum(hidden_irradiance_np(lm.rsm[vi].view, hf.flux[0][vi].numpy(), hf.stride[0], HIDDEN_GATHER, y, n)
+            for vi in range(len(lm.rsm)))
+    want = e * (ALBEDO / math.pi) * uvw[:, 2:3]
+    assert want.max() > 0
+    np.testing.assert_allclose(added[band], want, rtol=1e-4, atol=1e-6 * want.max())

@@ -171,6 +171,9 @@ class PhotonPass:
     name = "photons"
     denoise = True  #: whether the renderer's denoiser runs on ``photon_map`` (False: shown raw)
     final = None  #: a method that renders its own final image sets this (H*W,) vec3 array
+    #: the photons that land where the camera cannot see, per light view (``hidden_flux.HiddenFlux``), for the
+    #: composite's hidden hits; a method that keeps them sets it (:meth:`keep_hidden`), else None
+    hidden = None
 
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
@@ -231,11 +234,26 @@ class PhotonPass:
         #: the cameras and random streams the kernels read (``frame.FrameInputs``); a renderer shares its own, which
         #: it writes once per frame before tracing (or replaying a captured frame)
         self.inputs = FrameInputs(lights, settings.seed, self.device)
+        self._no_hidden = wp.zeros(0, dtype=wp.vec3, device=self.device)  #: the empty hidden map (hidden_args)
 
     def keep_photon_m2(self, n: int) -> None:
         """Allocate ``photon_m2`` for ``n`` camera pixels: a method whose photons are stored by ``common.deposit``
         as points calls this once at set-up."""
         self.photon_m2 = wp.zeros(n, dtype=wp.float32, device=self.device)
+
+    def keep_hidden(self) -> None:
+        """Allocate ``hidden`` (every light view's hidden flux map): a method that stores photons the camera does not
+        see there calls this once at set-up."""
+        from .hidden_flux import HiddenFlux
+
+        self.hidden = HiddenFlux(self.lights, self.settings.photons, self.device)
+
+    def hidden_args(self, batch: RSMBatch) -> list:
+        """The trace kernels' last two inputs for ``batch``: its view's hidden flux map and stride (an empty map
+        where the method keeps none)."""
+        if self.hidden is None:
+            return [self._no_hidden, 1]
+        return [self.hidden.flux[batch.light_index][batch.view_index], self.hidden.stride[batch.light_index]]
 
     def photons_per_view(self, lm: LightMaps) -> int:
         """A light's photons split evenly over its RSM views that emit this frame (every view, unless
@@ -268,6 +286,8 @@ class PhotonPass:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
         self.photon_map.zero_()
+        if self.hidden is not None:
+            self.hidden.zero()
         self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
         if self.photon_m2 is not None:
             self.photon_m2.zero_()

@@ -47,6 +47,7 @@ class CISP(PhotonPass):
         self.wavefront = None
         if settings.splat == "point":
             self.keep_photon_m2(gbuffer.width * gbuffer.height)
+            self.keep_hidden()
         if settings.splat == "wavefront":
             from .kernels_world import CameraBuffers
             from .wavefront import make_wavefront
@@ -93,5 +94,6 @@ class CISP(PhotonPass):
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None, self.outcome])
+                self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None, self.outcome,
+                *self.hidden_args(b)])
             self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)

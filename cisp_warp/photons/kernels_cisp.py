@@ -15,6 +15,7 @@ from ..raster.views import ViewParams, read_again, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
+from .hidden_flux import store_hidden
 from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, screen_march_bounded, screen_march_bounded_plain,
                     surface_far)
 
@@ -243,6 +244,8 @@ def trace_photon(
     photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
     tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
+    hidden_flux: wp.array(dtype=wp.vec3),  # this view's hidden flux map [W] per texel (accumulate; empty: not kept)
+    hidden_stride: int,  # its RSM texels per map texel along each axis
 ):
     """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
     (:func:`reproject_to_camera`, pass 0 of :func:`camera_marches`), a photon the cascade lost marched in the camera
@@ -251,10 +254,15 @@ def trace_photon(
     from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
     registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
     (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17). The cascade's
-    camera march and the rescue's share one inlined march (a loop of up to two passes): 440 -> 304 B (section 23)."""
+    camera march and the rescue's share one inlined march (a loop of up to two passes): 440 -> 304 B (section 23).
+    Every photon with a landing point is also added to ``hidden_flux`` there (:func:`~.hidden_flux.store_hidden`;
+    its booking unchanged): one the camera sees (stored or rejected) and one whose light-view march landed
+    (``MARCH_HIT``) where the camera does not see (``L_OCCLUDED``, or ``L_LOST_CAMERA`` outside the image) and no
+    camera march stored."""
     status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
                                 max_steps, thickness, thickness_rel)
     entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
+    landed = status == MARCH_HIT  # x_end is a light-view surface crossing (kept unless a camera march stores it)
     # :func:`camera_marches`' two passes, reading the camera where needed (it is not held through the march)
     camera_pass = int(0)
     if entry != MARCH_ON:
@@ -279,11 +287,14 @@ def trace_photon(
             camera_pass = 2
     if entry != L_STORED:
         book(tally, entry, power)
+        if landed and (entry == L_OCCLUDED or entry == L_LOST_CAMERA):  # on a surface the camera does not see
+            store_hidden(light_views[view_index], x_end, power, hidden_flux, hidden_stride)
         return
     # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
     # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
     x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
                                 thickness, thickness_rel)
+    store_hidden(light_views[view_index], x_end, power, hidden_flux, hidden_stride)
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, photon_m2, tally) != 0:
@@ -341,6 +352,8 @@ def trace_photons(
     hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
     # (write; an empty array: not recorded, as in the frame loop)
     outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
+    hidden_flux: wp.array(dtype=wp.vec3),  # this view's hidden flux map [W] per texel (accumulate; empty: not kept)
+    hidden_stride: int,  # its RSM texels per map texel along each axis
 ):
     """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
     ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
@@ -380,6 +393,7 @@ def trace_photons(
     if texel >= 0:  # the views are read again where each march needs them (trace_photon)
         trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
                      cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
-                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits)
+                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_flux,
+                     hidden_stride)
     if t < n_slots:
         record_outcome(outcome, t, tally)

@@ -59,6 +59,7 @@ class SSPM(_WorldPass):
         self.wavefront = None
         if settings.splat == "point":
             self.keep_photon_m2(gbuffer.width * gbuffer.height)
+            self.keep_hidden()
         if settings.splat == "wavefront":
             from .wavefront import make_wavefront
 
@@ -85,7 +86,7 @@ class SSPM(_WorldPass):
                 self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),
                 self.t_max, int(s.max_bounces), self.footprint_mode, self.photon_map, self.photon_m2, self.ledger_rows,
-                self.outcome])
+                self.outcome, *self.hidden_args(b)])
             self.add_outcomes(self.outcome, b, 2, K.SSPM_FINAL_ENTRIES)
 
 
