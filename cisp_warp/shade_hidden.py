@@ -16,7 +16,7 @@ camera sees                   test as the reference's photon store: in the pixel
 lands where the camera        albedo/π · (direct + sky + caustic irradiance) at the hit: the sky's occlusion maps
 does not see                  (``sky.sky_irradiance_at``) here, the shadow maps in :func:`hidden_direct`, one launch
                               per map; the caustic from the photons the method kept where the camera does not see
-                              (``photons.hidden_flux``, one map per light view) in :func:`hidden_caustic`, one launch
+                              (``photons.hidden_flux``, one map per light) in :func:`hidden_caustic`, one launch
                               per light view (none for a method that keeps no such photons: caustics_map)
 ============================  =====================================================================================
 
@@ -285,10 +285,10 @@ def hidden_direct(
 
 @wp.kernel
 def hidden_caustic(
-    views: wp.array(dtype=ViewParams),  # (V,) one light's RSM views (LightMaps.views, read)
-    view_index: int,  # the view whose hidden flux map this launch reads
-    flux: wp.array(dtype=wp.vec3),  # its hidden flux map [W] per map texel (photons.hidden_flux, read)
-    stride: int,  # RSM texels per map texel along each axis
+    views: wp.array(dtype=ViewParams),  # one light's whole views (photons.hidden_flux.HiddenFlux.views, read)
+    flux: wp.array(dtype=wp.vec3),  # their landed-photon map, power [W] per map texel (HiddenFlux.flux, read)
+    map_w: int,  # its texels per view, across
+    map_h: int,  # and down
     gather: int,  # the lookup's (2 gather + 1)² texels
     layer: OpaqueLayer,
     missed: wp.array(dtype=wp.int32),  # (H*W,) HIDDEN_* bits (read)
@@ -296,14 +296,11 @@ def hidden_caustic(
     hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read)
     final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
 ):
-    """The caustic of one light view's hidden photons at each hidden hit: albedo/π · E · throughput added to the
-    pixel, E from :func:`~.photons.hidden_flux.hidden_irradiance` (zero outside the view)."""
+    """The caustic of one light's landed photons at each hidden hit: albedo/π · E · throughput added to the pixel,
+    E from :func:`~.photons.hidden_flux.hidden_irradiance` (zero outside the light's views)."""
     p = wp.tid()
     bits = missed[p]
     if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) == 0:
-        return
-    view = views[view_index]
-    if view.far <= 0.0:  # a fitted cascade inactive this frame: it stored nothing
         return
     l = wp.vec3(0.0)
     for k in range(2):
@@ -312,7 +309,7 @@ def hidden_caustic(
             uvw = hidden_uvw[2 * p + k]
             tri = wp.abs(st) - 1
             y, n, ng = hidden_point(layer, tri, uvw[0], uvw[1])
-            e = hidden_irradiance(view, flux, stride, gather, y, n)
+            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)
             rho = layer.albedo[layer.triangle_material[tri]]
             l = l + wp.cw_mul(rho, e) * (INV_PI * uvw[2])
     if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
@@ -389,11 +386,11 @@ class HiddenSurfaces:
                     float(light.cone_softness), self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
         if hidden_flux is None:
             return
-        for li, lm in enumerate(lights):
-            for vi, flux in enumerate(hidden_flux.flux[li]):
-                wp.launch(hidden_caustic, dim=n, device=self.device, inputs=[
-                    lm.views, vi, flux, hidden_flux.stride[li], hidden_flux.gather, self.layer, self.missed,
-                    self.hidden_tri, self.hidden_uvw, final])
+        for li in range(len(lights)):
+            w, h = hidden_flux.shape[li]
+            wp.launch(hidden_caustic, dim=n, device=self.device, inputs=[
+                hidden_flux.views[li], hidden_flux.flux[li], w, h, hidden_flux.gather, self.layer, self.missed,
+                self.hidden_tri, self.hidden_uvw, final])
 
 
 __all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",

@@ -249,11 +249,12 @@ class PhotonPass:
         self.hidden = HiddenFlux(self.lights, self.settings.photons, self.device)
 
     def hidden_args(self, batch: RSMBatch) -> list:
-        """The trace kernels' last two inputs for ``batch``: its view's hidden flux map and stride (an empty map
-        where the method keeps none)."""
+        """The trace kernels' last four inputs for ``batch``: its light's whole views, their landed-photon map and
+        its texels across and down (an empty map where the method keeps none)."""
         if self.hidden is None:
-            return [self._no_hidden, 1]
-        return [self.hidden.flux[batch.light_index][batch.view_index], self.hidden.stride[batch.light_index]]
+            return [batch.lights.views, self._no_hidden, 1, 1]
+        w, h = self.hidden.shape[batch.light_index]
+        return [self.hidden.views[batch.light_index], self.hidden.flux[batch.light_index], w, h]
 
     def photons_per_view(self, lm: LightMaps) -> int:
         """A light's photons split evenly over its RSM views that emit this frame (every view, unless

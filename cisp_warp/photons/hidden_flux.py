@@ -1,23 +1,30 @@
-"""Photons that land where the camera cannot see, kept in light space for the composite's hidden hits.
+"""Photons where the camera cannot see them: a light-space map of every landed photon, read at the composite's hidden hits.
 
 A screen-space photon map holds irradiance only on the camera's surfaces: a photon whose landing point the camera
 does not see (CISP's reprojection behind a camera surface, SSPM's depth test; both book it ``occluded``, or
 ``lost_camera`` where it lands outside the image) is dropped from it. The composite's refracted rays reach such
-points all the same (the pool's floor in the coping's lee, docs/perf_notes.md sections 22, 28 and 31), so those
-photons are kept here instead: each light view (RSM view) the photon left from has a *hidden flux map*, a grid of
-``stride`` × ``stride`` RSM texels, into which the photon's power [W] is added at the texel its landing point
-projects to (:func:`store_hidden`). At a hidden hit ``y`` with normal ``n``, :func:`hidden_irradiance` turns the
-texel's power into irradiance [W/m²] by dividing by the area of the receiver that texel covers there
+points all the same (the pool's floor in the coping's lee, docs/perf_notes.md sections 22, 28 and 31), so every
+photon that lands (where the camera sees it or not) is also added, as power [W], to a map over its light's *whole*
+views (the views of all its specular geometry: ``LightMaps.pilot_views`` when the RSM views are fitted cascades):
+a grid of ``map_w`` × ``map_h`` texels per view, the photon in the first view that holds its landing point
+(:func:`store_hidden`). At a hidden hit ``y`` with normal ``n``, :func:`hidden_irradiance` turns a small gather of
+that map into irradiance [W/m²] by dividing by the area of the receiver one texel covers there
 (:func:`texel_receiver_area`: the light view's texel footprint at ``y``, across the light's ray, over |cos| of the
 ray and ``n``): a histogram density estimate in light space, no fudge factor.
 
-The power is not new energy: it is what the ledger books as ``occluded`` / ``lost_camera`` (the photon map's
-ledger says where the power went relative to the camera's map; this map is a second record of part of it, so the
-booking stays as it was and the ledger still closes).
+Why every landed photon, not only the hidden ones: a hidden strip (the floor in a wall's lee) lies beside floor the
+camera sees; a map of the hidden photons alone would read a gather window that straddles the two as too dark (64%
+in the flat test of tests/test_shade_hidden.py before the change). Why the whole views, not the photon's own
+cascade: a fitted cascade covers what the camera sees; a photon landing beyond its window would be lost (the
+pool's near-wall band read 43 instead of 48 W/(m² sr), section 31).
 
-Buffers (one per light view, zeroed with the photon map each frame):
+The power is not new energy: each photon keeps its one ledger entry (``stored``, ``rejected``, ``occluded``,
+``lost_camera``); this map is a second record of where it landed, read only where the camera's map cannot be, so
+the ledger still closes and nothing is counted twice in the image.
 
-``flux``  ((H_l // stride rounded up) * (W_l // stride rounded up),) vec3: power [W] per map texel, RGB (accumulate)
+Buffers (one per light, zeroed with the photon map each frame):
+
+``flux``  (whole views × map_h × map_w,) vec3: power [W] per map texel, RGB (accumulate)
 """
 
 from __future__ import annotations
@@ -28,8 +35,8 @@ import warp as wp
 
 from ..raster.views import ViewParams, world_project
 
-#: photons per map texel the stride aims for where a light view's specular texels all emit (relative noise of one
-#: texel's estimate ~ 1/sqrt(count) before the gather)
+#: photons per map texel the map size aims for were a whole view's photons spread over all of it (they fall on the
+#: specular part only, so more: relative noise of one texel's estimate <= 1/sqrt(16) before the gather)
 HIDDEN_PHOTONS_PER_TEXEL = 16
 #: the lookup's gather: (2 g + 1)² map texels averaged (g = 1: 3 × 3)
 HIDDEN_GATHER = 1
@@ -43,32 +50,45 @@ def hidden_stride(view_width: int, view_height: int, photons: int) -> int:
 
 
 def map_shape(view_width: int, view_height: int, stride: int) -> tuple[int, int]:
-    """(width, height) of a hidden flux map of stride ``stride`` over a view of that size."""
+    """(width, height) of a map of ``stride`` × ``stride`` texels of a view of that size."""
     return (view_width + stride - 1) // stride, (view_height + stride - 1) // stride
 
 
 @wp.func
-def store_hidden(view: ViewParams, y: wp.vec3, power: wp.vec3, flux: wp.array(dtype=wp.vec3), stride: int):
-    """Add a photon's ``power`` [W] landing at ``y`` [m] to the map texel of ``view`` it projects to (nothing when it
-    lies outside the view, or when the map is empty: a method that keeps none)."""
-    if flux.shape[0] == 0:
-        return
+def map_texel(view: ViewParams, map_w: int, map_h: int, y: wp.vec3) -> wp.vec3i:
+    """(column, row, 1) of the map texel of ``view`` (a ``map_w`` × ``map_h`` grid over its image) that ``y`` [m]
+    projects to; (0, 0, 0) outside the view."""
     q = world_project(view, y)
-    if q[2] <= 0.0 or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(view.width) or q[1] >= float(view.height):
-        return
-    mw = (view.width + stride - 1) / stride
-    wp.atomic_add(flux, (int(q[1]) / stride) * mw + int(q[0]) / stride, power)
+    if view.far <= 0.0 or q[2] <= 0.0 or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(view.width) or q[1] >= float(view.height):
+        return wp.vec3i(0, 0, 0)
+    i = wp.min(int(q[0] * float(map_w) / float(view.width)), map_w - 1)
+    j = wp.min(int(q[1] * float(map_h) / float(view.height)), map_h - 1)
+    return wp.vec3i(i, j, 1)
 
 
 @wp.func
-def texel_receiver_area(view: ViewParams, stride: int, y: wp.vec3, n: wp.vec3) -> float:
-    """Area [m²] of the surface through ``y`` with unit normal ``n`` that one map texel (``stride`` × ``stride``
-    texels of ``view``) covers there: the texel's footprint on the plane of constant depth through ``y``
-    ((s/fx)(s/fy), times depth² in perspective), across the light's ray (× cos between the ray and the view axis),
-    then onto the receiver (÷ |cos| between the ray and ``n``)."""
+def store_hidden(views: wp.array(dtype=ViewParams), y: wp.vec3, power: wp.vec3, flux: wp.array(dtype=wp.vec3),
+                 map_w: int, map_h: int):
+    """Add a photon's ``power`` [W] landing at ``y`` [m] to the map texel it projects to in the first of the light's
+    whole ``views`` that holds it (each view's map is ``map_w`` × ``map_h`` texels of ``flux``, one after another);
+    nothing outside them all, or when the map is empty (a method that keeps none)."""
+    if flux.shape[0] == 0:
+        return
+    for v in range(views.shape[0]):
+        t = map_texel(views[v], map_w, map_h, y)
+        if t[2] != 0:
+            wp.atomic_add(flux, (v * map_h + t[1]) * map_w + t[0], power)
+            return
+
+
+@wp.func
+def texel_receiver_area(view: ViewParams, map_w: int, map_h: int, y: wp.vec3, n: wp.vec3) -> float:
+    """Area [m²] of the surface through ``y`` with unit normal ``n`` that one map texel (of a ``map_w`` × ``map_h``
+    grid over ``view``'s image) covers there: the texel's footprint on the plane of constant depth through ``y``
+    ((W/map_w)/fx · (H/map_h)/fy, times depth² in perspective), across the light's ray (× cos between the ray and the
+    view axis), then onto the receiver (÷ |cos| between the ray and ``n``)."""
     axis = wp.transform_vector(view.view_to_world, wp.vec3(0.0, 0.0, -1.0))  # the view's forward direction
-    s = float(stride)
-    a = s * s / (view.fx * view.fy)
+    a = (float(view.width) / float(map_w)) * (float(view.height) / float(map_h)) / (view.fx * view.fy)
     ray = axis
     if view.orthographic == 0:
         eye = wp.transform_point(view.view_to_world, wp.vec3(0.0))
@@ -79,49 +99,50 @@ def texel_receiver_area(view: ViewParams, stride: int, y: wp.vec3, n: wp.vec3) -
 
 
 @wp.func
-def hidden_irradiance(view: ViewParams, flux: wp.array(dtype=wp.vec3), stride: int, gather: int, y: wp.vec3,
-                      n: wp.vec3) -> wp.vec3:
-    """Irradiance [W/m²] of the hidden photons of ``view`` at ``y`` (unit normal ``n``): the mean power of the
-    (2 ``gather`` + 1)² map texels around the one ``y`` projects to (those inside the map), over the receiver's area
-    of one texel; zero outside the view."""
-    q = world_project(view, y)
-    if q[2] <= 0.0 or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(view.width) or q[1] >= float(view.height):
-        return wp.vec3(0.0)
-    mw = (view.width + stride - 1) / stride
-    mh = (view.height + stride - 1) / stride
-    ix = int(q[0]) / stride
-    iy = int(q[1]) / stride
-    total = wp.vec3(0.0)
-    count = int(0)
-    for j in range(iy - gather, iy + gather + 1):
-        for i in range(ix - gather, ix + gather + 1):
-            if i >= 0 and j >= 0 and i < mw and j < mh:
-                total = total + flux[j * mw + i]
-                count = count + 1
-    return total / (float(count) * texel_receiver_area(view, stride, y, n))
+def hidden_irradiance(views: wp.array(dtype=ViewParams), flux: wp.array(dtype=wp.vec3), map_w: int, map_h: int,
+                      gather: int, y: wp.vec3, n: wp.vec3) -> wp.vec3:
+    """Irradiance [W/m²] of one light's landed photons at ``y`` (unit normal ``n``): in the first whole view that
+    holds ``y`` (where :func:`store_hidden` put the photons landing there), the mean power of the (2 ``gather`` + 1)²
+    map texels around ``y``'s (those inside the map), over the receiver's area of one texel; zero outside them all."""
+    for v in range(views.shape[0]):
+        view = views[v]
+        t = map_texel(view, map_w, map_h, y)
+        if t[2] != 0:
+            total = wp.vec3(0.0)
+            count = int(0)
+            for j in range(t[1] - gather, t[1] + gather + 1):
+                for i in range(t[0] - gather, t[0] + gather + 1):
+                    if i >= 0 and j >= 0 and i < map_w and j < map_h:
+                        total = total + flux[(v * map_h + j) * map_w + i]
+                        count = count + 1
+            return total / (float(count) * texel_receiver_area(view, map_w, map_h, y, n))
+    return wp.vec3(0.0)
 
 
 class HiddenFlux:
-    """Every light view's hidden flux map (module docstring), allocated once: ``flux[light][view]``, ``stride[light]``
-    (one per light: its views share a size)."""
+    """Every light's flux map over its whole views (module docstring), allocated once: per light ``flux[light]``
+    ((whole views × map_h × map_w,) vec3), ``views[light]`` (its whole views: ``LightMaps.pilot_views`` when the RSM
+    views are fitted cascades, else ``LightMaps.views``; the light's own arrays, refitted with it) and
+    ``shape[light]`` = (map_w, map_h)."""
 
     def __init__(self, lights, photons: int, device):
         self.device = wp.get_device(device)
         self.gather = HIDDEN_GATHER
-        self.stride, self.flux = [], []
+        self.views, self.flux, self.shape = [], [], []
         for lm in lights:
-            r0 = lm.rsm[0]
-            per_view = max(1, photons // max(1, len(lm.rsm)))
-            s = hidden_stride(r0.width, r0.height, per_view)
-            self.stride.append(s)
-            self.flux.append([wp.zeros(max(1, map_shape(r.width, r.height, s)[0] * map_shape(r.width, r.height, s)[1]),
-                                       dtype=wp.vec3, device=self.device) for r in lm.rsm])
+            views = lm.pilot_views if lm.fitted else lm.views
+            n_views = len(lm.pilot) if lm.fitted else len(lm.rsm)
+            edge = lm.rsm_size  # the whole views' edge at the RSM size [texels]
+            s = hidden_stride(edge, edge, max(1, photons // n_views))
+            w, h = map_shape(edge, edge, s)
+            self.views.append(views)
+            self.shape.append((w, h))
+            self.flux.append(wp.zeros(n_views * w * h, dtype=wp.vec3, device=self.device))
 
     def zero(self) -> None:
-        for maps in self.flux:
-            for m in maps:
-                m.zero_()
+        for m in self.flux:
+            m.zero_()
 
 
 __all__ = ["HIDDEN_GATHER", "HIDDEN_PHOTONS_PER_TEXEL", "HiddenFlux", "hidden_irradiance", "hidden_stride",
-           "map_shape", "store_hidden", "texel_receiver_area"]
+           "map_shape", "map_texel", "store_hidden", "texel_receiver_area"]

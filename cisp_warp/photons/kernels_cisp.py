@@ -244,8 +244,10 @@ def trace_photon(
     photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
     tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
     hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
-    hidden_flux: wp.array(dtype=wp.vec3),  # this view's hidden flux map [W] per texel (accumulate; empty: not kept)
-    hidden_stride: int,  # its RSM texels per map texel along each axis
+    hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
+    hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
+    hidden_w: int,  # its texels per whole view, across
+    hidden_h: int,  # and down
 ):
     """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
     (:func:`reproject_to_camera`, pass 0 of :func:`camera_marches`), a photon the cascade lost marched in the camera
@@ -288,13 +290,13 @@ def trace_photon(
     if entry != L_STORED:
         book(tally, entry, power)
         if landed and (entry == L_OCCLUDED or entry == L_LOST_CAMERA):  # on a surface the camera does not see
-            store_hidden(light_views[view_index], x_end, power, hidden_flux, hidden_stride)
+            store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
         return
     # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
     # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
     x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
                                 thickness, thickness_rel)
-    store_hidden(light_views[view_index], x_end, power, hidden_flux, hidden_stride)
+    store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
     # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
     if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
                photon_map, photon_m2, tally) != 0:
@@ -352,8 +354,10 @@ def trace_photons(
     hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
     # (write; an empty array: not recorded, as in the frame loop)
     outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
-    hidden_flux: wp.array(dtype=wp.vec3),  # this view's hidden flux map [W] per texel (accumulate; empty: not kept)
-    hidden_stride: int,  # its RSM texels per map texel along each axis
+    hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
+    hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
+    hidden_w: int,  # its texels per whole view, across
+    hidden_h: int,  # and down
 ):
     """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
     ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
@@ -393,7 +397,7 @@ def trace_photons(
     if texel >= 0:  # the views are read again where each march needs them (trace_photon)
         trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
                      cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
-                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_flux,
-                     hidden_stride)
+                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_views,
+                     hidden_flux, hidden_w, hidden_h)
     if t < n_slots:
         record_outcome(outcome, t, tally)

@@ -199,10 +199,10 @@ def trace_sspm_photon(
     photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
     photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
     tally: wp.ref[Tally],  # this thread's ledger share: further absorption and the final entry (accumulate)
-    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (read where a photon is kept hidden)
-    view_index: int,  # the view the photon left from
-    hidden_flux: wp.array(dtype=wp.vec3),  # that view's hidden flux map [W] per texel (accumulate; empty: not kept)
-    hidden_stride: int,  # its RSM texels per map texel along each axis
+    hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
+    hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
+    hidden_w: int,  # its texels per whole view, across
+    hidden_h: int,  # and down
 ):
     """Seed 003 after the first bounce: traced through the BVH, stored by depth visibility. Every photon that lands
     is also added to ``hidden_flux`` (:func:`~.hidden_flux.store_hidden`; its booking unchanged), where the camera
@@ -213,7 +213,7 @@ def trace_sspm_photon(
         return
     cam.view = cameras[0]  # read after the BVH loop: not held in registers through it (96 registers, not 128)
     entry, pix = camera_receiver(cam, y, thickness, thickness_rel)
-    store_hidden(light_views[view_index], y, power, hidden_flux, hidden_stride)
+    store_hidden(hidden_views, y, power, hidden_flux, hidden_w, hidden_h)
     if entry != L_STORED:
         book(tally, entry, power)
         return
@@ -258,8 +258,10 @@ def trace_sspm(
     ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
     outcome: wp.array(dtype=wp.vec4),  # (>= 2 n_slots,) per thread t: final power [W] and entry at t, absorbed
     # power at n_slots + t (write)
-    hidden_flux: wp.array(dtype=wp.vec3),  # this view's hidden flux map [W] per texel (accumulate; empty: not kept)
-    hidden_stride: int,  # its RSM texels per map texel along each axis
+    hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
+    hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
+    hidden_w: int,  # its texels per whole view, across
+    hidden_h: int,  # and down
 ):
     """Seed 003: photons from the RSM (as CISP's), traced through the BVH, stored by depth visibility. One
     thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`); the ledger is
@@ -295,8 +297,8 @@ def trace_sspm(
     tally = tally_new()
     if texel >= 0:
         trace_sspm_photon(origin, n, d, power, state, ws, cam, cameras, roughness_cutoff, thickness, thickness_rel, t_max,
-                          max_bounces, footprint_mode, photon_map, photon_m2, tally, light_views, view_index,
-                          hidden_flux, hidden_stride)
+                          max_bounces, footprint_mode, photon_map, photon_m2, tally, hidden_views,
+                          hidden_flux, hidden_w, hidden_h)
     if t < n_slots:
         record_outcome(outcome, t, tally)
         record_absorbed(outcome, n_slots + t, tally)
