@@ -15,14 +15,14 @@ camera sees                   test as the reference's photon store: in the pixel
                               tangent plane)
 lands where the camera        albedo/π · (direct + sky + caustic irradiance) at the hit: the sky's occlusion maps
 does not see                  (``sky.sky_irradiance_at``) here, the shadow maps in :func:`hidden_direct`, one launch
-                              per map; the caustic from the photons the method kept where the camera does not see
-                              (``photons.hidden_flux``, one map per light) in :func:`hidden_caustic`, one launch
-                              per light view (none for a method that keeps no such photons: caustics_map)
+                              per map; the caustic from the light-space map of every photon that landed
+                              (``photons.hidden_flux``) in :func:`hidden_caustic`, one launch per light (none for a
+                              method that keeps no such map: caustics_map)
 ============================  =====================================================================================
 
 Which rays come here is the renderer's ``hidden_rays`` setting (``shade.composite``'s bits): by default only the
 refracted ones (docs/perf_notes.md section 31: on the pool 91% of the fallback rays are reflections, which keep the
-sky at no cost in FLIP)
+sky at no cost in FLIP).
 
 Buffers (per pixel p; slot 2p is the refracted ray, 2p + 1 the reflected one):
 

@@ -13,10 +13,10 @@ that map into irradiance [W/m²] by dividing by the area of the receiver one tex
 ray and ``n``): a histogram density estimate in light space, no fudge factor.
 
 Why every landed photon, not only the hidden ones: a hidden strip (the floor in a wall's lee) lies beside floor the
-camera sees; a map of the hidden photons alone would read a gather window that straddles the two as too dark (64%
-in the flat test of tests/test_shade_hidden.py before the change). Why the whole views, not the photon's own
+camera sees; a map of the hidden photons alone would read a gather window that straddles the two as too dark (0.58-0.77
+of the exact answer in the flat test of tests/test_shade_hidden.py). Why the whole views, not the photon's own
 cascade: a fitted cascade covers what the camera sees; a photon landing beyond its window would be lost (the
-pool's near-wall band read 43 instead of 48 W/(m² sr), section 31).
+pool's near-wall band read 43.1 instead of 48.1 W/(m² sr) for sspm, section 31).
 
 The power is not new energy: each photon keeps its one ledger entry (``stored``, ``rejected``, ``occluded``,
 ``lost_camera``); this map is a second record of where it landed, read only where the camera's map cannot be, so
