@@ -49,6 +49,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="photon-map denoiser: caustic (accumulates the raw photon map over frames, reacting where "
                    "the caustic changes, and filters the noise left), SVGF (the paper's), the 7x7 Gaussian gather "
                    "of Caustics Mapping, or none")
+    p.add_argument("--hidden-rays", default="refracted", choices=["refracted", "both", "none"],
+                   help="the composite's view rays that the screen-space march loses (behind a wall, off screen), "
+                   "traced on the opaque layer's BVH and shaded with the caustic the photons left there: refracted "
+                   "ones (default; reflected ones see the sky), both, or none (screen-space fallbacks only)")
     p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
     p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
                    help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")
@@ -249,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
                                      wavefront_refine=args.wavefront_refine)
             settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                       method=args.method, photons=photons, denoiser=args.denoiser,
-                                      supersample=args.supersample,
+                                      supersample=args.supersample, hidden_rays=args.hidden_rays,
                                       light_views=LightViewSettings(fit=args.light_views, cascades=args.light_cascades))
         except SettingsError as e:
             raise SceneError(flag_of(e)) from None
