@@ -226,3 +226,26 @@ def test_landings_lie_on_the_receiver(device):
     stored = outcome[:n, 3] == int(L_STORED)
     assert stored.sum() > 1000
     np.testing.assert_allclose(hits[:n][stored, 1], -0.5, atol=1e-4)
+
+
+def test_camera_bounds_cover_the_back_face_layer(device):
+    """The camera's depth bounds that the trace's camera marches skip cells by are built from the depth with its
+    back-face layer (what the marches read), not from the front depth alone: on the Cornell box (the ball's far
+    half: 2 of 360 cells at 192x108) the two differ, and the trace's bounds are the layered ones."""
+    import os
+
+    from cisp_warp.photons.cisp import build_bounds
+    from cisp_warp.usd import load_usd
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    scene = load_usd(os.path.join(root, "scenes_usd", "cornell_flooded.usda"), width=192, height=108, device=device)
+    r = Renderer(scene, RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000), device=device)
+    r.render_frame()
+    g, p = r.gbuffer, r.photons
+    built = {}
+    for name, depth in (("layers", g.depth_layers), ("front", g.depth)):
+        b = wp.zeros_like(p.cam_bounds)
+        build_bounds(depth, g.width, g.height, p.settings.thickness, p.settings.thickness_rel, b, device)
+        built[name] = b.numpy()
+    assert not np.array_equal(built["layers"], built["front"])
+    np.testing.assert_array_equal(p.cam_bounds.numpy(), built["layers"])

@@ -76,7 +76,10 @@ class CISP(PhotonPass):
         s = self.settings
         self.frame_inputs(camera, frame)
         self.begin()
-        self._build_bounds(gbuffer.depth, gbuffer.width, gbuffer.height, self.cam_bounds)
+        # from the depth with its back-face layer, which the camera marches read (march.depth_bounds widens a cell by
+        # the layer's far sides): bounds of the front depth alone let 1.2% of the Cornell box's camera marches skip a
+        # cell where the naive march ends in an object's hidden half (branch hiermarch, perf_notes section 30)
+        self._build_bounds(gbuffer.depth_layers, gbuffer.width, gbuffer.height, self.cam_bounds)
         if self.wavefront is not None:
             self.wavefront.cam.view = camera
             self.wavefront.trace(frame, "cisp")
