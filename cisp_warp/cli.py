@@ -52,7 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hidden-rays", default="refracted", choices=["refracted", "both", "none"],
                    help="the composite's view rays that the screen-space march loses (behind a wall, off screen), "
                    "traced on the opaque layer's BVH and shaded with the caustic the photons left there: refracted "
-                   "ones (default; reflected ones see the sky), both, or none (screen-space fallbacks only)")
+                   "ones (default; reflected ones see the sky), both, or none (screen-space fallbacks only); cisp and sspm with "
+                   "point photons, and --method none")
     p.add_argument("--seed", type=int, default=0, help="random seed; with the frame number it reproduces a frame exactly")
     p.add_argument("--footprint", default="exact", choices=["exact", "paper"],
                    help="pixel footprint for irradiance: exact, or the paper's eq. 3 approximation")

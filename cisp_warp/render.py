@@ -62,7 +62,9 @@ class RenderSettings:
     sky_map_size: int = 256  #: edge of each sky occlusion map [texels]
     #: the composite's rays traced on the opaque layer's BVH where the screen-space march finds nothing
     #: (``shade_hidden``): "refracted" (reflected ones see the sky), "both", or "none" (the screen-space fallbacks
-    #: alone: sky, and the undistorted background behind the water pixel)
+    #: alone: sky, and the undistorted background behind the water pixel). Applies where the hidden hits can be
+    #: given their caustic (``cisp`` and ``sspm`` with point photons) and without caustics (method ``none``); the
+    #: other methods keep the screen-space fallbacks
     hidden_rays: str = "refracted"
 
     def __post_init__(self):
@@ -229,6 +231,11 @@ class Renderer:
             self.photons.inputs = self.inputs
             if hasattr(self.photons, "use_sky"):  # the reference's own final image: the methods' sky
                 self.photons.use_sky(self.sky, self.sky_map)
+            if self.photons.hidden is None and self.photons.final is None:
+                # photons that keep no map of where they landed (caustics_map, the wavefront splat) would leave a
+                # hidden hit without its caustic, darker than the screen-space fallback is bright (the sinusoid's
+                # caustics_map FLIP 0.033 -> 0.049 at the small preset): those keep the fallback (perf_notes 31)
+                self._hidden_bits = 0
         ps = self.settings.photons
         self.fitter = LightViewFitter(self.gpu, self.gbuffer, self.lights, ps.roughness_cutoff, ps.thickness,
                                       ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed, inputs=self.inputs)

@@ -4,6 +4,7 @@ answers, the BVH trace against its every-triangle twin, and the hand-over from t
 import math
 
 import numpy as np
+import pytest
 
 from cisp_warp import analytic
 from cisp_warp.optics import fresnel_dielectric_np
@@ -240,3 +241,15 @@ def test_hidden_caustic_matches_its_twin(device):
     want = e * (ALBEDO / math.pi) * uvw[:, 2:3]
     assert want.max() > 0
     np.testing.assert_allclose(added[band], want, rtol=1e-4, atol=1e-6 * want.max())
+
+
+@pytest.mark.parametrize("method,splat,traced", [("cisp", "point", True), ("sspm", "point", True),
+                                                 ("caustics_map", "point", False), ("cisp", "wavefront", False)])
+def test_hidden_rays_only_where_the_photons_keep_their_landings(device, method, splat, traced):
+    """The composite hands rays to the BVH only where a hidden hit can get its caustic (the photons keep a
+    hidden-flux map); the others keep the screen-space fallbacks."""
+    r = Renderer(analytic.sinusoidal_water(32, 18),
+                 RenderSettings(rsm_size=32, method=method, denoiser="none",
+                                photons=PhotonSettings(photons=1_000, splat=splat)), device=device)
+    assert (r._hidden_bits != 0) == traced
+    assert (getattr(r.photons, "hidden", None) is not None) == traced
