@@ -243,6 +243,20 @@ trace_hidden = _trace_hidden_kernel(False)
 trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
 
 
+@wp.func
+def hidden_hit(layer: OpaqueLayer, hidden_tri: wp.array(dtype=wp.int32), hidden_uvw: wp.array(dtype=wp.vec3), p: int,
+               k: int):
+    """Pixel ``p``'s hidden hit ``k`` (0 refracted, 1 reflected) as :func:`trace_hidden` recorded it: (world point
+    [m], unit shading normal on the side the ray met, albedo, the ray's throughput)."""
+    st = hidden_tri[2 * p + k]
+    uvw = hidden_uvw[2 * p + k]
+    tri = wp.abs(st) - 1
+    y, n, ng = hidden_point(layer, tri, uvw[0], uvw[1])
+    if st < 0:
+        n = -n
+    return y, n, layer.albedo[layer.triangle_material[tri]], uvw[2]
+
+
 @wp.kernel
 def hidden_direct(
     shadow_view: ViewParams,  # one shadow map, as shade.direct_light's arguments
@@ -269,16 +283,10 @@ def hidden_direct(
     l = wp.vec3(0.0)
     for k in range(2):
         if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
-            st = hidden_tri[2 * p + k]
-            uvw = hidden_uvw[2 * p + k]
-            tri = wp.abs(st) - 1
-            y, n, ng = hidden_point(layer, tri, uvw[0], uvw[1])
-            if st < 0:
-                n = -n
+            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
             e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
                           cone_softness, y, n)
-            rho = layer.albedo[layer.triangle_material[tri]]
-            l = l + wp.cw_mul(rho, e) * (INV_PI * uvw[2])
+            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
     if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
         final[p] = final[p] + l
 
@@ -305,13 +313,9 @@ def hidden_caustic(
     l = wp.vec3(0.0)
     for k in range(2):
         if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
-            st = hidden_tri[2 * p + k]
-            uvw = hidden_uvw[2 * p + k]
-            tri = wp.abs(st) - 1
-            y, n, ng = hidden_point(layer, tri, uvw[0], uvw[1])
-            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)
-            rho = layer.albedo[layer.triangle_material[tri]]
-            l = l + wp.cw_mul(rho, e) * (INV_PI * uvw[2])
+            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
+            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)  # |n · ray|: either side
+            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
     if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
         final[p] = final[p] + l
 
