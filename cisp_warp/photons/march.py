@@ -301,6 +301,72 @@ def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_s
     return last, ci, cj
 
 
+@wp.func
+def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int):
+    """The screen segment the marches step along: the ray ``o + d·t``, t in (0, t_max], cut at the near plane,
+    projected and clipped to the image (Liang-Barsky), in ``n`` steps of ``ds_step`` (a fraction of the segment:
+    a pixel a step, at most ``max_steps``). Returns (inside, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds):
+    ``inside`` 0 where the origin lies before the near plane or off the image (the march ends there, ``MARCH_EXIT``);
+    ``status`` the march's end without a hit (``MARCH_STEPS`` when ``max_steps`` cut it short); t1 the ray length
+    the segment spans; z0, z1 its end depths [m], k0, k1 their inverses (1 for an orthographic view); s0 its
+    screen start and ds its screen extent [pixels] before clipping (:func:`_ray_depth`, :func:`_segment_t`)."""
+    p0 = wp.transform_point(view.world_to_view, o)
+    dv = wp.transform_vector(view.world_to_view, d)
+    z0 = -p0[2]
+    rate = -dv[2]  # d(depth)/dt
+    t1 = t_max
+    near = view.near * 1.0001
+    if z0 < near:
+        return (0, MARCH_EXIT, int(0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0),
+                wp.vec2(0.0), wp.vec2(0.0))
+    if rate < 0.0:
+        t1 = wp.min(t1, (z0 - near) / (-rate))
+    if view.orthographic == 0:
+        t1 = wp.min(t1, 1.0e6)
+    p1 = p0 + dv * t1
+    z1 = -p1[2]
+    s0 = wp.vec2(0.0)
+    s1 = wp.vec2(0.0)
+    k0 = float(1.0)
+    k1 = float(1.0)
+    if view.orthographic != 0:
+        s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
+        s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
+    else:
+        k0 = 1.0 / z0
+        k1 = 1.0 / z1
+        s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
+        s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
+    # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
+    w = float(view.width)
+    h = float(view.height)
+    if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
+        return (0, MARCH_EXIT, int(0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0),
+                wp.vec2(0.0), wp.vec2(0.0))
+    ds = s1 - s0
+    s_end = float(1.0)
+    if ds[0] > 0.0:
+        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
+    elif ds[0] < 0.0:
+        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
+    if ds[1] > 0.0:
+        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
+    elif ds[1] < 0.0:
+        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+    s_end = wp.max(s_end, 0.0)
+    pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
+    n = int(wp.ceil(pixels))
+    status = MARCH_EXIT
+    if n > max_steps:
+        n = max_steps
+        status = MARCH_STEPS
+    n = wp.max(n, 1)
+    ds_step = s_end / float(n)
+    if pixels > float(max_steps):
+        ds_step = s_end / pixels
+    return 1, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds
+
+
 def _make_marches(back_layer: bool):
     """The three marches (:func:`screen_march_naive`, :func:`screen_march`, :func:`screen_march_bounded`) for a depth
     buffer that may carry a back-face layer (``back_layer`` True: the far side and the hidden-half test of
@@ -334,58 +400,9 @@ def _make_marches(back_layer: bool):
         On a hit, ``t_end`` is the refined crossing; otherwise the last point inside the view. The twin of
         :func:`screen_march`.
         """
-        p0 = wp.transform_point(view.world_to_view, o)
-        dv = wp.transform_vector(view.world_to_view, d)
-        z0 = -p0[2]
-        rate = -dv[2]  # d(depth)/dt
-        t1 = t_max
-        near = view.near * 1.0001
-        if z0 < near:
+        inside, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds = _screen_segment(view, o, d, t_max, max_steps)
+        if inside == 0:
             return MARCH_EXIT, float(0.0), int(0)
-        if rate < 0.0:
-            t1 = wp.min(t1, (z0 - near) / (-rate))
-        if view.orthographic == 0:
-            t1 = wp.min(t1, 1.0e6)
-        p1 = p0 + dv * t1
-        z1 = -p1[2]
-        s0 = wp.vec2(0.0)
-        s1 = wp.vec2(0.0)
-        k0 = float(1.0)
-        k1 = float(1.0)
-        if view.orthographic != 0:
-            s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
-            s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
-        else:
-            k0 = 1.0 / z0
-            k1 = 1.0 / z1
-            s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
-            s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
-        # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
-        w = float(view.width)
-        h = float(view.height)
-        if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
-            return MARCH_EXIT, float(0.0), int(0)
-        ds = s1 - s0
-        s_end = float(1.0)
-        if ds[0] > 0.0:
-            s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-        elif ds[0] < 0.0:
-            s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-        if ds[1] > 0.0:
-            s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-        elif ds[1] < 0.0:
-            s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
-        s_end = wp.max(s_end, 0.0)
-        pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
-        n = int(wp.ceil(pixels))
-        status = MARCH_EXIT
-        if n > max_steps:
-            n = max_steps
-            status = MARCH_STEPS
-        n = wp.max(n, 1)
-        ds_step = s_end / float(n)
-        if pixels > float(max_steps):
-            ds_step = s_end / pixels
         s_prev = float(0.0)
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
@@ -454,58 +471,9 @@ def _make_marches(back_layer: bool):
         MARCH_BATCH depth samples ahead (clamped to the image, so reads past the last step are harmless and
         untested); the same result as :func:`screen_march_naive`.
         """
-        p0 = wp.transform_point(view.world_to_view, o)
-        dv = wp.transform_vector(view.world_to_view, d)
-        z0 = -p0[2]
-        rate = -dv[2]  # d(depth)/dt
-        t1 = t_max
-        near = view.near * 1.0001
-        if z0 < near:
+        inside, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds = _screen_segment(view, o, d, t_max, max_steps)
+        if inside == 0:
             return MARCH_EXIT, float(0.0), int(0)
-        if rate < 0.0:
-            t1 = wp.min(t1, (z0 - near) / (-rate))
-        if view.orthographic == 0:
-            t1 = wp.min(t1, 1.0e6)
-        p1 = p0 + dv * t1
-        z1 = -p1[2]
-        s0 = wp.vec2(0.0)
-        s1 = wp.vec2(0.0)
-        k0 = float(1.0)
-        k1 = float(1.0)
-        if view.orthographic != 0:
-            s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
-            s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
-        else:
-            k0 = 1.0 / z0
-            k1 = 1.0 / z1
-            s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
-            s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
-        # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
-        w = float(view.width)
-        h = float(view.height)
-        if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
-            return MARCH_EXIT, float(0.0), int(0)
-        ds = s1 - s0
-        s_end = float(1.0)
-        if ds[0] > 0.0:
-            s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-        elif ds[0] < 0.0:
-            s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-        if ds[1] > 0.0:
-            s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-        elif ds[1] < 0.0:
-            s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
-        s_end = wp.max(s_end, 0.0)
-        pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
-        n = int(wp.ceil(pixels))
-        status = MARCH_EXIT
-        if n > max_steps:
-            n = max_steps
-            status = MARCH_STEPS
-        n = wp.max(n, 1)
-        ds_step = s_end / float(n)
-        if pixels > float(max_steps):
-            ds_step = s_end / pixels
         ortho = view.orthographic
         s_prev = float(0.0)
         zr_prev = z0
@@ -598,57 +566,9 @@ def _make_marches(back_layer: bool):
         step past the cell (the ray's depth is monotonic along the segment, so its range over those steps is that
         of their two ends). It tries the coarse cell first, then the fine one, else tests the fine cell's steps one
         by one."""
-        p0 = wp.transform_point(view.world_to_view, o)
-        dv = wp.transform_vector(view.world_to_view, d)
-        z0 = -p0[2]
-        rate = -dv[2]  # d(depth)/dt
-        t1 = t_max
-        near = view.near * 1.0001
-        if z0 < near:
+        inside, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds = _screen_segment(view, o, d, t_max, max_steps)
+        if inside == 0:
             return MARCH_EXIT, float(0.0), int(0)
-        if rate < 0.0:
-            t1 = wp.min(t1, (z0 - near) / (-rate))
-        if view.orthographic == 0:
-            t1 = wp.min(t1, 1.0e6)
-        p1 = p0 + dv * t1
-        z1 = -p1[2]
-        s0 = wp.vec2(0.0)
-        s1 = wp.vec2(0.0)
-        k0 = float(1.0)
-        k1 = float(1.0)
-        if view.orthographic != 0:
-            s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
-            s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
-        else:
-            k0 = 1.0 / z0
-            k1 = 1.0 / z1
-            s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
-            s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
-        w = float(view.width)
-        h = float(view.height)
-        if s0[0] < 0.0 or s0[1] < 0.0 or s0[0] >= w or s0[1] >= h:
-            return MARCH_EXIT, float(0.0), int(0)
-        ds = s1 - s0
-        s_end = float(1.0)
-        if ds[0] > 0.0:
-            s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-        elif ds[0] < 0.0:
-            s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-        if ds[1] > 0.0:
-            s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-        elif ds[1] < 0.0:
-            s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
-        s_end = wp.max(s_end, 0.0)
-        pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
-        n = int(wp.ceil(pixels))
-        status = MARCH_EXIT
-        if n > max_steps:
-            n = max_steps
-            status = MARCH_STEPS
-        n = wp.max(n, 1)
-        ds_step = s_end / float(n)
-        if pixels > float(max_steps):
-            ds_step = s_end / pixels
         ortho = view.orthographic
         fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
         coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
