@@ -213,19 +213,34 @@ def _shared_edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
 
 
 @wp.func
+def fragment_depth(view: ViewParams, a: wp.vec3, b: wp.vec3, c: wp.vec3, w0: float, w1: float, w2: float,
+                   inv_area: float) -> float:
+    """Depth [m] at a covered pixel of the screen triangle ``a, b, c`` (edge weights ``w0..w2``; [2] is 1/depth, or
+    depth when orthographic)."""
+    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
+    if view.orthographic == 0:
+        return 1.0 / z
+    return z
+
+
+@wp.func
+def depth_key(view: ViewParams, depth: float, tri: wp.uint64) -> wp.uint64:
+    """The visibility key of a fragment: depth quantised over [0, far] in the high 32 bits, the triangle id below
+    (an ``atomic_min`` keeps the nearest)."""
+    q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
+    return (q << wp.uint64(32)) | tri
+
+
+@wp.func
 def write_fragment(view: ViewParams, a: wp.vec3, b: wp.vec3, c: wp.vec3, w0: float, w1: float, w2: float,
                    inv_area: float, tri: wp.uint64, to_a: bool, to_b: bool, p: int,
                    visibility: wp.array(dtype=wp.uint64), visibility_b: wp.array(dtype=wp.uint64)):
     """Depth-test covered pixel ``p`` (edge weights ``w0..w2`` of the screen triangle ``a, b, c``, whose [2] is 1/depth,
     or depth when orthographic): its key (quantised depth | triangle id) into each layer's buffer it is drawn to, by
     ``atomic_min``; shared by :func:`raster_tiles` and :func:`raster_tile_columns`."""
-    z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
-    depth = z
-    if view.orthographic == 0:
-        depth = 1.0 / z
+    depth = fragment_depth(view, a, b, c, w0, w1, w2, inv_area)
     if depth > 0.0 and depth <= view.far:
-        q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
-        key = (q << wp.uint64(32)) | tri
+        key = depth_key(view, depth, tri)
         if to_a:
             wp.atomic_min(visibility, p, key)
         if to_b:
@@ -315,14 +330,9 @@ def raster_back_tiles(
                     w1 = _shared_edge(c, a, x, y)
                     w2 = _shared_edge(a, b, x, y)
                     if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                        z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) * inv_area
-                        depth = z
-                        if view.orthographic == 0:
-                            depth = 1.0 / z
+                        depth = fragment_depth(view, a, b, c, w0, w1, w2, inv_area)
                         if depth >= zf and depth <= view.far:
-                            q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0))
-                                          * wp.float64(DEPTH_STEPS))
-                            wp.atomic_min(visibility, p, (q << wp.uint64(32)) | tri)
+                            wp.atomic_min(visibility, p, depth_key(view, depth, tri))
         item += stride
 
 
