@@ -324,6 +324,22 @@ def composite(
     missed[p] = bits
 
 
+def shadow_map_args(lights: list[LightMaps]) -> list[list]:
+    """The first nine arguments of :func:`direct_light` (those of :func:`direct_at`: view, depth, exclusive, kind,
+    RGB, position, direction, cone angle and softness) for every shadow map of every light, in order."""
+    maps = []
+    for lm in lights:
+        light = lm.light
+        light_maps = lm.shadow_maps()
+        rgb = light.radiometric_rgb.astype(np.float32)
+        for view, depth in light_maps:
+            maps.append([view, depth, int(len(light_maps) > 1), int(light.kind), wp.vec3(*rgb),
+                         wp.vec3(*np.asarray(light.position, np.float32)),
+                         wp.vec3(*np.asarray(light.direction, np.float32)),
+                         float(light.cone_angle), float(light.cone_softness)])
+    return maps
+
+
 class DirectLighting:
     """Direct irradiance [W/m²] on the camera's opaque surfaces from every light, shadowed by every surface."""
 
@@ -336,16 +352,7 @@ class DirectLighting:
         """Write ``irradiance``: the first launch writes every pixel (no memset first), the rest add. Shadow maps go
         two at a time (:func:`direct_light_pair`; the lights' maps in order, across lights), an odd one last alone
         (:func:`direct_light`, the twin); ``pairs`` = False launches every map alone."""
-        maps = []
-        for lm in lights:
-            light = lm.light
-            light_maps = lm.shadow_maps()
-            rgb = light.radiometric_rgb.astype(np.float32)
-            for view, depth in light_maps:
-                maps.append([view, depth, int(len(light_maps) > 1), int(light.kind), wp.vec3(*rgb),
-                             wp.vec3(*np.asarray(light.position, np.float32)),
-                             wp.vec3(*np.asarray(light.direction, np.float32)),
-                             float(light.cone_angle), float(light.cone_softness)])
+        maps = shadow_map_args(lights)
         if not maps:
             self.irradiance.zero_()
         g = [gbuffer.depth, gbuffer.position, gbuffer.normal]
@@ -364,4 +371,4 @@ class DirectLighting:
 
 
 __all__ = ["DirectLighting", "MISSED_REFLECTED", "MISSED_REFRACTED", "composite", "direct_at", "direct_light",
-           "direct_light_pair", "LightKind", "water_rays"]
+           "direct_light_pair", "LightKind", "shadow_map_args", "water_rays"]

@@ -38,13 +38,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import warp as wp
 
 from .raster.views import ViewParams, world_project
 from .photons.hidden_flux import hidden_irradiance
 from .scene.model import LAYER_OPAQUE
-from .shade import MISSED_REFLECTED, MISSED_REFRACTED, direct_at, water_rays
+from .shade import MISSED_REFLECTED, MISSED_REFRACTED, direct_at, shadow_map_args, water_rays
 from .sky import SkyMap, sky_irradiance_at, sky_radiance
 
 INV_PI = wp.constant(1.0 / math.pi)
@@ -378,16 +377,9 @@ class HiddenSurfaces:
         wp.launch(kernel, dim=n, device=self.device, inputs=[
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             radiance, sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, final])
-        for lm in lights:
-            light = lm.light
-            maps = lm.shadow_maps()
-            rgb = wp.vec3(*light.radiometric_rgb.astype(np.float32))
-            pos = wp.vec3(*np.asarray(light.position, np.float32))
-            axis = wp.vec3(*np.asarray(light.direction, np.float32))
-            for view, depth in maps:
-                wp.launch(hidden_direct, dim=n, device=self.device, inputs=[
-                    view, depth, int(len(maps) > 1), int(light.kind), rgb, pos, axis, float(light.cone_angle),
-                    float(light.cone_softness), self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
+        for args in shadow_map_args(lights):
+            wp.launch(hidden_direct, dim=n, device=self.device,
+                      inputs=args + [self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
         if hidden_flux is None:
             return
         for li in range(len(lights)):
