@@ -18,7 +18,7 @@ from .raster.views import ViewParams, pixel_ray_world, read_again, view_eye_worl
 from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
-from .sky import SkyMap, sky_radiance
+from .sky import SkyMap, pcf_visibility, sky_radiance
 
 INV_PI = wp.constant(1.0 / math.pi)
 
@@ -37,28 +37,7 @@ def shadow_visibility(view: ViewParams, shadow_depth: wp.array(dtype=wp.float32)
     nl = n
     if wp.dot(nl, to_light) < 0.0:
         nl = -nl
-    q = world_project(view, x + nl * (1.5 * texel))
-    if q[2] <= 0.0 or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(view.width) or q[1] >= float(view.height):
-        return int(0), float(1.0)
-    fx = q[0] - 0.5
-    fy = q[1] - 0.5
-    i0 = int(wp.floor(fx))
-    j0 = int(wp.floor(fy))
-    ax = fx - float(i0)
-    ay = fy - float(j0)
-    vis = float(0.0)
-    for dj in range(2):
-        for di in range(2):
-            i = wp.clamp(i0 + di, 0, view.width - 1)
-            j = wp.clamp(j0 + dj, 0, view.height - 1)
-            sd = shadow_depth[j * view.width + i]
-            lit = float(1.0)
-            if sd > 0.0 and q[2] > sd + texel:
-                lit = 0.0
-            wx = wp.where(di == 0, 1.0 - ax, ax)
-            wy = wp.where(dj == 0, 1.0 - ay, ay)
-            vis += wx * wy * lit
-    return int(1), vis
+    return pcf_visibility(view, shadow_depth, 0, x, nl, texel)
 
 
 @wp.func

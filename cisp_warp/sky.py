@@ -95,18 +95,14 @@ def sh_irradiance(sh: wp.array(dtype=wp.vec3), n: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def map_visibility(view: ViewParams, depth: wp.array(dtype=wp.float32), base: int, x: wp.vec3, n: wp.vec3,
-                   to_sky: wp.vec3) -> float:
-    """Visibility in [0, 1] of world point ``x`` towards the sky along ``to_sky`` in one occlusion map
-    (the map's texels start at ``base``); 1 outside the map. Bias and filter as ``shade.shadow_visibility``:
-    the point is pushed 1.5 texels along its normal and compared with a one-texel depth bias, bilinear PCF."""
-    texel = 1.0 / view.fx
-    nl = n
-    if wp.dot(nl, to_sky) < 0.0:
-        nl = -nl
+def pcf_visibility(view: ViewParams, depth: wp.array(dtype=wp.float32), base: int, x: wp.vec3, nl: wp.vec3,
+                   texel: float):
+    """(inside, visibility in [0, 1]) of world point ``x`` in one depth map (its texels from ``base``), bilinear
+    percentage-closer: the point pushed 1.5 ``texel`` [m] along ``nl`` (its normal turned towards the light) and
+    compared with a one-texel depth bias; (0, 1) outside the map."""
     q = world_project(view, x + nl * (1.5 * texel))
     if q[2] <= 0.0 or q[0] < 0.0 or q[1] < 0.0 or q[0] >= float(view.width) or q[1] >= float(view.height):
-        return 1.0
+        return int(0), float(1.0)
     fx = q[0] - 0.5
     fy = q[1] - 0.5
     i0 = int(wp.floor(fx))
@@ -123,6 +119,19 @@ def map_visibility(view: ViewParams, depth: wp.array(dtype=wp.float32), base: in
             if sd > 0.0 and q[2] > sd + texel:
                 lit = 0.0
             vis += wp.where(di == 0, 1.0 - ax, ax) * wp.where(dj == 0, 1.0 - ay, ay) * lit
+    return int(1), vis
+
+
+@wp.func
+def map_visibility(view: ViewParams, depth: wp.array(dtype=wp.float32), base: int, x: wp.vec3, n: wp.vec3,
+                   to_sky: wp.vec3) -> float:
+    """Visibility in [0, 1] of world point ``x`` towards the sky along ``to_sky`` in one occlusion map
+    (the map's texels start at ``base``); 1 outside the map. Bias and filter as ``shade.shadow_visibility``
+    (:func:`pcf_visibility`), the texel the map's own (orthographic)."""
+    nl = n
+    if wp.dot(nl, to_sky) < 0.0:
+        nl = -nl
+    inside, vis = pcf_visibility(view, depth, base, x, nl, 1.0 / view.fx)
     return vis
 
 
