@@ -62,6 +62,8 @@ class CISP(PhotonPass):
         # the march skips the steps they prove hitless
         self.cam_bounds = self._bounds_for(gbuffer.width, gbuffer.height)
         self.rsm_bounds = [[self._bounds_for(r.width, r.height) for r in lm.rsm] for lm in lights]
+        for lm, bounds in zip(lights, self.rsm_bounds):  # each light's resolve writes its views' bounds (fused_resolve)
+            lm.keep_depth_bounds(bounds, settings.thickness, settings.thickness_rel)
 
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
@@ -70,6 +72,15 @@ class CISP(PhotonPass):
                       view_index: int = 0) -> None:
         build_bounds(depth, width, height, self.settings.thickness, self.settings.thickness_rel, bounds, self.device,
                      views, view_index)
+
+    def build_rsm_bounds(self, lights: LightMaps, light_index: int, view_index: int) -> wp.array:
+        """The depth bounds of RSM view ``view_index`` of light ``light_index`` (``lights``) for this frame: written by
+        the light's resolve already (``LightMaps.keep_depth_bounds``), else built here from its opaque depth."""
+        bounds = self.rsm_bounds[light_index][view_index]
+        if not lights.builds_depth_bounds(bounds):
+            r = lights.rsm[view_index]
+            self._build_bounds(r.opaque_depth, r.width, r.height, bounds, lights.views, view_index)
+        return bounds
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
@@ -87,8 +98,7 @@ class CISP(PhotonPass):
         for b in self.rsm_batches(frame):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
-            rsm_bounds = self.rsm_bounds[b.light_index][b.view_index]
-            self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds, b.lights.views, b.view_index)
+            rsm_bounds = self.build_rsm_bounds(b.lights, b.light_index, b.view_index)
             self.launch_photons(K.trace_photons, b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,

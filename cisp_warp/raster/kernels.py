@@ -23,6 +23,20 @@ EMPTY_KEY_VALUE = 0xFFFFFFFFFFFFFFFF  #: visibility value of a pixel no triangle
 EMPTY_KEY = wp.constant(wp.uint64(EMPTY_KEY_VALUE))
 DEPTH_STEPS = wp.constant(4294967040.0)  # largest float32 below 2^32: the quantised depth fits 32 bits
 
+# depth bounds of a depth buffer (``photons.march.depth_bounds``, and :func:`resolve_rsm_view` in its resolve): defined
+# here, beside the resolves that may write them, and imported by ``photons.march``
+BIG_DEPTH = wp.constant(1.0e30)  #: the depth a hole (no surface) counts as
+BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of the depth bounds
+BOUNDS_COARSE = wp.constant(32)  #: edge [texels] of their coarse cells (4x4 fine cells)
+BOUNDS_NEAR = wp.constant(0.999999)  #: a fine cell's nearest depth is widened by this factor (``march.depth_bounds``)
+BOUNDS_FAR = wp.constant(1.000001)  #: and its farthest back face by this one
+
+
+@wp.func
+def bounds_far(zs: float, thickness: float, thickness_rel: float) -> float:
+    """The back face of a depth sample ``zs`` [m] in the depth bounds (as the march computes a surface's far side)."""
+    return zs + thickness + thickness_rel * zs
+
 
 @wp.func
 def _clip_lerp(p: wp.vec3, q: wp.vec3, dp: float, dq: float, near: float) -> wp.vec3:
@@ -695,8 +709,32 @@ def specular_texel(
 ) -> int:
     """Resolve pixel ``p`` of a specular layer (see :func:`resolve_specular`). Returns its triangle (-1 none), or -2
     when the pixel was empty and stays empty (nothing written but ``nearest_depth``)."""
+    return specular_texel_at(view, p, visibility, opaque_depth[p], points, normals, indices, triangle_material,
+                             mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
+
+
+@wp.func
+def specular_texel_at(
+    view: ViewParams,
+    p: int,
+    visibility: wp.array(dtype=wp.uint64),
+    od: float,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+) -> int:
+    """:func:`specular_texel` with the pixel's opaque depth ``od`` [m] given (0 = none) instead of read."""
     key = take_key(visibility, p)
-    od = opaque_depth[p]
     if still_empty(key, tri_id, p):
         if nearest_depth.shape[0] > 0:
             nearest_depth[p] = od
@@ -852,3 +890,139 @@ def resolve_rsm_specular(
         flux[p] = wp.vec3(0.0)
     elif tri >= 0:  # (-2: empty as before, its flux is zero already)
         flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness, texel_solid_angle)
+
+
+#: threads of a block of :func:`resolve_rsm_view` on CUDA (the CPU runs a block as one lane)
+RESOLVE_THREADS = 256
+#: texels of one block of :func:`resolve_rsm_view`: one coarse cell of the depth bounds, BOUNDS_COARSE² texels
+RESOLVE_TEXELS = wp.constant(1024)
+#: fine cells across (and down) a coarse cell, and the 8-texel row segments of a coarse cell
+_FINE_PER_COARSE = wp.constant(4)
+_SEGMENTS = wp.constant(128)
+_FINE_CELLS = wp.constant(16)
+
+
+@wp.kernel
+def resolve_rsm_view(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
+    view_index: int,
+    opaque_visibility: wp.array(dtype=wp.uint64),  # (H*W,) opaque layer (read, then reset to EMPTY_KEY)
+    specular_visibility: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read, then reset to EMPTY_KEY)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    light_rgb: wp.vec3,  # irradiance [W/m²] (distant) or intensity [W/sr] (point, spot), per channel
+    spot_axis: wp.vec3,  # world direction of the spot axis (unused unless is_spot)
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) [sr], perspective views (read)
+    opaque_depth: wp.array(dtype=wp.float32),  # (H*W,) nearest opaque surface [m], 0 = none (write)
+    opaque_tri: wp.array(dtype=wp.int32),  # (H*W,) its triangle, -1 = none (write; an empty array: not wanted)
+    depth: wp.array(dtype=wp.float32),  # (H*W,) specular layer [m], 0 = none or hidden behind opaque (write)
+    position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write)
+    normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write)
+    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
+    nearest_depth: wp.array(dtype=wp.float32),  # (H*W,) the RSM's shadow depth [m], 0 = none (write)
+    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
+    thickness: float,  # [m] the depth bounds' absolute surface thickness (``march.depth_bounds``)
+    thickness_rel: float,  # their relative thickness (× sample depth)
+    bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) depth bounds of opaque_depth (write; empty: not wanted)
+):
+    """One pass over an RSM view's two visibility buffers: the opaque layer's depth (:func:`resolve_depth`), the
+    specular layer with its shadow depth and flux (:func:`resolve_rsm_specular`), and the depth bounds of the opaque
+    depth (``photons.march.depth_bounds`` then ``coarsen_bounds``), instead of two resolves and two bounds passes
+    that read back what the first wrote. ``wp.launch_tiled`` over the view's coarse cells (BOUNDS_COARSE² texels, a
+    warp per texel row of it: the same coalesced rows as one thread per texel); the block keeps its texels' opaque
+    depths in shared memory and reduces them there to its 16 fine cells and its coarse cell. Every buffer holds the
+    same values bit for bit as the three naive twins' (the texel functions are theirs; min and max of the depths,
+    never NaN, do not depend on the order they are taken in). On the CPU a block is one lane that does it all."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn; its maps and bounds are kept
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    want_bounds = bounds.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    for k0 in range(0, RESOLVE_TEXELS, threads):
+        k = k0 + lane
+        x = x0 + k % BOUNDS_COARSE
+        y = y0 + k / BOUNDS_COARSE
+        inside = k < RESOLVE_TEXELS and x < width and y < height
+        od = float(0.0)
+        if inside:
+            p = y * width + x
+            tri_o, od, x_o, bary_o, d_o = triangle_hit(view, take_key(opaque_visibility, p), p, points, indices)
+            opaque_depth[p] = od
+            if opaque_tri.shape[0] > 0:
+                opaque_tri[p] = tri_o
+            tri = specular_texel_at(view, p, specular_visibility, od, points, normals, indices, triangle_material,
+                                    mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
+                                    nearest_depth)
+            if tri == -1:
+                flux[p] = wp.vec3(0.0)
+            elif tri >= 0:  # (-2: empty as before, its flux is zero already)
+                flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
+                                     texel_solid_angle)
+        if want_bounds:
+            wp.tile_scatter_masked(zs, k, od, inside)
+    if not want_bounds:
+        return
+    # 128 row segments of 8 texels (row r of the coarse cell, fine column c): their nearest depth and farthest back
+    # face over the texels in the view, as march.depth_bounds folds them (a hole counts as BIG_DEPTH)
+    seg_near = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
+    seg_far = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
+    for s0 in range(0, _SEGMENTS, threads):
+        s = s0 + lane
+        z_min = float(BIG_DEPTH)
+        z_max = float(0.0)
+        if s < _SEGMENTS:
+            y = y0 + s / _FINE_PER_COARSE
+            xs = x0 + (s % _FINE_PER_COARSE) * BOUNDS_CELL
+            if y < height:
+                for di in range(BOUNDS_CELL):
+                    if xs + di < width:
+                        z = zs[(s / _FINE_PER_COARSE) * BOUNDS_COARSE + (s % _FINE_PER_COARSE) * BOUNDS_CELL + di]
+                        if z <= 0.0:
+                            z = BIG_DEPTH
+                        z_min = wp.min(z_min, z)
+                        z_max = wp.max(z_max, bounds_far(z, thickness, thickness_rel))
+        wp.tile_scatter_masked(seg_near, s, z_min, s < _SEGMENTS)
+        wp.tile_scatter_masked(seg_far, s, z_max, s < _SEGMENTS)
+    # the 16 fine cells (8 segments each), written widened as march.depth_bounds writes them
+    fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
+    cell_near = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
+    cell_far = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
+    for c0 in range(0, _FINE_CELLS, threads):
+        c = c0 + lane
+        b = wp.vec2(BIG_DEPTH, 0.0)  # a cell off the view adds nothing to the coarse cell
+        if c < _FINE_CELLS:
+            fx = x0 / BOUNDS_CELL + c % _FINE_PER_COARSE
+            fy = y0 / BOUNDS_CELL + c / _FINE_PER_COARSE
+            if fx < fw and fy < fh:
+                z_min = float(BIG_DEPTH)
+                z_max = float(0.0)
+                for r in range(BOUNDS_CELL):
+                    s = ((c / _FINE_PER_COARSE) * BOUNDS_CELL + r) * _FINE_PER_COARSE + c % _FINE_PER_COARSE
+                    z_min = wp.min(z_min, seg_near[s])
+                    z_max = wp.max(z_max, seg_far[s])
+                b = wp.vec2(z_min * BOUNDS_NEAR, z_max * BOUNDS_FAR)
+                bounds[fy * fw + fx] = b
+        wp.tile_scatter_masked(cell_near, c, b[0], c < _FINE_CELLS)
+        wp.tile_scatter_masked(cell_far, c, b[1], c < _FINE_CELLS)
+    if lane == 0:  # the coarse cell: min and max over its fine cells (march.coarsen_bounds)
+        b = wp.vec2(BIG_DEPTH, 0.0)
+        for c in range(_FINE_CELLS):
+            b = wp.vec2(wp.min(b[0], cell_near[c]), wp.max(b[1], cell_far[c]))
+        bounds[fw * fh + block] = b
