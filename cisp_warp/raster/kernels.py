@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .views import ViewParams, pixel_ray_world, view_point, view_project
+from .views import ViewParams, pixel_ray_world, read_again, view_point, view_project
 
 TILE = 8  #: tile edge [pixels] of one raster work item
 EMPTY_KEY_VALUE = 0xFFFFFFFFFFFFFFFF  #: visibility value of a pixel no triangle covers
@@ -894,6 +894,9 @@ def resolve_rsm_specular(
 
 #: threads of a block of :func:`resolve_rsm_view` on CUDA (the CPU runs a block as one lane)
 RESOLVE_THREADS = 256
+#: its blocks resident per SM, its launch bound: 64 registers (72 unbounded: 3 blocks; 32 B of stack at 64, sm_90
+#: cubin, ``tools/regcount.py --modules cisp_warp.raster.kernels``): a memory-bound pass wants the warps in flight
+RESOLVE_BLOCKS_PER_SM = 4
 #: texels of one block of :func:`resolve_rsm_view`: one coarse cell of the depth bounds, BOUNDS_COARSE² texels
 RESOLVE_TEXELS = wp.constant(1024)
 #: fine cells across (and down) a coarse cell, and the 8-texel row segments of a coarse cell
@@ -902,7 +905,7 @@ _SEGMENTS = wp.constant(128)
 _FINE_CELLS = wp.constant(16)
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_BLOCKS_PER_SM))
 def resolve_rsm_view(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
     view_index: int,
@@ -961,6 +964,7 @@ def resolve_rsm_view(
         inside = k < RESOLVE_TEXELS and x < width and y < height
         od = float(0.0)
         if inside:
+            view = read_again(views, view_index, k)  # read per texel (L1 hits), not kept in registers through the loop
             p = y * width + x
             tri_o, od, x_o, bary_o, d_o = triangle_hit(view, take_key(opaque_visibility, p), p, points, indices)
             opaque_depth[p] = od
@@ -990,13 +994,13 @@ def resolve_rsm_view(
             y = y0 + s / _FINE_PER_COARSE
             xs = x0 + (s % _FINE_PER_COARSE) * BOUNDS_CELL
             if y < height:
-                for di in range(BOUNDS_CELL):
-                    if xs + di < width:
-                        z = zs[(s / _FINE_PER_COARSE) * BOUNDS_COARSE + (s % _FINE_PER_COARSE) * BOUNDS_CELL + di]
-                        if z <= 0.0:
-                            z = BIG_DEPTH
-                        z_min = wp.min(z_min, z)
-                        z_max = wp.max(z_max, bounds_far(z, thickness, thickness_rel))
+                first = (s / _FINE_PER_COARSE) * BOUNDS_COARSE + (s % _FINE_PER_COARSE) * BOUNDS_CELL
+                for di in range(wp.min(BOUNDS_CELL, width - xs)):  # the texels in the view (a loop kept rolled)
+                    z = zs[first + di]
+                    if z <= 0.0:
+                        z = BIG_DEPTH
+                    z_min = wp.min(z_min, z)
+                    z_max = wp.max(z_max, bounds_far(z, thickness, thickness_rel))
         wp.tile_scatter_masked(seg_near, s, z_min, s < _SEGMENTS)
         wp.tile_scatter_masked(seg_far, s, z_max, s < _SEGMENTS)
     # the 16 fine cells (8 segments each), written widened as march.depth_bounds writes them
@@ -1013,8 +1017,9 @@ def resolve_rsm_view(
             if fx < fw and fy < fh:
                 z_min = float(BIG_DEPTH)
                 z_max = float(0.0)
-                for r in range(BOUNDS_CELL):
-                    s = ((c / _FINE_PER_COARSE) * BOUNDS_CELL + r) * _FINE_PER_COARSE + c % _FINE_PER_COARSE
+                s_first = (c / _FINE_PER_COARSE) * BOUNDS_CELL * _FINE_PER_COARSE + c % _FINE_PER_COARSE
+                for r in range(wp.min(BOUNDS_CELL, height - fy * BOUNDS_CELL)):  # its rows in the view
+                    s = s_first + r * _FINE_PER_COARSE
                     z_min = wp.min(z_min, seg_near[s])
                     z_max = wp.max(z_max, seg_far[s])
                 b = wp.vec2(z_min * BOUNDS_NEAR, z_max * BOUNDS_FAR)
@@ -1023,6 +1028,6 @@ def resolve_rsm_view(
         wp.tile_scatter_masked(cell_far, c, b[1], c < _FINE_CELLS)
     if lane == 0:  # the coarse cell: min and max over its fine cells (march.coarsen_bounds)
         b = wp.vec2(BIG_DEPTH, 0.0)
-        for c in range(_FINE_CELLS):
+        for c in range(wp.min(_FINE_CELLS, threads * _FINE_CELLS)):  # (a loop kept rolled)
             b = wp.vec2(wp.min(b[0], cell_near[c]), wp.max(b[1], cell_far[c]))
         bounds[fw * fh + block] = b
