@@ -510,3 +510,40 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
         b = fused["0_bounds"]
         assert (b[:, 0] < 1e29).any() and (b[:, 1] > 0).all()  # real surfaces bounded, every cell written
         assert any((fused[f"{k}_specular_tri_id"] >= 0).any() for k in range(len([x for x in fused if x.endswith("_bounds")])))
+
+
+@pytest.mark.parametrize("size", [(48, 32), (70, 45)])
+def test_fused_back_resolve_is_its_twins(device, size):
+    """``resolve_back_view`` (the camera's back-face layer and the depth bounds of both layers in one tiled pass)
+    fills ``depth_layers`` exactly as ``resolve_back`` and the bounds exactly as ``depth_bounds`` (with the back-face
+    layer) + ``coarsen_bounds``, from two cameras in a closed room and an open one (pixels with no surface), on
+    images that are not a multiple of a coarse cell."""
+    from cisp_warp.photons.cisp import build_bounds
+    from cisp_warp.photons.march import bounds_size
+
+    w, h = size
+    cams = [Camera(look_at_matrix(e, t), fov_y=math.radians(70), near=0.02, far=10.0, width=w, height=h)
+            for e, t in (((-0.7, 0.8, 0.6), (0.0, -0.5, 0.0)), ((0.3, -0.3, 0.75), (0.3, -0.5, 0.1)))]  # then the sphere near
+    for parts in (box_room(), box_room()[1:]):
+        ds = DeviceScene(make_scene(parts, cams[0]), device)
+        raster = Rasterizer(ds)
+        out = []
+        for fused in (True, False):
+            g = GBuffer.allocate(w, h, device)
+            g.fused_resolve = fused
+            bounds = wp.full(bounds_size(w, h), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=device)
+            g.keep_depth_bounds(bounds, 0.03, 0.02)
+            for cam in cams:
+                v = camera_view(cam).params()
+                g.render(raster, v, v)
+            assert g.builds_depth_bounds(bounds) == fused
+            if not fused:
+                build_bounds(g.depth_layers, w, h, 0.03, 0.02, bounds, device)
+            out.append((g.depth_layers.numpy(), bounds.numpy(), g.visibility.numpy()))
+        for a, b in zip(*out):
+            np.testing.assert_array_equal(a, b)
+        back = out[0][0][w * h:]
+        assert (back > 0).any() and (out[0][1][:, 1] > 0).all()
+        front_only = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
+        build_bounds(wp.array(out[0][0][: w * h], dtype=wp.float32, device=device), w, h, 0.03, 0.02, front_only, device)
+        assert (front_only.numpy()[:, 1] < out[0][1][:, 1]).any()  # the back-face layer widens some cells

@@ -62,8 +62,11 @@ class CISP(PhotonPass):
         # the march skips the steps they prove hitless
         self.cam_bounds = self._bounds_for(gbuffer.width, gbuffer.height)
         self.rsm_bounds = [[self._bounds_for(r.width, r.height) for r in lm.rsm] for lm in lights]
-        for lm, bounds in zip(lights, self.rsm_bounds):  # each light's resolve writes its views' bounds (fused_resolve)
+        # the resolves write the bounds (LightMaps / GBuffer.fused_resolve): each light's of its views, the G-buffer's
+        # back-face resolve the camera's
+        for lm, bounds in zip(lights, self.rsm_bounds):
             lm.keep_depth_bounds(bounds, settings.thickness, settings.thickness_rel)
+        gbuffer.keep_depth_bounds(self.cam_bounds, settings.thickness, settings.thickness_rel)
 
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
@@ -90,7 +93,8 @@ class CISP(PhotonPass):
         # from the depth with its back-face layer, which the camera marches read (march.depth_bounds widens a cell by
         # the layer's far sides): bounds of the front depth alone let 1.2% of the Cornell box's camera marches skip a
         # cell where the naive march ends in an object's hidden half (branch hiermarch, perf_notes section 30)
-        self._build_bounds(gbuffer.depth_layers, gbuffer.width, gbuffer.height, self.cam_bounds)
+        if not gbuffer.builds_depth_bounds(self.cam_bounds):
+            self._build_bounds(gbuffer.depth_layers, gbuffer.width, gbuffer.height, self.cam_bounds)
         if self.wavefront is not None:
             self.wavefront.cam.view = camera
             self.wavefront.trace(frame, "cisp")

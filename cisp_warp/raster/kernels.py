@@ -626,6 +626,14 @@ def resolve_back(
     if view.far <= 0.0:
         return
     p = wp.tid()
+    back_texel(view, p, visibility, points, normals, indices, front_tri, depth_layers)
+
+
+@wp.func
+def back_texel(view: ViewParams, p: int, visibility: wp.array(dtype=wp.uint64), points: wp.array(dtype=wp.vec3),
+               normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), front_tri: wp.array(dtype=wp.int32),
+               depth_layers: wp.array(dtype=wp.float32)) -> float:
+    """Resolve pixel ``p`` of the back-face layer (see :func:`resolve_back`); returns the back depth it wrote."""
     n = view.width * view.height
     tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
     zb = float(0.0)
@@ -634,6 +642,7 @@ def resolve_back(
         if not faces_away(view, ft, points, normals, indices):
             zb = wp.max(t, depth_layers[p])
     depth_layers[n + p] = zb
+    return zb
 
 
 @wp.kernel
@@ -905,6 +914,81 @@ _SEGMENTS = wp.constant(128)
 _FINE_CELLS = wp.constant(16)
 
 
+@wp.func
+def _block_bounds(
+    zs: wp.tile(dtype=wp.float32, shape=(1024,)),  # the block's texels' depths [m], 0 = none (shared, row-major)
+    back: wp.tile(dtype=wp.float32, shape=(1024,)),  # their back-face layer's depths [m] (read when has_back)
+    has_back: bool,
+    lane: int,
+    threads: int,
+    block: int,  # the coarse cell: BOUNDS_COARSE² texels from (x0, y0)
+    width: int,
+    height: int,
+    thickness: float,
+    thickness_rel: float,
+    bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) the coarse cell and its fine cells (write)
+):
+    """The depth bounds of one coarse cell from its texels' depths in shared memory: its 16 fine cells as
+    ``photons.march.depth_bounds`` writes them and the coarse cell as ``coarsen_bounds`` does, the same values bit
+    for bit (min and max of depths that are never NaN do not depend on the order they are taken in). Every thread
+    of the block calls it (it synchronises the block)."""
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    # 128 row segments of 8 texels (row r of the coarse cell, fine column c): their nearest depth and farthest back
+    # face over the texels in the view, as march.depth_bounds folds them (a hole counts as BIG_DEPTH)
+    seg_near = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
+    seg_far = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
+    for s0 in range(0, _SEGMENTS, threads):
+        s = s0 + lane
+        z_min = float(BIG_DEPTH)
+        z_max = float(0.0)
+        if s < _SEGMENTS:
+            y = y0 + s / _FINE_PER_COARSE
+            xs = x0 + (s % _FINE_PER_COARSE) * BOUNDS_CELL
+            if y < height:
+                first = (s / _FINE_PER_COARSE) * BOUNDS_COARSE + (s % _FINE_PER_COARSE) * BOUNDS_CELL
+                for di in range(wp.min(BOUNDS_CELL, width - xs)):  # the texels in the view (a loop kept rolled)
+                    z = zs[first + di]
+                    if z <= 0.0:
+                        z = BIG_DEPTH
+                    z_min = wp.min(z_min, z)
+                    z_max = wp.max(z_max, bounds_far(z, thickness, thickness_rel))
+                    if has_back:  # a back-face layer: a ray ends in an object's far half too
+                        z_max = wp.max(z_max, back[first + di])
+        wp.tile_scatter_masked(seg_near, s, z_min, s < _SEGMENTS)
+        wp.tile_scatter_masked(seg_far, s, z_max, s < _SEGMENTS)
+    # the 16 fine cells (8 segments each), written widened as march.depth_bounds writes them
+    fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
+    cell_near = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
+    cell_far = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
+    for c0 in range(0, _FINE_CELLS, threads):
+        c = c0 + lane
+        b = wp.vec2(BIG_DEPTH, 0.0)  # a cell off the view adds nothing to the coarse cell
+        if c < _FINE_CELLS:
+            fx = x0 / BOUNDS_CELL + c % _FINE_PER_COARSE
+            fy = y0 / BOUNDS_CELL + c / _FINE_PER_COARSE
+            if fx < fw and fy < fh:
+                z_min = float(BIG_DEPTH)
+                z_max = float(0.0)
+                s_first = (c / _FINE_PER_COARSE) * BOUNDS_CELL * _FINE_PER_COARSE + c % _FINE_PER_COARSE
+                for r in range(wp.min(BOUNDS_CELL, height - fy * BOUNDS_CELL)):  # its rows in the view
+                    s = s_first + r * _FINE_PER_COARSE
+                    z_min = wp.min(z_min, seg_near[s])
+                    z_max = wp.max(z_max, seg_far[s])
+                b = wp.vec2(z_min * BOUNDS_NEAR, z_max * BOUNDS_FAR)
+                bounds[fy * fw + fx] = b
+        wp.tile_scatter_masked(cell_near, c, b[0], c < _FINE_CELLS)
+        wp.tile_scatter_masked(cell_far, c, b[1], c < _FINE_CELLS)
+    if lane == 0:  # the coarse cell: min and max over its fine cells (march.coarsen_bounds)
+        b = wp.vec2(BIG_DEPTH, 0.0)
+        for c in range(wp.min(_FINE_CELLS, threads * _FINE_CELLS)):  # (a loop kept rolled)
+            b = wp.vec2(wp.min(b[0], cell_near[c]), wp.max(b[1], cell_far[c]))
+        bounds[fw * fh + block] = b
+
+
+
 @wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_BLOCKS_PER_SM))
 def resolve_rsm_view(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
@@ -982,52 +1066,54 @@ def resolve_rsm_view(
             wp.tile_scatter_masked(zs, k, od, inside)
     if not want_bounds:
         return
-    # 128 row segments of 8 texels (row r of the coarse cell, fine column c): their nearest depth and farthest back
-    # face over the texels in the view, as march.depth_bounds folds them (a hole counts as BIG_DEPTH)
-    seg_near = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
-    seg_far = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
-    for s0 in range(0, _SEGMENTS, threads):
-        s = s0 + lane
-        z_min = float(BIG_DEPTH)
-        z_max = float(0.0)
-        if s < _SEGMENTS:
-            y = y0 + s / _FINE_PER_COARSE
-            xs = x0 + (s % _FINE_PER_COARSE) * BOUNDS_CELL
-            if y < height:
-                first = (s / _FINE_PER_COARSE) * BOUNDS_COARSE + (s % _FINE_PER_COARSE) * BOUNDS_CELL
-                for di in range(wp.min(BOUNDS_CELL, width - xs)):  # the texels in the view (a loop kept rolled)
-                    z = zs[first + di]
-                    if z <= 0.0:
-                        z = BIG_DEPTH
-                    z_min = wp.min(z_min, z)
-                    z_max = wp.max(z_max, bounds_far(z, thickness, thickness_rel))
-        wp.tile_scatter_masked(seg_near, s, z_min, s < _SEGMENTS)
-        wp.tile_scatter_masked(seg_far, s, z_max, s < _SEGMENTS)
-    # the 16 fine cells (8 segments each), written widened as march.depth_bounds writes them
-    fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
-    fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
-    cell_near = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
-    cell_far = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
-    for c0 in range(0, _FINE_CELLS, threads):
-        c = c0 + lane
-        b = wp.vec2(BIG_DEPTH, 0.0)  # a cell off the view adds nothing to the coarse cell
-        if c < _FINE_CELLS:
-            fx = x0 / BOUNDS_CELL + c % _FINE_PER_COARSE
-            fy = y0 / BOUNDS_CELL + c / _FINE_PER_COARSE
-            if fx < fw and fy < fh:
-                z_min = float(BIG_DEPTH)
-                z_max = float(0.0)
-                s_first = (c / _FINE_PER_COARSE) * BOUNDS_CELL * _FINE_PER_COARSE + c % _FINE_PER_COARSE
-                for r in range(wp.min(BOUNDS_CELL, height - fy * BOUNDS_CELL)):  # its rows in the view
-                    s = s_first + r * _FINE_PER_COARSE
-                    z_min = wp.min(z_min, seg_near[s])
-                    z_max = wp.max(z_max, seg_far[s])
-                b = wp.vec2(z_min * BOUNDS_NEAR, z_max * BOUNDS_FAR)
-                bounds[fy * fw + fx] = b
-        wp.tile_scatter_masked(cell_near, c, b[0], c < _FINE_CELLS)
-        wp.tile_scatter_masked(cell_far, c, b[1], c < _FINE_CELLS)
-    if lane == 0:  # the coarse cell: min and max over its fine cells (march.coarsen_bounds)
-        b = wp.vec2(BIG_DEPTH, 0.0)
-        for c in range(wp.min(_FINE_CELLS, threads * _FINE_CELLS)):  # (a loop kept rolled)
-            b = wp.vec2(wp.min(b[0], cell_near[c]), wp.max(b[1], cell_far[c]))
-        bounds[fw * fh + block] = b
+    _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
+
+
+@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_BLOCKS_PER_SM))
+def resolve_back_view(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
+    view_index: int,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) back layer of :func:`raster_back_tiles` (read, then reset)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    front_tri: wp.array(dtype=wp.int32),  # (H*W,) the front layer's triangle, -1 = none (read)
+    depth_layers: wp.array(dtype=wp.float32),  # (2·H*W,) front depth [m] (read), then the back depth (write)
+    thickness: float,  # [m] the depth bounds' absolute surface thickness (``march.depth_bounds``)
+    thickness_rel: float,  # their relative thickness (× sample depth)
+    bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) depth bounds of depth_layers (write; empty: not wanted)
+):
+    """:func:`resolve_back` (its twin) and the depth bounds of both depth layers (``photons.march.depth_bounds`` of
+    ``depth_layers``, then ``coarsen_bounds``) in one pass: ``wp.launch_tiled`` over the view's coarse cells, as
+    :func:`resolve_rsm_view`. The same values bit for bit as the twins'."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    want_bounds = bounds.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    zb = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    for k0 in range(0, RESOLVE_TEXELS, threads):
+        k = k0 + lane
+        x = x0 + k % BOUNDS_COARSE
+        y = y0 + k / BOUNDS_COARSE
+        inside = k < RESOLVE_TEXELS and x < width and y < height
+        z_front = float(0.0)
+        z_back = float(0.0)
+        if inside:
+            view = read_again(views, view_index, k)
+            p = y * width + x
+            z_front = depth_layers[p]
+            z_back = back_texel(view, p, visibility, points, normals, indices, front_tri, depth_layers)
+        if want_bounds:
+            wp.tile_scatter_masked(zs, k, z_front, inside)
+            wp.tile_scatter_masked(zb, k, z_back, inside)
+    if not want_bounds:
+        return
+    _block_bounds(zs, zb, True, lane, threads, block, width, height, thickness, thickness_rel, bounds)
