@@ -743,7 +743,31 @@ def specular_texel_at(
     nearest_depth: wp.array(dtype=wp.float32),
 ) -> int:
     """:func:`specular_texel` with the pixel's opaque depth ``od`` [m] given (0 = none) instead of read."""
-    key = take_key(visibility, p)
+    return specular_texel_key(view, p, take_key(visibility, p), od, points, normals, indices, triangle_material,
+                              mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
+
+
+@wp.func
+def specular_texel_key(
+    view: ViewParams,
+    p: int,
+    key: wp.uint64,
+    od: float,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+) -> int:
+    """:func:`specular_texel_at` with the pixel's key taken already (its visibility reset by the caller)."""
     if still_empty(key, tri_id, p):
         if nearest_depth.shape[0] > 0:
             nearest_depth[p] = od
@@ -906,12 +930,27 @@ RESOLVE_THREADS = 256
 #: its blocks resident per SM, its launch bound: 64 registers (72 unbounded: 3 blocks; 32 B of stack at 64, sm_90
 #: cubin, ``tools/regcount.py --modules cisp_warp.raster.kernels``): a memory-bound pass wants the warps in flight
 RESOLVE_BLOCKS_PER_SM = 4
+#: the same for :func:`resolve_rsm_view` (80 registers unbounded, no stack at 3 blocks; 56 B of stack at 4)
+RESOLVE_RSM_BLOCKS_PER_SM = 3
 #: texels of one block of :func:`resolve_rsm_view`: one coarse cell of the depth bounds, BOUNDS_COARSE² texels
 RESOLVE_TEXELS = wp.constant(1024)
+#: texels a thread resolves before the block puts their depths into shared memory (RESOLVE_TEXELS / RESOLVE_THREADS)
+RESOLVE_TEXELS_PER_THREAD = wp.constant(4)
 #: fine cells across (and down) a coarse cell, and the 8-texel row segments of a coarse cell
 _FINE_PER_COARSE = wp.constant(4)
 _SEGMENTS = wp.constant(128)
 _FINE_CELLS = wp.constant(16)
+
+
+@wp.func
+def _scatter_texel(zs: wp.tile(dtype=wp.float32, shape=(1024,)), c0: int, m: int, threads: int, lane: int, x0: int,
+                   y0: int, width: int, height: int, z: float):
+    """Texel ``c0 + m·threads + lane`` of the block's coarse cell: its depth ``z`` into ``zs`` when it is in the
+    view (every thread of the block calls it: it synchronises the block)."""
+    k = c0 + m * threads + lane
+    x = x0 + k % BOUNDS_COARSE
+    y = y0 + k / BOUNDS_COARSE
+    wp.tile_scatter_masked(zs, k, z, k < RESOLVE_TEXELS and x < width and y < height)
 
 
 @wp.func
@@ -989,7 +1028,7 @@ def _block_bounds(
 
 
 
-@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_BLOCKS_PER_SM))
+@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_RSM_BLOCKS_PER_SM))
 def resolve_rsm_view(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
     view_index: int,
@@ -1041,29 +1080,53 @@ def resolve_rsm_view(
     y0 = (block / cw) * BOUNDS_COARSE
     want_bounds = bounds.shape[0] > 0
     zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
-    for k0 in range(0, RESOLVE_TEXELS, threads):
-        k = k0 + lane
-        x = x0 + k % BOUNDS_COARSE
-        y = y0 + k / BOUNDS_COARSE
-        inside = k < RESOLVE_TEXELS and x < width and y < height
-        od = float(0.0)
-        if inside:
-            view = read_again(views, view_index, k)  # read per texel (L1 hits), not kept in registers through the loop
-            p = y * width + x
-            tri_o, od, x_o, bary_o, d_o = triangle_hit(view, take_key(opaque_visibility, p), p, points, indices)
-            opaque_depth[p] = od
-            if opaque_tri.shape[0] > 0:
-                opaque_tri[p] = tri_o
-            tri = specular_texel_at(view, p, specular_visibility, od, points, normals, indices, triangle_material,
-                                    mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
-                                    nearest_depth)
-            if tri == -1:
-                flux[p] = wp.vec3(0.0)
-            elif tri >= 0:  # (-2: empty as before, its flux is zero already)
-                flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
-                                     texel_solid_angle)
+    # RESOLVE_TEXELS_PER_THREAD texels a thread a round (a round is the whole block on CUDA; the CPU's one lane takes
+    # 1024 rounds): their opaque depths are kept in registers and put into shared memory after the round, so the
+    # block's barriers (one a scatter) come after its texels' memory work, not between texels
+    for c0 in range(0, RESOLVE_TEXELS, threads * RESOLVE_TEXELS_PER_THREAD):
+        od0 = float(0.0)
+        od1 = float(0.0)
+        od2 = float(0.0)
+        od3 = float(0.0)
+        for m in range(wp.min(RESOLVE_TEXELS_PER_THREAD, threads * RESOLVE_TEXELS_PER_THREAD)):  # kept rolled
+            k = c0 + m * threads + lane
+            x = x0 + k % BOUNDS_COARSE
+            y = y0 + k / BOUNDS_COARSE
+            if k < RESOLVE_TEXELS and x < width and y < height:
+                view = read_again(views, view_index, k)  # read per texel (L1 hits), not kept in registers
+                p = y * width + x
+                # both keys read before either reset: their two DRAM reads in flight together
+                key_o = opaque_visibility[p]
+                key_s = specular_visibility[p]
+                if key_o != EMPTY_KEY:
+                    opaque_visibility[p] = EMPTY_KEY
+                if key_s != EMPTY_KEY:
+                    specular_visibility[p] = EMPTY_KEY
+                tri_o, od, x_o, bary_o, d_o = triangle_hit(view, key_o, p, points, indices)
+                opaque_depth[p] = od
+                if opaque_tri.shape[0] > 0:
+                    opaque_tri[p] = tri_o
+                tri = specular_texel_key(view, p, key_s, od, points, normals, indices, triangle_material,
+                                         mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
+                                         nearest_depth)
+                if tri == -1:
+                    flux[p] = wp.vec3(0.0)
+                elif tri >= 0:  # (-2: empty as before, its flux is zero already)
+                    flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
+                                         texel_solid_angle)
+                if m == 0:
+                    od0 = od
+                elif m == 1:
+                    od1 = od
+                elif m == 2:
+                    od2 = od
+                else:
+                    od3 = od
         if want_bounds:
-            wp.tile_scatter_masked(zs, k, od, inside)
+            _scatter_texel(zs, c0, 0, threads, lane, x0, y0, width, height, od0)
+            _scatter_texel(zs, c0, 1, threads, lane, x0, y0, width, height, od1)
+            _scatter_texel(zs, c0, 2, threads, lane, x0, y0, width, height, od2)
+            _scatter_texel(zs, c0, 3, threads, lane, x0, y0, width, height, od3)
     if not want_bounds:
         return
     _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
