@@ -509,6 +509,9 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
             np.testing.assert_array_equal(fused[k], twins[k], err_msg=f"{frames[0].name} {k}")
         b = fused["0_bounds"]
         assert (b[:, 0] < 1e29).any() and (b[:, 1] > 0).all()  # real surfaces bounded, every cell written
+    lm = LightMaps(ds, frames[0], size)
+    with pytest.raises(ValueError, match="bounds_size"):  # a bounds array the kernel would write past
+        lm.keep_depth_bounds([wp.zeros(len(b) - 1, dtype=wp.vec2, device=device) for _ in lm.rsm], 0.03, 0.02)
         assert any((fused[f"{k}_specular_tri_id"] >= 0).any() for k in range(len([x for x in fused if x.endswith("_bounds")])))
 
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..raster.kernels import BIG_DEPTH, BOUNDS_CELL, BOUNDS_COARSE, BOUNDS_FAR, BOUNDS_NEAR, bounds_far
+from ..raster.kernels import BIG_DEPTH, BOUNDS_CELL, BOUNDS_COARSE, BOUNDS_FAR, BOUNDS_NEAR, bounds_far, bounds_size
 from ..raster.views import ViewParams
 
 MARCH_HIT = wp.constant(0)  #: crossed a surface of the depth buffer
@@ -177,11 +177,6 @@ def bounds_shape(width: int, height: int, cell: int = 8) -> tuple[int, int]:
     return (width + cell - 1) // cell, (height + cell - 1) // cell
 
 
-def bounds_size(width: int, height: int) -> int:
-    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells."""
-    fx, fy = bounds_shape(width, height, BOUNDS_CELL)
-    cx, cy = bounds_shape(width, height, BOUNDS_COARSE)
-    return fx * fy + cx * cy
 
 
 @wp.func

@@ -10,6 +10,11 @@ triangle's bounding box touches, an inclusive scan turns counts into offsets, an
 out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run of consecutive items, 4
 adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
 ``raster_tiles``, its naive twin, a thread per item found by binary search.
+
+An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, the flux, and the depth bounds of its
+opaque depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise
+with the camera's bounds (``resolve_back_view``); ``resolve_depth`` + ``resolve_rsm_specular``, ``resolve_back`` and
+``photons.march.depth_bounds`` + ``coarsen_bounds`` are their naive twins.
 """
 
 from __future__ import annotations
@@ -30,6 +35,12 @@ BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of the depth bo
 BOUNDS_COARSE = wp.constant(32)  #: edge [texels] of their coarse cells (4x4 fine cells)
 BOUNDS_NEAR = wp.constant(0.999999)  #: a fine cell's nearest depth is widened by this factor (``march.depth_bounds``)
 BOUNDS_FAR = wp.constant(1.000001)  #: and its farthest back face by this one
+
+
+def bounds_size(width: int, height: int) -> int:
+    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells."""
+    fine = ((width + BOUNDS_CELL - 1) // BOUNDS_CELL) * ((height + BOUNDS_CELL - 1) // BOUNDS_CELL)
+    return fine + ((width + BOUNDS_COARSE - 1) // BOUNDS_COARSE) * ((height + BOUNDS_COARSE - 1) // BOUNDS_COARSE)
 
 
 @wp.func
@@ -925,12 +936,14 @@ def resolve_rsm_specular(
         flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness, texel_solid_angle)
 
 
-#: threads of a block of :func:`resolve_rsm_view` on CUDA (the CPU runs a block as one lane)
+#: threads of a block of :func:`resolve_rsm_view` and :func:`resolve_back_view` on CUDA (the CPU runs a block as one
+#: lane)
 RESOLVE_THREADS = 256
-#: its blocks resident per SM, its launch bound: 64 registers (72 unbounded: 3 blocks; 32 B of stack at 64, sm_90
-#: cubin, ``tools/regcount.py --modules cisp_warp.raster.kernels``): a memory-bound pass wants the warps in flight
+#: blocks of :func:`resolve_back_view` resident per SM, its launch bound: 64 registers, no stack (sm_90 cubin,
+#: ``tools/regcount.py --modules cisp_warp.raster.kernels``)
 RESOLVE_BLOCKS_PER_SM = 4
-#: the same for :func:`resolve_rsm_view` (80 registers unbounded, no stack at 3 blocks; 56 B of stack at 4)
+#: the same for :func:`resolve_rsm_view`: 80 registers and no stack at 3 blocks; at 4, 64 registers and 56 B of stack,
+#: which measured 3% slower on the H100 (docs/perf_notes.md section 32)
 RESOLVE_RSM_BLOCKS_PER_SM = 3
 #: texels of one block of :func:`resolve_rsm_view`: one coarse cell of the depth bounds, BOUNDS_COARSE² texels
 RESOLVE_TEXELS = wp.constant(1024)

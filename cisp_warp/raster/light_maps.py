@@ -386,8 +386,10 @@ class LightMaps:
         ``coarsen_bounds`` with these thicknesses) into ``bounds[k]`` (``march.bounds_size`` each) every frame the view
         is drawn: a photon pass that marches the views asks for them here instead of building them after the resolve
         (:meth:`builds_depth_bounds`). Only with ``fused_resolve``."""
-        if len(bounds) != len(self.rsm):
-            raise ValueError(f"keep_depth_bounds needs one bounds array per RSM view ({len(self.rsm)}), got {len(bounds)}")
+        if len(bounds) != len(self.rsm) or any(b.shape[0] != K.bounds_size(r.width, r.height)
+                                               for b, r in zip(bounds, self.rsm)):
+            raise ValueError(f"keep_depth_bounds needs one bounds array per RSM view ({len(self.rsm)}), each of "
+                             f"march.bounds_size of its view")
         self._bounds = list(bounds)
         self._bounds_thickness = (float(thickness), float(thickness_rel))
 

@@ -198,6 +198,9 @@ class GBuffer(_Buffers):
         """Have the back-face resolve write the depth bounds of ``depth_layers`` (``photons.march.depth_bounds`` and
         ``coarsen_bounds`` with these thicknesses) into ``bounds`` (``march.bounds_size``) every frame, instead of
         the photon pass building them after the resolve (:meth:`builds_depth_bounds`)."""
+        if bounds.shape[0] != K.bounds_size(self.width, self.height):
+            raise ValueError(f"keep_depth_bounds needs march.bounds_size({self.width}, {self.height}) = "
+                             f"{K.bounds_size(self.width, self.height)} bounds, got {bounds.shape[0]}")
         self._bounds = (bounds, float(thickness), float(thickness_rel))
 
     def builds_depth_bounds(self, bounds: wp.array) -> bool:
