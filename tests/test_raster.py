@@ -457,3 +457,96 @@ def test_column_raster_is_the_tile_raster(device, stride):
             qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
             np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}")
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
+
+
+def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02)):
+    """Every buffer of a light's RSM views after ``frames`` (light poses) drawn with the fused resolve or its twins,
+    and the depth bounds of each view's opaque depth (written by the fused resolve; built by ``photons.cisp``'s
+    ``build_bounds``, the twin kernels ``depth_bounds`` + ``coarsen_bounds``, otherwise)."""
+    from cisp_warp.photons.cisp import build_bounds
+    from cisp_warp.photons.march import bounds_size
+
+    raster = Rasterizer(ds)
+    lm = LightMaps(ds, frames[0], size)
+    lm.fused_resolve = fused
+    bounds = [wp.full(bounds_size(r.width, r.height), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=ds.device)
+              for r in lm.rsm]
+    lm.keep_depth_bounds(bounds, *thickness)
+    for light in frames:
+        if lm.light is not light:
+            lm.set_light(light)
+        lm.render(raster)
+    out = {}
+    for k, r in enumerate(lm.rsm):
+        if not lm.builds_depth_bounds(bounds[k]):
+            build_bounds(r.opaque_depth, r.width, r.height, *thickness, bounds[k], ds.device, lm.views, k)
+        out.update(r.numpy(prefix=f"{k}_"))
+        out[f"{k}_opaque_tri"] = r.opaque_tri.numpy()
+        out[f"{k}_visibility"] = r.visibility.numpy()
+        out[f"{k}_specular_visibility"] = r.specular.visibility.numpy()
+        out[f"{k}_bounds"] = bounds[k].numpy()
+    return out
+
+
+@pytest.mark.parametrize("size", [48, 70])
+def test_fused_rsm_resolve_is_its_twins(device, size):
+    """``resolve_rsm_view`` (one tiled pass per RSM view: opaque depth, specular layer, shadow depth, flux and the
+    depth bounds) fills every buffer exactly as its twins ``resolve_depth`` + ``resolve_rsm_specular`` and the
+    bounds exactly as ``depth_bounds`` + ``coarsen_bounds``: a spot light moved between two frames (texels that
+    lose and gain the water both ways), a point light's cube faces, a distant light, on views that are not a
+    multiple of a coarse cell (70: partial fine and coarse cells at the edges)."""
+    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
+    spots = [Light(LightKind.SPOT, "spot", intensity=3.0, position=p, direction=d, cone_angle=math.radians(40),
+                   cone_softness=0.3) for p, d in (((0.0, 0.9, 0.0), (0, -1, 0)), ((0.5, 0.6, -0.3), (-0.3, -1, 0.2)))]
+    cases = [(box_room(), spots), (box_room(), [Light(LightKind.POINT, "bulb", intensity=2.0, position=(0.1, 0.2, 0.0))]),
+             (box_room()[1:], [Light(LightKind.DISTANT, "sun", intensity=500.0, direction=(0.3, -1.0, 0.1))])]
+    for parts, frames in cases:
+        ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
+        fused = _rsm_frame(ds, frames[0], size, True, frames)
+        twins = _rsm_frame(ds, frames[0], size, False, frames)
+        assert fused.keys() == twins.keys()
+        for k in fused:
+            np.testing.assert_array_equal(fused[k], twins[k], err_msg=f"{frames[0].name} {k}")
+        b = fused["0_bounds"]
+        assert (b[:, 0] < 1e29).any() and (b[:, 1] > 0).all()  # real surfaces bounded, every cell written
+    lm = LightMaps(ds, frames[0], size)
+    with pytest.raises(ValueError, match="bounds_size"):  # a bounds array the kernel would write past
+        lm.keep_depth_bounds([wp.zeros(len(b) - 1, dtype=wp.vec2, device=device) for _ in lm.rsm], 0.03, 0.02)
+        assert any((fused[f"{k}_specular_tri_id"] >= 0).any() for k in range(len([x for x in fused if x.endswith("_bounds")])))
+
+
+@pytest.mark.parametrize("size", [(48, 32), (70, 45)])
+def test_fused_back_resolve_is_its_twins(device, size):
+    """``resolve_back_view`` (the camera's back-face layer and the depth bounds of both layers in one tiled pass)
+    fills ``depth_layers`` exactly as ``resolve_back`` and the bounds exactly as ``depth_bounds`` (with the back-face
+    layer) + ``coarsen_bounds``, from two cameras in a closed room and an open one (pixels with no surface), on
+    images that are not a multiple of a coarse cell."""
+    from cisp_warp.photons.cisp import build_bounds
+    from cisp_warp.photons.march import bounds_size
+
+    w, h = size
+    cams = [Camera(look_at_matrix(e, t), fov_y=math.radians(70), near=0.02, far=10.0, width=w, height=h)
+            for e, t in (((-0.7, 0.8, 0.6), (0.0, -0.5, 0.0)), ((0.3, -0.3, 0.75), (0.3, -0.5, 0.1)))]  # then the sphere near
+    for parts in (box_room(), box_room()[1:]):
+        ds = DeviceScene(make_scene(parts, cams[0]), device)
+        raster = Rasterizer(ds)
+        out = []
+        for fused in (True, False):
+            g = GBuffer.allocate(w, h, device)
+            g.fused_resolve = fused
+            bounds = wp.full(bounds_size(w, h), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=device)
+            g.keep_depth_bounds(bounds, 0.03, 0.02)
+            for cam in cams:
+                v = camera_view(cam).params()
+                g.render(raster, v, v)
+            assert g.builds_depth_bounds(bounds) == fused
+            if not fused:
+                build_bounds(g.depth_layers, w, h, 0.03, 0.02, bounds, device)
+            out.append((g.depth_layers.numpy(), bounds.numpy(), g.visibility.numpy()))
+        for a, b in zip(*out):
+            np.testing.assert_array_equal(a, b)
+        back = out[0][0][w * h:]
+        assert (back > 0).any() and (out[0][1][:, 1] > 0).all()
+        front_only = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
+        build_bounds(wp.array(out[0][0][: w * h], dtype=wp.float32, device=device), w, h, 0.03, 0.02, front_only, device)
+        assert (front_only.numpy()[:, 1] < out[0][1][:, 1]).any()  # the back-face layer widens some cells

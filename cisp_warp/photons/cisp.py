@@ -62,6 +62,11 @@ class CISP(PhotonPass):
         # the march skips the steps they prove hitless
         self.cam_bounds = self._bounds_for(gbuffer.width, gbuffer.height)
         self.rsm_bounds = [[self._bounds_for(r.width, r.height) for r in lm.rsm] for lm in lights]
+        # the resolves write the bounds (LightMaps / GBuffer.fused_resolve): each light's of its views, the G-buffer's
+        # back-face resolve the camera's
+        for lm, bounds in zip(lights, self.rsm_bounds):
+            lm.keep_depth_bounds(bounds, settings.thickness, settings.thickness_rel)
+        gbuffer.keep_depth_bounds(self.cam_bounds, settings.thickness, settings.thickness_rel)
 
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
@@ -71,6 +76,15 @@ class CISP(PhotonPass):
         build_bounds(depth, width, height, self.settings.thickness, self.settings.thickness_rel, bounds, self.device,
                      views, view_index)
 
+    def build_rsm_bounds(self, lights: LightMaps, light_index: int, view_index: int) -> wp.array:
+        """The depth bounds of RSM view ``view_index`` of light ``light_index`` (``lights``) for this frame: written by
+        the light's resolve already (``LightMaps.keep_depth_bounds``), else built here from its opaque depth."""
+        bounds = self.rsm_bounds[light_index][view_index]
+        if not lights.builds_depth_bounds(bounds):
+            r = lights.rsm[view_index]
+            self._build_bounds(r.opaque_depth, r.width, r.height, bounds, lights.views, view_index)
+        return bounds
+
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         """Trace every light's photons for ``frame`` into ``photon_map`` (zeroed first) and the ledger."""
         s = self.settings
@@ -79,7 +93,8 @@ class CISP(PhotonPass):
         # from the depth with its back-face layer, which the camera marches read (march.depth_bounds widens a cell by
         # the layer's far sides): bounds of the front depth alone let 1.2% of the Cornell box's camera marches skip a
         # cell where the naive march ends in an object's hidden half (branch hiermarch, perf_notes section 30)
-        self._build_bounds(gbuffer.depth_layers, gbuffer.width, gbuffer.height, self.cam_bounds)
+        if not gbuffer.builds_depth_bounds(self.cam_bounds):
+            self._build_bounds(gbuffer.depth_layers, gbuffer.width, gbuffer.height, self.cam_bounds)
         if self.wavefront is not None:
             self.wavefront.cam.view = camera
             self.wavefront.trace(frame, "cisp")
@@ -87,8 +102,7 @@ class CISP(PhotonPass):
         for b in self.rsm_batches(frame):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
-            rsm_bounds = self.rsm_bounds[b.light_index][b.view_index]
-            self._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds, b.lights.views, b.view_index)
+            rsm_bounds = self.build_rsm_bounds(b.lights, b.light_index, b.view_index)
             self.launch_photons(K.trace_photons, b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..raster.kernels import BIG_DEPTH, BOUNDS_CELL, BOUNDS_COARSE, BOUNDS_FAR, BOUNDS_NEAR, bounds_far, bounds_size
 from ..raster.views import ViewParams
 
 MARCH_HIT = wp.constant(0)  #: crossed a surface of the depth buffer
@@ -42,7 +43,7 @@ MARCH_STEPS = wp.constant(2)  #: ran out of steps before either
 #: back-face layer behind the depth: :func:`surface_far`)
 MARCH_HIDDEN = wp.constant(3)
 
-BIG_DEPTH = wp.constant(1.0e30)
+#: BIG_DEPTH (1e30, imported from ``raster.kernels``): the depth a hole counts as
 #: diff_prev of :func:`screen_march_bounded` after a skip, until read: no depth difference comes near it (depths and
 #: BIG_DEPTH are below 1e31)
 DIFF_UNREAD = wp.constant(3.0e38)
@@ -166,8 +167,9 @@ def _segment_t(orthographic: int, k0: float, k1: float, t1: float, s: float) -> 
     return lam * t1
 
 
-BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of :func:`depth_bounds`
-BOUNDS_COARSE = wp.constant(32)  #: edge [texels] of its coarse cells (4x4 fine cells)
+# BOUNDS_CELL (8): edge [texels] of the fine cells of :func:`depth_bounds`; BOUNDS_COARSE (32): of its coarse cells
+# (4x4 fine cells); both imported from ``raster.kernels``, whose ``resolve_rsm_view`` writes an RSM view's bounds in
+# its resolve (this kernel and :func:`coarsen_bounds` are its naive twins, and build the camera's)
 
 
 def bounds_shape(width: int, height: int, cell: int = 8) -> tuple[int, int]:
@@ -175,11 +177,6 @@ def bounds_shape(width: int, height: int, cell: int = 8) -> tuple[int, int]:
     return (width + cell - 1) // cell, (height + cell - 1) // cell
 
 
-def bounds_size(width: int, height: int) -> int:
-    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells."""
-    fx, fy = bounds_shape(width, height, BOUNDS_CELL)
-    cx, cy = bounds_shape(width, height, BOUNDS_COARSE)
-    return fx * fy + cx * cy
 
 
 @wp.func
@@ -227,12 +224,12 @@ def depth_bounds(
                     if zs <= 0.0:
                         zs = BIG_DEPTH
                     z_min = wp.min(z_min, zs)
-                    z_max = wp.max(z_max, zs + thickness + thickness_rel * zs)
+                    z_max = wp.max(z_max, bounds_far(zs, thickness, thickness_rel))
                     if depth.shape[0] > width * height:  # a back-face layer: a ray ends in an object's far half too
                         z_max = wp.max(z_max, depth[width * height + j * width + i])
     # a hair wider (1e-6 relative) than the exact bounds: a kernel elsewhere may round z_s + thickness one ulp
     # apart (CUDA fuses multiply-adds as it sees fit); wider bounds only skip less
-    bounds[c] = wp.vec2(z_min * 0.999999, z_max * 1.000001)
+    bounds[c] = wp.vec2(z_min * BOUNDS_NEAR, z_max * BOUNDS_FAR)
 
 
 @wp.kernel

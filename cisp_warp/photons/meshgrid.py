@@ -164,8 +164,7 @@ class MeshWavefrontSplat:
                     sc.triangle_material, sc.roughness, sc.opacity, sc.albedo, sc.ior, float(s.roughness_cutoff),
                     float(s.thickness), float(s.thickness_rel), self.tri_power, p.ledger])
                 if tracer == "cisp":
-                    rsm_bounds = p.rsm_bounds[li][vi]
-                    p._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
+                    rsm_bounds = p.build_rsm_bounds(lm, li, vi)
                     wp.launch(K.trace_mesh_cisp, dim=corners, device=dev, inputs=[
                         lm.views, lm.states, n_views, vi, kind, light_pos, g, r.opaque_depth, rsm_bounds, sc.points,
                         sc.normals, sc.indices, sc.triangle_material, sc.roughness, sc.opacity, sc.ior,

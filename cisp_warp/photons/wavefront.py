@@ -112,8 +112,7 @@ class WavefrontSplat:
                     float(s.luminance_cutoff * lm.texel_scale[vi]), wp.vec4(*lm.skip_windows[vi]), self.tri_power,
                     p.ledger])
                 if tracer == "cisp":  # p is the CISP pass: its depth bounds let the march skip hitless cells
-                    rsm_bounds = p.rsm_bounds[li][vi]
-                    p._build_bounds(r.opaque_depth, r.width, r.height, rsm_bounds)
+                    rsm_bounds = p.build_rsm_bounds(lm, li, vi)
                     wp.launch(K.trace_grid_cisp, dim=2 * corners, device=dev, inputs=[
                         params, kind, light_pos, g, r.opaque_depth, rsm_bounds, sp.position, sp.normal, sp.ior,
                         sp.tri_id, sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, self.cam.view,

@@ -10,18 +10,43 @@ triangle's bounding box touches, an inclusive scan turns counts into offsets, an
 out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run of consecutive items, 4
 adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
 ``raster_tiles``, its naive twin, a thread per item found by binary search.
+
+An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, the flux, and the depth bounds of its
+opaque depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise
+with the camera's bounds (``resolve_back_view``); ``resolve_depth`` + ``resolve_rsm_specular``, ``resolve_back`` and
+``photons.march.depth_bounds`` + ``coarsen_bounds`` are their naive twins.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
-from .views import ViewParams, pixel_ray_world, view_point, view_project
+from .views import ViewParams, pixel_ray_world, read_again, view_point, view_project
 
 TILE = 8  #: tile edge [pixels] of one raster work item
 EMPTY_KEY_VALUE = 0xFFFFFFFFFFFFFFFF  #: visibility value of a pixel no triangle covers
 EMPTY_KEY = wp.constant(wp.uint64(EMPTY_KEY_VALUE))
 DEPTH_STEPS = wp.constant(4294967040.0)  # largest float32 below 2^32: the quantised depth fits 32 bits
+
+# depth bounds of a depth buffer (``photons.march.depth_bounds``, and :func:`resolve_rsm_view` in its resolve): defined
+# here, beside the resolves that may write them, and imported by ``photons.march``
+BIG_DEPTH = wp.constant(1.0e30)  #: the depth a hole (no surface) counts as
+BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of the depth bounds
+BOUNDS_COARSE = wp.constant(32)  #: edge [texels] of their coarse cells (4x4 fine cells)
+BOUNDS_NEAR = wp.constant(0.999999)  #: a fine cell's nearest depth is widened by this factor (``march.depth_bounds``)
+BOUNDS_FAR = wp.constant(1.000001)  #: and its farthest back face by this one
+
+
+def bounds_size(width: int, height: int) -> int:
+    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells."""
+    fine = ((width + BOUNDS_CELL - 1) // BOUNDS_CELL) * ((height + BOUNDS_CELL - 1) // BOUNDS_CELL)
+    return fine + ((width + BOUNDS_COARSE - 1) // BOUNDS_COARSE) * ((height + BOUNDS_COARSE - 1) // BOUNDS_COARSE)
+
+
+@wp.func
+def bounds_far(zs: float, thickness: float, thickness_rel: float) -> float:
+    """The back face of a depth sample ``zs`` [m] in the depth bounds (as the march computes a surface's far side)."""
+    return zs + thickness + thickness_rel * zs
 
 
 @wp.func
@@ -612,6 +637,14 @@ def resolve_back(
     if view.far <= 0.0:
         return
     p = wp.tid()
+    back_texel(view, p, visibility, points, normals, indices, front_tri, depth_layers)
+
+
+@wp.func
+def back_texel(view: ViewParams, p: int, visibility: wp.array(dtype=wp.uint64), points: wp.array(dtype=wp.vec3),
+               normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), front_tri: wp.array(dtype=wp.int32),
+               depth_layers: wp.array(dtype=wp.float32)) -> float:
+    """Resolve pixel ``p`` of the back-face layer (see :func:`resolve_back`); returns the back depth it wrote."""
     n = view.width * view.height
     tri, t, x, bary, d = triangle_hit(view, take_key(visibility, p), p, points, indices)
     zb = float(0.0)
@@ -620,6 +653,7 @@ def resolve_back(
         if not faces_away(view, ft, points, normals, indices):
             zb = wp.max(t, depth_layers[p])
     depth_layers[n + p] = zb
+    return zb
 
 
 @wp.kernel
@@ -695,8 +729,56 @@ def specular_texel(
 ) -> int:
     """Resolve pixel ``p`` of a specular layer (see :func:`resolve_specular`). Returns its triangle (-1 none), or -2
     when the pixel was empty and stays empty (nothing written but ``nearest_depth``)."""
-    key = take_key(visibility, p)
-    od = opaque_depth[p]
+    return specular_texel_at(view, p, visibility, opaque_depth[p], points, normals, indices, triangle_material,
+                             mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
+
+
+@wp.func
+def specular_texel_at(
+    view: ViewParams,
+    p: int,
+    visibility: wp.array(dtype=wp.uint64),
+    od: float,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+) -> int:
+    """:func:`specular_texel` with the pixel's opaque depth ``od`` [m] given (0 = none) instead of read."""
+    return specular_texel_key(view, p, take_key(visibility, p), od, points, normals, indices, triangle_material,
+                              mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
+
+
+@wp.func
+def specular_texel_key(
+    view: ViewParams,
+    p: int,
+    key: wp.uint64,
+    od: float,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+) -> int:
+    """:func:`specular_texel_at` with the pixel's key taken already (its visibility reset by the caller)."""
     if still_empty(key, tri_id, p):
         if nearest_depth.shape[0] > 0:
             nearest_depth[p] = od
@@ -852,3 +934,262 @@ def resolve_rsm_specular(
         flux[p] = wp.vec3(0.0)
     elif tri >= 0:  # (-2: empty as before, its flux is zero already)
         flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness, texel_solid_angle)
+
+
+#: threads of a block of :func:`resolve_rsm_view` and :func:`resolve_back_view` on CUDA (the CPU runs a block as one
+#: lane)
+RESOLVE_THREADS = 256
+#: blocks of :func:`resolve_back_view` resident per SM, its launch bound: 64 registers, no stack (sm_90 cubin,
+#: ``tools/regcount.py --modules cisp_warp.raster.kernels``)
+RESOLVE_BLOCKS_PER_SM = 4
+#: the same for :func:`resolve_rsm_view`: 80 registers and no stack at 3 blocks; at 4, 64 registers and 56 B of stack,
+#: which measured 3% slower on the H100 (docs/perf_notes.md section 33)
+RESOLVE_RSM_BLOCKS_PER_SM = 3
+#: texels of one block of :func:`resolve_rsm_view`: one coarse cell of the depth bounds, BOUNDS_COARSE² texels
+RESOLVE_TEXELS = wp.constant(1024)
+#: texels a thread resolves before the block puts their depths into shared memory (RESOLVE_TEXELS / RESOLVE_THREADS)
+RESOLVE_TEXELS_PER_THREAD = wp.constant(4)
+#: fine cells across (and down) a coarse cell, and the 8-texel row segments of a coarse cell
+_FINE_PER_COARSE = wp.constant(4)
+_SEGMENTS = wp.constant(128)
+_FINE_CELLS = wp.constant(16)
+
+
+@wp.func
+def _scatter_texel(zs: wp.tile(dtype=wp.float32, shape=(1024,)), c0: int, m: int, threads: int, lane: int, x0: int,
+                   y0: int, width: int, height: int, z: float):
+    """Texel ``c0 + m·threads + lane`` of the block's coarse cell: its depth ``z`` into ``zs`` when it is in the
+    view (every thread of the block calls it: it synchronises the block)."""
+    k = c0 + m * threads + lane
+    x = x0 + k % BOUNDS_COARSE
+    y = y0 + k / BOUNDS_COARSE
+    wp.tile_scatter_masked(zs, k, z, k < RESOLVE_TEXELS and x < width and y < height)
+
+
+@wp.func
+def _block_bounds(
+    zs: wp.tile(dtype=wp.float32, shape=(1024,)),  # the block's texels' depths [m], 0 = none (shared, row-major)
+    back: wp.tile(dtype=wp.float32, shape=(1024,)),  # their back-face layer's depths [m] (read when has_back)
+    has_back: bool,
+    lane: int,
+    threads: int,
+    block: int,  # the coarse cell: BOUNDS_COARSE² texels from (x0, y0)
+    width: int,
+    height: int,
+    thickness: float,
+    thickness_rel: float,
+    bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) the coarse cell and its fine cells (write)
+):
+    """The depth bounds of one coarse cell from its texels' depths in shared memory: its 16 fine cells as
+    ``photons.march.depth_bounds`` writes them and the coarse cell as ``coarsen_bounds`` does, the same values bit
+    for bit (min and max of depths that are never NaN do not depend on the order they are taken in). Every thread
+    of the block calls it (it synchronises the block)."""
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    # 128 row segments of 8 texels (row r of the coarse cell, fine column c): their nearest depth and farthest back
+    # face over the texels in the view, as march.depth_bounds folds them (a hole counts as BIG_DEPTH)
+    seg_near = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
+    seg_far = wp.tile_empty(shape=_SEGMENTS, dtype=wp.float32, storage="shared")
+    for s0 in range(0, _SEGMENTS, threads):
+        s = s0 + lane
+        z_min = float(BIG_DEPTH)
+        z_max = float(0.0)
+        if s < _SEGMENTS:
+            y = y0 + s / _FINE_PER_COARSE
+            xs = x0 + (s % _FINE_PER_COARSE) * BOUNDS_CELL
+            if y < height:
+                first = (s / _FINE_PER_COARSE) * BOUNDS_COARSE + (s % _FINE_PER_COARSE) * BOUNDS_CELL
+                for di in range(wp.min(BOUNDS_CELL, width - xs)):  # the texels in the view (a loop kept rolled)
+                    z = zs[first + di]
+                    if z <= 0.0:
+                        z = BIG_DEPTH
+                    z_min = wp.min(z_min, z)
+                    z_max = wp.max(z_max, bounds_far(z, thickness, thickness_rel))
+                    if has_back:  # a back-face layer: a ray ends in an object's far half too
+                        z_max = wp.max(z_max, back[first + di])
+        wp.tile_scatter_masked(seg_near, s, z_min, s < _SEGMENTS)
+        wp.tile_scatter_masked(seg_far, s, z_max, s < _SEGMENTS)
+    # the 16 fine cells (8 segments each), written widened as march.depth_bounds writes them
+    fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
+    cell_near = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
+    cell_far = wp.tile_empty(shape=_FINE_CELLS, dtype=wp.float32, storage="shared")
+    for c0 in range(0, _FINE_CELLS, threads):
+        c = c0 + lane
+        b = wp.vec2(BIG_DEPTH, 0.0)  # a cell off the view adds nothing to the coarse cell
+        if c < _FINE_CELLS:
+            fx = x0 / BOUNDS_CELL + c % _FINE_PER_COARSE
+            fy = y0 / BOUNDS_CELL + c / _FINE_PER_COARSE
+            if fx < fw and fy < fh:
+                z_min = float(BIG_DEPTH)
+                z_max = float(0.0)
+                s_first = (c / _FINE_PER_COARSE) * BOUNDS_CELL * _FINE_PER_COARSE + c % _FINE_PER_COARSE
+                for r in range(wp.min(BOUNDS_CELL, height - fy * BOUNDS_CELL)):  # its rows in the view
+                    s = s_first + r * _FINE_PER_COARSE
+                    z_min = wp.min(z_min, seg_near[s])
+                    z_max = wp.max(z_max, seg_far[s])
+                b = wp.vec2(z_min * BOUNDS_NEAR, z_max * BOUNDS_FAR)
+                bounds[fy * fw + fx] = b
+        wp.tile_scatter_masked(cell_near, c, b[0], c < _FINE_CELLS)
+        wp.tile_scatter_masked(cell_far, c, b[1], c < _FINE_CELLS)
+    if lane == 0:  # the coarse cell: min and max over its fine cells (march.coarsen_bounds)
+        b = wp.vec2(BIG_DEPTH, 0.0)
+        for c in range(wp.min(_FINE_CELLS, threads * _FINE_CELLS)):  # (a loop kept rolled)
+            b = wp.vec2(wp.min(b[0], cell_near[c]), wp.max(b[1], cell_far[c]))
+        bounds[fw * fh + block] = b
+
+
+
+@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_RSM_BLOCKS_PER_SM))
+def resolve_rsm_view(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
+    view_index: int,
+    opaque_visibility: wp.array(dtype=wp.uint64),  # (H*W,) opaque layer (read, then reset to EMPTY_KEY)
+    specular_visibility: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read, then reset to EMPTY_KEY)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    light_rgb: wp.vec3,  # irradiance [W/m²] (distant) or intensity [W/sr] (point, spot), per channel
+    spot_axis: wp.vec3,  # world direction of the spot axis (unused unless is_spot)
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) [sr], perspective views (read)
+    opaque_depth: wp.array(dtype=wp.float32),  # (H*W,) nearest opaque surface [m], 0 = none (write)
+    opaque_tri: wp.array(dtype=wp.int32),  # (H*W,) its triangle, -1 = none (write; an empty array: not wanted)
+    depth: wp.array(dtype=wp.float32),  # (H*W,) specular layer [m], 0 = none or hidden behind opaque (write)
+    position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write)
+    normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write)
+    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
+    nearest_depth: wp.array(dtype=wp.float32),  # (H*W,) the RSM's shadow depth [m], 0 = none (write)
+    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
+    thickness: float,  # [m] the depth bounds' absolute surface thickness (``march.depth_bounds``)
+    thickness_rel: float,  # their relative thickness (× sample depth)
+    bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) depth bounds of opaque_depth (write; empty: not wanted)
+):
+    """One pass over an RSM view's two visibility buffers: the opaque layer's depth (:func:`resolve_depth`), the
+    specular layer with its shadow depth and flux (:func:`resolve_rsm_specular`), and the depth bounds of the opaque
+    depth (``photons.march.depth_bounds`` then ``coarsen_bounds``), instead of two resolves and two bounds passes
+    that read back what the first wrote. ``wp.launch_tiled`` over the view's coarse cells (BOUNDS_COARSE² texels, a
+    warp per texel row of it: the same coalesced rows as one thread per texel); the block keeps its texels' opaque
+    depths in shared memory and reduces them there to its 16 fine cells and its coarse cell. Every buffer holds the
+    same values bit for bit as the three naive twins' (the texel functions are theirs; min and max of the depths,
+    never NaN, do not depend on the order they are taken in). On the CPU a block is one lane that does it all."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn; its maps and bounds are kept
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    want_bounds = bounds.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    # RESOLVE_TEXELS_PER_THREAD texels a thread a round (a round is the whole block on CUDA; the CPU's one lane takes
+    # 1024 rounds): their opaque depths are kept in registers and put into shared memory after the round, so the
+    # block's barriers (one a scatter) come after its texels' memory work, not between texels
+    for c0 in range(0, RESOLVE_TEXELS, threads * RESOLVE_TEXELS_PER_THREAD):
+        od0 = float(0.0)
+        od1 = float(0.0)
+        od2 = float(0.0)
+        od3 = float(0.0)
+        for m in range(wp.min(RESOLVE_TEXELS_PER_THREAD, threads * RESOLVE_TEXELS_PER_THREAD)):  # kept rolled
+            k = c0 + m * threads + lane
+            x = x0 + k % BOUNDS_COARSE
+            y = y0 + k / BOUNDS_COARSE
+            if k < RESOLVE_TEXELS and x < width and y < height:
+                view = read_again(views, view_index, k)  # read per texel (L1 hits), not kept in registers
+                p = y * width + x
+                # both keys read before either reset: their two DRAM reads in flight together
+                key_o = opaque_visibility[p]
+                key_s = specular_visibility[p]
+                if key_o != EMPTY_KEY:
+                    opaque_visibility[p] = EMPTY_KEY
+                if key_s != EMPTY_KEY:
+                    specular_visibility[p] = EMPTY_KEY
+                tri_o, od, x_o, bary_o, d_o = triangle_hit(view, key_o, p, points, indices)
+                opaque_depth[p] = od
+                if opaque_tri.shape[0] > 0:
+                    opaque_tri[p] = tri_o
+                tri = specular_texel_key(view, p, key_s, od, points, normals, indices, triangle_material,
+                                         mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
+                                         nearest_depth)
+                if tri == -1:
+                    flux[p] = wp.vec3(0.0)
+                elif tri >= 0:  # (-2: empty as before, its flux is zero already)
+                    flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
+                                         texel_solid_angle)
+                if m == 0:
+                    od0 = od
+                elif m == 1:
+                    od1 = od
+                elif m == 2:
+                    od2 = od
+                else:
+                    od3 = od
+        if want_bounds:
+            _scatter_texel(zs, c0, 0, threads, lane, x0, y0, width, height, od0)
+            _scatter_texel(zs, c0, 1, threads, lane, x0, y0, width, height, od1)
+            _scatter_texel(zs, c0, 2, threads, lane, x0, y0, width, height, od2)
+            _scatter_texel(zs, c0, 3, threads, lane, x0, y0, width, height, od3)
+    if not want_bounds:
+        return
+    _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
+
+
+@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_BLOCKS_PER_SM))
+def resolve_back_view(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
+    view_index: int,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) back layer of :func:`raster_back_tiles` (read, then reset)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    front_tri: wp.array(dtype=wp.int32),  # (H*W,) the front layer's triangle, -1 = none (read)
+    depth_layers: wp.array(dtype=wp.float32),  # (2·H*W,) front depth [m] (read), then the back depth (write)
+    thickness: float,  # [m] the depth bounds' absolute surface thickness (``march.depth_bounds``)
+    thickness_rel: float,  # their relative thickness (× sample depth)
+    bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) depth bounds of depth_layers (write; empty: not wanted)
+):
+    """:func:`resolve_back` (its twin) and the depth bounds of both depth layers (``photons.march.depth_bounds`` of
+    ``depth_layers``, then ``coarsen_bounds``) in one pass: ``wp.launch_tiled`` over the view's coarse cells, as
+    :func:`resolve_rsm_view`. The same values bit for bit as the twins'."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    want_bounds = bounds.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    zb = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    for k0 in range(0, RESOLVE_TEXELS, threads):
+        k = k0 + lane
+        x = x0 + k % BOUNDS_COARSE
+        y = y0 + k / BOUNDS_COARSE
+        inside = k < RESOLVE_TEXELS and x < width and y < height
+        z_front = float(0.0)
+        z_back = float(0.0)
+        if inside:
+            view = read_again(views, view_index, k)
+            p = y * width + x
+            z_front = depth_layers[p]
+            z_back = back_texel(view, p, visibility, points, normals, indices, front_tri, depth_layers)
+        if want_bounds:
+            wp.tile_scatter_masked(zs, k, z_front, inside)
+            wp.tile_scatter_masked(zb, k, z_back, inside)
+    if not want_bounds:
+        return
+    _block_bounds(zs, zb, True, lane, threads, block, width, height, thickness, thickness_rel, bounds)

@@ -216,6 +216,13 @@ class LightMaps:
         #: renderer of another method sets False and the opaque resolve writes 4 B per texel fewer (the array then
         #: keeps what it held; it is not an AOV of :meth:`RSMView.numpy`)
         self.write_opaque_tri = True
+        #: True (default): resolve each RSM view in one tiled pass (``kernels.resolve_rsm_view``: the opaque depth, the
+        #: specular layer, shadow depth and flux, and the depth bounds a photon pass asked for with
+        #: :meth:`keep_depth_bounds`); False: its naive twins, ``resolve_depth`` then ``resolve_rsm_specular`` (the
+        #: photon pass then builds its bounds itself). The same buffers bit for bit
+        self.fused_resolve = True
+        self._bounds: list[wp.array] | None = None
+        self._bounds_thickness = (0.0, 0.0)
 
     # ---- host views of the device state (tests, tools: each is a device->host copy)
 
@@ -374,7 +381,24 @@ class LightMaps:
         sv = [s.view for s in self._shadows if s.view.orthographic]
         return sv[0] if sv else None
 
-    def _render_rsm(self, raster: Rasterizer, views: wp.array, k: int, r: RSMView) -> None:
+    def keep_depth_bounds(self, bounds: list[wp.array], thickness: float, thickness_rel: float) -> None:
+        """Have the resolve write the depth bounds of each RSM view's opaque depth (``photons.march.depth_bounds`` and
+        ``coarsen_bounds`` with these thicknesses) into ``bounds[k]`` (``march.bounds_size`` each) every frame the view
+        is drawn: a photon pass that marches the views asks for them here instead of building them after the resolve
+        (:meth:`builds_depth_bounds`). Only with ``fused_resolve``."""
+        if len(bounds) != len(self.rsm) or any(b.shape[0] != K.bounds_size(r.width, r.height)
+                                               for b, r in zip(bounds, self.rsm)):
+            raise ValueError(f"keep_depth_bounds needs one bounds array per RSM view ({len(self.rsm)}), each of "
+                             f"march.bounds_size of its view")
+        self._bounds = list(bounds)
+        self._bounds_thickness = (float(thickness), float(thickness_rel))
+
+    def builds_depth_bounds(self, bounds: wp.array) -> bool:
+        """Whether the resolve writes ``bounds`` (one of :meth:`keep_depth_bounds`'s) each frame the view is drawn."""
+        return self.fused_resolve and self._bounds is not None and any(b is bounds for b in self._bounds)
+
+    def _render_rsm(self, raster: Rasterizer, views: wp.array, k: int, r: RSMView,
+                    bounds: wp.array | None = None) -> None:
         s = self.scene
         light = self.light
         n = r.width * r.height
@@ -382,10 +406,23 @@ class LightMaps:
         axis = np.asarray(light.direction, dtype=np.float32)
         raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility, clear=False,
                     layer_b=LAYER_SPECULAR, visibility_b=r.specular.visibility)  # both layers in one pass
+        sp = r.specular
+        if self.fused_resolve:  # both layers, the flux and the depth bounds in one pass over the view
+            th, th_rel = self._bounds_thickness
+            coarse = ((r.width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE) * ((r.height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
+            wp.launch_tiled(K.resolve_rsm_view, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
+                            inputs=[views, k, r.visibility, sp.visibility, s.points, s.normals, s.indices,
+                                    s.triangle_material, s.roughness, s.ior, wp.vec3(*rgb), wp.vec3(*axis),
+                                    int(light.kind == LightKind.SPOT), float(light.cone_angle),
+                                    float(light.cone_softness), r.solid_angle, r.opaque_depth,
+                                    r.opaque_tri if self.write_opaque_tri else None, sp.depth, sp.position,
+                                    sp.normal, sp.roughness, sp.ior, sp.tri_id, r.shadow_depth, r.flux, th, th_rel,
+                                    bounds])
+            return
         wp.launch(K.resolve_depth, dim=n, device=s.device,
                   inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth,
                           r.opaque_tri if self.write_opaque_tri else None])
-        sp = r.specular  # its layer, the shadow depth (nearest of both layers) and the flux per texel, in one pass
+        # its layer, the shadow depth (nearest of both layers) and the flux per texel, in one pass
         wp.launch(K.resolve_rsm_specular, dim=n, device=s.device,
                   inputs=[views, k, sp.visibility, r.opaque_depth, s.points, s.normals, s.indices, s.triangle_material,
                           s.roughness, s.ior, wp.vec3(*rgb), wp.vec3(*axis), int(light.kind == LightKind.SPOT),
@@ -404,6 +441,6 @@ class LightMaps:
         active = self.host_active()
         for k, r in enumerate(self.rsm):
             if active is None or active[k]:
-                self._render_rsm(raster, self.views, k, r)
+                self._render_rsm(raster, self.views, k, r, self._bounds[k] if self._bounds is not None else None)
         for sv in self._shadows:
             sv.render(raster)

@@ -188,6 +188,24 @@ class GBuffer(_Buffers):
     #: draw the back-face layer (False: its half of ``depth_layers`` is zeroed each frame instead, every surface keeps
     #: the constant thickness, as before the layer existed)
     back_faces: bool = True
+    #: True (default): the back-face layer is resolved with the depth bounds a photon pass asked for
+    #: (:meth:`keep_depth_bounds`) in one pass (``kernels.resolve_back_view``); False: its twin ``resolve_back`` (the
+    #: photon pass then builds its bounds itself). The same buffers bit for bit
+    fused_resolve: bool = True
+    _bounds: tuple | None = None  #: (bounds array, thickness, thickness_rel) of :meth:`keep_depth_bounds`
+
+    def keep_depth_bounds(self, bounds: wp.array, thickness: float, thickness_rel: float) -> None:
+        """Have the back-face resolve write the depth bounds of ``depth_layers`` (``photons.march.depth_bounds`` and
+        ``coarsen_bounds`` with these thicknesses) into ``bounds`` (``march.bounds_size``) every frame, instead of
+        the photon pass building them after the resolve (:meth:`builds_depth_bounds`)."""
+        if bounds.shape[0] != K.bounds_size(self.width, self.height):
+            raise ValueError(f"keep_depth_bounds needs march.bounds_size({self.width}, {self.height}) = "
+                             f"{K.bounds_size(self.width, self.height)} bounds, got {bounds.shape[0]}")
+        self._bounds = (bounds, float(thickness), float(thickness_rel))
+
+    def builds_depth_bounds(self, bounds: wp.array) -> bool:
+        """Whether :meth:`render` writes ``bounds`` (:meth:`keep_depth_bounds`'s) each frame."""
+        return self.back_faces and self.fused_resolve and self._bounds is not None and self._bounds[0] is bounds
 
     @staticmethod
     def allocate(width: int, height: int, device) -> "GBuffer":
@@ -219,9 +237,17 @@ class GBuffer(_Buffers):
         else:
             # into the opaque layer's visibility buffer, which its resolve left clear
             raster.draw_back(views, 0, self.width, self.height, LAYER_OPAQUE, self.depth, self.visibility)
-            wp.launch(K.resolve_back, dim=self.width * self.height, device=s.device,
-                      inputs=[views, 0, self.visibility, s.points, s.normals, s.indices, self.tri_id,
-                              self.depth_layers])
+            if self.fused_resolve:  # with the depth bounds of both layers, when a photon pass asked for them
+                bounds, th, th_rel = self._bounds or (None, 0.0, 0.0)
+                coarse = (((self.width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
+                          * ((self.height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE))
+                wp.launch_tiled(K.resolve_back_view, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
+                                inputs=[views, 0, self.visibility, s.points, s.normals, s.indices, self.tri_id,
+                                        self.depth_layers, th, th_rel, bounds])
+            else:
+                wp.launch(K.resolve_back, dim=self.width * self.height, device=s.device,
+                          inputs=[views, 0, self.visibility, s.points, s.normals, s.indices, self.tri_id,
+                                  self.depth_layers])
 
     def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
         out = super().numpy(prefix)
