@@ -355,7 +355,6 @@ def _make_trace(counted: bool):
             write_counts(hits, k, work_l, work_0, work_1, phases | COUNT_REFINE | COUNT_HIDDEN | COUNT_DEPOSIT)
 
 
-    @wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS, enable_backward=False, module=kernel_module)
     def trace_photons(
         light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
         states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
@@ -455,6 +454,10 @@ def _make_trace(counted: bool):
         if t < n_slots:
             record_outcome(outcome, t, tally)
 
+    # named as a kernel at module level (the per-kernel tables, tools/regcount.py), the counted one apart
+    trace_photons.__qualname__ = "trace_photons_counted" if counted else "trace_photons"
+    trace_photons = wp.kernel(trace_photons, launch_bounds=PHOTON_LAUNCH_BOUNDS, enable_backward=False,
+                              module=kernel_module)
     return trace_photon, trace_photons
 
 
