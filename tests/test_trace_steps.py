@@ -1,4 +1,4 @@
-"""tools/trace_steps.py at a tiny size: the counted trace (``kernels_cisp.counted_trace``) leaves every output of
+"""tools/trace_steps.py (and tools/trace_ablate.py) at a tiny size: the counted trace (``kernels_cisp.counted_trace``) leaves every output of
 the trace as it was (outcome records, photon map, landings: bit for bit, every warp traced), and the table's figures
 hang together (no timings)."""
 
@@ -38,3 +38,13 @@ def test_trace_steps_bad_input():
     res = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "trace_steps.py"), "--photons", "lots"],
                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
     assert res.returncode != 0 and "Traceback" not in res.stderr and "trace_steps:" in res.stderr
+
+
+def test_trace_ablate_smoke():
+    """tools/trace_ablate.py runs every variant at a tiny size on the CPU (wall clock there; no timing checked)."""
+    res = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "trace_ablate.py"), "--smoke", "--device", "cpu",
+                          "--scenes", "cornell"], capture_output=True, text=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": ROOT})
+    assert res.returncode == 0, res.stdout + res.stderr
+    for variant in ("frame", "no camera marches", "max_steps 1", "emit only", "photons unsorted"):
+        assert variant in res.stdout

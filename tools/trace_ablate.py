@@ -10,7 +10,10 @@ frame's launches summed) from CUDA events:
 * ``no photon_m2 / hidden map``: the two accumulations a stored photon adds beside the photon map left out (empty);
 * ``no camera marches``: ``use_cascade`` 0 (no cascade, no rescue: a photon ends where the light view leaves it);
 * ``max_steps 1``: every march ends after at most one step (emission, set-up, reprojection and store remain);
-* ``emit only``: every texel culled by luminance (sampling and booking; no walk, no bounce, no march).
+* ``emit only``: every texel culled by luminance (sampling and booking; no walk, no bounce, no march);
+* ``photons unsorted``: ``use_order`` 0 (thread t traces photon t, in R2 order: no Morton sort, no march groups).
+
+Each launch keeps a copy of its view's tracing order (the frame writes every view's order into one array).
 
 The variants change the photons' outcomes (all but the first): they are ablations for timing, nothing else. The
 replays add into the frame's photon map and ledger, which nothing reads afterwards.
@@ -51,6 +54,7 @@ def variants(kernel, inputs: list, device) -> dict[str, list]:
         "no camera marches": with_(use_cascade=0),
         "max_steps 1": with_(max_steps=1),
         "emit only": with_(luminance_cutoff=1.0e30),
+        "photons unsorted": with_(use_order=0),
     }
 
 
@@ -72,10 +76,14 @@ def run_scene(name: str, args, device) -> None:
     kept = []
     launch = r.photons.launch_photons
 
+    at_order = [a.label for a in K.trace_photons.adj.args].index("order")
+
     def keep(kernel, n, inputs):
-        if kernel is K.trace_photons:
-            kept.append((n, list(inputs)))
         launch(kernel, n, inputs)
+        if kernel is K.trace_photons:  # every view's order is written into one array: keep a copy of this view's
+            inputs = list(inputs)
+            inputs[at_order] = wp.clone(inputs[at_order])
+            kept.append((n, inputs))
 
     r.photons.launch_photons = keep
     r.render_frame()

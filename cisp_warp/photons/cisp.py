@@ -16,19 +16,17 @@ __all__ = ["CISP", "Ledger", "PhotonSettings", "camera_pixel_solid_angle", "fram
 
 def build_bounds(depth: wp.array, width: int, height: int, thickness: float, thickness_rel: float, bounds: wp.array,
                  device, views: wp.array | None = None, view_index: int = 0) -> None:
-    """Fill ``bounds`` (``march.bounds_size``) with the fine, coarse and top depth bounds of ``depth``. ``views``: the
+    """Fill ``bounds`` (``march.bounds_size``) with the fine and coarse depth bounds of ``depth``. ``views``: the
     light views ``depth`` belongs to, ``views[view_index]`` (device array): when that view is inactive this frame
     (a fitted cascade with ``far`` = 0, launched on CUDA with fixed dims) the kernels return at once and the bounds
     keep their last values, which nothing marches; None: always build (the camera)."""
     fx, fy = M.bounds_shape(width, height, M.BOUNDS_CELL)
     cx, cy = M.bounds_shape(width, height, M.BOUNDS_COARSE)
-    tx, ty = M.bounds_shape(width, height, M.BOUNDS_TOP)
     inputs = [views, int(view_index), depth, width, height, float(thickness), float(thickness_rel), bounds]
     # one thread walks a cell: measured faster on the H100 than a block per cell with tile min/max (Cornell box,
     # 3 builds: 0.135 ms against 0.080 for 4; docs/perf_notes.md section 8)
     wp.launch(M.depth_bounds, dim=fx * fy, device=device, inputs=inputs)
-    wp.launch(M.coarsen_bounds, dim=cx * cy, device=device, inputs=[views, int(view_index), width, height, 1, bounds])
-    wp.launch(M.coarsen_bounds, dim=tx * ty, device=device, inputs=[views, int(view_index), width, height, 2, bounds])
+    wp.launch(M.coarsen_bounds, dim=cx * cy, device=device, inputs=[views, int(view_index), width, height, bounds])
 
 
 class CISP(PhotonPass):

@@ -168,7 +168,6 @@ def _segment_t(orthographic: int, k0: float, k1: float, t1: float, s: float) -> 
 
 BOUNDS_CELL = wp.constant(8)  #: edge [texels] of the fine cells of :func:`depth_bounds`
 BOUNDS_COARSE = wp.constant(32)  #: edge [texels] of its coarse cells (4x4 fine cells)
-BOUNDS_TOP = wp.constant(128)  #: edge [texels] of its top cells (4x4 coarse cells; docs/perf_notes.md section 33)
 
 
 def bounds_shape(width: int, height: int, cell: int = 8) -> tuple[int, int]:
@@ -177,11 +176,10 @@ def bounds_shape(width: int, height: int, cell: int = 8) -> tuple[int, int]:
 
 
 def bounds_size(width: int, height: int) -> int:
-    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells, then its top cells."""
+    """Length of a depth buffer's bounds array: its fine cells, then its coarse cells."""
     fx, fy = bounds_shape(width, height, BOUNDS_CELL)
     cx, cy = bounds_shape(width, height, BOUNDS_COARSE)
-    tx, ty = bounds_shape(width, height, BOUNDS_TOP)
-    return fx * fy + cx * cy + tx * ty
+    return fx * fy + cx * cy
 
 
 @wp.func
@@ -208,7 +206,7 @@ def depth_bounds(
     (z_s + thickness + thickness_rel·z_s, computed as :func:`screen_march` does), holes counting as BIG_DEPTH. A
     ray whose depth over a stretch of steps stays in front of the first or behind the second cannot hit in
     that cell, so :func:`screen_march_bounded` skips those steps. :func:`coarsen_bounds` then fills the
-    coarse cells and the top cells. A depth buffer carrying a back-face layer (:func:`surface_far`) is bounded by its constant
+    coarse cells. A depth buffer carrying a back-face layer (:func:`surface_far`) is bounded by its constant
     thickness all the same: the layer only ever brings a surface's far side nearer, so these bounds still hold
     (exact skips, a little fewer of them behind closed objects) without a second read per texel."""
     if view_inactive(views, view_index):
@@ -243,39 +241,25 @@ def coarsen_bounds(
     view_index: int,
     width: int,
     height: int,
-    level: int,  # 1: the coarse cells from the fine ones; 2: the top cells from the coarse ones
-    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) the level below (read), then this level's cells (write)
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) fine cells (read), then coarse cells (write)
 ):
-    """A cell of ``level`` = min and max over its 4x4 cells of the level below (BOUNDS_COARSE / BOUNDS_CELL =
-    BOUNDS_TOP / BOUNDS_COARSE = 4)."""
+    """Coarse cell = min and max over its (BOUNDS_COARSE / BOUNDS_CELL)² fine cells."""
     if view_inactive(views, view_index):
         return
     c = wp.tid()
     fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
     fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
     cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
-    ch = (height + BOUNDS_COARSE - 1) / BOUNDS_COARSE
-    src_0 = int(0)  # the level below: its first cell, cells across and down
-    src_w = fw
-    src_h = fh
-    dst_0 = fw * fh
-    dst_w = cw
-    if level == 2:
-        src_0 = fw * fh
-        src_w = cw
-        src_h = ch
-        dst_0 = fw * fh + cw * ch
-        dst_w = (width + BOUNDS_TOP - 1) / BOUNDS_TOP
     r = BOUNDS_COARSE / BOUNDS_CELL
-    i0 = (c % dst_w) * r
-    j0 = (c / dst_w) * r
+    i0 = (c % cw) * r
+    j0 = (c / cw) * r
     b = wp.vec2(BIG_DEPTH, 0.0)
     for dj in range(r):
         for di in range(r):
-            if i0 + di < src_w and j0 + dj < src_h:
-                f = bounds[src_0 + (j0 + dj) * src_w + i0 + di]
+            if i0 + di < fw and j0 + dj < fh:
+                f = bounds[(j0 + dj) * fw + i0 + di]
                 b = wp.vec2(wp.min(b[0], f[0]), wp.max(b[1], f[1]))
-    bounds[dst_0 + c] = b
+    bounds[fw * fh + c] = b
 
 
 @wp.func
@@ -595,9 +579,8 @@ def _make_marches(back_layer: bool, counted: bool = False):
         sample; while the ray's depth over all the steps whose samples lie in one cell stays in front of the cell's
         nearest surface or behind its farthest back face, none of them can hit, and the march jumps to the first
         step past the cell (the ray's depth is monotonic along the segment, so its range over those steps is that
-        of their two ends). It tries the top cell first, then the coarse one, then the fine one, else tests the fine
-        cell's steps one by one; a top or coarse cell whose bounds failed is not tested again (the last one of each
-        level is remembered)."""
+        of their two ends). It tries the coarse cell first, then the fine one, else tests the fine cell's steps one
+        by one."""
         inside, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds = _screen_segment(view, o, d, t_max, max_steps)
         if inside == 0:
             return MARCH_EXIT, float(0.0), int(0)
@@ -605,8 +588,6 @@ def _make_marches(back_layer: bool, counted: bool = False):
         fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
         coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
         coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
-        top_0 = coarse_0 + coarse_x * ((view.height + BOUNDS_COARSE - 1) / BOUNDS_COARSE)
-        top_x = (view.width + BOUNDS_TOP - 1) / BOUNDS_TOP
         inv_step = wp.vec2(0.0)  # 1 / (screen pixels per step) along each axis, for the cell exits
         if ds[0] != 0.0:
             inv_step[0] = 1.0 / (ds[0] * ds_step)
@@ -616,27 +597,16 @@ def _make_marches(back_layer: bool, counted: bool = False):
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
         failed_coarse = int(-1)  # the coarse cell (index) whose bounds last failed: not tested again
-        failed_top = int(-1)  # the top cell (index) whose bounds last failed
         work = int(0)  # ``counted`` only: cell tests × WORK_TESTS + pixel steps
         i = int(1)
         while i <= n:
             tx = _texel(view, s0, ds, ds_step * float(i))
-            # top cell of step i's sample, then its coarse cell, then its fine cell: skip all their steps when the
-            # bounds allow
+            # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
             last = n
             skip = False
             zr_last = float(0.0)
-            if (tx[1] / BOUNDS_TOP) * top_x + tx[0] / BOUNDS_TOP != failed_top:
-                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_TOP)
-                b = bounds[top_0 + cj * top_x + ci]
-                if wp.static(counted):
-                    work += WORK_TESTS
-                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
-                if not skip:
-                    failed_top = cj * top_x + ci
-            if not skip and (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
-                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_COARSE)
+            if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
