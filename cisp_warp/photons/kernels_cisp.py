@@ -16,8 +16,8 @@ from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, 
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
 from .hidden_flux import store_hidden
-from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, screen_march_bounded, screen_march_bounded_plain,
-                    surface_far)
+from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, counted_marches, screen_march_bounded,
+                    screen_march_bounded_plain, surface_far)
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
@@ -218,186 +218,257 @@ def camera_marches(
     return entry, x_end, pix
 
 
+#: ``counted`` traces (:func:`counted_trace`): the phases a photon ran, bits of its count record
+COUNT_TRACED = wp.constant(1)  #: emitted and bounced: the light-view march and the reprojection ran
+COUNT_CASCADE = wp.constant(2)  #: the camera march of the cascade (pass 0)
+COUNT_RESCUE = wp.constant(4)  #: the rescue's camera march (pass 1)
+COUNT_REFINE = wp.constant(8)  #: refine_landing
+COUNT_HIDDEN = wp.constant(16)  #: store_hidden
+COUNT_DEPOSIT = wp.constant(32)  #: deposit (validation and the photon map's atomics)
+
+
 @wp.func
-def trace_photon(
-    k: int,  # photon index
-    origin: wp.vec3,  # [m] on the specular surface
-    d: wp.vec3,  # unit direction after the bounce
-    power: wp.vec3,  # [W] after the bounce
-    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (read)
-    view_index: int,  # the view the photon left from
-    rsm_opaque_depth: wp.array(dtype=wp.float32),  # (Hl*Wl,) light view's opaque depth [m] (read)
-    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
-    cam_depth: wp.array(dtype=wp.float32),
-    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-    cam_position: wp.array(dtype=wp.vec3),
-    cam_normal: wp.array(dtype=wp.vec3),
-    cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
-    max_steps: int,
-    thickness: float,
-    thickness_rel: float,
-    t_max: float,
-    footprint_mode: int,
-    use_cascade: int,  # 0: light view only (no camera march), for comparisons
-    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
-    tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
-    hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
-    hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
-    hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
-    hidden_w: int,  # its texels per whole view, across
-    hidden_h: int,  # and down
-):
-    """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
-    (:func:`reproject_to_camera`, pass 0 of :func:`camera_marches`), a photon the cascade lost marched in the camera
-    view from its start (pass 1), the landing cut with its receiver's tangent plane (:func:`refine_landing`),
-    validate, store; its final entry booked. Each view is read
-    from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
-    registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
-    (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17). The cascade's
-    camera march and the rescue's share one inlined march (a loop of up to two passes): 440 -> 304 B (section 23).
-    Every photon with a landing point is also added to ``hidden_flux`` there (:func:`~.hidden_flux.store_hidden`;
-    its booking unchanged): one the camera sees (stored or rejected) and one whose light-view march landed
-    (``MARCH_HIT``) where the camera does not see (``L_OCCLUDED``, or ``L_LOST_CAMERA`` outside the image) and no
-    camera march stored."""
-    status, x_end = march_light(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, origin, d, t_max,
-                                max_steps, thickness, thickness_rel)
-    entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
-    landed = status == MARCH_HIT  # x_end is a light-view surface crossing (kept unless a camera march stores it)
-    # :func:`camera_marches`' two passes, reading the camera where needed (it is not held through the march)
-    camera_pass = int(0)
-    if entry != MARCH_ON:
-        camera_pass = _rescue_pass(entry, use_cascade)
-    while camera_pass < 2:
-        o_m = x_end
-        if camera_pass == 1:
-            o_m = origin + d * (1.0e-4 * t_max)
-        status, t_m, steps = screen_march_bounded(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, o_m, d,
-                                                  t_max, max_steps, thickness, thickness_rel)
-        if camera_pass == 0:
-            entry = _camera_entry(status)
-            if entry == L_STORED:
-                x_end = x_end + d * t_m
-                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+def write_counts(hits: wp.array(dtype=wp.vec4), k: int, work_l: int, work_0: int, work_1: int, phases: int):
+    """Photon ``k``'s count record, behind the ``N = hits.shape[0] / 3`` landings: ``hits[N + 2k]`` = the light-view
+    march's cell tests and pixel steps, the cascade's camera march's; ``hits[N + 2k + 1]`` = the rescue's, its
+    ``COUNT_*`` bits (0: not traced) and 1 (written). Floats: exact below 2^24."""
+    n = hits.shape[0] / 3
+    hits[n + 2 * k] = wp.vec4(float(work_l / WORK_TESTS), float(work_l % WORK_TESTS), float(work_0 / WORK_TESTS),
+                              float(work_0 % WORK_TESTS))
+    hits[n + 2 * k + 1] = wp.vec4(float(work_1 / WORK_TESTS), float(work_1 % WORK_TESTS), float(phases), 1.0)
+
+
+def _make_trace(counted: bool):
+    """:func:`trace_photon` and the kernel :func:`trace_photons`, or with ``counted`` (probes only,
+    ``tools/trace_steps.py``; :func:`counted_trace`) the same trace on the ``counted`` marches
+    (:func:`~.march.counted_marches`), which writes each photon's work per phase into ``hits`` (:func:`write_counts`;
+    ``hits`` then holds 3 records a slot) and is a module of its own; everything else, outputs included, the same."""
+    camera_march = screen_march_bounded
+    light_march = screen_march_bounded_plain
+    kernel_module = None
+    if counted:
+        camera_march = counted_marches(True)[2]
+        light_march = counted_marches(False)[2]
+        kernel_module = "unique"
+
+    @wp.func
+    def trace_photon(
+        k: int,  # photon index
+        origin: wp.vec3,  # [m] on the specular surface
+        d: wp.vec3,  # unit direction after the bounce
+        power: wp.vec3,  # [W] after the bounce
+        light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (read)
+        view_index: int,  # the view the photon left from
+        rsm_opaque_depth: wp.array(dtype=wp.float32),  # (Hl*Wl,) light view's opaque depth [m] (read)
+        rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+        cam_depth: wp.array(dtype=wp.float32),
+        cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+        cam_position: wp.array(dtype=wp.vec3),
+        cam_normal: wp.array(dtype=wp.vec3),
+        cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
+        max_steps: int,
+        thickness: float,
+        thickness_rel: float,
+        t_max: float,
+        footprint_mode: int,
+        use_cascade: int,  # 0: light view only (no camera march), for comparisons
+        photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+        photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² [(W/m²)²] (accumulate; None: not kept)
+        tally: wp.ref[Tally],  # this thread's ledger share: the photon's final entry (write)
+        hits: wp.array(dtype=wp.vec4),  # (n_photons,) world hit point and pixel index (write where stored; empty: none)
+        hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
+        hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
+        hidden_w: int,  # its texels per whole view, across
+        hidden_h: int,  # and down
+    ):
+        """Steps 4-7 of one emitted photon: march the light view (:func:`march_light`), cascade into the camera view
+        (:func:`reproject_to_camera`, pass 0 of :func:`camera_marches`), a photon the cascade lost marched in the camera
+        view from its start (pass 1), the landing cut with its receiver's tangent plane (:func:`refine_landing`),
+        validate, store; its final entry booked. Each view is read
+        from memory where it is needed (the camera again after its march, ``read_again``), so that no view is held in
+        registers through a march that does not use it: the trace's stack frame at its launch bound 336 -> 216 B
+        (sm_90, ``tools/regcount.py``; before the rescue and the refinement, docs/perf_notes.md section 17). The cascade's
+        camera march and the rescue's share one inlined march (a loop of up to two passes): 440 -> 304 B (section 23).
+        Every photon with a landing point is also added to ``hidden_flux`` there (:func:`~.hidden_flux.store_hidden`;
+        its booking unchanged): one the camera sees (stored or rejected) and one whose light-view march landed
+        (``MARCH_HIT``) where the camera does not see (``L_OCCLUDED``, or ``L_LOST_CAMERA`` outside the image) and no
+        camera march stored."""
+        o_l = origin + d * (1.0e-4 * t_max)  # march_light's march, its work kept where counted
+        status, t_l, work_l = light_march(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, o_l, d, t_max,
+                                          max_steps, thickness, thickness_rel)
+        x_end = o_l + d * t_l
+        work_0 = int(0)  # ``counted``: the camera passes' work (counted_marches), and the phases run (COUNT_*)
+        work_1 = int(0)
+        phases = COUNT_TRACED
+        entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
+        landed = status == MARCH_HIT  # x_end is a light-view surface crossing (kept unless a camera march stores it)
+        # :func:`camera_marches`' two passes, reading the camera where needed (it is not held through the march)
+        camera_pass = int(0)
+        if entry != MARCH_ON:
             camera_pass = _rescue_pass(entry, use_cascade)
-        else:
-            if status == MARCH_HIT:
-                x_end = origin + d * (1.0e-4 * t_max + t_m)
-                pix = camera_pixel(read_again(cameras, 0, steps), x_end)
-                entry = L_STORED
-            camera_pass = 2
-    if entry != L_STORED:
-        book(tally, entry, power)
-        if landed and (entry == L_OCCLUDED or entry == L_LOST_CAMERA):  # on a surface the camera does not see
-            store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
-        return
-    # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
-    # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
-    x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
-                                thickness, thickness_rel)
-    store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
-    # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
-    if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
-               photon_map, photon_m2, tally) != 0:
-        if hits.shape[0] > 0:
-            hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
+        while camera_pass < 2:
+            o_m = x_end
+            if camera_pass == 1:
+                o_m = origin + d * (1.0e-4 * t_max)
+            status, t_m, steps = camera_march(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, o_m, d,
+                                              t_max, max_steps, thickness, thickness_rel)
+            if wp.static(counted):
+                if camera_pass == 0:
+                    work_0 = steps
+                    phases = phases | COUNT_CASCADE
+                else:
+                    work_1 = steps
+                    phases = phases | COUNT_RESCUE
+            if camera_pass == 0:
+                entry = _camera_entry(status)
+                if entry == L_STORED:
+                    x_end = x_end + d * t_m
+                    pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+                camera_pass = _rescue_pass(entry, use_cascade)
+            else:
+                if status == MARCH_HIT:
+                    x_end = origin + d * (1.0e-4 * t_max + t_m)
+                    pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+                    entry = L_STORED
+                camera_pass = 2
+        if entry != L_STORED:
+            book(tally, entry, power)
+            if landed and (entry == L_OCCLUDED or entry == L_LOST_CAMERA):  # on a surface the camera does not see
+                store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
+                if wp.static(counted):
+                    phases = phases | COUNT_HIDDEN
+            if wp.static(counted):
+                write_counts(hits, k, work_l, work_0, work_1, phases)
+            return
+        # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
+        # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
+        x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
+                                    thickness, thickness_rel)
+        store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
+        # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
+        if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
+                   photon_map, photon_m2, tally) != 0:
+            if hits.shape[0] > 0:
+                hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
+        if wp.static(counted):
+            write_counts(hits, k, work_l, work_0, work_1, phases | COUNT_REFINE | COUNT_HIDDEN | COUNT_DEPOSIT)
 
 
-@wp.kernel(launch_bounds=PHOTON_LAUNCH_BOUNDS)
-def trace_photons(
-    light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
-    states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
-    view_index: int,  # the view these photons leave from
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,
-    # RSM view of the light (flat H*W arrays)
-    rsm_opaque_depth: wp.array(dtype=wp.float32),
-    rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
-    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
-    rsm_tri: wp.array(dtype=wp.int32),
-    geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
-    triangle_material: wp.array(dtype=wp.int32),
-    mat_opacity: wp.array(dtype=wp.float32),
-    mat_albedo: wp.array(dtype=wp.vec3),
-    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
-    # camera G-buffer (flat H*W arrays)
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
-    cam_depth: wp.array(dtype=wp.float32),
-    cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-    cam_position: wp.array(dtype=wp.vec3),
-    cam_normal: wp.array(dtype=wp.vec3),
-    cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
-    # settings
-    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
-    n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
-    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (frame.FrameInputs, read)
-    stream: int,  # this (light, view)'s stream
-    order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
-    use_order: int,
-    roughness_cutoff: float,
-    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
-    max_steps: int,
-    thickness: float,
-    thickness_rel: float,
-    t_max: float,
-    footprint_mode: int,
-    use_cascade: int,  # 0: light view only (no camera march), for comparisons
-    # outputs
-    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
-    ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
-    hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
-    # (write; an empty array: not recorded, as in the frame loop)
-    outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
-    hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
-    hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
-    hidden_w: int,  # its texels per whole view, across
-    hidden_h: int,  # and down
-):
-    """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
-    ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
-    no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
-    added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
-    block, lane = wp.tid()
-    t = block * wp.block_dim() + lane
-    light = light_views[view_index]
-    cascade = states[view_index]
-    n_photons = cascade_photons(cascade, light_photons)
-    if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
-        return
-    skip_window = cascade.skip_window
-    rnd = randoms[stream]
-    seed = rnd[2]  # seed of this (frame, view)'s random streams
-    scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
-    k = int(0)
-    texel = int(-1)
-    power = wp.vec3(0.0)
-    origin = wp.vec3(0.0)
-    n = wp.vec3(0.0)
-    d = wp.vec3(0.0)
-    state = wp.uint32(0)
-    emitted = tally_new()
-    if t < n_photons:
-        k = photon_index(order, use_order, t)
-        if hits.shape[0] > 0:
-            hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-        # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
-        # Fresnel as a probability (power unchanged); metals reflect with their albedo
-        texel, power, origin, n, d, state = emit_and_bounce(
-            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
-            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
-            max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
-    ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
-    tally = tally_new()
-    if texel >= 0:  # the views are read again where each march needs them (trace_photon)
-        trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
-                     cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
-                     thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_views,
-                     hidden_flux, hidden_w, hidden_h)
-    if t < n_slots:
-        record_outcome(outcome, t, tally)
+    def trace_photons(
+        light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+        states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
+        view_index: int,  # the view these photons leave from
+        light_kind: int,  # 0 distant, 1 point, 2 spot
+        light_pos: wp.vec3,
+        # RSM view of the light (flat H*W arrays)
+        rsm_opaque_depth: wp.array(dtype=wp.float32),
+        rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
+        rsm_position: wp.array(dtype=wp.vec3),
+        rsm_normal: wp.array(dtype=wp.vec3),
+        rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
+        rsm_roughness: wp.array(dtype=wp.float32),
+        rsm_ior: wp.array(dtype=wp.float32),
+        rsm_tri: wp.array(dtype=wp.int32),
+        geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+        triangle_material: wp.array(dtype=wp.int32),
+        mat_opacity: wp.array(dtype=wp.float32),
+        mat_albedo: wp.array(dtype=wp.vec3),
+        max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+        # camera G-buffer (flat H*W arrays)
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+        cam_depth: wp.array(dtype=wp.float32),
+        cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+        cam_position: wp.array(dtype=wp.vec3),
+        cam_normal: wp.array(dtype=wp.vec3),
+        cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
+        # settings
+        light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+        n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
+        randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (frame.FrameInputs, read)
+        stream: int,  # this (light, view)'s stream
+        order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+        use_order: int,
+        roughness_cutoff: float,
+        luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
+        max_steps: int,
+        thickness: float,
+        thickness_rel: float,
+        t_max: float,
+        footprint_mode: int,
+        use_cascade: int,  # 0: light view only (no camera march), for comparisons
+        # outputs
+        photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+        photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
+        ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+        hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
+        # (write; an empty array: not recorded, as in the frame loop)
+        outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
+        hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
+        hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
+        hidden_w: int,  # its texels per whole view, across
+        hidden_h: int,  # and down
+    ):
+        """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
+        ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
+        no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
+        added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
+        block, lane = wp.tid()
+        t = block * wp.block_dim() + lane
+        light = light_views[view_index]
+        cascade = states[view_index]
+        n_photons = cascade_photons(cascade, light_photons)
+        if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
+            return
+        skip_window = cascade.skip_window
+        rnd = randoms[stream]
+        seed = rnd[2]  # seed of this (frame, view)'s random streams
+        scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
+        k = int(0)
+        texel = int(-1)
+        power = wp.vec3(0.0)
+        origin = wp.vec3(0.0)
+        n = wp.vec3(0.0)
+        d = wp.vec3(0.0)
+        state = wp.uint32(0)
+        emitted = tally_new()
+        if t < n_photons:
+            k = photon_index(order, use_order, t)
+            if hits.shape[0] > 0:
+                hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
+                if wp.static(counted):
+                    write_counts(hits, k, 0, 0, 0, 0)  # not traced (trace_photon writes its own)
+            # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
+            # Fresnel as a probability (power unchanged); metals reflect with their albedo
+            texel, power, origin, n, d, state = emit_and_bounce(
+                light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
+                rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
+                max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
+        ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
+        tally = tally_new()
+        if texel >= 0:  # the views are read again where each march needs them (trace_photon)
+            trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
+                         cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
+                         thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_views,
+                         hidden_flux, hidden_w, hidden_h)
+        if t < n_slots:
+            record_outcome(outcome, t, tally)
+
+    # named as a kernel at module level (the per-kernel tables, tools/regcount.py), the counted one apart
+    trace_photons.__qualname__ = "trace_photons_counted" if counted else "trace_photons"
+    trace_photons = wp.kernel(trace_photons, launch_bounds=PHOTON_LAUNCH_BOUNDS, enable_backward=False,
+                              module=kernel_module)
+    return trace_photon, trace_photons
+
+
+#: the trace (one photon: :func:`trace_photon`; the kernel: :func:`trace_photons`)
+trace_photon, trace_photons = _make_trace(False)
+
+_COUNTED_TRACE = []
+
+
+def counted_trace():
+    """The ``counted`` :func:`trace_photons` (made on first use; ``tools/trace_steps.py``)."""
+    if not _COUNTED_TRACE:
+        _COUNTED_TRACE.append(_make_trace(True)[1])
+    return _COUNTED_TRACE[0]

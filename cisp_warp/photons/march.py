@@ -364,14 +364,29 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
     return 1, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds
 
 
-def _make_marches(back_layer: bool):
+#: ``counted`` marches' work (the third value they return): cell tests × WORK_TESTS + pixel steps
+WORK_TESTS = 65536
+
+
+def _make_marches(back_layer: bool, counted: bool = False):
     """The three marches (:func:`screen_march_naive`, :func:`screen_march`, :func:`screen_march_bounded`) for a depth
     buffer that may carry a back-face layer (``back_layer`` True: the far side and the hidden-half test of
     :func:`surface_far` and ``MARCH_HIDDEN``, decided at run time by the array's length), or compiled for a plain
     H*W depth buffer only (False: the constant thickness, never ``MARCH_HIDDEN``; no layer code in the kernel). One
     body for both (``wp.static`` drops the layer's code at compile time), so the two agree bit for bit on a plain
     buffer. The plain ones are for the marches that never have a layer: the light views, the composite's lookups,
-    the caustics map (docs/perf_notes.md section 23)."""
+    the caustics map (docs/perf_notes.md section 23).
+
+    ``counted`` (probes only: :func:`counted_marches`, ``tools/trace_steps.py``): :func:`screen_march_bounded`
+    returns the work its loops did in place of the step index: its cell tests (coarse and fine) × ``WORK_TESTS`` +
+    its pixel steps, compiled in only then (``wp.static``); status and end point are the same."""
+
+    @wp.func
+    def _steps_out(i: int, work: int) -> int:
+        """The third value :func:`screen_march_bounded` returns: the step index ``i``, or with ``counted`` its work."""
+        if wp.static(counted):
+            return work
+        return i
 
     @wp.func
     def _far(view: ViewParams, depth: wp.array(dtype=wp.float32), sx: float, sy: float, zs: float, thickness: float,
@@ -579,6 +594,7 @@ def _make_marches(back_layer: bool):
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
         failed_coarse = int(-1)  # the coarse cell (index) whose bounds last failed: not tested again
+        work = int(0)  # ``counted`` only: cell tests × WORK_TESTS + pixel steps
         i = int(1)
         while i <= n:
             tx = _texel(view, s0, ds, ds_step * float(i))
@@ -589,6 +605,8 @@ def _make_marches(back_layer: bool):
             if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
+                if wp.static(counted):
+                    work += WORK_TESTS
                 zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
                 skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
                 if not skip:
@@ -596,6 +614,8 @@ def _make_marches(back_layer: bool):
             if not skip:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
                 b = bounds[cj * fine_x + ci]
+                if wp.static(counted):
+                    work += WORK_TESTS
                 zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
                 skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
             if skip:
@@ -606,6 +626,8 @@ def _make_marches(back_layer: bool):
                 i = last + 1
                 continue
             while i <= last:
+                if wp.static(counted):
+                    work += 1
                 s = ds_step * float(i)
                 sp = s0 + ds * s
                 zr = _ray_depth(ortho, z0, z1, k0, k1, s)
@@ -616,15 +638,15 @@ def _make_marches(back_layer: bool):
                         sp_prev = s0 + ds * s_prev
                         diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
                     u = _crossing(ortho, zr_prev, zr, zs, diff_prev, z_far)
-                    return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), i
+                    return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), _steps_out(i, work)
                 if wp.static(back_layer):  # compiled out for a plain depth buffer
                     if _hidden(zr_prev, zr, zs, back_depth(view, depth, _texel_index(view, sp[0], sp[1]))):
-                        return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), i
+                        return MARCH_HIDDEN, _segment_t(ortho, k0, k1, t1, s_prev), _steps_out(i, work)
                 s_prev = s
                 zr_prev = zr
                 diff_prev = zr - zs
                 i += 1
-        return status, _segment_t(ortho, k0, k1, t1, s_prev), n
+        return status, _segment_t(ortho, k0, k1, t1, s_prev), _steps_out(n, work)
 
 
     return screen_march_naive, screen_march, screen_march_bounded
@@ -634,3 +656,14 @@ def _make_marches(back_layer: bool):
 screen_march_naive, screen_march, screen_march_bounded = _make_marches(True)
 #: the same marches compiled for a plain H*W depth buffer (light views, the composite, the caustics map)
 screen_march_naive_plain, screen_march_plain, screen_march_bounded_plain = _make_marches(False)
+
+
+_COUNTED: dict[bool, tuple] = {}
+
+
+def counted_marches(back_layer: bool) -> tuple:
+    """The marches of :func:`_make_marches` compiled ``counted`` (made once per ``back_layer``, on first use: the
+    frame's kernels never reference them)."""
+    if back_layer not in _COUNTED:
+        _COUNTED[back_layer] = _make_marches(back_layer, counted=True)
+    return _COUNTED[back_layer]
