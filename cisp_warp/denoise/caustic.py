@@ -63,6 +63,11 @@ class CausticSettings:
     normal_tolerance: float = 0.9  #: reprojection and change window: smallest cosine between normals
     use_photon_m2: bool = True  #: cap each frame's variance estimate by the photons' own, Σ e² per pixel (the
     #: photon pass's ``photon_m2``), where :meth:`CausticDenoiser.denoise` is given it
+    caustic_flow: bool = False  #: reproject the history along the caustic's own motion where the photon pass knows
+    #: it (``caustic_flow`` of :meth:`CausticDenoiser.denoise`, photons/caustic_flow.py; the renderer asks cisp for it
+    #: when set) and it differs from the surface's by more than its noise; the surface's motion elsewhere
+    flow_sigmas: float = 3.0  #: k of that test: |caustic flow − surface motion|² > k² Var(caustic flow)
+    flow_radius: int = 1  #: the caustic flow of a pixel pools the photons of its (2 r + 1)² neighbourhood
 
     def target(self, photon_m2_given: bool) -> float:
         """The spatial footprint's τ for a frame with (``photon_m2_given`` and ``use_photon_m2``) or without the
@@ -84,6 +89,8 @@ class CausticSettings:
             raise ValueError("noise_target and noise_target_m2 must be > 0")
         if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
             raise ValueError("sigma_depth, sigma_normal and sigma_luminance must be > 0")
+        if self.flow_sigmas <= 0.0 or self.flow_radius < 0:
+            raise ValueError("flow_sigmas must be > 0 and flow_radius >= 0")
         if self.depth_tolerance <= 0.0 or not (-1.0 <= self.normal_tolerance <= 1.0):
             raise ValueError("depth_tolerance must be > 0 and normal_tolerance a cosine in [-1, 1]")
 
@@ -143,6 +150,8 @@ class CausticDenoiser:
         self.frames = one(wp.float32)
         self.temporal_variance = one(wp.float32)
         self.depth_slope = one(wp.float32)
+        #: (H*W,) vec2 [pixels]: the motion the history is fetched by, the caustic's where known (settings.caustic_flow)
+        self.motion_used = one(wp.vec2) if settings.caustic_flow else None
         if levels == "tiled":
             self.packed = one(wp.vec4), one(wp.vec4)
             self.guide = one(wp.vec4)
@@ -181,19 +190,28 @@ class CausticDenoiser:
             a.zero_()
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
-                tri_id: wp.array, out: wp.array, photon_m2: wp.array | None = None) -> None:
+                tri_id: wp.array, out: wp.array, photon_m2: wp.array | None = None,
+                caustic_flow: wp.array | None = None) -> None:
         """Denoise one frame.
 
         Reads ``irradiance_in`` (H*W vec3 [W/m²], the raw photon map), ``photon_m2`` (H*W float32 [(W/m²)²], the
         photon pass's Σ luminance(e)² per pixel, or None; read only with ``use_photon_m2``) and the camera
         G-buffer: ``depth`` (H*W float32 [m], 0 = none), ``normal`` (H*W vec3), ``motion`` (H*W vec2 [pixels],
         previous position minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out`` (H*W vec3
-        [W/m²]; 0 where there is no surface). Nothing is allocated, read back or swapped on the host.
+        [W/m²]; 0 where there is no surface). ``caustic_flow`` (H*W vec4: Σ Dx, Σ Dy [pixels], Σ s_D² [pixels²],
+        count per pixel, :mod:`cisp_warp.photons.caustic_flow`; read only with ``settings.caustic_flow``): the history
+        is fetched along the caustic's displacement where it differs from ``motion`` by more than its noise
+        (:func:`.kernels_caustic.caustic_motion`). Nothing is allocated, read back or swapped on the host.
         """
         s = self.settings
         w, h = self.width, self.height
         dim = (h, w)
         d = self.device
+        if s.caustic_flow and caustic_flow is not None:
+            wp.launch(K.caustic_motion, dim=w * h, device=d,
+                      inputs=[motion, caustic_flow, w, h, s.flow_radius, s.flow_sigmas * s.flow_sigmas],
+                      outputs=[self.motion_used])
+            motion = self.motion_used
         wp.launch(K.reproject_history, dim=dim, block_dim=K.REPROJECT_THREADS, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
                           self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,

@@ -313,11 +313,15 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
 
 
 def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
-                        history: dict | None, settings, photon_m2: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
-    """One frame of the caustics denoiser: :func:`caustic_temporal_naive` (``photon_m2`` as there), then
+                        history: dict | None, settings, photon_m2: np.ndarray | None = None,
+                        caustic_flow: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """One frame of the caustics denoiser: the motion from :func:`caustic_motion_naive` where ``caustic_flow``
+    ((H, W, 4)) is given and ``settings.caustic_flow`` set, :func:`caustic_temporal_naive` (``photon_m2`` as there), then
     ``settings.atrous_levels`` gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output
     (H, W, 3) [W/m²], the history for the next call)."""
     s = settings
+    if s.caustic_flow and caustic_flow is not None:
+        motion = caustic_motion_naive(motion, caustic_flow, s.flow_radius, s.flow_sigmas).astype(np.float32)
     t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s, photon_m2)
     color, variance = t["mean"], t["variance"]
     for level in range(s.atrous_levels):
@@ -326,3 +330,22 @@ def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.nd
                                              noise_target=s.target(photon_m2 is not None),
                                              slope=t["slope"])
     return color, t
+
+
+def caustic_motion_naive(motion: np.ndarray, flow: np.ndarray, radius: int, sigmas: float) -> np.ndarray:
+    """Twin of :func:`cisp_warp.denoise.kernels_caustic.caustic_motion`: ``motion`` (H, W, 2) [pixels], ``flow``
+    (H, W, 4) (Σ D, Σ s_D², count per pixel); returns the (H, W, 2) motion the history is fetched by: the pooled
+    caustic flow of the (2 ``radius`` + 1)² neighbourhood where |D̄ − motion|² > ``sigmas``² · mean s_D², else
+    ``motion``."""
+    h, w = motion.shape[:2]
+    pad = np.zeros((h + 2 * radius, w + 2 * radius, 4))
+    pad[radius:radius + h, radius:radius + w] = flow
+    pooled = sum(pad[dy:dy + h, dx:dx + w] for dy in range(2 * radius + 1) for dx in range(2 * radius + 1))
+    out = motion.astype(np.float64).copy()
+    known = pooled[..., 3] > 0
+    n = np.where(known, pooled[..., 3], 1.0)
+    mean = pooled[..., :2] / n[..., None]
+    dist2 = ((mean - motion) ** 2).sum(-1)
+    use = known & (dist2 > sigmas * sigmas * pooled[..., 2] / n)
+    out[use] = mean[use]
+    return out
