@@ -68,6 +68,11 @@ class CausticSettings:
     #: when set) and it differs from the surface's by more than its noise; the surface's motion elsewhere
     flow_sigmas: float = 3.0  #: k of that test: |caustic flow − surface motion|² > k² Var(caustic flow)
     flow_radius: int = 1  #: the caustic flow of a pixel pools the photons of its (2 r + 1)² neighbourhood
+    flow_history: float = 1.0  #: at most this many frames of history where it was fetched along the caustic flow
+    #: (1: the new frame weighs at least 1/2, an exponential mean of two frames): a real caustic flow leaves a
+    #: residual (the small preset's turning sun: 4% of the caustic a frame, the caustic's shape changes too) that the
+    #: change test does not see and a longer history accumulates as bias (perf_notes section 32: e/s 1.81 at 1, 2.23
+    #: uncapped, 1.86 at 2)
 
     def target(self, photon_m2_given: bool) -> float:
         """The spatial footprint's τ for a frame with (``photon_m2_given`` and ``use_photon_m2``) or without the
@@ -89,8 +94,8 @@ class CausticSettings:
             raise ValueError("noise_target and noise_target_m2 must be > 0")
         if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
             raise ValueError("sigma_depth, sigma_normal and sigma_luminance must be > 0")
-        if self.flow_sigmas <= 0.0 or self.flow_radius < 0:
-            raise ValueError("flow_sigmas must be > 0 and flow_radius >= 0")
+        if self.flow_sigmas <= 0.0 or self.flow_radius < 0 or self.flow_history < 1.0:
+            raise ValueError("flow_sigmas must be > 0, flow_radius >= 0 and flow_history >= 1")
         if self.depth_tolerance <= 0.0 or not (-1.0 <= self.normal_tolerance <= 1.0):
             raise ValueError("depth_tolerance must be > 0 and normal_tolerance a cosine in [-1, 1]")
 
@@ -152,6 +157,8 @@ class CausticDenoiser:
         self.depth_slope = one(wp.float32)
         #: (H*W,) vec2 [pixels]: the motion the history is fetched by, the caustic's where known (settings.caustic_flow)
         self.motion_used = one(wp.vec2) if settings.caustic_flow else None
+        #: (H*W,) float32: 1 where the history was fetched along the caustic flow, else 0 (settings.caustic_flow)
+        self.flow_used = one(wp.float32) if settings.caustic_flow else wp.zeros(0, dtype=wp.float32, device=d)
         if levels == "tiled":
             self.packed = one(wp.vec4), one(wp.vec4)
             self.guide = one(wp.vec4)
@@ -210,12 +217,14 @@ class CausticDenoiser:
         if s.caustic_flow and caustic_flow is not None:
             wp.launch(K.caustic_motion, dim=w * h, device=d,
                       inputs=[motion, caustic_flow, w, h, s.flow_radius, s.flow_sigmas * s.flow_sigmas],
-                      outputs=[self.motion_used])
+                      outputs=[self.motion_used, self.flow_used])
             motion = self.motion_used
+        elif s.caustic_flow:
+            self.flow_used.zero_()
         wp.launch(K.reproject_history, dim=dim, block_dim=K.REPROJECT_THREADS, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
                           self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,
-                          s.normal_tolerance],
+                          s.normal_tolerance, self.flow_used, float(s.flow_history)],
                   outputs=[self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats])
         m2 = photon_m2 if s.use_photon_m2 else None
         blocks, tiles_x = K.accumulate_blocks(w, h)

@@ -252,6 +252,8 @@ def reproject_history(
     height: int,
     depth_tolerance: float,
     normal_tolerance: float,
+    flow_used: wp.array(dtype=wp.float32),
+    flow_history: float,
     cur_depth: wp.array(dtype=wp.float32),
     cur_normal: wp.array(dtype=wp.vec3),
     prev_mean: wp.array(dtype=wp.vec3),
@@ -398,7 +400,11 @@ def reproject_history(
                 m12 = wp.min(wp.max(cubic_m, lo_m), hi_m)
         prev_mean[p] = mean
         prev_pairs[p] = wp.vec3(moments[2] * inv, moments[3] * inv, photon_var * inv)
-        store_vec4(stats, p, wp.vec4(lum, m12[0], m12[1], frames * inv))
+        n_prev = frames * inv
+        if flow_used.shape[0] > 0:
+            if flow_used[p] > 0.0:  # fetched along the caustic flow: the history at most flow_history frames
+                n_prev = wp.min(n_prev, flow_history)
+        store_vec4(stats, p, wp.vec4(lum, m12[0], m12[1], n_prev))
     else:
         prev_mean[p] = wp.vec3(0.0)
         prev_pairs[p] = wp.vec3(0.0)
@@ -755,7 +761,7 @@ def accumulate_blocks(width: int, height: int) -> tuple[int, int]:
 
 @wp.kernel
 def caustic_motion(motion: wp.array(dtype=wp.vec2), flow: wp.array(dtype=wp.vec4), width: int, height: int, radius: int,
-                   sigmas2: float, motion_out: wp.array(dtype=wp.vec2)):
+                   sigmas2: float, motion_out: wp.array(dtype=wp.vec2), flow_used: wp.array(dtype=wp.float32)):
     """The motion a pixel's history is fetched by: the caustic's own where the photon pass measured it and it differs
     from the surface's significantly, else the surface's.
 
@@ -778,10 +784,13 @@ def caustic_motion(motion: wp.array(dtype=wp.vec2), flow: wp.array(dtype=wp.vec4
             if qx >= 0 and qx < width and qy >= 0 and qy < height:
                 f = f + flow[qy * width + qx]
     out = m
+    used = float(0.0)
     if f[3] > 0.0:
         inv = 1.0 / f[3]
         c = wp.vec2(f[0] * inv, f[1] * inv)
         dm = c - m
         if wp.dot(dm, dm) > sigmas2 * f[2] * inv:
             out = c
+            used = 1.0
     motion_out[p] = out
+    flow_used[p] = used
