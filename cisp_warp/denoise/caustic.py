@@ -21,6 +21,11 @@ by the per-frame variance, which does not shrink as frames accumulate. Here
    narrows as the estimate converges and vanishes once it has. Weights are symmetric and normalised by
    max(W_p, W_q): every level keeps the image's total irradiance exactly.
 
+Opt-in (``caustic_flow``): the history is fetched along the caustic's own motion where the photon pass measured it
+(:mod:`cisp_warp.photons.caustic_flow`: where the photons of the same light-space cell landed the frame before) and it
+differs from the surface's beyond its noise (:func:`.kernels_caustic.caustic_motion`), at most ``flow_history``
+frames of it (docs/perf_notes.md section 32).
+
 Inputs and output are SVGF's (:meth:`CausticDenoiser.denoise`); the naive twin is
 :func:`cisp_warp.denoise.naive.caustic_frame_naive`.
 """

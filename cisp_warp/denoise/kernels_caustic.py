@@ -280,7 +280,10 @@ def reproject_history(
     ``normal_tolerance`` (as SVGF's reprojection); the consistent taps are renormalised, and fewer than
     ``MIN_BILINEAR_WEIGHT`` of the footprint means disoccluded. Where all 16 taps of the 4x4 footprint are
     consistent and the motion is fractional, the mean and (m1, m2) take the Catmull-Rom value instead, clamped
-    per component to the range of the 2x2 taps (module docstring); s², p² and n stay bilinear.
+    per component to the range of the 2x2 taps (module docstring); s², p² and n stay bilinear. Where ``flow_used``
+    (float32, 1 where ``motion`` is the caustic flow, :func:`caustic_motion`; an empty array: nowhere) is set, n is at
+    most ``flow_history``: a real caustic flow leaves a residual the change test does not see, which a long history
+    would accumulate (docs/perf_notes.md section 32).
     """
     y, x = wp.tid()
     p = y * width + x
