@@ -73,11 +73,11 @@ class CausticSettings:
     #: when set) and it differs from the surface's by more than its noise; the surface's motion elsewhere
     flow_sigmas: float = 3.0  #: k of that test: |caustic flow − surface motion|² > k² Var(caustic flow)
     flow_radius: int = 1  #: the caustic flow of a pixel pools the photons of its (2 r + 1)² neighbourhood
-    flow_history: float = 1.0  #: at most this many frames of history where it was fetched along the caustic flow
-    #: (1: the new frame weighs at least 1/2, an exponential mean of two frames): a real caustic flow leaves a
-    #: residual (the small preset's turning sun: 4% of the caustic a frame, the caustic's shape changes too) that the
-    #: change test does not see and a longer history accumulates as bias (perf_notes section 32: e/s 1.81 at 1, 2.23
-    #: uncapped, 1.86 at 2)
+    flow_history: float = 2.0  #: at most this many frames of history where it was fetched along the caustic flow
+    #: (2: the new frame weighs at least 1/3): a real caustic flow leaves a residual (the small preset's turning sun:
+    #: 4% of the caustic a frame, its shape changes too) that the change test does not see and a longer history
+    #: accumulates as bias (perf_notes section 32, moving light e/s at 96x72 / 192x144: 1.81 / 1.33 at 1, 1.86 / 1.28
+    #: at 2, 2.00 / 1.32 at 4, 2.23 uncapped at 96x72)
 
     def target(self, photon_m2_given: bool) -> float:
         """The spatial footprint's τ for a frame with (``photon_m2_given`` and ``use_photon_m2``) or without the
