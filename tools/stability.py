@@ -103,6 +103,10 @@ def main(argv=None) -> int:
     p.add_argument("--photons", type=int, default=None,
                    help="photons per light per frame of the methods (default: the preset's; the reference keeps "
                    "its own)")
+    p.add_argument("--size", default=None, help="WxH: the image size instead of the preset's (e.g. 192x144)")
+    p.add_argument("--rsm-size", type=int, default=None, help="RSM edge [texels] instead of the preset's")
+    p.add_argument("--reference", type=int, default=None,
+                   help="reference photons per light per frame instead of the preset's")
     p.add_argument("--no-static", action="store_true",
                    help="skip the static twins of the animated cases (their error held still: half the time)")
     p.add_argument("--merge", action="store_true",
@@ -116,6 +120,19 @@ def main(argv=None) -> int:
         if args.photons < 1:
             raise SystemExit(f"--photons must be a positive integer, got {args.photons}")
         cfg["photons"] = args.photons
+    try:
+        if args.size is not None:
+            cfg["width"], cfg["height"] = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        raise SystemExit(f"--size must be WxH in pixels, got {args.size!r}") from None
+    for name, key in (("rsm_size", "rsm_size"), ("reference", "reference")):
+        v = getattr(args, name)
+        if v is not None:
+            if v < 1:
+                raise SystemExit(f"--{name.replace('_', '-')} must be a positive integer, got {v}")
+            cfg[key] = v
+    if min(cfg["width"], cfg["height"]) < 1:
+        raise SystemExit(f"--size must be positive, got {args.size!r}")
 
     import warp as wp
 

@@ -178,10 +178,6 @@ class CausticFlow:
         """First record slot of a light's RSM view."""
         return (self._record_base[light_index] + view_index) * self.slots
 
-    def reset(self) -> None:
-        """Forget the last frame's cells: the next frame has no displacement."""
-        self.cells.zero_()
-
     def begin(self) -> None:
         """Zero this frame's cells, the records and the flow."""
         wp.launch(zero_current, dim=self.n_cells, device=self.device, inputs=[self.cells, self.parity])
