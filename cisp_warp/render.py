@@ -242,6 +242,10 @@ class Renderer:
         self.denoiser = None
         if self.settings.denoiser == "caustic":
             self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
+            if self.settings.caustic.caustic_flow and self.settings.method == "cisp" and ps.splat == "point":
+                # the caustic's own motion vectors, from where the photons of the same light-space cells landed the
+                # frame before (photons/caustic_flow.py); other methods and denoisers do not pay for them
+                self.photons.keep_caustic_flow(cam.width, cam.height)
         elif self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
         elif self.settings.denoiser == "gather":
@@ -343,7 +347,8 @@ class Renderer:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
                 elif isinstance(self.denoiser, CausticDenoiser):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
-                                          self.caustic_irradiance, self.photons.photon_m2)
+                                          self.caustic_irradiance, self.photons.photon_m2,
+                                          None if self.photons.flow is None else self.photons.flow.flow)
                 elif isinstance(self.denoiser, SVGF):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
                 elif isinstance(self.denoiser, GaussianGather):

@@ -98,10 +98,15 @@ def main(argv=None) -> int:
                    "cisp:wavefront-mesh, sspm:wavefront-mesh over the water mesh (the preset's photons then count "
                    "grid cells per light)")
     p.add_argument("--denoisers", default="caustic,svgf,own",
-                   help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters)")
+                   help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters), "
+                   "caustic-flow (cisp: the caustics denoiser along the caustic flow, docs/perf_notes.md section 35)")
     p.add_argument("--photons", type=int, default=None,
                    help="photons per light per frame of the methods (default: the preset's; the reference keeps "
                    "its own)")
+    p.add_argument("--size", default=None, help="WxH: the image size instead of the preset's (e.g. 192x144)")
+    p.add_argument("--rsm-size", type=int, default=None, help="RSM edge [texels] instead of the preset's")
+    p.add_argument("--reference", type=int, default=None,
+                   help="reference photons per light per frame instead of the preset's")
     p.add_argument("--no-static", action="store_true",
                    help="skip the static twins of the animated cases (their error held still: half the time)")
     p.add_argument("--merge", action="store_true",
@@ -115,6 +120,19 @@ def main(argv=None) -> int:
         if args.photons < 1:
             raise SystemExit(f"--photons must be a positive integer, got {args.photons}")
         cfg["photons"] = args.photons
+    try:
+        if args.size is not None:
+            cfg["width"], cfg["height"] = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        raise SystemExit(f"--size must be WxH in pixels, got {args.size!r}") from None
+    for name, key in (("rsm_size", "rsm_size"), ("reference", "reference")):
+        v = getattr(args, name)
+        if v is not None:
+            if v < 1:
+                raise SystemExit(f"--{name.replace('_', '-')} must be a positive integer, got {v}")
+            cfg[key] = v
+    if min(cfg["width"], cfg["height"]) < 1:
+        raise SystemExit(f"--size must be positive, got {args.size!r}")
 
     import warp as wp
 
@@ -132,8 +150,8 @@ def main(argv=None) -> int:
     methods = args.methods.split(",")
     denoisers = args.denoisers.split(",")
     for d in denoisers:
-        if d not in E.DENOISERS:
-            raise SystemExit(f"unknown denoiser {d!r}: {', '.join(E.DENOISERS)}")
+        if d not in E.DENOISERS + (E.FLOW_DENOISER,):
+            raise SystemExit(f"unknown denoiser {d!r}: {', '.join(E.DENOISERS + (E.FLOW_DENOISER,))}")
     runs = [(m, d) for m in methods for d in denoisers if E.applicable(m.partition(":")[0], d)]
     w, h, frames, measured = cfg["width"], cfg["height"], cfg["frames"], cfg["measured"]
     cache = os.path.join(args.out, "references")

@@ -21,6 +21,11 @@ by the per-frame variance, which does not shrink as frames accumulate. Here
    narrows as the estimate converges and vanishes once it has. Weights are symmetric and normalised by
    max(W_p, W_q): every level keeps the image's total irradiance exactly.
 
+Opt-in (``caustic_flow``): the history is fetched along the caustic's own motion where the photon pass measured it
+(:mod:`cisp_warp.photons.caustic_flow`: where the photons of the same light-space cell landed the frame before) and it
+differs from the surface's beyond its noise (:func:`.kernels_caustic.caustic_motion`), at most ``flow_history``
+frames of it (docs/perf_notes.md section 35).
+
 Inputs and output are SVGF's (:meth:`CausticDenoiser.denoise`); the naive twin is
 :func:`cisp_warp.denoise.naive.caustic_frame_naive`.
 """
@@ -63,6 +68,16 @@ class CausticSettings:
     normal_tolerance: float = 0.9  #: reprojection and change window: smallest cosine between normals
     use_photon_m2: bool = True  #: cap each frame's variance estimate by the photons' own, Σ e² per pixel (the
     #: photon pass's ``photon_m2``), where :meth:`CausticDenoiser.denoise` is given it
+    caustic_flow: bool = False  #: reproject the history along the caustic's own motion where the photon pass knows
+    #: it (``caustic_flow`` of :meth:`CausticDenoiser.denoise`, photons/caustic_flow.py; the renderer asks cisp for it
+    #: when set) and it differs from the surface's by more than its noise; the surface's motion elsewhere
+    flow_sigmas: float = 3.0  #: k of that test: |caustic flow − surface motion|² > k² Var(caustic flow)
+    flow_radius: int = 1  #: the caustic flow of a pixel pools the photons of its (2 r + 1)² neighbourhood
+    flow_history: float = 2.0  #: at most this many frames of history where it was fetched along the caustic flow
+    #: (2: the new frame weighs at least 1/3): a real caustic flow leaves a residual (the small preset's turning sun:
+    #: 4% of the caustic a frame, its shape changes too) that the change test does not see and a longer history
+    #: accumulates as bias (perf_notes section 35, moving light e/s at 96x72 / 192x144: 1.81 / 1.33 at 1, 1.86 / 1.28
+    #: at 2, 2.00 / 1.32 at 4, 2.23 uncapped at 96x72)
 
     def target(self, photon_m2_given: bool) -> float:
         """The spatial footprint's τ for a frame with (``photon_m2_given`` and ``use_photon_m2``) or without the
@@ -84,6 +99,8 @@ class CausticSettings:
             raise ValueError("noise_target and noise_target_m2 must be > 0")
         if min(self.sigma_depth, self.sigma_normal, self.sigma_luminance) <= 0.0:
             raise ValueError("sigma_depth, sigma_normal and sigma_luminance must be > 0")
+        if self.flow_sigmas <= 0.0 or self.flow_radius < 0 or self.flow_history < 1.0:
+            raise ValueError("flow_sigmas must be > 0, flow_radius >= 0 and flow_history >= 1")
         if self.depth_tolerance <= 0.0 or not (-1.0 <= self.normal_tolerance <= 1.0):
             raise ValueError("depth_tolerance must be > 0 and normal_tolerance a cosine in [-1, 1]")
 
@@ -143,6 +160,10 @@ class CausticDenoiser:
         self.frames = one(wp.float32)
         self.temporal_variance = one(wp.float32)
         self.depth_slope = one(wp.float32)
+        #: (H*W,) vec2 [pixels]: the motion the history is fetched by, the caustic's where known (settings.caustic_flow)
+        self.motion_used = one(wp.vec2) if settings.caustic_flow else None
+        #: (H*W,) float32: 1 where the history was fetched along the caustic flow, else 0 (settings.caustic_flow)
+        self.flow_used = one(wp.float32) if settings.caustic_flow else wp.zeros(0, dtype=wp.float32, device=d)
         if levels == "tiled":
             self.packed = one(wp.vec4), one(wp.vec4)
             self.guide = one(wp.vec4)
@@ -181,23 +202,34 @@ class CausticDenoiser:
             a.zero_()
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
-                tri_id: wp.array, out: wp.array, photon_m2: wp.array | None = None) -> None:
+                tri_id: wp.array, out: wp.array, photon_m2: wp.array | None = None,
+                caustic_flow: wp.array | None = None) -> None:
         """Denoise one frame.
 
         Reads ``irradiance_in`` (H*W vec3 [W/m²], the raw photon map), ``photon_m2`` (H*W float32 [(W/m²)²], the
         photon pass's Σ luminance(e)² per pixel, or None; read only with ``use_photon_m2``) and the camera
         G-buffer: ``depth`` (H*W float32 [m], 0 = none), ``normal`` (H*W vec3), ``motion`` (H*W vec2 [pixels],
         previous position minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out`` (H*W vec3
-        [W/m²]; 0 where there is no surface). Nothing is allocated, read back or swapped on the host.
+        [W/m²]; 0 where there is no surface). ``caustic_flow`` (H*W vec4: Σ Dx, Σ Dy [pixels], Σ s_D² [pixels²],
+        count per pixel, :mod:`cisp_warp.photons.caustic_flow`; read only with ``settings.caustic_flow``): the history
+        is fetched along the caustic's displacement where it differs from ``motion`` by more than its noise
+        (:func:`.kernels_caustic.caustic_motion`). Nothing is allocated, read back or swapped on the host.
         """
         s = self.settings
         w, h = self.width, self.height
         dim = (h, w)
         d = self.device
+        if s.caustic_flow and caustic_flow is not None:
+            wp.launch(K.caustic_motion, dim=w * h, device=d,
+                      inputs=[motion, caustic_flow, w, h, s.flow_radius, s.flow_sigmas * s.flow_sigmas],
+                      outputs=[self.motion_used, self.flow_used])
+            motion = self.motion_used
+        elif s.caustic_flow:
+            self.flow_used.zero_()
         wp.launch(K.reproject_history, dim=dim, block_dim=K.REPROJECT_THREADS, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id, self.hist_surface, self.hist_mean,
                           self.hist_moments, self.hist_photon_var, self.parity, w, h, s.depth_tolerance,
-                          s.normal_tolerance],
+                          s.normal_tolerance, self.flow_used, float(s.flow_history)],
                   outputs=[self.depth, self.normal, self.prev_mean, self.prev_pairs, self.stats])
         m2 = photon_m2 if s.use_photon_m2 else None
         blocks, tiles_x = K.accumulate_blocks(w, h)

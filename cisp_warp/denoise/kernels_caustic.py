@@ -252,6 +252,8 @@ def reproject_history(
     height: int,
     depth_tolerance: float,
     normal_tolerance: float,
+    flow_used: wp.array(dtype=wp.float32),
+    flow_history: float,
     cur_depth: wp.array(dtype=wp.float32),
     cur_normal: wp.array(dtype=wp.vec3),
     prev_mean: wp.array(dtype=wp.vec3),
@@ -278,7 +280,10 @@ def reproject_history(
     ``normal_tolerance`` (as SVGF's reprojection); the consistent taps are renormalised, and fewer than
     ``MIN_BILINEAR_WEIGHT`` of the footprint means disoccluded. Where all 16 taps of the 4x4 footprint are
     consistent and the motion is fractional, the mean and (m1, m2) take the Catmull-Rom value instead, clamped
-    per component to the range of the 2x2 taps (module docstring); s², p² and n stay bilinear.
+    per component to the range of the 2x2 taps (module docstring); s², p² and n stay bilinear. Where ``flow_used``
+    (float32, 1 where ``motion`` is the caustic flow, :func:`caustic_motion`; an empty array: nowhere) is set, n is at
+    most ``flow_history``: a real caustic flow leaves a residual the change test does not see, which a long history
+    would accumulate (docs/perf_notes.md section 35).
     """
     y, x = wp.tid()
     p = y * width + x
@@ -398,7 +403,11 @@ def reproject_history(
                 m12 = wp.min(wp.max(cubic_m, lo_m), hi_m)
         prev_mean[p] = mean
         prev_pairs[p] = wp.vec3(moments[2] * inv, moments[3] * inv, photon_var * inv)
-        store_vec4(stats, p, wp.vec4(lum, m12[0], m12[1], frames * inv))
+        n_prev = frames * inv
+        if flow_used.shape[0] > 0:
+            if flow_used[p] > 0.0:  # fetched along the caustic flow: the history at most flow_history frames
+                n_prev = wp.min(n_prev, flow_history)
+        store_vec4(stats, p, wp.vec4(lum, m12[0], m12[1], n_prev))
     else:
         prev_mean[p] = wp.vec3(0.0)
         prev_pairs[p] = wp.vec3(0.0)
@@ -751,3 +760,40 @@ def accumulate_blocks(width: int, height: int) -> tuple[int, int]:
     """(blocks, tiles_x) of :func:`accumulate`."""
     tiles_x = (width + TILE_X - 1) // TILE_X
     return tiles_x * ((height + TILE_Y - 1) // TILE_Y), tiles_x
+
+
+@wp.kernel
+def caustic_motion(motion: wp.array(dtype=wp.vec2), flow: wp.array(dtype=wp.vec4), width: int, height: int, radius: int,
+                   sigmas2: float, motion_out: wp.array(dtype=wp.vec2), flow_used: wp.array(dtype=wp.float32)):
+    """The motion a pixel's history is fetched by: the caustic's own where the photon pass measured it and it differs
+    from the surface's significantly, else the surface's.
+
+    Reads ``motion`` (H*W vec2 [pixels], the G-buffer's: previous position minus pixel centre) and ``flow`` (H*W vec4:
+    Σ D, Σ s_D², count over the photons stored in the pixel whose light-space cell landed in both frames; D the cell's
+    previous mean landing minus its current one [pixels], s_D² its variance [pixels²]:
+    :mod:`cisp_warp.photons.caustic_flow`), pooled over the (2 ``radius`` + 1)² pixels around (``width`` ×
+    ``height`` image; a caustic's displacement varies slowly, its per-pixel estimate is noisy). The caustic flow is
+    the mean D̄ = Σ D / count, its variance at most the mean s_D² (photons of one cell share their D); it is used where |D̄ − motion|² > ``sigmas2`` · mean s_D² (k² of a
+    2-dof test: false alarm e^(−k²/2), 1.1% at k = 3, on a still caustic). Writes ``motion_out`` (vec2 [pixels])."""
+    p = wp.tid()
+    m = motion[p]
+    f = wp.vec4(0.0)
+    y = p // width
+    x = p - y * width
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            qx = x + dx
+            qy = y + dy
+            if qx >= 0 and qx < width and qy >= 0 and qy < height:
+                f = f + flow[qy * width + qx]
+    out = m
+    used = float(0.0)
+    if f[3] > 0.0:
+        inv = 1.0 / f[3]
+        c = wp.vec2(f[0] * inv, f[1] * inv)
+        dm = c - m
+        if wp.dot(dm, dm) > sigmas2 * f[2] * inv:
+            out = c
+            used = 1.0
+    motion_out[p] = out
+    flow_used[p] = used

@@ -197,12 +197,14 @@ def reproject_naive(depth: np.ndarray, normal: np.ndarray, motion: np.ndarray, h
 
 
 def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
-                           history: dict | None, settings, photon_m2: np.ndarray | None = None) -> dict:
+                           history: dict | None, settings, photon_m2: np.ndarray | None = None,
+                           flow_used: np.ndarray | None = None) -> dict:
     """The caustics denoiser's temporal stage (:mod:`cisp_warp.denoise.kernels_caustic`, equations in its
     docstring) for one frame, in float64. ``irradiance`` (H, W, 3) [W/m²]; ``depth`` (H, W) [m] (0 = none);
     ``normal`` (H, W, 3); ``motion`` (H, W, 2) [pixels]; ``history``: the previous call's result (None: none).
     ``settings``: a :class:`cisp_warp.denoise.CausticSettings`; ``photon_m2`` (H, W) [(W/m²)²]: Σ luminance(e)²
-    of the frame's photons per pixel, or None (read only with ``settings.use_photon_m2``). Returns dict(depth,
+    of the frame's photons per pixel, or None (read only with ``settings.use_photon_m2``); ``flow_used`` (H, W) bool:
+    where ``motion`` is the caustic flow, the history there at most ``settings.flow_history`` frames. Returns dict(depth,
     normal, mean (H, W, 3), moments (H, W, 4): m1, m2, s², kept change ratio, frames, photon_var (the running
     mean of the window's photon_m2), variance (variance of the accumulated luminance), slope) for the next call."""
     s = settings
@@ -219,6 +221,8 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
                                       ("mean", "moments", "frames", "photon_var"),
                                       s.depth_tolerance, s.normal_tolerance, cubic={"mean": (0, 1, 2), "moments": (0, 1)})
     n_prev = np.where(valid, prev["frames"], 0.0)
+    if flow_used is not None:
+        n_prev = np.where(flow_used, np.minimum(n_prev, settings.flow_history), n_prev)
     m1, m2, s2 = prev["moments"][..., 0], prev["moments"][..., 1], prev["moments"][..., 2]
     r_prev = prev["moments"][..., 3]  # the window's change ratio kept from the last frame
     res = {"depth": np.where(depth > 0, depth, 0.0), "normal": np.where(depth[..., None] > 0, normal, 0.0),
@@ -313,12 +317,18 @@ def caustic_temporal_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np
 
 
 def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.ndarray, motion: np.ndarray,
-                        history: dict | None, settings, photon_m2: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
-    """One frame of the caustics denoiser: :func:`caustic_temporal_naive` (``photon_m2`` as there), then
+                        history: dict | None, settings, photon_m2: np.ndarray | None = None,
+                        caustic_flow: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """One frame of the caustics denoiser: the motion from :func:`caustic_motion_naive` where ``caustic_flow``
+    ((H, W, 4)) is given and ``settings.caustic_flow`` set, :func:`caustic_temporal_naive` (``photon_m2`` as there), then
     ``settings.atrous_levels`` gated, energy-conserving levels of :func:`atrous_level_naive`. Returns (output
     (H, W, 3) [W/m²], the history for the next call)."""
     s = settings
-    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s, photon_m2)
+    flow_used = None
+    if s.caustic_flow and caustic_flow is not None:
+        motion, flow_used = caustic_motion_naive(motion, caustic_flow, s.flow_radius, s.flow_sigmas)
+        motion = motion.astype(np.float32)
+    t = caustic_temporal_naive(irradiance, depth, normal, motion, history, s, photon_m2, flow_used)
     color, variance = t["mean"], t["variance"]
     for level in range(s.atrous_levels):
         color, variance = atrous_level_naive(color, variance, t["depth"], t["normal"], 1 << level, s.sigma_depth,
@@ -326,3 +336,22 @@ def caustic_frame_naive(irradiance: np.ndarray, depth: np.ndarray, normal: np.nd
                                              noise_target=s.target(photon_m2 is not None),
                                              slope=t["slope"])
     return color, t
+
+
+def caustic_motion_naive(motion: np.ndarray, flow: np.ndarray, radius: int, sigmas: float) -> tuple[np.ndarray, np.ndarray]:
+    """Twin of :func:`cisp_warp.denoise.kernels_caustic.caustic_motion`: ``motion`` (H, W, 2) [pixels], ``flow``
+    (H, W, 4) (Σ D, Σ s_D², count per pixel); returns the (H, W, 2) motion the history is fetched by (the pooled
+    caustic flow of the (2 ``radius`` + 1)² neighbourhood where |D̄ − motion|² > ``sigmas``² · mean s_D², else
+    ``motion``) and where the flow was taken ((H, W) bool)."""
+    h, w = motion.shape[:2]
+    pad = np.zeros((h + 2 * radius, w + 2 * radius, 4))
+    pad[radius:radius + h, radius:radius + w] = flow
+    pooled = sum(pad[dy:dy + h, dx:dx + w] for dy in range(2 * radius + 1) for dx in range(2 * radius + 1))
+    out = motion.astype(np.float64).copy()
+    known = pooled[..., 3] > 0
+    n = np.where(known, pooled[..., 3], 1.0)
+    mean = pooled[..., :2] / n[..., None]
+    dist2 = ((mean - motion) ** 2).sum(-1)
+    use = known & (dist2 > sigmas * sigmas * pooled[..., 2] / n)
+    out[use] = mean[use]
+    return out, use

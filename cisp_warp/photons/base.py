@@ -174,6 +174,8 @@ class PhotonPass:
     #: the photons that land where the camera cannot see, per light view (``hidden_flux.HiddenFlux``), for the
     #: composite's hidden hits; a method that keeps them sets it (:meth:`keep_hidden`), else None
     hidden = None
+    #: the caustic flow (``caustic_flow.CausticFlow``) where a denoiser asked for it (:meth:`keep_caustic_flow`), else None
+    flow = None
 
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
@@ -240,6 +242,12 @@ class PhotonPass:
         """Allocate ``photon_m2`` for ``n`` camera pixels: a method whose photons are stored by ``common.deposit``
         as points calls this once at set-up."""
         self.photon_m2 = wp.zeros(n, dtype=wp.float32, device=self.device)
+
+    def keep_caustic_flow(self, width: int, height: int) -> None:
+        """Allocate ``flow`` (:class:`~.caustic_flow.CausticFlow`: each camera pixel's caustic motion, from where the
+        photons of the same light-space cells landed the frame before) for a ``width`` × ``height`` camera: called once
+        at set-up by a renderer whose denoiser reads it; a method that cannot keep it raises."""
+        raise SceneError(f"method {self.name!r} keeps no caustic flow (cisp with point splats does)")
 
     def keep_hidden(self) -> None:
         """Allocate ``hidden`` (every light view's hidden flux map): a method that stores photons the camera does not

@@ -45,6 +45,9 @@ class CISP(PhotonPass):
         #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_photons)
         self.outcome = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
         self.wavefront = None
+        # the trace's flow inputs while no caustic flow is kept (flow_args): allocated here, not in a captured frame
+        self._no_flow = [1, 1, 0, wp.zeros((2, 1), dtype=wp.vec4, device=self.device),
+                         wp.zeros(1, dtype=wp.int32, device=self.device), wp.zeros(0, dtype=wp.vec2i, device=self.device), 0]
         if settings.splat == "point":
             self.keep_photon_m2(gbuffer.width * gbuffer.height)
             self.keep_hidden()
@@ -68,6 +71,21 @@ class CISP(PhotonPass):
             lm.keep_depth_bounds(bounds, settings.thickness, settings.thickness_rel)
         gbuffer.keep_depth_bounds(self.cam_bounds, settings.thickness, settings.thickness_rel)
 
+    def keep_caustic_flow(self, width: int, height: int) -> None:
+        if self.settings.splat != "point":
+            super().keep_caustic_flow(width, height)
+        if self.flow is None:
+            from .caustic_flow import CausticFlow
+
+            self.flow = CausticFlow(self.lights, self.settings.photons, self.max_photons_per_view(), width, height,
+                                    self.device)
+
+    def flow_args(self, b) -> list:
+        """The trace kernel's last eight inputs for batch ``b``: its light's caustic-flow cells, or empty ones."""
+        if self.flow is not None:
+            return self.flow.trace_args(b.light_index, b.view_index)
+        return [b.lights.views] + self._no_flow
+
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
 
@@ -90,6 +108,8 @@ class CISP(PhotonPass):
         s = self.settings
         self.frame_inputs(camera, frame)
         self.begin()
+        if self.flow is not None:
+            self.flow.begin()
         # from the depth with its back-face layer, which the camera marches read (march.depth_bounds widens a cell by
         # the layer's far sides): bounds of the front depth alone let 1.2% of the Cornell box's camera marches skip a
         # cell where the naive march ends in an object's hidden half (branch hiermarch, perf_notes section 30)
@@ -112,5 +132,7 @@ class CISP(PhotonPass):
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
                 self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None, self.outcome,
-                *self.hidden_args(b)])
+                *self.hidden_args(b), *self.flow_args(b)])
             self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)
+        if self.flow is not None:
+            self.flow.finish()

@@ -15,6 +15,7 @@ from ..raster.views import ViewParams, read_again, world_project
 from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
                      PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
                      photon_index, tally_new)
+from .caustic_flow import add_landing, flow_cell
 from .hidden_flux import store_hidden
 from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, counted_marches, screen_march_bounded,
                     screen_march_bounded_plain, surface_far)
@@ -293,7 +294,7 @@ def _make_trace(counted: bool):
         Every photon with a landing point is also added to ``hidden_flux`` there (:func:`~.hidden_flux.store_hidden`;
         its booking unchanged): one the camera sees (stored or rejected) and one whose light-view march landed
         (``MARCH_HIT``) where the camera does not see (``L_OCCLUDED``, or ``L_LOST_CAMERA`` outside the image) and no
-        camera march stored."""
+        camera march stored. Returns (1 if stored, else 0; the landing point [m]; its camera pixel)."""
         o_l = origin + d * (1.0e-4 * t_max)  # march_light's march, its work kept where counted
         status, t_l, work_l = light_march(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, o_l, d, t_max,
                                           max_steps, thickness, thickness_rel)
@@ -340,19 +341,21 @@ def _make_trace(counted: bool):
                     phases = phases | COUNT_HIDDEN
             if wp.static(counted):
                 write_counts(hits, k, work_l, work_0, work_1, phases)
-            return
+            return int(0), x_end, pix
         # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
         # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
         x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
                                     thickness, thickness_rel)
         store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
         # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
-        if deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal, cam_solid_angle, footprint_mode,
-                   photon_map, photon_m2, tally) != 0:
+        stored = deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal,
+                         cam_solid_angle, footprint_mode, photon_map, photon_m2, tally)
+        if stored != 0:
             if hits.shape[0] > 0:
                 hits[k] = wp.vec4(x_end[0], x_end[1], x_end[2], float(pix))
         if wp.static(counted):
             write_counts(hits, k, work_l, work_0, work_1, phases | COUNT_REFINE | COUNT_HIDDEN | COUNT_DEPOSIT)
+        return stored, x_end, pix
 
 
     def trace_photons(
@@ -408,6 +411,14 @@ def _make_trace(counted: bool):
         hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
         hidden_w: int,  # its texels per whole view, across
         hidden_h: int,  # and down
+        flow_views: wp.array(dtype=ViewParams),  # the light's whole views, of the caustic flow's cells (read)
+        flow_w: int,  # cells per whole view, across
+        flow_h: int,  # and down
+        flow_base: int,  # the light's first cell
+        flow_cells: wp.array2d(dtype=wp.vec4),  # (2, cells) caustic_flow.CausticFlow.cells (accumulate this frame's row)
+        flow_parity: wp.array(dtype=wp.int32),  # (1,) its parity (read)
+        flow_records: wp.array(dtype=wp.vec2i),  # per slot (cell + 1, pixel) where stored (write; empty: no flow kept)
+        flow_offset: int,  # this view's first record
     ):
         """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
         ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
@@ -447,10 +458,17 @@ def _make_trace(counted: bool):
         ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
         tally = tally_new()
         if texel >= 0:  # the views are read again where each march needs them (trace_photon)
-            trace_photon(k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
-                         cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
-                         thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_views,
-                         hidden_flux, hidden_w, hidden_h)
+            stored, x_end, pix = trace_photon(
+                k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras, cam_depth,
+                cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel, t_max,
+                footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_views, hidden_flux, hidden_w,
+                hidden_h)
+            if stored != 0 and flow_records.shape[0] > 0:  # the caustic flow (caustic_flow.py): its cell's landings
+                camera = read_again(cameras, 0, pix)
+                cell = flow_cell(flow_views, flow_w, flow_h, origin)
+                add_landing(flow_cells, flow_parity, flow_records, flow_offset + t,
+                            wp.where(cell >= 0, cell + flow_base, -1), pix, world_project(camera, x_end), camera.width,
+                            camera.height)
         if t < n_slots:
             record_outcome(outcome, t, tally)
 
