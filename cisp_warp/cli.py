@@ -49,6 +49,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="photon-map denoiser: caustic (accumulates the raw photon map over frames, reacting where "
                    "the caustic changes, and filters the noise left), SVGF (the paper's), the 7x7 Gaussian gather "
                    "of Caustics Mapping, or none")
+    p.add_argument("--no-caustic-flow", action="store_true",
+                   help="caustic denoiser with cisp: follow only the surfaces' motion with the history, not the caustic's "
+                   "own (by default cisp measures where the photons of the same light-space cell landed the frame "
+                   "before, and the history follows a moving caustic along it)")
     p.add_argument("--hidden-rays", default="refracted", choices=["refracted", "both", "none"],
                    help="the composite's view rays that the screen-space march loses (behind a wall, off screen), "
                    "traced on the opaque layer's BVH and shaded with the caustic the photons left there: refracted "
@@ -223,6 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     from .image_io import check_out_dir
     from .photons import PhotonSettings
+    from .denoise import CausticSettings
     from .raster import LightViewSettings
     from .render import Renderer, RenderSettings, SettingsError
     from .usd import load_usd
@@ -255,6 +260,7 @@ def main(argv: list[str] | None = None) -> int:
             settings = RenderSettings(width=args.width, height=args.height, rsm_size=args.rsm_size,
                                       method=args.method, photons=photons, denoiser=args.denoiser,
                                       supersample=args.supersample, hidden_rays=args.hidden_rays,
+                                      caustic=CausticSettings(caustic_flow=not args.no_caustic_flow),
                                       light_views=LightViewSettings(fit=args.light_views, cascades=args.light_cascades))
         except SettingsError as e:
             raise SceneError(flag_of(e)) from None

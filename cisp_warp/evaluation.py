@@ -53,9 +53,10 @@ REFERENCE_REVISION = "sky"
 
 #: the renderer's denoisers every method is measured with, and caustics_map's own filters (seed 004)
 DENOISERS = ("caustic", "svgf", "none", "own")
-#: the caustics denoiser with the caustic flow (``CausticSettings.caustic_flow``, cisp only; opt-in, not in DENOISERS:
-#: docs/perf_notes.md section 35), for the stability suite's ``--denoisers``
-FLOW_DENOISER = "caustic-flow"
+#: the caustics denoiser without the caustic flow (``CausticSettings.caustic_flow`` False: its history follows the
+#: surface's motion only, the default before docs/perf_notes.md section 35; cisp only, the other methods have no
+#: flow), not in DENOISERS: for the stability suite's ``--denoisers``
+SURFACE_DENOISER = "caustic-surface"
 
 
 @dataclass(frozen=True)
@@ -86,9 +87,9 @@ class Config:
 
 
 def applicable(method: str, denoiser: str) -> bool:
-    """``own`` (seed 004's filters) belongs to caustics_map alone, ``caustic-flow`` to cisp alone; every other
+    """``own`` (seed 004's filters) belongs to caustics_map alone, ``caustic-surface`` to cisp alone; every other
     denoiser to every method."""
-    if denoiser == FLOW_DENOISER:
+    if denoiser == SURFACE_DENOISER:
         return method == "cisp"
     return denoiser in DENOISERS and (denoiser != "own" or method == "caustics_map")
 
@@ -103,11 +104,11 @@ def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSet
         photons = replace(photons, cmap_gather="light" if own else "eye", cmap_history=4 if own else 1)
         return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons,
                               denoiser="none" if own else cfg.denoiser)
-    if cfg.denoiser == FLOW_DENOISER:
+    if cfg.denoiser == SURFACE_DENOISER:
         if cfg.splat != "point":
-            raise ValueError(f"denoiser {FLOW_DENOISER!r} needs point splats")
+            raise ValueError(f"denoiser {SURFACE_DENOISER!r} needs point splats")
         return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser="caustic",
-                              caustic=CausticSettings(caustic_flow=True))
+                              caustic=CausticSettings(caustic_flow=False))
     return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser=cfg.denoiser)
 
 
