@@ -574,7 +574,8 @@ def test_shadow_maps_are_kept_only_while_their_inputs_stand_still(device):
     device): with nothing moved a poisoned map stays poisoned (nothing drawn); after 3 frames the maps and the
     direct light equal a fresh renderer's first frame, and the naive path's (``cache_shadows = False``, which draws
     every frame: the poison is overwritten); a moved light, moved opaque triangles (their generation counted) and
-    simulated water each redraw, equal bit for bit to a fresh renderer of the moved scene."""
+    simulated water each redraw, equal bit for bit to a fresh renderer of the moved scene; the water drawn over the
+    kept opaque keys (``_ShadowView.split``) equals the naive path's one draw of both layers."""
     from dataclasses import replace
 
     from cisp_warp.animation import WaterSimulation
@@ -664,6 +665,27 @@ def test_shadow_maps_are_kept_only_while_their_inputs_stand_still(device):
         if k != "direct":
             np.testing.assert_array_equal(waves[k], v, err_msg=k)
     assert not np.array_equal(waves["1_0"], moved["1_0"])
+    # the pool's opaque keys are kept apart (its water moves, its opaque triangles do not): a water frame draws the
+    # water alone over them (emptied keys stay empty: the sun's map loses the deck), and equals the naive path
+    assert all(s.split for lm in r.lights for s in lm._shadows)
+    r.lights[0]._shadows[0].opaque_keys.fill_(RK.EMPTY_KEY_VALUE)
+    r.gpu.begin_frame()
+    sim.update(1.3)
+    r.render_frame()
+    lost = r.lights[0]._shadows[0].depth.numpy().copy()
+    for lm in r.lights:
+        lm.cache_shadows = False
+    r.render_frame()
+    naive = _shadow_state(r)
+    assert (lost == 0).sum() > (naive["0_0"] == 0).sum()
+    for lm in r.lights:
+        lm.cache_shadows = True
+    r.gpu.geometry_moved(LAYER_OPAQUE)
+    _poison_shadows(r)
+    r.render_frame()
+    for k, v in _shadow_state(r).items():
+        if k != "direct":
+            np.testing.assert_array_equal(naive[k], v, err_msg=k)
 
 
 def test_redraw_gate_compares_views_bit_for_bit(device):

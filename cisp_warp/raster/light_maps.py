@@ -170,13 +170,49 @@ def _same_params(a: ViewParams, rec) -> bool:
             and all(np.float32(getattr(a, f)) == np.float32(rec[f]) for f in ("fx", "fy", "cx", "cy", "near", "far")))
 
 
+@wp.kernel
+def clear_keys_if_drawn(draw: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.uint64)):
+    """Fill ``keys`` with EMPTY_KEY when ``draw[0]`` is drawn this frame (``redraw_gate``), else leave them."""
+    if draw[0].far <= INACTIVE_FAR:
+        return
+    keys[wp.tid()] = K.EMPTY_KEY
+
+
+@wp.kernel
+def resolve_depth_over(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
+    view_index: int,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) the layers drawn this frame (read, then reset to EMPTY_KEY)
+    under: wp.array(dtype=wp.uint64),  # (H*W,) keys of the layers kept from an earlier frame (read)
+    points: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m] of the nearest surface of all of them (write)
+):
+    """``kernels.resolve_depth`` (depth only) of the nearer of two keys per texel: the minimum of the keys drawn into
+    two buffers is the key one draw of both layers into one buffer leaves (``atomic_min`` of their union), so the
+    depth is that draw's bit for bit. An inactive view returns at once."""
+    view = views[view_index]
+    if view.far <= INACTIVE_FAR:
+        return
+    p = wp.tid()
+    key = K.take_key(visibility, p)
+    u = under[p]
+    if u < key:
+        key = u
+    tri, t, x, bary, d = K.triangle_hit(view, key, p, points, indices)
+    depth[p] = t
+
+
 class _ShadowView:
     """A depth-only view of every layer (a shadow map), drawn only when its view or the geometry moved
-    (:func:`redraw_gate`)."""
+    (:func:`redraw_gate`). ``split`` (a scene whose specular triangles may move and whose opaque ones may not, such
+    as the pool's water): the opaque layer's keys are kept in ``opaque_keys``, drawn only when the view or the
+    opaque triangles moved, and a frame whose water moved draws the specular layer alone and resolves the nearer of
+    the two keys per texel (``resolve_depth_over``): the same depth bit for bit as one draw of both layers."""
 
     LAYERS = LAYER_OPAQUE | LAYER_SPECULAR
 
-    def __init__(self, view: View, device):
+    def __init__(self, view: View, device, split: bool = False):
         n = view.width * view.height
         self.view, self.params = view, view.params()
         self.views = wp.array([self.params], dtype=ViewParams, device=device)
@@ -186,22 +222,39 @@ class _ShadowView:
         self.draw_view = wp.zeros(1, dtype=ViewParams, device=device)  #: the view drawn this frame (``redraw_gate``)
         self.drawn_words = wp.zeros(VIEW_WORDS, dtype=wp.uint32, device=device)  #: zeros: no view, the first draws
         self.drawn_generation = wp.zeros(LAYER_BITS, dtype=wp.int32, device=device)
+        self.split = bool(split)
+        if self.split:
+            self.opaque_keys = visibility_buffer(n, device)  #: (H*W,) uint64: the opaque layer's keys, kept
+            self.draw_opaque = wp.zeros(1, dtype=ViewParams, device=device)
+            self.drawn_opaque_words = wp.zeros(VIEW_WORDS, dtype=wp.uint32, device=device)
+            self.drawn_opaque_generation = wp.zeros(LAYER_BITS, dtype=wp.int32, device=device)
 
     def set_view(self, view: View) -> None:
         self.view, self.params = view, view.params()
         self.views.assign([self.params])
 
     def render(self, raster: Rasterizer, cache: bool = True) -> None:
-        """Draw and resolve the map; with ``cache``, only when :func:`redraw_gate` says its inputs changed (the
-        launches are the same either way: the gate's view draws nothing when they did not)."""
+        """Draw and resolve the map; with ``cache``, only what :func:`redraw_gate` says changed (the launches are
+        the same every frame: a gate's view draws nothing when its inputs stood still). Without ``cache`` (the
+        naive path) both layers are drawn into one buffer and resolved every frame."""
         s = raster.scene
         w, h = self.view.width, self.view.height
         wp.launch(redraw_gate, dim=1, device=s.device,
                   inputs=[self.views, self._words, 0, s.generation, self.LAYERS, int(not cache), self.drawn_words,
                           self.drawn_generation, self.draw_view])
-        raster.draw(self.draw_view, 0, w, h, self.LAYERS, self.visibility, clear=False)
-        wp.launch(K.resolve_depth, dim=w * h, device=s.device,
-                  inputs=[self.draw_view, 0, self.visibility, s.points, s.indices, self.depth, None])  # depth only
+        if not (cache and self.split):
+            raster.draw(self.draw_view, 0, w, h, self.LAYERS, self.visibility, clear=False)
+            wp.launch(K.resolve_depth, dim=w * h, device=s.device,
+                      inputs=[self.draw_view, 0, self.visibility, s.points, s.indices, self.depth, None])  # depth only
+            return
+        wp.launch(redraw_gate, dim=1, device=s.device,
+                  inputs=[self.views, self._words, 0, s.generation, LAYER_OPAQUE, 0, self.drawn_opaque_words,
+                          self.drawn_opaque_generation, self.draw_opaque])
+        wp.launch(clear_keys_if_drawn, dim=w * h, device=s.device, inputs=[self.draw_opaque, self.opaque_keys])
+        raster.draw(self.draw_opaque, 0, w, h, LAYER_OPAQUE, self.opaque_keys, clear=False)
+        raster.draw(self.draw_view, 0, w, h, LAYER_SPECULAR, self.visibility, clear=False)
+        wp.launch(resolve_depth_over, dim=w * h, device=s.device,
+                  inputs=[self.draw_view, 0, self.visibility, self.opaque_keys, s.points, s.indices, self.depth])
 
 
 def _params_of_record(rec) -> ViewParams:
@@ -338,7 +391,11 @@ class LightMaps:
             for s, v in zip(self._shadows, views):
                 s.set_view(v)
         else:
-            self._shadows = [_ShadowView(v, self.scene.device) for v in views]
+            # the opaque keys kept apart where only the specular triangles may move (the pool's water)
+            dyn, has = self.scene.dynamic_layers, self.scene.has_layer
+            split = (has[LAYER_OPAQUE] and has[LAYER_SPECULAR] and (dyn & LAYER_SPECULAR) != 0
+                     and (dyn & LAYER_OPAQUE) == 0)
+            self._shadows = [_ShadowView(v, self.scene.device, split) for v in views]
 
     @property
     def whole_rsm(self) -> list[RSMView]:
