@@ -583,7 +583,7 @@ def test_shadow_maps_are_kept_only_while_their_inputs_stand_still(device):
     from cisp_warp.render import Renderer, RenderSettings
     from cisp_warp.usd import load_usd
 
-    settings = RenderSettings(method="cisp", rsm_size=48, denoiser="none", photons=PhotonSettings(photons=500))
+    settings = RenderSettings(method="cisp", rsm_size=50, denoiser="none", photons=PhotonSettings(photons=500))  # 2500 texels: a partial last stride of 8
 
     def renderer(points=None, normals=None, lights=None):
         scene = load_usd("scenes_usd/pool.usda", width=32, height=24)
