@@ -517,8 +517,9 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
 
 @pytest.mark.parametrize("size", [(48, 32), (70, 45)])
 def test_fused_back_resolve_is_its_twins(device, size):
-    """``resolve_back_view`` (the camera's back-face layer and the depth bounds of both layers in one tiled pass)
-    fills ``depth_layers`` exactly as ``resolve_back`` and the bounds exactly as ``depth_bounds`` (with the back-face
+    """``resolve_camera`` (both layers of the camera in one pass) fills every G-buffer AOV exactly as
+    ``resolve_opaque`` + ``resolve_specular``, and ``resolve_back_view`` (the camera's back-face layer and the depth
+    bounds of both layers in one tiled pass) fills ``depth_layers`` exactly as ``resolve_back`` and the bounds exactly as ``depth_bounds`` (with the back-face
     layer) + ``coarsen_bounds``, from two cameras in a closed room and an open one (pixels with no surface), on
     images that are not a multiple of a coarse cell."""
     from cisp_warp.photons.cisp import build_bounds
@@ -536,15 +537,22 @@ def test_fused_back_resolve_is_its_twins(device, size):
             g.fused_resolve = fused
             bounds = wp.full(bounds_size(w, h), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=device)
             g.keep_depth_bounds(bounds, 0.03, 0.02)
-            for cam in cams:
+            prev = camera_view(cams[0]).params()
+            for cam in cams:  # the second camera's motion vectors against the first
                 v = camera_view(cam).params()
-                g.render(raster, v, v)
+                g.render(raster, v, prev)
+                prev = v
             assert g.builds_depth_bounds(bounds) == fused
             if not fused:
                 build_bounds(g.depth_layers, w, h, 0.03, 0.02, bounds, device)
-            out.append((g.depth_layers.numpy(), bounds.numpy(), g.visibility.numpy()))
-        for a, b in zip(*out):
+            out.append((g.depth_layers.numpy(), bounds.numpy(), g.visibility.numpy(), g.water.visibility.numpy(),
+                        g.numpy()))
+        for a, b in zip(out[0][:4], out[1][:4]):
             np.testing.assert_array_equal(a, b)
+        assert out[0][4].keys() == out[1][4].keys()
+        for k in out[0][4]:  # every G-buffer AOV: resolve_camera against resolve_opaque + resolve_specular
+            np.testing.assert_array_equal(out[0][4][k], out[1][4][k], err_msg=k)
+        assert (out[0][4]["water_tri_id"] >= 0).any() and (np.abs(out[0][4]["motion"]) > 0.5).any()
         back = out[0][0][w * h:]
         assert (back > 0).any() and (out[0][1][:, 1] > 0).all()
         front_only = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
