@@ -534,7 +534,7 @@ def test_fused_back_resolve_is_its_twins(device, size):
         out = []
         for fused in (True, False):
             g = GBuffer.allocate(w, h, device)
-            g.fused_resolve = fused
+            g.fused_resolve = g.fused_layers = fused
             bounds = wp.full(bounds_size(w, h), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=device)
             g.keep_depth_bounds(bounds, 0.03, 0.02)
             prev = camera_view(cams[0]).params()
@@ -737,3 +737,12 @@ def test_redraw_gate_compares_views_bit_for_bit(device):
     assert gate(1) == 0.0 and gate(0) == 0.0
     scene = make_scene(box_room(), Camera(look_at_matrix((0, 0, 1), (0, 0, 0))))
     assert DeviceScene(scene, device).dynamic_layers == LAYER_OPAQUE | LAYER_SPECULAR
+    # the gated clear of kept keys: every key when the view is drawn (2501 keys: a partial last stride), none when not
+    from cisp_warp.raster.light_maps import SHADOW_TEXELS_PER_THREAD, clear_keys_if_drawn
+
+    keys = wp.full(2501, 5, dtype=wp.uint64, device=device)
+    threads = (2501 + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD
+    for far, expect in ((0.0, 5), (2.0, RK.EMPTY_KEY_VALUE)):
+        w2.far = far
+        wp.launch(clear_keys_if_drawn, dim=threads, device=device, inputs=[wp.array([w2], dtype=ViewParams, device=device), keys])
+        assert np.all(keys.numpy() == np.uint64(expect))

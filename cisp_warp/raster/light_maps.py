@@ -119,12 +119,10 @@ def cascade_solid_angles(views: wp.array(dtype=ViewParams), states: wp.array(dty
 
 #: 32-bit words of one ViewParams (compared bit for bit by :func:`redraw_gate`)
 VIEW_WORDS = wp.types.type_size_in_bytes(ViewParams) // 4
-# redraw_gate's loops over the 41 words unrolled (Warp's default unrolls up to 16): its loads then issue together
-# instead of one L2 round trip after the other (5.5 -> ~2.5 µs a gate on the H100); no other loop of this module has
-# a constant trip count between 16 and 64
-wp.set_module_options({"max_unroll": 64})
-#: texels each thread of the shadow maps' clear and resolve covers (coalesced stride): a map that stands still costs
-#: one flag read per thread, so fewer threads (4M threads that return at once cost ~15 µs a 2048² map on the H100)
+#: texels each thread of :func:`clear_keys_if_drawn` covers (coalesced stride): a clear that is skipped costs one flag
+#: read per thread, so fewer threads (H100, 2048²: 14 -> 5.5 µs). Not the resolve's: drawn, 8 texels a thread took
+#: 0.144 ms for the pool's two maps against 0.117 at one (a skipped one 0.015 against 0.031), and the water moves
+#: every frame of an animation (perf_notes 34)
 SHADOW_TEXELS_PER_THREAD = wp.constant(8)
 
 
@@ -204,23 +202,17 @@ def resolve_depth_over(
 ):
     """``kernels.resolve_depth`` (depth only) of the nearer of two keys per texel: the minimum of the keys drawn into
     two buffers is the key one draw of both layers into one buffer leaves (``atomic_min`` of their union), so the
-    depth is that draw's bit for bit. An inactive view returns at once. ``ceil(H*W / SHADOW_TEXELS_PER_THREAD)``
-    threads, thread t resolving texels t, t + threads, ... (a warp reads consecutive texels)."""
+    depth is that draw's bit for bit. An inactive view returns at once."""
     view = views[view_index]
     if view.far <= INACTIVE_FAR:
         return
-    t = wp.tid()
-    n = depth.shape[0]
-    threads = (n + SHADOW_TEXELS_PER_THREAD - 1) / SHADOW_TEXELS_PER_THREAD
-    for i in range(SHADOW_TEXELS_PER_THREAD):
-        p = t + i * threads
-        if p < n:
-            key = K.take_key(visibility, p)
-            u = under[p]
-            if u < key:
-                key = u
-            tri, z, x, bary, d = K.triangle_hit(view, key, p, points, indices)
-            depth[p] = z
+    p = wp.tid()
+    key = K.take_key(visibility, p)
+    u = under[p]
+    if u < key:
+        key = u
+    tri, z, x, bary, d = K.triangle_hit(view, key, p, points, indices)
+    depth[p] = z
 
 
 class _ShadowView:
@@ -274,7 +266,7 @@ class _ShadowView:
         wp.launch(clear_keys_if_drawn, dim=threads, device=s.device, inputs=[self.draw_opaque, self.opaque_keys])
         raster.draw(self.draw_opaque, 0, w, h, LAYER_OPAQUE, self.opaque_keys, clear=False)
         raster.draw(self.draw_view, 0, w, h, LAYER_SPECULAR, self.visibility, clear=False)
-        wp.launch(resolve_depth_over, dim=threads, device=s.device,
+        wp.launch(resolve_depth_over, dim=w * h, device=s.device,
                   inputs=[self.draw_view, 0, self.visibility, self.opaque_keys, s.points, s.indices, self.depth])
 
 

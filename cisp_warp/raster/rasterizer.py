@@ -188,11 +188,14 @@ class GBuffer(_Buffers):
     #: draw the back-face layer (False: its half of ``depth_layers`` is zeroed each frame instead, every surface keeps
     #: the constant thickness, as before the layer existed)
     back_faces: bool = True
-    #: True (default): both layers are resolved in one pass (``kernels.resolve_camera``), and the back-face layer with
-    #: the depth bounds a photon pass asked for (:meth:`keep_depth_bounds`) in one pass (``kernels.resolve_back_view``);
-    #: False: their twins ``resolve_opaque`` + ``resolve_specular`` and ``resolve_back`` (the photon pass then builds
-    #: its bounds itself). The same buffers bit for bit
+    #: True (default): the back-face layer is resolved with the depth bounds a photon pass asked for
+    #: (:meth:`keep_depth_bounds`) in one pass (``kernels.resolve_back_view``); False: its twin ``resolve_back`` (the
+    #: photon pass then builds its bounds itself). The same buffers bit for bit
     fused_resolve: bool = True
+    #: True: both layers resolved in one pass (``kernels.resolve_camera``); False (default): its twins
+    #: ``resolve_opaque`` + ``resolve_specular``. The same buffers bit for bit; the fused pass lost on the H100
+    #: (perf_notes 34: pool 0.129 -> 0.151 ms, Cornell 0.089 -> 0.097), so it is opt-in
+    fused_layers: bool = False
     _bounds: tuple | None = None  #: (bounds array, thickness, thickness_rel) of :meth:`keep_depth_bounds`
 
     def keep_depth_bounds(self, bounds: wp.array, thickness: float, thickness_rel: float) -> None:
@@ -228,7 +231,7 @@ class GBuffer(_Buffers):
             views = view_array([views, views if prev_view is None else prev_view], s.device)
         raster.draw(views, 0, self.width, self.height, LAYER_OPAQUE, self.visibility, clear=False,
                     layer_b=LAYER_SPECULAR, visibility_b=self.water.visibility)  # both layers in one pass
-        if self.fused_resolve:  # both layers in one pass
+        if self.fused_layers:  # both layers in one pass
             w = self.water
             wp.launch(K.resolve_camera, dim=self.width * self.height, device=s.device,
                       inputs=[views, 0, 1, self.visibility, w.visibility, s.points, s.prev_points, s.normals,
