@@ -88,9 +88,12 @@ class WaterSimulation:
         return len(self.meshes)
 
     def update(self, t: float) -> None:
-        """Simulate every water mesh at time ``t`` [s], written in place."""
+        """Simulate every water mesh at time ``t`` [s], written in place (a move of their layers counted,
+        ``DeviceScene.geometry_moved``)."""
         for mesh in self.meshes:
             mesh.update(t)
+        if self.meshes:
+            self.gpu.geometry_moved()
 
 
 class StageClock:

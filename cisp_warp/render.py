@@ -293,9 +293,9 @@ class Renderer:
 
     def _steady_key(self) -> tuple:
         """What a captured frame bakes in besides ``inputs``: the lights (a moved light re-fits its whole views on
-        the host) and whether the sky's maps are drawn."""
+        the host), whether their shadow maps are kept while still, and whether the sky's maps are drawn."""
         sky = None if self.sky is None else (self.sky.dynamic, self.sky._drawn)
-        return tuple(id(lm.light) for lm in self.lights) + (sky,)
+        return tuple((id(lm.light), lm.cache_shadows) for lm in self.lights) + (sky,)
 
     def render_frame(self, timer=None, graph: bool | None = None) -> None:
         """Raster, light, trace photons, denoise and composite one frame; everything stays on the device.

@@ -517,8 +517,9 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
 
 @pytest.mark.parametrize("size", [(48, 32), (70, 45)])
 def test_fused_back_resolve_is_its_twins(device, size):
-    """``resolve_back_view`` (the camera's back-face layer and the depth bounds of both layers in one tiled pass)
-    fills ``depth_layers`` exactly as ``resolve_back`` and the bounds exactly as ``depth_bounds`` (with the back-face
+    """``resolve_camera`` (both layers of the camera in one pass) fills every G-buffer AOV exactly as
+    ``resolve_opaque`` + ``resolve_specular``, and ``resolve_back_view`` (the camera's back-face layer and the depth
+    bounds of both layers in one tiled pass) fills ``depth_layers`` exactly as ``resolve_back`` and the bounds exactly as ``depth_bounds`` (with the back-face
     layer) + ``coarsen_bounds``, from two cameras in a closed room and an open one (pixels with no surface), on
     images that are not a multiple of a coarse cell."""
     from cisp_warp.photons.cisp import build_bounds
@@ -533,20 +534,215 @@ def test_fused_back_resolve_is_its_twins(device, size):
         out = []
         for fused in (True, False):
             g = GBuffer.allocate(w, h, device)
-            g.fused_resolve = fused
+            g.fused_resolve = g.fused_layers = fused
             bounds = wp.full(bounds_size(w, h), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=device)
             g.keep_depth_bounds(bounds, 0.03, 0.02)
-            for cam in cams:
+            prev = camera_view(cams[0]).params()
+            for cam in cams:  # the second camera's motion vectors against the first
                 v = camera_view(cam).params()
-                g.render(raster, v, v)
+                g.render(raster, v, prev)
+                prev = v
             assert g.builds_depth_bounds(bounds) == fused
             if not fused:
                 build_bounds(g.depth_layers, w, h, 0.03, 0.02, bounds, device)
-            out.append((g.depth_layers.numpy(), bounds.numpy(), g.visibility.numpy()))
-        for a, b in zip(*out):
+            out.append((g.depth_layers.numpy(), bounds.numpy(), g.visibility.numpy(), g.water.visibility.numpy(),
+                        g.numpy()))
+        for a, b in zip(out[0][:4], out[1][:4]):
             np.testing.assert_array_equal(a, b)
+        assert out[0][4].keys() == out[1][4].keys()
+        for k in out[0][4]:  # every G-buffer AOV: resolve_camera against resolve_opaque + resolve_specular
+            np.testing.assert_array_equal(out[0][4][k], out[1][4][k], err_msg=k)
+        assert (out[0][4]["water_tri_id"] >= 0).any() and (np.abs(out[0][4]["motion"]) > 0.5).any()
         back = out[0][0][w * h:]
         assert (back > 0).any() and (out[0][1][:, 1] > 0).all()
         front_only = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
         build_bounds(wp.array(out[0][0][: w * h], dtype=wp.float32, device=device), w, h, 0.03, 0.02, front_only, device)
         assert (front_only.numpy()[:, 1] < out[0][1][:, 1]).any()  # the back-face layer widens some cells
+
+
+def _shadow_state(r):
+    """Every shadow map's depth and the direct irradiance of a renderer, copied."""
+    out = {f"{li}_{k}": s.depth.numpy().copy() for li, lm in enumerate(r.lights) for k, s in enumerate(lm._shadows)}
+    out["direct"] = r.direct.irradiance.numpy().copy()
+    return out
+
+
+def _poison_shadows(r):
+    for lm in r.lights:
+        for s in lm._shadows:
+            s.depth.fill_(-1.0)
+
+
+def _poisoned(r) -> list[bool]:
+    return [bool(np.all(s.depth.numpy() == -1.0)) for lm in r.lights for s in lm._shadows]
+
+
+def test_shadow_maps_are_kept_only_while_their_inputs_stand_still(device):
+    """A shadow map is drawn only in frames where its view or the triangles it draws moved (``redraw_gate``, on the
+    device): with nothing moved a poisoned map stays poisoned (nothing drawn); after 3 frames the maps and the
+    direct light equal a fresh renderer's first frame, and the naive path's (``cache_shadows = False``, which draws
+    every frame: the poison is overwritten); a moved light, moved opaque triangles (their generation counted) and
+    simulated water each redraw, equal bit for bit to a fresh renderer of the moved scene; the water drawn over the
+    kept opaque keys (``_ShadowView.split``) equals the naive path's one draw of both layers."""
+    from dataclasses import replace
+
+    from cisp_warp.animation import WaterSimulation
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.render import Renderer, RenderSettings
+    from cisp_warp.usd import load_usd
+
+    settings = RenderSettings(method="cisp", rsm_size=50, denoiser="none", photons=PhotonSettings(photons=500))  # 2500 texels: a partial last stride of 8
+
+    def renderer(points=None, normals=None, lights=None):
+        scene = load_usd("scenes_usd/pool.usda", width=32, height=24)
+        if lights is not None:
+            scene.lights = lights
+        r = Renderer(scene, settings, device=device)
+        if points is not None:
+            r.gpu.points.assign(points)
+            r.gpu.normals.assign(normals)
+            r.gpu.prev_points.assign(points)
+        r.render_frame()
+        return r
+
+    r = renderer()
+    assert [len(lm._shadows) for lm in r.lights] == [1, 1]  # the sun's scene-wide view, the spot's whole view
+    for _ in range(2):
+        r.render_frame()
+    still = _shadow_state(r)
+    for k, v in _shadow_state(renderer()).items():
+        np.testing.assert_array_equal(still[k], v, err_msg=k)
+    assert (still["0_0"] > 0).any() and (still["1_0"] > 0).any()
+    _poison_shadows(r)
+    r.render_frame()
+    assert _poisoned(r) == [True, True]  # kept: nothing drawn
+    for lm in r.lights:
+        lm.cache_shadows = False
+    r.render_frame()
+    for k, v in _shadow_state(r).items():  # the naive path draws every frame
+        np.testing.assert_array_equal(still[k], v, err_msg=k)
+    for lm in r.lights:
+        lm.cache_shadows = True
+    r.render_frame()  # drawn by the naive path, held for these views: kept
+    _poison_shadows(r)
+    r.gpu.begin_frame()  # points may have moved (here they did not): the water's layer is redrawn
+    r.render_frame()
+    assert _poisoned(r) == [False, False]
+    for k, v in _shadow_state(r).items():
+        if k != "direct":
+            np.testing.assert_array_equal(still[k], v, err_msg=k)
+    # a moved light: its map only
+    sun = r.lights[0].light
+    moved_sun = replace(sun, direction=tuple(np.array([-0.25, -0.85, -0.4]) / np.linalg.norm([-0.25, -0.85, -0.4])))
+    _poison_shadows(r)
+    r.lights[0].set_light(moved_sun)
+    r.render_frame()
+    assert _poisoned(r) == [False, True]
+    fresh = renderer(lights=[moved_sun, r.lights[1].light])
+    np.testing.assert_array_equal(r.lights[0]._shadows[0].depth.numpy(), fresh.lights[0]._shadows[0].depth.numpy())
+    assert not np.array_equal(r.lights[0]._shadows[0].depth.numpy(), still["0_0"])
+    r.lights[0].set_light(sun)
+    r.render_frame()
+    np.testing.assert_array_equal(r.lights[0]._shadows[0].depth.numpy(), still["0_0"])
+    # moved opaque triangles (the ladder, 5 cm along x), their layer's move counted
+    ladder = next(m for m in r.scene.meshes if m.path.endswith("Ladder"))
+    pts = r.gpu.points.numpy().copy()
+    pts[ladder.vertex_start : ladder.vertex_start + ladder.vertex_count, 0] += 0.05
+    _poison_shadows(r)
+    r.gpu.points.assign(pts)
+    r.gpu.geometry_moved(LAYER_OPAQUE)
+    r.render_frame()
+    assert _poisoned(r) == [False, False]
+    fresh = renderer(pts, r.gpu.normals.numpy().copy())
+    moved = _shadow_state(r)
+    for k, v in _shadow_state(fresh).items():
+        if k != "direct":  # the direct light reads this frame's G-buffer: fresh's has no motion, r's has
+            np.testing.assert_array_equal(moved[k], v, err_msg=k)
+    assert not np.array_equal(moved["0_0"], still["0_0"])
+    # simulated water: every frame redraws
+    sim = WaterSimulation(r.gpu)
+    for t in (0.5, 0.9):
+        _poison_shadows(r)
+        r.gpu.begin_frame()
+        sim.update(t)
+        r.render_frame()
+        assert _poisoned(r) == [False, False]
+    fresh = renderer(r.gpu.points.numpy().copy(), r.gpu.normals.numpy().copy())
+    waves = _shadow_state(r)
+    for k, v in _shadow_state(fresh).items():
+        if k != "direct":
+            np.testing.assert_array_equal(waves[k], v, err_msg=k)
+    assert not np.array_equal(waves["1_0"], moved["1_0"])
+    # the pool's opaque keys are kept apart (its water moves, its opaque triangles do not): a water frame draws the
+    # water alone over them (emptied keys stay empty: the sun's map loses the deck), and equals the naive path
+    assert all(s.split for lm in r.lights for s in lm._shadows)
+    r.lights[0]._shadows[0].opaque_keys.fill_(RK.EMPTY_KEY_VALUE)
+    r.gpu.begin_frame()
+    sim.update(1.3)
+    r.render_frame()
+    lost = r.lights[0]._shadows[0].depth.numpy().copy()
+    for lm in r.lights:
+        lm.cache_shadows = False
+    r.render_frame()
+    naive = _shadow_state(r)
+    assert (lost == 0).sum() > (naive["0_0"] == 0).sum()
+    for lm in r.lights:
+        lm.cache_shadows = True
+    r.gpu.geometry_moved(LAYER_OPAQUE)
+    _poison_shadows(r)
+    r.render_frame()
+    for k, v in _shadow_state(r).items():
+        if k != "direct":
+            np.testing.assert_array_equal(naive[k], v, err_msg=k)
+
+
+def test_redraw_gate_compares_views_bit_for_bit(device):
+    """``redraw_gate`` draws a view that differs from the one drawn in any bit (a -0.0 for a +0.0, which ``==``
+    calls equal) or whose layers' generation moved, and not the same view again; an inactive view records
+    nothing; a scene without mesh ranges counts a move of every layer, one whose meshes are all static none."""
+    from cisp_warp.raster.light_maps import VIEW_WORDS, redraw_gate, view_words
+    from cisp_warp.scene.device import LAYER_BITS
+
+    v = light_views(make_scene(box_room(), Camera(look_at_matrix((0, 0, 1), (0, 0, 0)))),
+                    Light(LightKind.DISTANT, "sun", direction=(0.0, -1.0, 0.0)), 16)[0].params()
+    views = wp.array([v, v], dtype=ViewParams, device=device)
+    words = view_words(views)
+    gen = wp.zeros(LAYER_BITS, dtype=wp.int32, device=device)
+    drawn = wp.zeros(VIEW_WORDS, dtype=wp.uint32, device=device)
+    drawn_gen = wp.zeros(LAYER_BITS, dtype=wp.int32, device=device)
+    out = wp.zeros(1, dtype=ViewParams, device=device)
+    far = float(np.float32(v.far))
+
+    def gate(index=0, layers=LAYER_OPAQUE, force=0) -> float:
+        wp.launch(redraw_gate, dim=1, device=device, inputs=[views, words, index, gen, layers, force, drawn, drawn_gen, out])
+        return float(out.numpy()[0]["far"])
+
+    assert gate() == far and gate() == 0.0  # first drawn, then kept
+    assert gate(force=1) == far
+    w = views.numpy()
+    m = np.asarray(w[1]["world_to_view"]).copy()
+    zero = np.argwhere(m == 0.0)[0]
+    m[tuple(zero)] = -0.0
+    w2 = ViewParams()
+    w2.world_to_view = wp.mat44(*m.flatten())
+    w2.view_to_world = v.view_to_world
+    w2.fx, w2.fy, w2.cx, w2.cy, w2.near, w2.far = v.fx, v.fy, v.cx, v.cy, v.near, v.far
+    w2.width, w2.height, w2.orthographic = v.width, v.height, v.orthographic
+    views.assign([v, w2])
+    assert gate(1) == far and gate(1) == 0.0 and gate(0) == far
+    gen.assign(np.array([0, 1], np.int32))  # the specular layer moved
+    assert gate(0, LAYER_OPAQUE) == 0.0 and gate(0, LAYER_OPAQUE | LAYER_SPECULAR) == far and gate(0) == 0.0
+    w2.far = 0.0  # inactive: nothing drawn, nothing recorded
+    views.assign([v, w2])
+    assert gate(1) == 0.0 and gate(0) == 0.0
+    scene = make_scene(box_room(), Camera(look_at_matrix((0, 0, 1), (0, 0, 0))))
+    assert DeviceScene(scene, device).dynamic_layers == LAYER_OPAQUE | LAYER_SPECULAR
+    # the gated clear of kept keys: every key when the view is drawn (2501 keys: a partial last stride), none when not
+    from cisp_warp.raster.light_maps import SHADOW_TEXELS_PER_THREAD, clear_keys_if_drawn
+
+    keys = wp.full(2501, 5, dtype=wp.uint64, device=device)
+    threads = (2501 + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD
+    for far, expect in ((0.0, 5), (2.0, RK.EMPTY_KEY_VALUE)):
+        w2.far = far
+        wp.launch(clear_keys_if_drawn, dim=threads, device=device, inputs=[wp.array([w2], dtype=ViewParams, device=device), keys])
+        assert np.all(keys.numpy() == np.uint64(expect))

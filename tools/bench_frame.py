@@ -15,6 +15,12 @@ writes every figure.
     python tools/bench_frame.py --methods cisp,sspm,caustics_map,reference
     python tools/bench_frame.py --device cpu --width 320 --height 180 --rsm-size 256 --photons 50k,100k
     python tools/bench_frame.py --smoke                        # seconds
+    python tools/bench_frame.py --scenes pool --animate ...    # the water simulated anew before every frame
+
+Without ``--animate`` every frame is the same still frame (camera, lights and geometry fixed). With it, before every
+frame (warm-up and timed, launched or replayed) ``DeviceScene.begin_frame`` and the ``cisp:water`` meshes simulated
+at t = frame / 30 s (``animation.WaterSimulation``, launched from Python outside the graph: its kernels are in the
+kernel tables and the wall times).
 """
 
 from __future__ import annotations
@@ -45,6 +51,15 @@ def kernel_table(results, frames: int) -> dict[str, tuple[float, float]]:
     return {k: (v[0] / frames, v[1] / frames) for k, v in sorted(acc.items(), key=lambda kv: -kv[1][0])}
 
 
+def frame(r, timer=None, graph=None) -> None:
+    """One frame; with ``--animate`` (``r.bench_water`` set) the water is moved first."""
+    sim = getattr(r, "bench_water", None)
+    if sim is not None:
+        r.gpu.begin_frame()
+        sim.update(r.frame / 30.0)
+    r.render_frame(timer, graph=graph)
+
+
 def wall_ms(r, frames: int, device, graph: bool) -> float:
     """Mean wall-clock ms per frame over ``frames`` frames launched back to back (one synchronisation at the end)."""
     import time
@@ -52,7 +67,7 @@ def wall_ms(r, frames: int, device, graph: bool) -> float:
     wp.synchronize_device(device)
     t0 = time.perf_counter()
     for _ in range(frames):
-        r.render_frame(graph=graph)
+        frame(r, graph=graph)
     wp.synchronize_device(device)
     return 1e3 * (time.perf_counter() - t0) / frames
 
@@ -72,27 +87,34 @@ def run_config(scene_path, method, n, args, device):
     settings = RenderSettings(rsm_size=args.rsm_size, method=method, photons=photons, denoiser=args.denoiser)
     r = Renderer(scene, settings, device=device)
     r.use_graph = False
+    r.bench_water = None
+    if args.animate:
+        from cisp_warp.animation import WaterSimulation
+
+        r.bench_water = WaterSimulation(r.gpu)
+        if not len(r.bench_water):
+            raise SystemExit(f"--animate: {scene_path} has no cisp:water mesh to simulate")
     timer = None
-    for frame in range(3 + args.frames):
-        if frame == 3:
+    for f in range(3 + args.frames):
+        if f == 3:
             timer = StageTimer(device)
-        r.render_frame(timer)
+        frame(r, timer)
     row = {"photons": n, "stages": timer.medians(), "traced": n * getattr(r.photons, "passes", 1) * len(scene.lights)}
     row["wall_ms"] = wall_ms(r, args.frames, device, graph=False)
     if args.graph and r.graph_capable:
-        r.render_frame(graph=True)  # captures
+        frame(r, graph=True)  # captures
         row["graph_ms"] = wall_ms(r, args.frames, device, graph=True)
         if args.kernels:
             wp.timing_begin(cuda_filter=wp.TIMING_ALL)
             for _ in range(args.frames):
-                r.render_frame(graph=True)
+                frame(r, graph=True)
             row["graph_kernels"] = kernel_table(wp.timing_end(), args.frames)
     if getattr(r.photons, "wavefront", None) is not None:
         row["traced"] = r.photons.wavefront.photons_traced()  # two sheets through every grid corner
     if args.kernels and device.is_cuda:
         wp.timing_begin(cuda_filter=wp.TIMING_ALL)
         for _ in range(args.frames):
-            r.render_frame()
+            frame(r)
         row["kernels"] = kernel_table(wp.timing_end(), args.frames)
     return row
 
@@ -122,6 +144,8 @@ def main(argv=None) -> int:
                    help="also time every kernel (CUDA activity timing, separate frames) and count launches")
     p.add_argument("--graph", action="store_true",
                    help="also time the frame replayed as one CUDA graph (CUDA; cisp/sspm with point splats)")
+    p.add_argument("--animate", action="store_true",
+                   help="simulate the scene's cisp:water meshes anew before every frame (else every frame is still)")
     p.add_argument("--json", default=None, help="write every figure to this file")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, 2 frames")
     args = p.parse_args(argv)
@@ -136,7 +160,8 @@ def main(argv=None) -> int:
     scenes = [args.scene] if args.scene else [SCENES.get(s.strip(), s.strip()) for s in args.scenes.split(",")]
     dev = f"{device.alias} ({device.name})"
     report = {"device": dev, "warp": wp.config.version, "width": args.width, "height": args.height,
-              "rsm_size": args.rsm_size, "denoiser": args.denoiser, "frames": args.frames, "runs": []}
+              "rsm_size": args.rsm_size, "denoiser": args.denoiser, "frames": args.frames, "animate": args.animate,
+              "runs": []}
     for scene_path in scenes:
         sname = os.path.splitext(os.path.basename(scene_path))[0]
         results = {}
@@ -152,7 +177,8 @@ def main(argv=None) -> int:
             if splat and args.splat == "wavefront":
                 splat += f" over the {args.wavefront_grid} grid"
             print(f"{sname}, {method}: device {dev}; {args.width}x{args.height}, RSM {args.rsm_size}², "
-                  f"denoiser {args.denoiser}{splat}; median ms over {args.frames} frames")
+                  f"denoiser {args.denoiser}{splat}; {'water simulated every frame' if args.animate else 'still'}; "
+                  f"median ms over {args.frames} frames")
             print(f"{'stage':<14}" + "".join(f"{row['photons']:>14,}" for row in rows))
             for s in stages:
                 print(f"{s:<14}" + "".join(f"{row['stages'][s]:14.3f}" for row in rows))

@@ -656,6 +656,55 @@ def back_texel(view: ViewParams, p: int, visibility: wp.array(dtype=wp.uint64), 
     return zb
 
 
+@wp.func
+def opaque_texel(
+    view: ViewParams,
+    prev_view: ViewParams,
+    p: int,
+    key: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    prev_points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    mat_roughness: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    albedo: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    motion: wp.array(dtype=wp.vec2),
+) -> float:
+    """Pixel ``p`` of the opaque G-buffer from its key, taken already (see :func:`resolve_opaque`). Returns its depth
+    [m] (0 = none; also for a pixel that stays empty, whose stored depth is 0 and is not written)."""
+    if still_empty(key, tri_id, p):
+        return 0.0
+    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
+    tri_id[p] = tri
+    depth[p] = t
+    if tri < 0:
+        position[p] = wp.vec3(0.0)
+        normal[p] = wp.vec3(0.0)
+        albedo[p] = wp.vec3(0.0)
+        roughness[p] = 0.0
+        motion[p] = wp.vec2(0.0)
+        return t
+    position[p] = x
+    normal[p] = facing_normal(interp_normal(tri, bary, normals, indices), tri, d, points, indices)
+    m = triangle_material[tri]
+    albedo[p] = mat_albedo[m]
+    roughness[p] = mat_roughness[m]
+    i0 = indices[3 * tri]
+    i1 = indices[3 * tri + 1]
+    i2 = indices[3 * tri + 2]
+    x_prev = prev_points[i0] * bary[0] + prev_points[i1] * bary[1] + prev_points[i2] * bary[2]
+    q = view_project(prev_view, view_point(prev_view, x_prev))
+    motion[p] = wp.vec2(q[0] - (float(p % view.width) + 0.5), q[1] - (float(p / view.width) + 0.5))
+    return t
+
+
 @wp.kernel
 def resolve_opaque(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -677,34 +726,62 @@ def resolve_opaque(
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) (write)
     motion: wp.array(dtype=wp.vec2),  # (H*W,) pixel offset to where this surface point was last frame (write)
 ):
-    """Opaque G-buffer: every attribute of the nearest opaque surface per pixel (visibility reset as it is read)."""
+    """Opaque G-buffer: every attribute of the nearest opaque surface per pixel (visibility reset as it is read). With
+    ``resolve_specular`` after it, the naive twin of :func:`resolve_camera`."""
     view = views[view_index]
     prev_view = views[prev_view_index]
     p = wp.tid()
-    key = take_key(visibility, p)
-    if still_empty(key, tri_id, p):
-        return
-    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
-    tri_id[p] = tri
-    depth[p] = t
-    if tri < 0:
-        position[p] = wp.vec3(0.0)
-        normal[p] = wp.vec3(0.0)
-        albedo[p] = wp.vec3(0.0)
-        roughness[p] = 0.0
-        motion[p] = wp.vec2(0.0)
-        return
-    position[p] = x
-    normal[p] = facing_normal(interp_normal(tri, bary, normals, indices), tri, d, points, indices)
-    m = triangle_material[tri]
-    albedo[p] = mat_albedo[m]
-    roughness[p] = mat_roughness[m]
-    i0 = indices[3 * tri]
-    i1 = indices[3 * tri + 1]
-    i2 = indices[3 * tri + 2]
-    x_prev = prev_points[i0] * bary[0] + prev_points[i1] * bary[1] + prev_points[i2] * bary[2]
-    q = view_project(prev_view, view_point(prev_view, x_prev))
-    motion[p] = wp.vec2(q[0] - (float(p % view.width) + 0.5), q[1] - (float(p / view.width) + 0.5))
+    opaque_texel(view, prev_view, p, take_key(visibility, p), points, prev_points, normals, indices,
+                 triangle_material, mat_albedo, mat_roughness, depth, position, normal, albedo, roughness, tri_id,
+                 motion)
+
+
+@wp.kernel
+def resolve_camera(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    prev_view_index: int,  # views[prev_view_index]: the previous frame's camera, for motion
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) opaque layer (read, then reset to EMPTY_KEY)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) specular layer (read, then reset to EMPTY_KEY)
+    points: wp.array(dtype=wp.vec3),
+    prev_points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    depth: wp.array(dtype=wp.float32),  # resolve_opaque's outputs (write)
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    albedo: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    motion: wp.array(dtype=wp.vec2),
+    w_depth: wp.array(dtype=wp.float32),  # resolve_specular's outputs for the water layer (write)
+    w_position: wp.array(dtype=wp.vec3),
+    w_normal: wp.array(dtype=wp.vec3),
+    w_roughness: wp.array(dtype=wp.float32),
+    w_ior: wp.array(dtype=wp.float32),
+    w_tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),  # as resolve_specular's (an empty array: not wanted)
+):
+    """The camera's opaque G-buffer and its water layer in one pass (``GBuffer.fused_resolve``): both keys read
+    together, then ``resolve_opaque``'s pixel and ``resolve_specular``'s with the opaque depth from a register
+    instead of read back; the same buffers bit for bit as those twins one after the other."""
+    view = views[view_index]
+    prev_view = views[prev_view_index]
+    p = wp.tid()
+    key = visibility[p]
+    key_b = visibility_b[p]
+    if key != EMPTY_KEY:
+        visibility[p] = EMPTY_KEY
+    if key_b != EMPTY_KEY:
+        visibility_b[p] = EMPTY_KEY
+    od = opaque_texel(view, prev_view, p, key, points, prev_points, normals, indices, triangle_material, mat_albedo,
+                      mat_roughness, depth, position, normal, albedo, roughness, tri_id, motion)
+    specular_texel_key(view, p, key_b, od, points, normals, indices, triangle_material, mat_roughness, mat_ior,
+                       w_depth, w_position, w_normal, w_roughness, w_ior, w_tri_id, nearest_depth)
 
 
 @wp.func

@@ -27,7 +27,7 @@ import numpy as np
 import warp as wp
 
 from ..errors import SceneError
-from ..scene.device import DeviceScene
+from ..scene.device import LAYER_BITS, DeviceScene
 from ..scene.model import LAYER_OPAQUE, LAYER_SPECULAR, Light, LightKind
 from . import kernels as K
 from .rasterizer import Rasterizer, RSMView, visibility_buffer
@@ -117,32 +117,157 @@ def cascade_solid_angles(views: wp.array(dtype=ViewParams), states: wp.array(dty
             out[p] = texel_solid_angle(view, p)
 
 
+#: 32-bit words of one ViewParams (compared bit for bit by :func:`redraw_gate`)
+VIEW_WORDS = wp.types.type_size_in_bytes(ViewParams) // 4
+#: texels each thread of :func:`clear_keys_if_drawn` covers (coalesced stride): a clear that is skipped costs one flag
+#: read per thread, so fewer threads (H100, 2048²: 14 -> 5.5 µs). Not the resolve's: drawn, 8 texels a thread took
+#: 0.144 ms for the pool's two maps against 0.117 at one (a skipped one 0.015 against 0.031), and the water moves
+#: every frame of an animation (perf_notes 36)
+SHADOW_TEXELS_PER_THREAD = wp.constant(8)
+
+
+def view_words(views: wp.array) -> wp.array:
+    """The memory of a ViewParams array as uint32 words (an alias, no copy): view k is words
+    [k·VIEW_WORDS, (k + 1)·VIEW_WORDS)."""
+    return wp.array(ptr=views.ptr, dtype=wp.uint32, shape=(views.shape[0] * VIEW_WORDS,), device=views.device)
+
+
+@wp.kernel
+def redraw_gate(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): gates views[view_index]
+    words: wp.array(dtype=wp.uint32),  # (V·VIEW_WORDS,) the same memory as uint32 words (``view_words``, read)
+    view_index: int,
+    generation: wp.array(dtype=wp.int32),  # (LAYER_BITS,) DeviceScene.generation (read)
+    layers: int,  # layer bits the view draws
+    force: int,  # 1: draw whatever changed (the naive path)
+    drawn_words: wp.array(dtype=wp.uint32),  # (VIEW_WORDS,) the view the maps were last drawn for (read, write)
+    drawn_generation: wp.array(dtype=wp.int32),  # (LAYER_BITS,) the layers' generations then (read, write)
+    draw: wp.array(dtype=ViewParams),  # (1,) the view to draw this frame (write)
+):
+    """One thread: whether a view's maps must be drawn this frame. They are a function of the view's parameters and
+    of the triangles of ``layers``; when the view is, bit for bit, the one they were drawn for and no layer it draws
+    moved since (``DeviceScene.generation``), ``draw`` gets the view with ``far`` = INACTIVE_FAR, which the raster
+    and the resolves draw nothing for (the maps keep their values, the visibility stays clear); else the view itself,
+    recorded as drawn. An inactive view draws nothing and records nothing. Decided on the device: a captured frame
+    keeps deciding."""
+    view = views[view_index]
+    same = force == 0
+    base = view_index * VIEW_WORDS
+    for i in range(VIEW_WORDS):
+        if words[base + i] != drawn_words[i]:
+            same = False
+    for b in range(LAYER_BITS):
+        if ((layers >> b) & 1) != 0 and generation[b] != drawn_generation[b]:
+            same = False
+    if same:
+        view.far = INACTIVE_FAR
+    elif view.far > INACTIVE_FAR:
+        for i in range(VIEW_WORDS):
+            drawn_words[i] = words[base + i]
+        for b in range(LAYER_BITS):
+            drawn_generation[b] = generation[b]
+    draw[0] = view
+
+
 def _same_params(a: ViewParams, rec) -> bool:
     """Whether host view ``a`` is the record ``rec`` of ``views.numpy()``, field for field (float32)."""
     return (np.array_equal(np.asarray(a.world_to_view, np.float32).reshape(4, 4), np.asarray(rec["world_to_view"], np.float32))
             and all(np.float32(getattr(a, f)) == np.float32(rec[f]) for f in ("fx", "fy", "cx", "cy", "near", "far")))
 
 
-class _ShadowView:
-    """A depth-only view of every layer (a shadow map)."""
+@wp.kernel
+def clear_keys_if_drawn(draw: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.uint64)):
+    """Fill ``keys`` with EMPTY_KEY when ``draw[0]`` is drawn this frame (``redraw_gate``), else leave them.
+    ``ceil(n / SHADOW_TEXELS_PER_THREAD)`` threads, thread t covering texels t, t + threads, ..."""
+    if draw[0].far <= INACTIVE_FAR:
+        return
+    t = wp.tid()
+    n = keys.shape[0]
+    threads = (n + SHADOW_TEXELS_PER_THREAD - 1) / SHADOW_TEXELS_PER_THREAD
+    for i in range(SHADOW_TEXELS_PER_THREAD):
+        p = t + i * threads
+        if p < n:
+            keys[p] = K.EMPTY_KEY
 
-    def __init__(self, view: View, device):
+
+@wp.kernel
+def resolve_depth_over(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): resolves views[view_index]
+    view_index: int,
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) the layers drawn this frame (read, then reset to EMPTY_KEY)
+    under: wp.array(dtype=wp.uint64),  # (H*W,) keys of the layers kept from an earlier frame (read)
+    points: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m] of the nearest surface of all of them (write)
+):
+    """``kernels.resolve_depth`` (depth only) of the nearer of two keys per texel: the minimum of the keys drawn into
+    two buffers is the key one draw of both layers into one buffer leaves (``atomic_min`` of their union), so the
+    depth is that draw's bit for bit. An inactive view returns at once."""
+    view = views[view_index]
+    if view.far <= INACTIVE_FAR:
+        return
+    p = wp.tid()
+    key = K.take_key(visibility, p)
+    u = under[p]
+    if u < key:
+        key = u
+    tri, z, x, bary, d = K.triangle_hit(view, key, p, points, indices)
+    depth[p] = z
+
+
+class _ShadowView:
+    """A depth-only view of every layer (a shadow map), drawn only when its view or the geometry moved
+    (:func:`redraw_gate`). ``split`` (a scene whose specular triangles may move and whose opaque ones may not, such
+    as the pool's water): the opaque layer's keys are kept in ``opaque_keys``, drawn only when the view or the
+    opaque triangles moved, and a frame whose water moved draws the specular layer alone and resolves the nearer of
+    the two keys per texel (``resolve_depth_over``): the same depth bit for bit as one draw of both layers."""
+
+    LAYERS = LAYER_OPAQUE | LAYER_SPECULAR
+
+    def __init__(self, view: View, device, split: bool = False):
         n = view.width * view.height
         self.view, self.params = view, view.params()
         self.views = wp.array([self.params], dtype=ViewParams, device=device)
         self.visibility = visibility_buffer(n, device)
         self.depth = wp.zeros(n, dtype=wp.float32, device=device)
+        self._words = view_words(self.views)
+        self.draw_view = wp.zeros(1, dtype=ViewParams, device=device)  #: the view drawn this frame (``redraw_gate``)
+        self.drawn_words = wp.zeros(VIEW_WORDS, dtype=wp.uint32, device=device)  #: zeros: no view, the first draws
+        self.drawn_generation = wp.zeros(LAYER_BITS, dtype=wp.int32, device=device)
+        self.split = bool(split)
+        if self.split:
+            self.opaque_keys = visibility_buffer(n, device)  #: (H*W,) uint64: the opaque layer's keys, kept
+            self.draw_opaque = wp.zeros(1, dtype=ViewParams, device=device)
+            self.drawn_opaque_words = wp.zeros(VIEW_WORDS, dtype=wp.uint32, device=device)
+            self.drawn_opaque_generation = wp.zeros(LAYER_BITS, dtype=wp.int32, device=device)
 
     def set_view(self, view: View) -> None:
         self.view, self.params = view, view.params()
         self.views.assign([self.params])
 
-    def render(self, raster: Rasterizer) -> None:
+    def render(self, raster: Rasterizer, cache: bool = True) -> None:
+        """Draw and resolve the map; with ``cache``, only what :func:`redraw_gate` says changed (the launches are
+        the same every frame: a gate's view draws nothing when its inputs stood still). Without ``cache`` (the
+        naive path) both layers are drawn into one buffer and resolved every frame."""
         s = raster.scene
         w, h = self.view.width, self.view.height
-        raster.draw(self.views, 0, w, h, LAYER_OPAQUE | LAYER_SPECULAR, self.visibility, clear=False)
-        wp.launch(K.resolve_depth, dim=w * h, device=s.device,
-                  inputs=[self.views, 0, self.visibility, s.points, s.indices, self.depth, None])  # depth only
+        wp.launch(redraw_gate, dim=1, device=s.device,
+                  inputs=[self.views, self._words, 0, s.generation, self.LAYERS, int(not cache), self.drawn_words,
+                          self.drawn_generation, self.draw_view])
+        if not (cache and self.split):
+            raster.draw(self.draw_view, 0, w, h, self.LAYERS, self.visibility, clear=False)
+            wp.launch(K.resolve_depth, dim=w * h, device=s.device,
+                      inputs=[self.draw_view, 0, self.visibility, s.points, s.indices, self.depth, None])  # depth only
+            return
+        wp.launch(redraw_gate, dim=1, device=s.device,
+                  inputs=[self.views, self._words, 0, s.generation, LAYER_OPAQUE, 0, self.drawn_opaque_words,
+                          self.drawn_opaque_generation, self.draw_opaque])
+        threads = (w * h + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD
+        wp.launch(clear_keys_if_drawn, dim=threads, device=s.device, inputs=[self.draw_opaque, self.opaque_keys])
+        raster.draw(self.draw_opaque, 0, w, h, LAYER_OPAQUE, self.opaque_keys, clear=False)
+        raster.draw(self.draw_view, 0, w, h, LAYER_SPECULAR, self.visibility, clear=False)
+        wp.launch(resolve_depth_over, dim=w * h, device=s.device,
+                  inputs=[self.draw_view, 0, self.visibility, self.opaque_keys, s.points, s.indices, self.depth])
 
 
 def _params_of_record(rec) -> ViewParams:
@@ -211,7 +336,7 @@ class LightMaps:
         self.outside = wp.zeros(n_pilot, dtype=wp.vec4, device=d)
         self.outside_angle = wp.zeros(n_pilot, dtype=wp.float32, device=d)
         self._shadows: list[_ShadowView] = []
-        self._make_shadows(whole)
+        self._make_shadows(light, whole)
         #: resolve each RSM view's ``opaque_tri`` (its opaque triangle per texel): only the caustics map reads it, so a
         #: renderer of another method sets False and the opaque resolve writes 4 B per texel fewer (the array then
         #: keeps what it held; it is not an AOV of :meth:`RSMView.numpy`)
@@ -223,6 +348,9 @@ class LightMaps:
         self.fused_resolve = True
         self._bounds: list[wp.array] | None = None
         self._bounds_thickness = (0.0, 0.0)
+        #: True (default): a shadow map is drawn only in frames where its view or the triangles it draws moved
+        #: (``redraw_gate``, decided on the device); False: every frame (the naive path). The same maps bit for bit
+        self.cache_shadows = True
 
     # ---- host views of the device state (tests, tools: each is a device->host copy)
 
@@ -269,14 +397,18 @@ class LightMaps:
             return [bool(a) for a in self.states.numpy()["active"]]
         return None
 
-    def _make_shadows(self, whole: list[View]) -> None:
-        sv = shadow_view(self.scene.scene, self.light, self.rsm_size)
+    def _make_shadows(self, light: Light, whole: list[View]) -> None:
+        sv = shadow_view(self.scene.scene, light, self.rsm_size)
         views = [sv] if sv is not None else (whole if self.fitted else [])
         if len(self._shadows) == len(views):
             for s, v in zip(self._shadows, views):
                 s.set_view(v)
         else:
-            self._shadows = [_ShadowView(v, self.scene.device) for v in views]
+            # the opaque keys kept apart where only the specular triangles may move (the pool's water)
+            dyn, has = self.scene.dynamic_layers, self.scene.has_layer
+            split = (has[LAYER_OPAQUE] and has[LAYER_SPECULAR] and (dyn & LAYER_SPECULAR) != 0
+                     and (dyn & LAYER_OPAQUE) == 0)
+            self._shadows = [_ShadowView(v, self.scene.device, split) for v in views]
 
     @property
     def whole_rsm(self) -> list[RSMView]:
@@ -308,7 +440,7 @@ class LightMaps:
         self._refresh_solid_angles(self.rsm)
         self.params = [r.view.params() for r in self.rsm]
         self.views.assign(self.params)
-        self._make_shadows(whole)
+        self._make_shadows(light, whole)  # the new light's (a sun's shadow view kept the old one's before)
         self.light = light
 
     def _refresh_solid_angles(self, views: list[RSMView]) -> None:
@@ -443,4 +575,4 @@ class LightMaps:
             if active is None or active[k]:
                 self._render_rsm(raster, self.views, k, r, self._bounds[k] if self._bounds is not None else None)
         for sv in self._shadows:
-            sv.render(raster)
+            sv.render(raster, self.cache_shadows)

@@ -192,6 +192,10 @@ class GBuffer(_Buffers):
     #: (:meth:`keep_depth_bounds`) in one pass (``kernels.resolve_back_view``); False: its twin ``resolve_back`` (the
     #: photon pass then builds its bounds itself). The same buffers bit for bit
     fused_resolve: bool = True
+    #: True: both layers resolved in one pass (``kernels.resolve_camera``); False (default): its twins
+    #: ``resolve_opaque`` + ``resolve_specular``. The same buffers bit for bit; the fused pass lost on the H100
+    #: (perf_notes 36: pool 0.129 -> 0.151 ms, Cornell 0.089 -> 0.097), so it is opt-in
+    fused_layers: bool = False
     _bounds: tuple | None = None  #: (bounds array, thickness, thickness_rel) of :meth:`keep_depth_bounds`
 
     def keep_depth_bounds(self, bounds: wp.array, thickness: float, thickness_rel: float) -> None:
@@ -227,11 +231,19 @@ class GBuffer(_Buffers):
             views = view_array([views, views if prev_view is None else prev_view], s.device)
         raster.draw(views, 0, self.width, self.height, LAYER_OPAQUE, self.visibility, clear=False,
                     layer_b=LAYER_SPECULAR, visibility_b=self.water.visibility)  # both layers in one pass
-        wp.launch(K.resolve_opaque, dim=self.width * self.height, device=s.device,
-                  inputs=[views, 0, 1, self.visibility, s.points, s.prev_points, s.normals, s.indices,
-                          s.triangle_material, s.albedo, s.roughness,
-                          self.depth, self.position, self.normal, self.albedo, self.roughness, self.tri_id, self.motion])
-        self.water.resolve(s, views, 0, self.depth)
+        if self.fused_layers:  # both layers in one pass
+            w = self.water
+            wp.launch(K.resolve_camera, dim=self.width * self.height, device=s.device,
+                      inputs=[views, 0, 1, self.visibility, w.visibility, s.points, s.prev_points, s.normals,
+                              s.indices, s.triangle_material, s.albedo, s.roughness, s.ior, self.depth, self.position,
+                              self.normal, self.albedo, self.roughness, self.tri_id, self.motion, w.depth, w.position,
+                              w.normal, w.roughness, w.ior, w.tri_id, None])
+        else:
+            wp.launch(K.resolve_opaque, dim=self.width * self.height, device=s.device,
+                      inputs=[views, 0, 1, self.visibility, s.points, s.prev_points, s.normals, s.indices,
+                              s.triangle_material, s.albedo, s.roughness, self.depth, self.position, self.normal,
+                              self.albedo, self.roughness, self.tri_id, self.motion])
+            self.water.resolve(s, views, 0, self.depth)
         if not self.back_faces:
             self.depth_layers[self.width * self.height:].zero_()
         else:

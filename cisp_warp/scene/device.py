@@ -42,6 +42,18 @@ class SurfaceGeometry:
     neighbors: wp.array(dtype=wp.int32)  #: (3T,) triangle across the edge opposite vertex i of each triangle, -1 = none
 
 
+#: ``DeviceScene.generation`` holds one counter per layer bit: index b counts the moves of the triangles of layer 1 << b
+LAYER_BITS = 2
+
+
+@wp.kernel
+def bump_generation(generation: wp.array(dtype=wp.int32), layers: int):
+    """One thread: count one move of the triangles of every layer in ``layers`` (bit b: ``generation[b]`` + 1)."""
+    for b in range(generation.shape[0]):
+        if ((layers >> b) & 1) != 0:
+            generation[b] = generation[b] + 1
+
+
 def triangle_neighbors(indices: np.ndarray) -> np.ndarray:
     """(T, 3) int32: for triangle t and corner i, the triangle sharing the edge opposite corner i (the
     edge from corner i+1 to corner i+2), or -1 on a boundary. Edges are matched by vertex index; an
@@ -90,7 +102,13 @@ class DeviceScene:
     metallic              (M,)         float32
     opacity               (M,)         float32
     ior                   (M,)         float32
+    generation            (2,)         int32    moves of the opaque, specular triangles so far (``LAYER_BITS``)
     ====================  ===========  =======  ================================================
+
+    ``generation`` lets a view whose maps depend only on its parameters and on the triangles it draws keep them while
+    neither changed (``raster.light_maps.redraw_gate``): it is counted on the device (``bump_generation``), so a
+    captured frame keeps deciding. Whoever moves points calls :meth:`begin_frame` first (it must, for the motion
+    vectors) or :meth:`geometry_moved`.
     """
 
     def __init__(self, scene: Scene, device=None):
@@ -118,6 +136,14 @@ class DeviceScene:
         self.geometry.points, self.geometry.normals = self.points, self.normals
         self.geometry.indices, self.geometry.neighbors = self.indices, self.tri_neighbors
         self.has_layer = {LAYER_OPAQUE: bool(np.any(layers & LAYER_OPAQUE)), LAYER_SPECULAR: bool(np.any(layers & LAYER_SPECULAR))}
+        self.generation = wp.zeros(LAYER_BITS, dtype=wp.int32, device=d)
+        # a scene without mesh ranges (built in code) says nothing of what moves: every layer may
+        dyn = layers if not scene.meshes else np.zeros(0, np.int32)
+        for m in scene.meshes:
+            if m.dynamic:
+                dyn = np.concatenate([dyn, layers[m.triangle_start : m.triangle_start + m.triangle_count]])
+        #: layer bits of the triangles that may move (of dynamic meshes; every layer of a scene without mesh ranges)
+        self.dynamic_layers = int(np.bitwise_or.reduce(dyn.astype(np.int64))) if dyn.size else 0
         self._bvh: dict[int, tuple[wp.Mesh, wp.array]] = {}
         self._bvh_dynamic: dict[int, bool] = {}  #: whether a BVH's triangles include a dynamic mesh's (refit them)
 
@@ -126,8 +152,17 @@ class DeviceScene:
         return self.scene.triangle_count
 
     def begin_frame(self) -> None:
-        """Keep this frame's points as the previous frame's before dynamic meshes are moved."""
+        """Keep this frame's points as the previous frame's before dynamic meshes are moved (and count the move of
+        their layers, :meth:`geometry_moved`)."""
         wp.copy(self.prev_points, self.points)
+        self.geometry_moved()
+
+    def geometry_moved(self, layers: int | None = None) -> None:
+        """Count a move of the triangles of ``layers`` (default ``dynamic_layers``) in ``generation``, on the
+        device: the views that draw them are redrawn next frame. A launch, no host copy."""
+        layers = self.dynamic_layers if layers is None else int(layers)
+        if layers:
+            wp.launch(bump_generation, dim=1, device=self.device, inputs=[self.generation, layers])
 
     def mesh_points(self, mesh_index: int) -> tuple[wp.array, wp.array]:
         """Views (no copy) of one mesh's points and normals, for ``sim/`` to write in place."""
