@@ -49,8 +49,8 @@ SEQUENTIAL = ("emit", "light march", "reproject", "camera (one site)", "refine",
 
 
 def make_walk_kernel():
-    """A kernel that counts ``surface_at_sample``'s triangle walk for given photons (its loop, step for step)."""
-    from cisp_warp.photons.common import MAX_WALK, _barycentrics, r2_point
+    """A kernel that counts ``surface_at_sample``'s triangle walk for given photons (``walk_to_sample``'s steps)."""
+    from cisp_warp.photons.common import r2_point, walk_to_sample
     from cisp_warp.raster.views import ViewParams, pixel_ray_world
     from cisp_warp.scene.device import SurfaceGeometry
 
@@ -65,32 +65,7 @@ def make_walk_kernel():
         sy = u[1] * float(light.height)
         texel = wp.min(int(sy), light.height - 1) * light.width + wp.min(int(sx), light.width - 1)
         lo, ld = pixel_ray_world(light, sx, sy)
-        cur = rsm_tri[texel]
-        b0, b1, b2, t, ok = _barycentrics(lo, ld, cur, geometry)
-        step = int(0)
-        if ok != 0:
-            while step < MAX_WALK:
-                corner = int(0)
-                bmin = b0
-                if b1 < bmin:
-                    corner = 1
-                    bmin = b1
-                if b2 < bmin:
-                    corner = 2
-                    bmin = b2
-                if bmin >= 0.0:
-                    break
-                nxt = geometry.neighbors[3 * cur + corner]
-                if nxt < 0:
-                    break
-                c0, c1, c2, tc, okc = _barycentrics(lo, ld, nxt, geometry)
-                if okc == 0:
-                    break
-                cur = nxt
-                b0 = c0
-                b1 = c1
-                b2 = c2
-                step += 1
+        ok, cur, b0, b1, b2, t, step = walk_to_sample(lo, ld, rsm_tri[texel], geometry)
         out[r] = step
 
     return walk_steps

@@ -514,24 +514,16 @@ def _barycentrics(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry)
 
 
 @wp.func
-def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec3, texel_normal: wp.vec3,
-                      geometry: SurfaceGeometry):
-    """Where the light ray ``lo + ld·t`` meets the surface under it, and the vertex normals interpolated
-    there: (point [m], unit normal). Sub-texel exact, so a texel's photons leave with the normals of the
-    surface under their own sample points instead of one normal per texel.
-
-    Starts on the RSM texel's triangle ``tri`` (what the texel's centre sees) and walks across edges
-    towards the sample (to the neighbour opposite the most negative barycentric) until the ray cuts
-    the triangle inside, so texels larger than triangles are exact too. At a boundary edge (or after
-    ``MAX_WALK`` steps) it keeps the last triangle's plane and the linear extension of its vertex
-    normals up to ``BARY_EXTRAPOLATION`` outside, clamped onto the triangle beyond. A ray in a
-    triangle's plane keeps the texel's point and normal.
-    """
+def walk_to_sample(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry):
+    """The triangle walk of :func:`surface_at_sample`: from triangle ``tri`` across edges towards where the ray
+    ``lo + ld·t`` cuts the surface (to the neighbour opposite the most negative barycentric), until the cut lies
+    inside, a boundary edge or ``MAX_WALK`` steps. Returns (ok: 0 when the ray lies in ``tri``'s plane, the last
+    triangle, its barycentrics b0, b1, b2 and t of the cut, the steps walked)."""
     cur = tri
     b0, b1, b2, t, ok = _barycentrics(lo, ld, cur, geometry)
-    if ok == 0:
-        return texel_position, texel_normal
     step = int(0)
+    if ok == 0:
+        return int(0), cur, b0, b1, b2, t, step
     while step < MAX_WALK:
         corner = int(0)
         bmin = b0
@@ -555,6 +547,25 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec
         b2 = c2
         t = tc
         step += 1
+    return int(1), cur, b0, b1, b2, t, step
+
+
+@wp.func
+def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec3, texel_normal: wp.vec3,
+                      geometry: SurfaceGeometry):
+    """Where the light ray ``lo + ld·t`` meets the surface under it, and the vertex normals interpolated
+    there: (point [m], unit normal). Sub-texel exact, so a texel's photons leave with the normals of the
+    surface under their own sample points instead of one normal per texel.
+
+    Starts on the RSM texel's triangle ``tri`` (what the texel's centre sees) and walks across edges
+    towards the sample (:func:`walk_to_sample`) until the ray cuts the triangle inside, so texels larger than triangles are exact too. At a boundary edge (or after
+    ``MAX_WALK`` steps) it keeps the last triangle's plane and the linear extension of its vertex
+    normals up to ``BARY_EXTRAPOLATION`` outside, clamped onto the triangle beyond. A ray in a
+    triangle's plane keeps the texel's point and normal.
+    """
+    ok, cur, b0, b1, b2, t, steps = walk_to_sample(lo, ld, tri, geometry)
+    if ok == 0:
+        return texel_position, texel_normal
     p0 = geometry.points[geometry.indices[3 * cur + 0]]
     p1 = geometry.points[geometry.indices[3 * cur + 1]]
     p2 = geometry.points[geometry.indices[3 * cur + 2]]

@@ -806,33 +806,9 @@ def specular_texel(
 ) -> int:
     """Resolve pixel ``p`` of a specular layer (see :func:`resolve_specular`). Returns its triangle (-1 none), or -2
     when the pixel was empty and stays empty (nothing written but ``nearest_depth``)."""
-    return specular_texel_at(view, p, visibility, opaque_depth[p], points, normals, indices, triangle_material,
-                             mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
-
-
-@wp.func
-def specular_texel_at(
-    view: ViewParams,
-    p: int,
-    visibility: wp.array(dtype=wp.uint64),
-    od: float,
-    points: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
-    triangle_material: wp.array(dtype=wp.int32),
-    mat_roughness: wp.array(dtype=wp.float32),
-    mat_ior: wp.array(dtype=wp.float32),
-    depth: wp.array(dtype=wp.float32),
-    position: wp.array(dtype=wp.vec3),
-    normal: wp.array(dtype=wp.vec3),
-    roughness: wp.array(dtype=wp.float32),
-    ior: wp.array(dtype=wp.float32),
-    tri_id: wp.array(dtype=wp.int32),
-    nearest_depth: wp.array(dtype=wp.float32),
-) -> int:
-    """:func:`specular_texel` with the pixel's opaque depth ``od`` [m] given (0 = none) instead of read."""
-    return specular_texel_key(view, p, take_key(visibility, p), od, points, normals, indices, triangle_material,
-                              mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
+    return specular_texel_key(view, p, take_key(visibility, p), opaque_depth[p], points, normals, indices,
+                              triangle_material, mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
+                              nearest_depth)
 
 
 @wp.func
@@ -855,7 +831,8 @@ def specular_texel_key(
     tri_id: wp.array(dtype=wp.int32),
     nearest_depth: wp.array(dtype=wp.float32),
 ) -> int:
-    """:func:`specular_texel_at` with the pixel's key taken already (its visibility reset by the caller)."""
+    """:func:`specular_texel` with the pixel's key taken already (its visibility reset by the caller) and its opaque
+    depth ``od`` [m] given (0 = none) instead of read."""
     if still_empty(key, tri_id, p):
         if nearest_depth.shape[0] > 0:
             nearest_depth[p] = od
