@@ -241,10 +241,15 @@ class Renderer:
                                       ps.thickness_rel, ps.max_bounces, self.t_max, ps.seed, inputs=self.inputs)
         self.denoiser = None
         if self.settings.denoiser == "caustic":
-            self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, self.settings.caustic)
-            if self.settings.caustic.caustic_flow and self.settings.method == "cisp" and ps.splat == "point":
-                # the caustic's own motion vectors, from where the photons of the same light-space cells landed the
-                # frame before (photons/caustic_flow.py); other methods and denoisers do not pay for them
+            caustic = self.settings.caustic
+            # the caustic's own motion vectors, from where the photons of the same light-space cells landed the frame
+            # before (photons/caustic_flow.py): cisp's point photons only; other methods and denoisers do not pay
+            # for them, and their denoiser keeps no flow buffers
+            flow = caustic.caustic_flow and self.settings.method == "cisp" and ps.splat == "point"
+            if caustic.caustic_flow and not flow:
+                caustic = replace(caustic, caustic_flow=False)
+            self.denoiser = CausticDenoiser(cam.width, cam.height, self.device, caustic)
+            if flow:
                 self.photons.keep_caustic_flow(cam.width, cam.height)
         elif self.settings.denoiser == "svgf":
             self.denoiser = SVGF(cam.width, cam.height, self.device, self.settings.svgf)
