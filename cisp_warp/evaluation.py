@@ -57,6 +57,12 @@ DENOISERS = ("caustic", "svgf", "none", "own")
 #: surface's motion only, the default before docs/perf_notes.md section 35; cisp only, the other methods have no
 #: flow), not in DENOISERS: for the stability suite's ``--denoisers``
 SURFACE_DENOISER = "caustic-surface"
+#: the caustics denoiser without the caustic flow whose history is forgotten before every frame: the spatial filter
+#: alone on each frame's photons, the error a frame reaches when nothing of its past can be used (a caustic that
+#: reshapes faster than the history can follow); every method, not in DENOISERS: for the stability suite
+SINGLE_DENOISER = "caustic-single"
+#: denoisers the stability suite takes beyond DENOISERS
+EXTRA_DENOISERS = (SURFACE_DENOISER, SINGLE_DENOISER)
 
 
 @dataclass(frozen=True)
@@ -88,9 +94,11 @@ class Config:
 
 def applicable(method: str, denoiser: str) -> bool:
     """``own`` (seed 004's filters) belongs to caustics_map alone, ``caustic-surface`` to cisp alone; every other
-    denoiser to every method."""
+    denoiser (``caustic-single`` too) to every method."""
     if denoiser == SURFACE_DENOISER:
         return method == "cisp"
+    if denoiser == SINGLE_DENOISER:
+        return True
     return denoiser in DENOISERS and (denoiser != "own" or method == "caustics_map")
 
 
@@ -104,6 +112,9 @@ def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSet
         photons = replace(photons, cmap_gather="light" if own else "eye", cmap_history=4 if own else 1)
         return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons,
                               denoiser="none" if own else cfg.denoiser)
+    if cfg.denoiser == SINGLE_DENOISER:  # the history reset before every frame: play_case(reset_history=True)
+        return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser="caustic",
+                              caustic=CausticSettings(caustic_flow=False))
     if cfg.denoiser == SURFACE_DENOISER:
         if cfg.splat != "point":
             raise ValueError(f"denoiser {SURFACE_DENOISER!r} needs point splats")
@@ -369,13 +380,16 @@ def case_reference(case, width: int, height: int, frames: int, measured: int, se
 
 
 def play_case(case, settings: RenderSettings, width: int, height: int, frames: int, measured: int,
-              device) -> tuple[Renderer, list[dict]]:
-    """Render ``frames`` frames of ``case`` with ``settings``; host AOVs of the last ``measured``."""
+              device, reset_history: bool = False) -> tuple[Renderer, list[dict]]:
+    """Render ``frames`` frames of ``case`` with ``settings``; host AOVs of the last ``measured``.
+    ``reset_history``: the denoiser forgets its history before every frame (``SINGLE_DENOISER``)."""
     r = Renderer(case.scene_at(0, width, height), settings, device=device)
     out = []
     for f in range(frames):
         if f > 0 and case.animated:
             advance(r, case.scene_at(f, width, height))
+        if reset_history and r.denoiser is not None:
+            r.denoiser.reset()
         r.render_frame()
         if f >= frames - measured:
             out.append(host_aovs(r))
@@ -397,7 +411,8 @@ def measure_case(case, method: str, reference: list[dict], width: int, height: i
 
     denoiser = denoiser or default_denoiser(method)
     settings = render_settings(Config(method, photons, denoiser, splat, wavefront_grid), rsm_size, base)
-    r, shots = play_case(case, settings, width, height, frames, measured, device)
+    r, shots = play_case(case, settings, width, height, frames, measured, device,
+                         reset_history=denoiser == SINGLE_DENOISER)
     ref_frames = case_frames(case, frames, measured)
     ref_at = dict(zip(ref_frames, reference))
     first = frames - measured

@@ -150,3 +150,21 @@ def test_stability_smoke(tmp_path):
     assert all(r["finite"] and r["closure"] < 1e-5 for r in data["rows"])
     md = (out / "stability.md").read_text()
     assert "| hidden_trail |" in md and "| fast_water |" in md
+
+
+def test_caustic_single_forgets_the_history_every_frame(device):
+    """``caustic-single`` (the stability suite's single-frame bound): the caustics denoiser without the flow whose
+    history is reset before every frame; after three frames every pixel with a surface holds one frame, where the
+    same denoiser kept its history holds more."""
+    c = case("fast_water")
+    settings = E.render_settings(E.Config("cisp", 4_000, E.SINGLE_DENOISER), 64)
+    assert settings.denoiser == "caustic" and not settings.caustic.caustic_flow
+    lengths = {}
+    for reset in (True, False):
+        r, shots = E.play_case(c, settings, 24, 18, 3, 1, device, reset_history=reset)
+        lengths[reset] = r.denoiser.history_length.numpy()
+        assert np.isfinite(shots[-1]["caustics"]).all()
+    surface = lengths[True] > 0
+    assert surface.any()
+    assert np.all(lengths[True][surface] == 1.0)
+    assert lengths[False][surface].max() > 1.5

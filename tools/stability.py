@@ -99,7 +99,8 @@ def main(argv=None) -> int:
                    "grid cells per light)")
     p.add_argument("--denoisers", default="caustic,svgf,own",
                    help="comma-separated denoisers: caustic, svgf, none, own (caustics_map's seed-004 filters), "
-                   "caustic-surface (cisp: the caustics denoiser without the caustic flow, its history along the surface's motion only, docs/perf_notes.md section 35)")
+                   "caustic-surface (cisp: the caustics denoiser without the caustic flow, its history along the surface's motion only, docs/perf_notes.md section 35), caustic-single (the caustics denoiser "
+                   "without the flow, its history forgotten before every frame: what the spatial filter alone makes of one frame)")
     p.add_argument("--photons", type=int, default=None,
                    help="photons per light per frame of the methods (default: the preset's; the reference keeps "
                    "its own)")
@@ -150,8 +151,8 @@ def main(argv=None) -> int:
     methods = args.methods.split(",")
     denoisers = args.denoisers.split(",")
     for d in denoisers:
-        if d not in E.DENOISERS + (E.SURFACE_DENOISER,):
-            raise SystemExit(f"unknown denoiser {d!r}: {', '.join(E.DENOISERS + (E.SURFACE_DENOISER,))}")
+        if d not in E.DENOISERS + E.EXTRA_DENOISERS:
+            raise SystemExit(f"unknown denoiser {d!r}: {', '.join(E.DENOISERS + E.EXTRA_DENOISERS)}")
     runs = [(m, d) for m in methods for d in denoisers if E.applicable(m.partition(":")[0], d)]
     w, h, frames, measured = cfg["width"], cfg["height"], cfg["frames"], cfg["measured"]
     cache = os.path.join(args.out, "references")
