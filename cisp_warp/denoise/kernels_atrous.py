@@ -63,7 +63,7 @@ from __future__ import annotations
 import warp as wp
 
 from .kernels_atrous_pixel import UNGATED_RADIUS, footprint_radius, launch_atrous_level  # noqa: F401 (re-exported)
-from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, luminance
+from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, load_vec4, luminance, store_vec4  # noqa: F401 (the vec4 accesses re-exported)
 
 
 #: Var of a packed pixel without a surface
@@ -179,34 +179,6 @@ return 1.0f / sqrtf(x);
 #endif
 """)
 def fast_rsqrt(x: float) -> float: ...
-
-
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-const float4 v = __ldg(reinterpret_cast<const float4*>(a.data) + p);
-return wp::vec4(v.x, v.y, v.z, v.w);
-#else
-return a.data[p];
-#endif
-""")
-def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
-    """``a[p]`` of a contiguous vec4 array in one 16-byte load on CUDA (Warp's own indexing issues four 4-byte
-    loads, and the level's loads are strided across a warp: each of the four touches as many sectors as one
-    16-byte load would)."""
-    ...
-
-
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-reinterpret_cast<float4*>(a.data)[p] = make_float4(v[0], v[1], v[2], v[3]);
-#else
-a.data[p] = v;
-#endif
-""")
-def store_vec4(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec4):
-    """``a[p] = v`` of a contiguous vec4 array in one 16-byte store on CUDA (Warp's own issues four 4-byte
-    stores: four partial writes of each sector)."""
-    ...
 
 
 # Per-thread writes into the level's shared tables without a barrier each (Warp's tile_scatter_masked and
