@@ -219,12 +219,14 @@ def reproject(
         dy = tap // 2
         tx = x0 + dx
         ty = y0 + dy
-        if tx >= 0 and tx < width and ty >= 0 and ty < height:
+        w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
+        # a tap of weight 0 (a still pixel's three others) adds nothing, and is never the best tap where the
+        # history is kept (some tap of weight > 0 is, or the sum stays under MIN_BILINEAR_WEIGHT): not read
+        if w > 0.0 and tx >= 0 and tx < width and ty >= 0 and ty < height:
             q = ty * width + tx
             g_q = load_vec4(hist_guide, prev * pixels + q)
             z_q = g_q[3]
             if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(wp.vec3(g_q[0], g_q[1], g_q[2]), n) >= normal_tolerance:
-                w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
                 sum_w += w
                 color_prev += w * hist_color[prev, q]
                 moments_prev += w * hist_moments[prev, q]
