@@ -258,38 +258,17 @@ def reproject(
     store_vec4(color_variance_out, p, wp.vec4(c[0], c[1], c[2], var))
 
 
-@wp.kernel
-def filter_moments(
-    moments: wp.array(dtype=wp.vec2),
-    history: wp.array(dtype=wp.int32),
-    guide: wp.array(dtype=wp.vec4),
-    slope: wp.array(dtype=wp.float32),
-    width: int,
-    height: int,
-    sigma_depth: float,
-    sigma_normal: float,
-    variance_out: wp.array(dtype=wp.float32),
-    color_variance: wp.array(dtype=wp.vec4),
-):
-    """The spatial luminance variance of FilterMoments (Falcor SVGFFilterMoments) where the history is short.
+#: pixels of a row that one thread of :func:`filter_moments` takes (most need nothing: four loads a thread instead
+#: of a thread a load, which the launch's cost followed)
+MOMENTS_RUN = wp.constant(4)
 
-    Reads the outputs of :func:`reproject` (``moments`` vec2, ``history`` int32 [frames], ``guide`` vec4 (n, z
-    [m]), z = 0 = no surface, ``slope`` float32 [m/pixel]). For a pixel with a surface and a history below
-    ``SPATIAL_VARIANCE_HISTORY`` frames it writes the variance into ``variance_out`` (float32) and the Var of
-    its packed ``color_variance`` (vec4: colour, Var); every other pixel keeps what :func:`reproject` wrote
-    there (the temporal variance E[l²] − E[l]²).
 
-    The moments are averaged over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section
-    4.2) and the variance boosted by 4/h. Unlike Falcor, the colour is not replaced by that average (the paper
-    only estimates variance here; the à-trous levels do the spatial filtering, and the colour stays untouched
-    by any filter that does not conserve energy), and Falcor's luminance term in absolute units, which has no
-    meaning for W/m², is left out.
-    """
-    y, x = wp.tid()
+@wp.func
+def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4), slope: wp.array(dtype=wp.float32),
+                     x: int, y: int, width: int, height: int, sigma_depth: float, sigma_normal: float, h: int) -> float:
+    """The spatial luminance variance of pixel (x, y) (with a surface, history ``h`` frames): its moments averaged
+    over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section 4.2), boosted by 4/h."""
     p = y * width + x
-    h = history[p]
-    if h <= 0 or h >= SPATIAL_VARIANCE_HISTORY:
-        return
     g = load_vec4(guide, p)
     z = g[3]
     n = wp.vec3(g[0], g[1], g[2])
@@ -311,10 +290,58 @@ def filter_moments(
                     sum_w += w
                     sum_m += w * moments[q]
     sum_m = sum_m / sum_w  # the centre pixel has weight 1
-    var = wp.max(sum_m[1] - sum_m[0] * sum_m[0], 0.0) * float(SPATIAL_VARIANCE_HISTORY) / float(h)
-    variance_out[p] = var
-    cv = color_variance[p]
-    color_variance[p] = wp.vec4(cv[0], cv[1], cv[2], var)
+    return wp.max(sum_m[1] - sum_m[0] * sum_m[0], 0.0) * float(SPATIAL_VARIANCE_HISTORY) / float(h)
+
+
+@wp.kernel
+def filter_moments(
+    moments: wp.array(dtype=wp.vec2),
+    history: wp.array(dtype=wp.int32),
+    guide: wp.array(dtype=wp.vec4),
+    slope: wp.array(dtype=wp.float32),
+    width: int,
+    height: int,
+    sigma_depth: float,
+    sigma_normal: float,
+    variance_out: wp.array(dtype=wp.float32),
+    color_variance: wp.array(dtype=wp.vec4),
+):
+    """The spatial luminance variance of FilterMoments (Falcor SVGFFilterMoments) where the history is short;
+    ``dim=(height, ceil(width / MOMENTS_RUN))``, a thread the ``MOMENTS_RUN`` pixels of a row from x = tid *
+    ``MOMENTS_RUN``.
+
+    Reads the outputs of :func:`reproject` (``moments`` vec2, ``history`` int32 [frames], ``guide`` vec4 (n, z
+    [m]), z = 0 = no surface, ``slope`` float32 [m/pixel]). For a pixel with a surface and a history below
+    ``SPATIAL_VARIANCE_HISTORY`` frames it writes the variance (:func:`spatial_variance`) into ``variance_out``
+    (float32) and the Var of its packed ``color_variance`` (vec4: colour, Var); every other pixel keeps what
+    :func:`reproject` wrote there (the temporal variance E[l²] − E[l]²).
+
+    Unlike Falcor, the colour is not replaced by the moments' neighbourhood average (the paper only estimates
+    variance here; the à-trous levels do the spatial filtering, and the colour stays untouched by any filter that
+    does not conserve energy), and Falcor's luminance term in absolute units, which has no meaning for W/m², is
+    left out.
+    """
+    y, i = wp.tid()
+    x0 = i * MOMENTS_RUN
+    p0 = y * width + x0
+    run = wp.min(width - x0, MOMENTS_RUN)  # pixels of the row from x0
+    need = int(0)  # bit k: pixel x0 + k needs the spatial variance
+    for k in range(MOMENTS_RUN):  # unrolled: the loads in flight together
+        h = history[p0 + wp.min(k, run - 1)]
+        if k < run and h > 0 and h < SPATIAL_VARIANCE_HISTORY:
+            need = need | (1 << k)
+    if need == 0:
+        return
+    k = int(0)
+    while k < run:
+        if ((need >> k) & 1) != 0:
+            p = p0 + k
+            h = history[p]
+            var = spatial_variance(moments, guide, slope, x0 + k, y, width, height, sigma_depth, sigma_normal, h)
+            variance_out[p] = var
+            cv = color_variance[p]
+            color_variance[p] = wp.vec4(cv[0], cv[1], cv[2], var)
+        k += 1
 
 
 @wp.kernel

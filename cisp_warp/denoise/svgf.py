@@ -142,7 +142,7 @@ class SVGF:
         if s.feedback_level == -1:
             wp.launch(K.store_history, dim=w * h, device=d, inputs=[self.integrated, self.parity],
                       outputs=[self.hist_color])
-        wp.launch(K.filter_moments, dim=dim, device=d,
+        wp.launch(K.filter_moments, dim=(h, (w + K.MOMENTS_RUN - 1) // K.MOMENTS_RUN), device=d,
                   inputs=[self.moments, self.history, self.guide, self.depth_slope, w, h, s.sigma_depth,
                           s.sigma_normal],
                   outputs=[self.filtered_variance, self.color_variance[0]])
