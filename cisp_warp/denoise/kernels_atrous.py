@@ -63,7 +63,7 @@ from __future__ import annotations
 import warp as wp
 
 from .kernels_atrous_pixel import UNGATED_RADIUS, footprint_radius, launch_atrous_level  # noqa: F401 (re-exported)
-from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, load_vec4, luminance, store_vec4  # noqa: F401 (the vec4 accesses re-exported)
+from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, lattice_index, load_vec4, luminance, store_vec4  # noqa: F401 (re-exported)
 
 
 #: Var of a packed pixel without a surface
@@ -425,16 +425,6 @@ def blur_variance(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
     return wp.vec2(var_blur, UNGATED_RADIUS)
 
 
-@wp.func
-def lattice_index(y: int, x: int, width: int, height: int, step: int) -> int:
-    """Index of pixel (y, x) in the sub-lattice-major order of tap spacing ``step``: sub-lattice
-    (y mod step, x mod step) after sub-lattice, each ceil(height/step) x ceil(width/step) points row-major
-    (points past the image unused; :func:`lattice_size` entries in all)."""
-    sub_h = (height + step - 1) // step
-    sub_w = (width + step - 1) // step
-    return (((y % step) * step + x % step) * sub_h + y // step) * sub_w + x // step
-
-
 def lattice_size(width: int, height: int, step: int) -> int:
     """Entries of a buffer in the sub-lattice-major order of tap spacing ``step``."""
     return step * step * ((height + step - 1) // step) * ((width + step - 1) // step)
@@ -463,6 +453,7 @@ def atrous_guide(
     guide_in: wp.array(dtype=wp.vec4),
     color_variance_lattice: wp.array(dtype=wp.vec4),
     guide_lattice: wp.array(dtype=wp.vec4),
+    copy_guide: int,
 ):
     """The per-pixel guides of a level that its input's 3x3 neighbourhood gives, dense over
     ``dim=height * width``, so that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered
@@ -480,7 +471,8 @@ def atrous_guide(
     ``lattice`` = the level's step (>= 2; 0: off): ``aux`` is written in that step's sub-lattice-major order
     (:func:`lattice_index`, :func:`lattice_size` entries) and so are copies of the packed input,
     ``color_variance_lattice``, and of the packed guide ``guide_in`` (n, z), ``guide_lattice``, which the level
-    then reads instead (packed input only).
+    then reads instead (packed input only); the guide only with ``copy_guide`` (else ``guide_lattice`` holds it in
+    that order already: SVGF's :func:`.kernels_svgf.reproject` writes it so).
     """
     p = wp.tid()
     y = p // width
@@ -497,7 +489,8 @@ def atrous_guide(
     elif lattice != 0:
         o = lattice_index(y, x, width, height, lattice)
         store_vec4(color_variance_lattice, o, cv)
-        store_vec4(guide_lattice, o, load_vec4(guide_in, p))
+        if copy_guide != 0:
+            store_vec4(guide_lattice, o, load_vec4(guide_in, p))
     if cv[3] < 0.0:
         store_vec4(aux, o, wp.vec4(0.0))
         return
@@ -729,7 +722,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   color_out: wp.array | None = None, variance_out: wp.array | None = None,
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
-                  lattice: tuple | None = None, unpack_from: wp.array | None = None) -> None:
+                  lattice: tuple | None = None, unpack_from: wp.array | None = None,
+                  lattice_guide_ready: bool = False) -> None:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -744,6 +738,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     ``lattice`` = (color_variance, guide) scratch (vec4, at least :func:`lattice_size` entries each, and ``aux``
     as many): at a step of ``LATTICE_STEP`` or more with a packed input, the guide pass copies the input and the
     guide there in the step's sub-lattice-major order and writes ``aux`` so, and the level reads them densely.
+    ``lattice_guide_ready``: ``lattice[1]`` already holds ``guide`` in this step's order (not copied again); only
+    where the level reads the lattice.
 
     ``unpack_from`` (H*W vec4 scratch, aliasing no input; only with ``color_out`` and no ``color_variance_out``): at
     a step of ``UNPACK_STEP`` or more the level writes its output packed there and :func:`unpack_level` writes
@@ -768,6 +764,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         color_variance = cv_out = pack_into[0]
         guide = guide_out = pack_into[1]
     use_lattice = lattice is not None and unpacked is None and step >= LATTICE_STEP
+    if lattice_guide_ready and not use_lattice:
+        raise ValueError("lattice_guide_ready needs a packed input, the lattice buffers and a step >= LATTICE_STEP")
     if use_lattice:
         size = lattice_size(width, height, step)
         if min(lattice[0].shape[0], lattice[1].shape[0], aux.shape[0]) < size:
@@ -779,7 +777,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
               inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
                       height, int(gated), float(noise_target) if gated else 0.0, float(sigma_depth),
                       1.0 / float(sigma_luminance), aux, int(unpacked is not None),
-                      cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice])
+                      cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice,
+                      int(not lattice_guide_ready)])
     if use_lattice:
         color_variance, guide = cv_lattice, guide_lattice
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP

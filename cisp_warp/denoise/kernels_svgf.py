@@ -86,6 +86,17 @@ def surface_depth(depth: wp.array(dtype=wp.float32), tri_id: wp.array(dtype=wp.i
 
 
 @wp.func
+def lattice_index(y: int, x: int, width: int, height: int, step: int) -> int:
+    """Index of pixel (y, x) in the sub-lattice-major order of tap spacing ``step``: sub-lattice
+    (y mod step, x mod step) after sub-lattice, each ceil(height/step) x ceil(width/step) points row-major
+    (points past the image unused; :func:`.kernels_atrous.lattice_size` entries in all)."""
+    sub_h = (height + step - 1) // step
+    sub_w = (width + step - 1) // step
+    return (((y % step) * step + x % step) * sub_h + y // step) * sub_w + x // step
+
+
+
+@wp.func
 def one_sided_slope(z: float, z_lo: float, z_hi: float) -> float:
     """|dz/dpixel| along one axis from the depths ``z_lo``, ``z_hi`` of the two neighbours (0: no surface, or off
     the image): the smaller one-sided difference to a neighbour with a surface, 0 without one. The smaller of
@@ -141,6 +152,8 @@ def reproject(
     normal_tolerance: float,
     write_integrated: int,
     write_variance: int,
+    lattice_a: int,
+    lattice_b: int,
     guide_out: wp.array(dtype=wp.vec4),
     color_variance_out: wp.array(dtype=wp.vec4),
     slope_out: wp.array(dtype=wp.float32),
@@ -148,6 +161,8 @@ def reproject(
     history: wp.array(dtype=wp.int32),
     integrated: wp.array(dtype=wp.vec3),
     variance_out: wp.array(dtype=wp.float32),
+    guide_lattice_a: wp.array(dtype=wp.vec4),
+    guide_lattice_b: wp.array(dtype=wp.vec4),
 ):
     """Temporal accumulation (Falcor SVGFReproject), and the per-pixel part of FilterMoments.
 
@@ -165,7 +180,9 @@ def reproject(
     history :func:`filter_moments` writes the variance), ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous
     levels), ``moments`` (vec2) and ``history`` (int32 [frames], 1 on disocclusion, 0 without a surface); with
     ``write_integrated`` the colour alone, ``integrated`` (vec3 [W/m²]); with ``write_variance`` the temporal
-    variance, ``variance_out`` (float32; 0 without a surface); and the same guide, moments and history into row
+    variance, ``variance_out`` (float32; 0 without a surface); the guide again in the sub-lattice-major order of
+    step ``lattice_a`` into ``guide_lattice_a`` and of ``lattice_b`` into ``guide_lattice_b`` (each where != 0;
+    :func:`lattice_index`), which those à-trous levels read; and the same guide, moments and history into row
     ``1 - parity[0]`` of the history, which the next frame reads.
 
     A previous-frame tap is consistent when it lies on screen, has a surface, its depth is within
@@ -180,6 +197,10 @@ def reproject(
     z = depth[p]
     if z <= 0.0 or tri_id[p] < 0:
         store_vec4(guide_out, p, wp.vec4(0.0))
+        if lattice_a != 0:
+            store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), wp.vec4(0.0))
+        if lattice_b != 0:
+            store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), wp.vec4(0.0))
         store_vec4(color_variance_out, p, wp.vec4(0.0, 0.0, 0.0, -1.0))
         slope_out[p] = 0.0
         moments[p] = wp.vec2(0.0)
@@ -195,6 +216,10 @@ def reproject(
     n = normal[p]
     g = wp.vec4(n[0], n[1], n[2], z)
     store_vec4(guide_out, p, g)
+    if lattice_a != 0:
+        store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), g)
+    if lattice_b != 0:
+        store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), g)
     store_vec4(hist_guide, cur * pixels + p, g)
     slope_out[p] = depth_gradient_length(depth, tri_id, z, x, y, width, height)
 

@@ -64,8 +64,9 @@ class SVGF:
     vec4: colour, Var; the à-trous levels' packed input and output, ping-ponged; a last level of step >=
     ``UNPACK_STEP`` writes its output there packed, unpacked into ``out`` densely), ``level_guides`` (vec4: a
     level's ‖∇z‖, g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a
-    little more than H*W), ``lattice`` (2 x vec4: those levels' input and guide copied in that order by their
-    guide pass; None with fewer levels), ``filtered_variance`` (float32: luminance variance of the last level,
+    little more than H*W), ``lattice_guides`` ({step: vec4}: the guide in the sub-lattice-major order of the first
+    two such steps, written by ``reproject``), ``lattice`` (2 x vec4: those levels' input, and the guide of any
+    further step, copied in that order by their guide pass; None with fewer levels), ``filtered_variance`` (float32: luminance variance of the last level,
     or of the temporal accumulation without levels).
     """
 
@@ -94,11 +95,15 @@ class SVGF:
         self.depth_slope = one(wp.float32)
         self.guide = one(wp.vec4)
         self.color_variance = one(wp.vec4), one(wp.vec4)
-        # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order
-        lattice = max([lattice_size(width, height, 1 << k) for k in range(settings.atrous_levels)
-                       if (1 << k) >= LATTICE_STEP], default=0)
+        # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order; the
+        # guide of the first two such steps is written so by reproject (one buffer each), of any further step copied
+        # by its level's guide pass into lattice[1] (with the input into lattice[0])
+        steps = [1 << k for k in range(settings.atrous_levels) if (1 << k) >= LATTICE_STEP]
+        lattice = max([lattice_size(width, height, st) for st in steps], default=0)
         self.level_guides = wp.zeros(max(n, lattice), dtype=wp.vec4, device=d)
-        self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d), wp.zeros(lattice, dtype=wp.vec4, device=d)) if lattice else None
+        self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d),
+                        wp.zeros(lattice if len(steps) > 2 else 1, dtype=wp.vec4, device=d)) if lattice else None
+        self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d) for st in steps[:2]}
         self.filtered_variance = one(wp.float32)
         spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
@@ -132,13 +137,15 @@ class SVGF:
         dim = (h, w)
         d = self.device
         temporal_only = s.atrous_levels == 0
+        lg = list(self.lattice_guides.items()) + [(0, spare_outputs(d)["vec4"])] * 2
         wp.launch(K.reproject, dim=dim, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id,
                           self.hist_guide, self.hist_color, self.hist_moments, self.hist_length,
                           self.parity, w, h, s.alpha_color, s.alpha_moments, s.max_history, s.depth_tolerance,
-                          s.normal_tolerance, int(temporal_only or s.feedback_level == -1), int(temporal_only)],
+                          s.normal_tolerance, int(temporal_only or s.feedback_level == -1), int(temporal_only),
+                          lg[0][0], lg[1][0]],
                   outputs=[self.guide, self.color_variance[0], self.depth_slope, self.moments, self.history,
-                           self.integrated, self.filtered_variance])
+                           self.integrated, self.filtered_variance, lg[0][1], lg[1][1]])
         if s.feedback_level == -1:
             wp.launch(K.store_history, dim=w * h, device=d, inputs=[self.integrated, self.parity],
                       outputs=[self.hist_color])
@@ -151,10 +158,12 @@ class SVGF:
         for level in range(s.atrous_levels):
             last = level == s.atrous_levels - 1
             feedback = level == s.feedback_level
+            ready = (1 << level) in self.lattice_guides
             launch_atrous(self.color_variance[level % 2], self.guide, self.depth_slope, w, h, 1 << level,
                           s.sigma_depth, s.sigma_normal, s.sigma_luminance, s.conserve_energy, self.level_guides,
                           color_variance_out=None if last else self.color_variance[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
                           hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
-                          lattice=self.lattice, unpack_from=self.color_variance[(level + 1) % 2] if last else None)
+                          lattice=(self.lattice[0], self.lattice_guides[1 << level]) if ready else self.lattice,
+                          unpack_from=self.color_variance[(level + 1) % 2] if last else None, lattice_guide_ready=ready)
         wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
