@@ -43,13 +43,13 @@ that both still need a footprint of ``step`` pixels and not at all where either 
 (a pixel whose own R is below half the step keeps its value). For SVGF R = 1e30 and every gate is 1.
 Pixels without a surface (depth 0) take no part and come out 0.
 
-Between levels the image travels packed (SVGF's ``filter_moments`` packs the first; the caustics denoiser's
-first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1 marking a pixel without a
+Between levels the image travels packed (SVGF's ``reproject`` and ``filter_moments`` pack the first; the caustics
+denoiser's first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1 marking a pixel without a
 surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
 
-Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11 and 24): SVGF's 5 levels (``atrous_level`` +
-``unpack_level``) 0.73 ms on the Cornell box, 1.16 ms on the pool, plus 0.22 / 0.25 ms of guide passes. Of the
+Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11, 26 and 38): SVGF's 5 levels (``atrous_level`` +
+``unpack_level``) 0.73 ms on the Cornell box, 1.15 ms on the pool, plus 0.18 / 0.22 ms of guide passes. Of the
 pool's 1.16: 0.43 the blocks' guide loads, barriers and the filter phase's reads, whether or not they filter (a
 dense kernel that reads three vec4 a pixel and writes one runs 0.050 ms a level), 0.05 their stores, ~0.50 the pair weights and
 weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two, which is why the pool (96%
@@ -63,7 +63,8 @@ from __future__ import annotations
 import warp as wp
 
 from .kernels_atrous_pixel import UNGATED_RADIUS, footprint_radius, launch_atrous_level  # noqa: F401 (re-exported)
-from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, lattice_index, load_vec4, luminance, store_vec4  # noqa: F401 (re-exported)
+from .kernels_svgf import (DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, lattice_index, load_vec4, luminance,  # noqa: F401
+                           store_vec4)  # lattice_index and the vec4 accesses re-exported
 
 
 #: Var of a packed pixel without a surface
@@ -529,7 +530,8 @@ def make_atrous_level(gated: int):
     by 1)."""
     GATED = int(gated)
 
-    @wp.kernel(name="atrous_level_gated" if GATED else "atrous_level", launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
+    @wp.kernel(name="atrous_level_gated" if GATED else "atrous_level",
+               launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
     def atrous_level(
         color_variance: wp.array(dtype=wp.vec4),
         guide: wp.array(dtype=wp.vec4),
@@ -559,8 +561,8 @@ def make_atrous_level(gated: int):
 
         Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) and
         ``guide`` (H*W vec4: n, z [m]), and ``aux`` (H*W vec4 of :func:`atrous_guide` for this input, with the same
-        ``sigma_depth`` and σ_l: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R). Gated (:func:`make_atrous_level`): the
-        gates act (R from ``aux``), else every gate is 1 and R is not read. Writes, each when its
+        ``sigma_depth`` and σ_l: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R). Gated (:func:`make_atrous_level`):
+        the gates act (R from ``aux``), else every gate is 1 and R is not read. Writes, each when its
         flag is set: ``color_variance_out`` (packed, the next level's input), ``color_out`` (H*W vec3 [W/m²]) and
         ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
         (2 x H*W vec3, the colour history). The outputs must not alias the inputs. ``lattice`` != 0: the three
@@ -642,7 +644,8 @@ def make_atrous_level(gated: int):
                 if surface:
                     c_new = c_p
                     v_new = v_p
-                if surface and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):  # else every gate of p is 0: A_pp = 1
+                # ungated, or else unless every gate of p is 0 (then A_pp = 1)
+                if surface and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
                     iw_p = read_guide_scalar(inv_weight_sum, u)
                     sum_a = float(0.0)  # Σ_{q≠p} A_pq
                     sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)

@@ -8,10 +8,10 @@ level's output becomes the colour history (:func:`store_history` when that is th
 Falcor's FinalModulate multiplies by albedo; the signal here is irradiance [W/m²], never demodulated, so it
 has no such stage.
 
-History is double-buffered as rows of ``(2, H*W)`` arrays (the guide as one array of 2*H*W vec4); ``parity[0]`` (a one-element int32 device
-array) names the row that holds the last frame, the kernels write row ``1 - parity[0]``, and
-:func:`flip_parity` swaps them at the end of the frame. Nothing is swapped on the host, so one captured
-CUDA graph replays every frame.
+History is double-buffered as rows of ``(2, H*W)`` arrays (the guide as one array of 2*H*W vec4);
+``parity[0]`` (a one-element int32 device array) names the row that holds the last frame, the kernels write row
+``1 - parity[0]``, and :func:`flip_parity` swaps them at the end of the frame. Nothing is swapped on the host, so
+one captured CUDA graph replays every frame.
 
 Every image is a flat array of ``height * width`` pixels, row-major, row 0 at the top; kernels are
 launched with ``dim=(height, width)``. A pixel *has a surface* when its depth is > 0 and its ``tri_id`` >= 0
@@ -251,7 +251,8 @@ def reproject(
             q = ty * width + tx
             g_q = load_vec4(hist_guide, prev * pixels + q)
             z_q = g_q[3]
-            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(wp.vec3(g_q[0], g_q[1], g_q[2]), n) >= normal_tolerance:
+            n_q = wp.vec3(g_q[0], g_q[1], g_q[2])
+            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(n_q, n) >= normal_tolerance:
                 sum_w += w
                 color_prev += w * hist_color[prev, q]
                 moments_prev += w * hist_moments[prev, q]
@@ -289,8 +290,9 @@ MOMENTS_RUN = wp.constant(4)
 
 
 @wp.func
-def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4), slope: wp.array(dtype=wp.float32),
-                     x: int, y: int, width: int, height: int, sigma_depth: float, sigma_normal: float, h: int) -> float:
+def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4),
+                     slope: wp.array(dtype=wp.float32), x: int, y: int, width: int, height: int, sigma_depth: float,
+                     sigma_normal: float, h: int) -> float:
     """The spatial luminance variance of pixel (x, y) (with a surface, history ``h`` frames): its moments averaged
     over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section 4.2), boosted by 4/h."""
     p = y * width + x

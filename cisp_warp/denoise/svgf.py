@@ -66,8 +66,8 @@ class SVGF:
     level's ‖∇z‖, g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a
     little more than H*W), ``lattice_guides`` ({step: vec4}: the guide in the sub-lattice-major order of the first
     two such steps, written by ``reproject``), ``lattice`` (2 x vec4: those levels' input, and the guide of any
-    further step, copied in that order by their guide pass; None with fewer levels), ``filtered_variance`` (float32: luminance variance of the last level,
-    or of the temporal accumulation without levels).
+    further step, copied in that order by their guide pass; None with fewer levels), ``filtered_variance``
+    (float32: luminance variance of the last level, or of the temporal accumulation without levels).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
@@ -103,7 +103,8 @@ class SVGF:
         self.level_guides = wp.zeros(max(n, lattice), dtype=wp.vec4, device=d)
         self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d),
                         wp.zeros(lattice if len(steps) > 2 else 1, dtype=wp.vec4, device=d)) if lattice else None
-        self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d) for st in steps[:2]}
+        self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d)
+                               for st in steps[:2]}
         self.filtered_variance = one(wp.float32)
         spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
