@@ -840,11 +840,12 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, latti
     np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("feedback,levels", [(0, 3), (2, 3), (-1, 3), (3, 5)])
+@pytest.mark.parametrize("feedback,levels", [(0, 3), (2, 3), (-1, 3), (3, 5), (4, 6)])
 def test_svgf_levels_match_naive_twin(device, feedback, levels):
-    """SVGF's chained levels (packed by filter_moments, ping-ponged packed, the last one unpacked, the feedback
-    level writing the colour history; steps 8 and 16 read in sub-lattice-major order) equal the float64 twin's
-    levels applied to the same temporal result."""
+    """SVGF's chained levels (packed by reproject and filter_moments, ping-ponged packed, the last one unpacked, the
+    feedback level writing the colour history; steps 8 and up read in sub-lattice-major order, the guide of steps 8
+    and 16 written so by reproject, of step 32 copied by its guide pass) equal the float64 twin's levels applied to
+    the same temporal result."""
     rng = np.random.default_rng(31)
     w, h = 37, 29
     g = plane(w, h)

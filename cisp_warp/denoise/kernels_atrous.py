@@ -43,13 +43,13 @@ that both still need a footprint of ``step`` pixels and not at all where either 
 (a pixel whose own R is below half the step keeps its value). For SVGF R = 1e30 and every gate is 1.
 Pixels without a surface (depth 0) take no part and come out 0.
 
-Between levels the image travels packed (SVGF's ``filter_moments`` packs the first; the caustics denoiser's
-first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1 marking a pixel without a
+Between levels the image travels packed (SVGF's ``reproject`` and ``filter_moments`` pack the first; the caustics
+denoiser's first :func:`atrous_guide` does): ``color_variance`` = (colour, Var), Var = −1 marking a pixel without a
 surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
 
-Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11 and 24): SVGF's 5 levels (``atrous_level`` +
-``unpack_level``) 0.73 ms on the Cornell box, 1.16 ms on the pool, plus 0.22 / 0.25 ms of guide passes. Of the
+Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11, 26 and 38): SVGF's 5 levels (``atrous_level`` +
+``unpack_level``) 0.73 ms on the Cornell box, 1.15 ms on the pool, plus 0.18 / 0.22 ms of guide passes. Of the
 pool's 1.16: 0.43 the blocks' guide loads, barriers and the filter phase's reads, whether or not they filter (a
 dense kernel that reads three vec4 a pixel and writes one runs 0.050 ms a level), 0.05 their stores, ~0.50 the pair weights and
 weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two, which is why the pool (96%
@@ -63,7 +63,8 @@ from __future__ import annotations
 import warp as wp
 
 from .kernels_atrous_pixel import UNGATED_RADIUS, footprint_radius, launch_atrous_level  # noqa: F401 (re-exported)
-from .kernels_svgf import DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, luminance
+from .kernels_svgf import (DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, lattice_index, load_vec4, luminance,  # noqa: F401
+                           store_vec4)  # lattice_index and the vec4 accesses re-exported
 
 
 #: Var of a packed pixel without a surface
@@ -179,34 +180,6 @@ return 1.0f / sqrtf(x);
 #endif
 """)
 def fast_rsqrt(x: float) -> float: ...
-
-
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-const float4 v = __ldg(reinterpret_cast<const float4*>(a.data) + p);
-return wp::vec4(v.x, v.y, v.z, v.w);
-#else
-return a.data[p];
-#endif
-""")
-def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
-    """``a[p]`` of a contiguous vec4 array in one 16-byte load on CUDA (Warp's own indexing issues four 4-byte
-    loads, and the level's loads are strided across a warp: each of the four touches as many sectors as one
-    16-byte load would)."""
-    ...
-
-
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-reinterpret_cast<float4*>(a.data)[p] = make_float4(v[0], v[1], v[2], v[3]);
-#else
-a.data[p] = v;
-#endif
-""")
-def store_vec4(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec4):
-    """``a[p] = v`` of a contiguous vec4 array in one 16-byte store on CUDA (Warp's own issues four 4-byte
-    stores: four partial writes of each sector)."""
-    ...
 
 
 # Per-thread writes into the level's shared tables without a barrier each (Warp's tile_scatter_masked and
@@ -453,16 +426,6 @@ def blur_variance(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
     return wp.vec2(var_blur, UNGATED_RADIUS)
 
 
-@wp.func
-def lattice_index(y: int, x: int, width: int, height: int, step: int) -> int:
-    """Index of pixel (y, x) in the sub-lattice-major order of tap spacing ``step``: sub-lattice
-    (y mod step, x mod step) after sub-lattice, each ceil(height/step) x ceil(width/step) points row-major
-    (points past the image unused; :func:`lattice_size` entries in all)."""
-    sub_h = (height + step - 1) // step
-    sub_w = (width + step - 1) // step
-    return (((y % step) * step + x % step) * sub_h + y // step) * sub_w + x // step
-
-
 def lattice_size(width: int, height: int, step: int) -> int:
     """Entries of a buffer in the sub-lattice-major order of tap spacing ``step``."""
     return step * step * ((height + step - 1) // step) * ((width + step - 1) // step)
@@ -491,6 +454,7 @@ def atrous_guide(
     guide_in: wp.array(dtype=wp.vec4),
     color_variance_lattice: wp.array(dtype=wp.vec4),
     guide_lattice: wp.array(dtype=wp.vec4),
+    copy_guide: int,
 ):
     """The per-pixel guides of a level that its input's 3x3 neighbourhood gives, dense over
     ``dim=height * width``, so that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered
@@ -508,7 +472,8 @@ def atrous_guide(
     ``lattice`` = the level's step (>= 2; 0: off): ``aux`` is written in that step's sub-lattice-major order
     (:func:`lattice_index`, :func:`lattice_size` entries) and so are copies of the packed input,
     ``color_variance_lattice``, and of the packed guide ``guide_in`` (n, z), ``guide_lattice``, which the level
-    then reads instead (packed input only).
+    then reads instead (packed input only); the guide only with ``copy_guide`` (else ``guide_lattice`` holds it in
+    that order already: SVGF's :func:`.kernels_svgf.reproject` writes it so).
     """
     p = wp.tid()
     y = p // width
@@ -525,7 +490,8 @@ def atrous_guide(
     elif lattice != 0:
         o = lattice_index(y, x, width, height, lattice)
         store_vec4(color_variance_lattice, o, cv)
-        store_vec4(guide_lattice, o, load_vec4(guide_in, p))
+        if copy_guide != 0:
+            store_vec4(guide_lattice, o, load_vec4(guide_in, p))
     if cv[3] < 0.0:
         store_vec4(aux, o, wp.vec4(0.0))
         return
@@ -537,10 +503,10 @@ def atrous_guide(
 @wp.func
 def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                 signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
-                s: float) -> int:
+                s: float, gated: int) -> int:
     """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
     guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns 1 if the
-    point is a pixel of the output tile that some gate lets be filtered."""
+    point is a pixel of the output tile that some gate lets be filtered (``gated`` == 0: any with a surface)."""
     surface = inside and cv[3] >= 0.0
     if not surface:
         write_guide(guide_s, k, wp.vec4(0.0))
@@ -552,155 +518,169 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
     write_guide(signal, k, cv)
     i = k // _PITCH
     j = k - i * _PITCH - 2
-    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and 2.0 * ax[3] > s:
+    if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and (gated == 0 or 2.0 * ax[3] > s):
         return 1
     return 0
 
 
-@wp.kernel(launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
-def atrous_level(
-    color_variance: wp.array(dtype=wp.vec4),
-    guide: wp.array(dtype=wp.vec4),
-    aux: wp.array(dtype=wp.vec4),
-    width: int,
-    height: int,
-    step: int,
-    tiles_x: int,
-    sigma_depth: float,
-    sigma_normal: float,
-    inv_sigma_luminance: float,
-    conserve_energy: int,
-    gated: int,
-    write_packed: int,
-    color_variance_out: wp.array(dtype=wp.vec4),
-    write_public: int,
-    color_out: wp.array(dtype=wp.vec3),
-    variance_out: wp.array(dtype=wp.float32),
-    write_history: int,
-    parity: wp.array(dtype=wp.int32),
-    hist_color: wp.array2d(dtype=wp.vec3),
-    lattice: int,
-):
-    """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
-    ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
-    (TILE_Y ty + i, TILE_X tx + j), i < TILE_Y, j < TILE_X, i.e. pixels (a + step (TILE_Y ty + i),
-    b + step (TILE_X tx + j)).
+def make_atrous_level(gated: int):
+    """:func:`atrous_level` compiled for one value of ``gated`` (a closure constant, folded by the compiler): the
+    ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one (the caustics
+    denoiser) is the same code with every gate evaluated. Same arithmetic either way (an open gate multiplies
+    by 1)."""
+    GATED = int(gated)
 
-    Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) and
-    ``guide`` (H*W vec4: n, z [m]), and ``aux`` (H*W vec4 of :func:`atrous_guide` for this input, with the same
-    ``sigma_depth`` and σ_l: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R). ``gated`` != 0: the gates act (R from
-    ``aux``), else every gate is 1. Writes, each when its
-    flag is set: ``color_variance_out`` (packed, the next level's input), ``color_out`` (H*W vec3 [W/m²]) and
-    ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
-    (2 x H*W vec3, the colour history). The outputs must not alias the inputs. ``lattice`` != 0: the three
-    inputs are in the step's sub-lattice-major order (:func:`atrous_guide`'s ``lattice``), the outputs not.
-    """
-    block, lane = wp.tid()
-    threads = wp.block_dim()
-    cell = step * step
-    sub = block % cell
-    row0 = sub // step  # sub-lattice: pixel rows ≡ row0, columns ≡ col0 (mod step)
-    col0 = sub % step
-    t = block // cell
-    sy0 = (t // tiles_x) * _TILE_Y - 4  # sub-lattice coordinates of guide element (0, 0)
-    sx0 = (t % tiles_x) * _TILE_X - 4
-    s = float(step)
-    sub_w = (width + step - 1) // step
-    lattice_row = sub * ((height + step - 1) // step)  # sub-lattice-major: point (sy, sx) at (lattice_row + sy) sub_w + sx
+    @wp.kernel(name="atrous_level_gated" if GATED else "atrous_level",
+               launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
+    def atrous_level(
+        color_variance: wp.array(dtype=wp.vec4),
+        guide: wp.array(dtype=wp.vec4),
+        aux: wp.array(dtype=wp.vec4),
+        width: int,
+        height: int,
+        step: int,
+        tiles_x: int,
+        sigma_depth: float,
+        sigma_normal: float,
+        inv_sigma_luminance: float,
+        conserve_energy: int,
+        write_packed: int,
+        color_variance_out: wp.array(dtype=wp.vec4),
+        write_public: int,
+        color_out: wp.array(dtype=wp.vec3),
+        variance_out: wp.array(dtype=wp.float32),
+        write_history: int,
+        parity: wp.array(dtype=wp.int32),
+        hist_color: wp.array2d(dtype=wp.vec3),
+        lattice: int,
+    ):
+        """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
+        ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
+        (TILE_Y ty + i, TILE_X tx + j), i < TILE_Y, j < TILE_X, i.e. pixels (a + step (TILE_Y ty + i),
+        b + step (TILE_X tx + j)).
 
-    # 1. guides of the tile and an apron of 4, read once
-    guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
-    guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
-    signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
-    filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
-    # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
-    # latency), their six loads issued before any is used; the empty columns are written without loads
-    for r0 in range(lane, _GUIDE_HALF, threads):
-        r1 = r0 + _GUIDE_HALF
-        i0 = r0 // _GUIDE_X
-        j0 = r0 - i0 * _GUIDE_X
-        i1 = r1 // _GUIDE_X
-        j1 = r1 - i1 * _GUIDE_X
-        y0 = row0 + step * (sy0 + i0)
-        x0 = col0 + step * (sx0 + j0)
-        y1 = row0 + step * (sy0 + i1)
-        x1 = col0 + step * (sx0 + j1)
-        in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
-        in1 = r1 < _GUIDE_REAL and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
-        p0 = wp.where(in0, wp.where(lattice != 0, (lattice_row + sy0 + i0) * sub_w + sx0 + j0, y0 * width + x0), 0)
-        p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
-        cv0 = load_vec4(color_variance, p0)
-        cv1 = load_vec4(color_variance, p1)
-        gs0 = load_vec4(guide, p0)
-        gs1 = load_vec4(guide, p1)
-        ax0 = load_vec4(aux, p0)
-        ax1 = load_vec4(aux, p1)
-        filtered += store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s)
-        if r1 < _GUIDE_REAL:
-            filtered += store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s)
-    # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
-    for m in range(threads - 1 - lane, _EMPTY_N, threads):
-        c = m % 4
-        store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
-                    wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s)
+        Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) and
+        ``guide`` (H*W vec4: n, z [m]), and ``aux`` (H*W vec4 of :func:`atrous_guide` for this input, with the same
+        ``sigma_depth`` and σ_l: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R). Gated (:func:`make_atrous_level`):
+        the gates act (R from ``aux``), else every gate is 1 and R is not read. Writes, each when its
+        flag is set: ``color_variance_out`` (packed, the next level's input), ``color_out`` (H*W vec3 [W/m²]) and
+        ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
+        (2 x H*W vec3, the colour history). The outputs must not alias the inputs. ``lattice`` != 0: the three
+        inputs are in the step's sub-lattice-major order (:func:`atrous_guide`'s ``lattice``), the outputs not.
+        """
+        block, lane = wp.tid()
+        threads = wp.block_dim()
+        cell = step * step
+        sub = block % cell
+        row0 = sub // step  # sub-lattice: pixel rows ≡ row0, columns ≡ col0 (mod step)
+        col0 = sub % step
+        t = block // cell
+        sy0 = (t // tiles_x) * _TILE_Y - 4  # sub-lattice coordinates of guide element (0, 0)
+        sx0 = (t % tiles_x) * _TILE_X - 4
+        s = float(step)
+        sub_w = (width + step - 1) // step
+        lattice_row = sub * ((height + step - 1) // step)  # sub-lattice-major: point (sy, sx) at (lattice_row + sy) sub_w + sx
 
-    pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
-    inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
-    flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
-    # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
-    # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
-    # half the step (converged) skips 2 and 3: step 4 reads neither table then
-    if block_sync_or(flag, filtered) != 0:
-        fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, sigma_depth * DEPTH_NOISE_REL,
-                     sigma_normal, gated)
+        # 1. guides of the tile and an apron of 4, read once
+        guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
+        guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
+        signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
+        filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
+        # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
+        # latency), their six loads issued before any is used; the empty columns are written without loads
+        for r0 in range(lane, _GUIDE_HALF, threads):
+            r1 = r0 + _GUIDE_HALF
+            i0 = r0 // _GUIDE_X
+            j0 = r0 - i0 * _GUIDE_X
+            i1 = r1 // _GUIDE_X
+            j1 = r1 - i1 * _GUIDE_X
+            y0 = row0 + step * (sy0 + i0)
+            x0 = col0 + step * (sx0 + j0)
+            y1 = row0 + step * (sy0 + i1)
+            x1 = col0 + step * (sx0 + j1)
+            in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
+            in1 = r1 < _GUIDE_REAL and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
+            p0 = wp.where(in0, wp.where(lattice != 0, (lattice_row + sy0 + i0) * sub_w + sx0 + j0, y0 * width + x0), 0)
+            p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
+            cv0 = load_vec4(color_variance, p0)
+            cv1 = load_vec4(color_variance, p1)
+            gs0 = load_vec4(guide, p0)
+            gs1 = load_vec4(guide, p1)
+            ax0 = load_vec4(aux, p0)
+            ax1 = load_vec4(aux, p1)
+            filtered += store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
+            if r1 < _GUIDE_REAL:
+                filtered += store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
+        # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
+        for m in range(threads - 1 - lane, _EMPTY_N, threads):
+            c = m % 4
+            store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
+                        wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED)
 
-    # 4. the filter of the tile's pixels
-    k = lane
-    while k < _TILE_Y * _TILE_X:
-        y = row0 + step * (sy0 + 4 + k // _TILE_X)
-        x = col0 + step * (sx0 + 4 + k % _TILE_X)
-        if y < height and x < width:
-            p = y * width + x
-            u = (4 + k // _TILE_X) * _PITCH + 6 + k % _TILE_X
-            cv_p = read_guide(signal, u)
-            c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
-            v_p = cv_p[3]
-            surface = read_guide(guide_s, u)[3] > 0.0
-            c_new = wp.vec3(0.0)
-            v_new = float(0.0)
-            if surface:
-                c_new = c_p
-                v_new = v_p
-            if surface and 2.0 * read_guide(guide_d, u)[3] > s:  # else every gate of p is 0: A_pp = 1
-                iw_p = read_guide_scalar(inv_weight_sum, u)
-                sum_a = float(0.0)  # Σ_{q≠p} A_pq
-                sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
-                sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q (w_pq = 0 where q has no surface: no branch)
-                for f in range(FORWARD_TAPS):
-                    off = forward_offset(f)
-                    q = u + off
-                    a = read_pair(pair, f * _PAIR_PIXELS + u) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
-                    cv_q = read_guide(signal, q)
-                    sum_a += a
-                    sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
-                    sum_av += a * a * cv_q[3]
-                    q = u - off
-                    a = read_pair(pair, f * _PAIR_PIXELS + q) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
-                    cv_q = read_guide(signal, q)
-                    sum_a += a
-                    sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
-                    sum_av += a * a * cv_q[3]
-                a_centre = 1.0 - sum_a
-                c_new = c_p + sum_dc
-                v_new = sum_av + a_centre * a_centre * v_p
-            if write_packed != 0:
-                store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
-            if write_public != 0:
-                color_out[p] = c_new
-                variance_out[p] = v_new
-            if write_history != 0:
-                hist_color[1 - parity[0], p] = c_new
-        k += threads
+        pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
+        inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
+        flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
+        # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
+        # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
+        # half the step (converged) skips 2 and 3: step 4 reads neither table then
+        if block_sync_or(flag, filtered) != 0:
+            fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, sigma_depth * DEPTH_NOISE_REL,
+                         sigma_normal, GATED)
+
+        # 4. the filter of the tile's pixels
+        k = lane
+        while k < _TILE_Y * _TILE_X:
+            y = row0 + step * (sy0 + 4 + k // _TILE_X)
+            x = col0 + step * (sx0 + 4 + k % _TILE_X)
+            if y < height and x < width:
+                p = y * width + x
+                u = (4 + k // _TILE_X) * _PITCH + 6 + k % _TILE_X
+                cv_p = read_guide(signal, u)
+                c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
+                v_p = cv_p[3]
+                surface = read_guide(guide_s, u)[3] > 0.0
+                c_new = wp.vec3(0.0)
+                v_new = float(0.0)
+                if surface:
+                    c_new = c_p
+                    v_new = v_p
+                # ungated, or else unless every gate of p is 0 (then A_pp = 1)
+                if surface and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
+                    iw_p = read_guide_scalar(inv_weight_sum, u)
+                    sum_a = float(0.0)  # Σ_{q≠p} A_pq
+                    sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
+                    sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q (w_pq = 0 where q has no surface: no branch)
+                    for f in range(FORWARD_TAPS):
+                        off = forward_offset(f)
+                        q = u + off
+                        a = read_pair(pair, f * _PAIR_PIXELS + u) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
+                        cv_q = read_guide(signal, q)
+                        sum_a += a
+                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                        sum_av += a * a * cv_q[3]
+                        q = u - off
+                        a = read_pair(pair, f * _PAIR_PIXELS + q) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
+                        cv_q = read_guide(signal, q)
+                        sum_a += a
+                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                        sum_av += a * a * cv_q[3]
+                    a_centre = 1.0 - sum_a
+                    c_new = c_p + sum_dc
+                    v_new = sum_av + a_centre * a_centre * v_p
+                if write_packed != 0:
+                    store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
+                if write_public != 0:
+                    color_out[p] = c_new
+                    variance_out[p] = v_new
+                if write_history != 0:
+                    hist_color[1 - parity[0], p] = c_new
+            k += threads
+
+    return atrous_level
+
+
+#: the level by gating: ATROUS_LEVEL[0] (SVGF) and ATROUS_LEVEL[1] (the caustics denoiser's gated levels)
+ATROUS_LEVEL = {0: make_atrous_level(0), 1: make_atrous_level(1)}
 
 
 @wp.kernel
@@ -745,7 +725,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   color_out: wp.array | None = None, variance_out: wp.array | None = None,
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
-                  lattice: tuple | None = None, unpack_from: wp.array | None = None) -> None:
+                  lattice: tuple | None = None, unpack_from: wp.array | None = None,
+                  lattice_guide_ready: bool = False) -> None:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -760,6 +741,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     ``lattice`` = (color_variance, guide) scratch (vec4, at least :func:`lattice_size` entries each, and ``aux``
     as many): at a step of ``LATTICE_STEP`` or more with a packed input, the guide pass copies the input and the
     guide there in the step's sub-lattice-major order and writes ``aux`` so, and the level reads them densely.
+    ``lattice_guide_ready``: ``lattice[1]`` already holds ``guide`` in this step's order (not copied again); only
+    where the level reads the lattice.
 
     ``unpack_from`` (H*W vec4 scratch, aliasing no input; only with ``color_out`` and no ``color_variance_out``): at
     a step of ``UNPACK_STEP`` or more the level writes its output packed there and :func:`unpack_level` writes
@@ -784,6 +767,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         color_variance = cv_out = pack_into[0]
         guide = guide_out = pack_into[1]
     use_lattice = lattice is not None and unpacked is None and step >= LATTICE_STEP
+    if lattice_guide_ready and not use_lattice:
+        raise ValueError("lattice_guide_ready needs a packed input, the lattice buffers and a step >= LATTICE_STEP")
     if use_lattice:
         size = lattice_size(width, height, step)
         if min(lattice[0].shape[0], lattice[1].shape[0], aux.shape[0]) < size:
@@ -795,15 +780,16 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
               inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
                       height, int(gated), float(noise_target) if gated else 0.0, float(sigma_depth),
                       1.0 / float(sigma_luminance), aux, int(unpacked is not None),
-                      cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice])
+                      cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice,
+                      int(not lattice_guide_ready)])
     if use_lattice:
         color_variance, guide = cv_lattice, guide_lattice
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
-    wp.launch_tiled(atrous_level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
+    wp.launch_tiled(ATROUS_LEVEL[int(gated)], dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, float(sigma_depth),
-                            float(sigma_normal), 1.0 / float(sigma_luminance), int(conserve_energy), int(gated),
+                            float(sigma_normal), 1.0 / float(sigma_luminance), int(conserve_energy),
                             int(color_variance_out is not None),
                             color_variance_out if color_variance_out is not None else spare["vec4"],
                             int(write_public), color_out if write_public else spare["vec3"],

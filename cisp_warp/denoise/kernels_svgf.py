@@ -1,21 +1,22 @@
 """Warp kernels of SVGF (Schied et al. 2017) for caustic irradiance, one per Falcor SVGFPass stage.
 
 Stages (Falcor ``RenderPasses/SVGFPass``): :func:`reproject` (temporal accumulation of colour and
-luminance moments), :func:`filter_moments` (variance: temporal, or spatial where history is short;
-depth slope), then the à-trous levels of :mod:`.kernels_atrous` (the variance-guided wavelet, made
-energy-conserving), and :func:`store_history` (the feedback level's output becomes the colour history).
+luminance moments, and what FilterMoments computes per pixel: the temporal variance, the depth slope, the
+first level's packed input), :func:`filter_moments` (the spatial variance where history is short), then the
+à-trous levels of :mod:`.kernels_atrous` (the variance-guided wavelet, made energy-conserving); the feedback
+level's output becomes the colour history (:func:`store_history` when that is the temporal accumulation).
 Falcor's FinalModulate multiplies by albedo; the signal here is irradiance [W/m²], never demodulated, so it
 has no such stage.
 
-History is double-buffered as rows of ``(2, H*W)`` arrays; ``parity[0]`` (a one-element int32 device
-array) names the row that holds the last frame, the kernels write row ``1 - parity[0]``, and
-:func:`flip_parity` swaps them at the end of the frame. Nothing is swapped on the host, so one captured
-CUDA graph replays every frame.
+History is double-buffered as rows of ``(2, H*W)`` arrays (the guide as one array of 2*H*W vec4);
+``parity[0]`` (a one-element int32 device array) names the row that holds the last frame, the kernels write row
+``1 - parity[0]``, and :func:`flip_parity` swaps them at the end of the frame. Nothing is swapped on the host, so
+one captured CUDA graph replays every frame.
 
 Every image is a flat array of ``height * width`` pixels, row-major, row 0 at the top; kernels are
-launched with ``dim=(height, width)``. A pixel *has a surface* when its depth is > 0 (the reproject
-stage writes depth 0 where the G-buffer has ``tri_id < 0``), and pixels without one are excluded from
-every neighbourhood and come out 0.
+launched with ``dim=(height, width)``. A pixel *has a surface* when its depth is > 0 and its ``tri_id`` >= 0
+(the reproject stage's guide holds depth 0 elsewhere), and pixels without one are excluded from every
+neighbourhood and come out 0.
 """
 
 from __future__ import annotations
@@ -47,33 +48,78 @@ def b3_spline(i: int) -> float:
     return wp.where(a == 0, 0.375, wp.where(a == 1, 0.25, 0.0625))
 
 
-@wp.func
-def one_sided_slope(depth: wp.array(dtype=wp.float32), p: int, z: float, q_lo: int, ok_lo: bool,
-                    q_hi: int, ok_hi: bool) -> float:
-    """|dz/dpixel| along one axis: the smaller one-sided difference to a neighbour with a surface.
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float4 v = __ldg(reinterpret_cast<const float4*>(a.data) + p);
+return wp::vec4(v.x, v.y, v.z, v.w);
+#else
+return a.data[p];
+#endif
+""")
+def load_vec4(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec4:
+    """``a[p]`` of a contiguous vec4 array in one 16-byte load on CUDA (Warp's own indexing issues four 4-byte
+    loads, and the level's loads are strided across a warp: each of the four touches as many sectors as one
+    16-byte load would)."""
+    ...
 
-    The smaller of the two is taken so that a depth edge on one side does not inflate the slope.
-    """
-    s = float(-1.0)
-    if ok_lo:
-        z_lo = depth[q_lo]
-        if z_lo > 0.0:
-            s = wp.abs(z - z_lo)
-    if ok_hi:
-        z_hi = depth[q_hi]
-        if z_hi > 0.0:
-            d = wp.abs(z_hi - z)
-            s = wp.where(s < 0.0, d, wp.min(s, d))
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+reinterpret_cast<float4*>(a.data)[p] = make_float4(v[0], v[1], v[2], v[3]);
+#else
+a.data[p] = v;
+#endif
+""")
+def store_vec4(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec4):
+    """``a[p] = v`` of a contiguous vec4 array in one 16-byte store on CUDA (Warp's own issues four 4-byte
+    stores: four partial writes of each sector)."""
+    ...
+
+
+@wp.func
+def surface_depth(depth: wp.array(dtype=wp.float32), tri_id: wp.array(dtype=wp.int32), q: int) -> float:
+    """Depth [m] of pixel ``q`` as every later stage sees it: the G-buffer's where it has a surface (depth > 0
+    and ``tri_id`` >= 0), else 0."""
+    z = depth[q]
+    t = tri_id[q]
+    return wp.where(z > 0.0 and t >= 0, z, 0.0)
+
+
+@wp.func
+def lattice_index(y: int, x: int, width: int, height: int, step: int) -> int:
+    """Index of pixel (y, x) in the sub-lattice-major order of tap spacing ``step``: sub-lattice
+    (y mod step, x mod step) after sub-lattice, each ceil(height/step) x ceil(width/step) points row-major
+    (points past the image unused; :func:`.kernels_atrous.lattice_size` entries in all)."""
+    sub_h = (height + step - 1) // step
+    sub_w = (width + step - 1) // step
+    return (((y % step) * step + x % step) * sub_h + y // step) * sub_w + x // step
+
+
+
+@wp.func
+def one_sided_slope(z: float, z_lo: float, z_hi: float) -> float:
+    """|dz/dpixel| along one axis from the depths ``z_lo``, ``z_hi`` of the two neighbours (0: no surface, or off
+    the image): the smaller one-sided difference to a neighbour with a surface, 0 without one. The smaller of
+    the two is taken so that a depth edge on one side does not inflate the slope."""
+    s = wp.where(z_lo > 0.0, wp.abs(z - z_lo), -1.0)
+    d = wp.abs(z_hi - z)
+    s = wp.where(z_hi > 0.0, wp.where(s < 0.0, d, wp.min(s, d)), s)
     return wp.max(s, 0.0)
 
 
 @wp.func
-def depth_gradient_length(depth: wp.array(dtype=wp.float32), x: int, y: int, width: int, height: int) -> float:
-    """‖∇z‖ [m/pixel] of linear depth at pixel (x, y) (paper eq. 3's ∇z; Falcor stores max(|ddx|, |ddy|))."""
+def depth_gradient_length(depth: wp.array(dtype=wp.float32), tri_id: wp.array(dtype=wp.int32), z: float, x: int,
+                          y: int, width: int, height: int) -> float:
+    """‖∇z‖ [m/pixel] of linear depth at pixel (x, y), whose depth ``z`` > 0 (paper eq. 3's ∇z; Falcor stores
+    max(|ddx|, |ddy|)), over the neighbours with a surface (:func:`surface_depth`). The four neighbours are read
+    at clamped indices, unconditionally, and masked after: their loads are in flight together."""
     p = y * width + x
-    z = depth[p]
-    gx = one_sided_slope(depth, p, z, p - 1, x > 0, p + 1, x < width - 1)
-    gy = one_sided_slope(depth, p, z, p - width, y > 0, p + width, y < height - 1)
+    z_l = surface_depth(depth, tri_id, wp.where(x > 0, p - 1, p))
+    z_r = surface_depth(depth, tri_id, wp.where(x < width - 1, p + 1, p))
+    z_u = surface_depth(depth, tri_id, wp.where(y > 0, p - width, p))
+    z_d = surface_depth(depth, tri_id, wp.where(y < height - 1, p + width, p))
+    gx = one_sided_slope(z, wp.where(x > 0, z_l, 0.0), wp.where(x < width - 1, z_r, 0.0))
+    gy = one_sided_slope(z, wp.where(y > 0, z_u, 0.0), wp.where(y < height - 1, z_d, 0.0))
     return wp.sqrt(gx * gx + gy * gy)
 
 
@@ -92,8 +138,7 @@ def reproject(
     normal: wp.array(dtype=wp.vec3),
     motion: wp.array(dtype=wp.vec2),
     tri_id: wp.array(dtype=wp.int32),
-    hist_depth: wp.array2d(dtype=wp.float32),
-    hist_normal: wp.array2d(dtype=wp.vec3),
+    hist_guide: wp.array(dtype=wp.vec4),
     hist_color: wp.array2d(dtype=wp.vec3),
     hist_moments: wp.array2d(dtype=wp.vec2),
     hist_length: wp.array2d(dtype=wp.int32),
@@ -105,23 +150,39 @@ def reproject(
     max_history: int,
     depth_tolerance: float,
     normal_tolerance: float,
-    cur_depth: wp.array(dtype=wp.float32),
-    cur_normal: wp.array(dtype=wp.vec3),
-    integrated: wp.array(dtype=wp.vec3),
+    write_integrated: int,
+    write_variance: int,
+    lattice_a: int,
+    lattice_b: int,
+    guide_out: wp.array(dtype=wp.vec4),
+    color_variance_out: wp.array(dtype=wp.vec4),
+    slope_out: wp.array(dtype=wp.float32),
     moments: wp.array(dtype=wp.vec2),
     history: wp.array(dtype=wp.int32),
+    integrated: wp.array(dtype=wp.vec3),
+    variance_out: wp.array(dtype=wp.float32),
+    guide_lattice_a: wp.array(dtype=wp.vec4),
+    guide_lattice_b: wp.array(dtype=wp.vec4),
 ):
-    """Temporal accumulation (Falcor SVGFReproject).
+    """Temporal accumulation (Falcor SVGFReproject), and the per-pixel part of FilterMoments.
 
     Reads: ``irradiance`` (H*W vec3 [W/m²], this frame's noisy signal); G-buffer ``depth`` (float32 [m],
     0 = none), ``normal`` (vec3, unit), ``motion`` (vec2 [pixels]: previous position minus pixel centre),
-    ``tri_id`` (int32, -1 = none); row ``parity[0]`` of the history (2 x H*W each): ``hist_depth``/
-    ``hist_normal`` (this pass's own G-buffer copies; depth 0 = no surface), ``hist_color`` (vec3 [W/m²],
-    colour history), ``hist_moments`` (vec2: luminance mean and mean square), ``hist_length`` (int32 [frames]).
+    ``tri_id`` (int32, -1 = none); row ``parity[0]`` of the history (rows of H*W each): ``hist_guide`` (vec4
+    (n, z [m]), 2*H*W, row r at r*H*W: this pass's own G-buffer copy; z = 0 = no surface), ``hist_color`` (vec3
+    [W/m²], colour history), ``hist_moments`` (vec2: luminance mean and mean square), ``hist_length`` (int32
+    [frames]).
 
-    Writes: ``cur_depth``/``cur_normal`` (the G-buffer copy the later stages filter with; depth 0 where
-    ``tri_id < 0``), ``integrated`` (vec3 [W/m²]), ``moments`` (vec2) and ``history`` (int32 [frames], 1 on
-    disocclusion, 0 without a surface), and the same depth, normal, moments and history into row
+    Writes (H*W each): ``guide_out`` (vec4 (n, z) [m], 0 without a surface: the G-buffer copy the later stages
+    filter with; no surface where depth <= 0 or ``tri_id`` < 0), ``color_variance_out`` (vec4: the accumulated
+    colour [W/m²] and, with a history of at least ``SPATIAL_VARIANCE_HISTORY`` frames, the temporal luminance
+    variance E[l²] − E[l]², the first à-trous level's packed input; (0, 0, 0, −1) without a surface; below that
+    history :func:`filter_moments` writes the variance), ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous
+    levels), ``moments`` (vec2) and ``history`` (int32 [frames], 1 on disocclusion, 0 without a surface); with
+    ``write_integrated`` the colour alone, ``integrated`` (vec3 [W/m²]); with ``write_variance`` the temporal
+    variance, ``variance_out`` (float32; 0 without a surface); the guide again in the sub-lattice-major order of
+    step ``lattice_a`` into ``guide_lattice_a`` and of ``lattice_b`` into ``guide_lattice_b`` (each where != 0;
+    :func:`lattice_index`), which those à-trous levels read; and the same guide, moments and history into row
     ``1 - parity[0]`` of the history, which the next frame reads.
 
     A previous-frame tap is consistent when it lies on screen, has a surface, its depth is within
@@ -130,25 +191,37 @@ def reproject(
     """
     y, x = wp.tid()
     p = y * width + x
+    pixels = width * height
     prev = parity[0]
     cur = 1 - prev
     z = depth[p]
     if z <= 0.0 or tri_id[p] < 0:
-        cur_depth[p] = 0.0
-        cur_normal[p] = wp.vec3(0.0)
-        integrated[p] = wp.vec3(0.0)
+        store_vec4(guide_out, p, wp.vec4(0.0))
+        if lattice_a != 0:
+            store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), wp.vec4(0.0))
+        if lattice_b != 0:
+            store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), wp.vec4(0.0))
+        store_vec4(color_variance_out, p, wp.vec4(0.0, 0.0, 0.0, -1.0))
+        slope_out[p] = 0.0
         moments[p] = wp.vec2(0.0)
         history[p] = 0
-        hist_depth[cur, p] = 0.0
-        hist_normal[cur, p] = wp.vec3(0.0)
+        store_vec4(hist_guide, cur * pixels + p, wp.vec4(0.0))
         hist_moments[cur, p] = wp.vec2(0.0)
         hist_length[cur, p] = 0
+        if write_integrated != 0:
+            integrated[p] = wp.vec3(0.0)
+        if write_variance != 0:
+            variance_out[p] = 0.0
         return
     n = normal[p]
-    cur_depth[p] = z
-    cur_normal[p] = n
-    hist_depth[cur, p] = z
-    hist_normal[cur, p] = n
+    g = wp.vec4(n[0], n[1], n[2], z)
+    store_vec4(guide_out, p, g)
+    if lattice_a != 0:
+        store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), g)
+    if lattice_b != 0:
+        store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), g)
+    store_vec4(hist_guide, cur * pixels + p, g)
+    slope_out[p] = depth_gradient_length(depth, tri_id, z, x, y, width, height)
 
     # previous position in pixel units with pixel centres on integers
     m = motion[p]
@@ -171,11 +244,15 @@ def reproject(
         dy = tap // 2
         tx = x0 + dx
         ty = y0 + dy
-        if tx >= 0 and tx < width and ty >= 0 and ty < height:
+        w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
+        # a tap of weight 0 (a still pixel's three others) adds nothing, and is never the best tap where the
+        # history is kept (some tap of weight > 0 is, or the sum stays under MIN_BILINEAR_WEIGHT): not read
+        if w > 0.0 and tx >= 0 and tx < width and ty >= 0 and ty < height:
             q = ty * width + tx
-            z_q = hist_depth[prev, q]
-            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(hist_normal[prev, q], n) >= normal_tolerance:
-                w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
+            g_q = load_vec4(hist_guide, prev * pixels + q)
+            z_q = g_q[3]
+            n_q = wp.vec3(g_q[0], g_q[1], g_q[2])
+            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(n_q, n) >= normal_tolerance:
                 sum_w += w
                 color_prev += w * hist_color[prev, q]
                 moments_prev += w * hist_moments[prev, q]
@@ -185,78 +262,44 @@ def reproject(
 
     c = irradiance[p]
     lum = luminance(c)
-    m_now = wp.vec2(lum, lum * lum)
+    m_new = wp.vec2(lum, lum * lum)
+    h = int(1)  # disoccluded: this frame alone
     if sum_w >= MIN_BILINEAR_WEIGHT:
         h = wp.min(history_prev + 1, max_history)
         a = wp.max(1.0 / float(h), alpha_color)  # equal weights while history is short
         a_m = wp.max(1.0 / float(h), alpha_moments)
-        m_new = wp.lerp(moments_prev / sum_w, m_now, a_m)
-        integrated[p] = wp.lerp(color_prev / sum_w, c, a)
-        moments[p] = m_new
-        history[p] = h
-        hist_moments[cur, p] = m_new
-        hist_length[cur, p] = h
-    else:  # disoccluded
+        m_new = wp.lerp(moments_prev / sum_w, m_new, a_m)
+        c = wp.lerp(color_prev / sum_w, c, a)
+    moments[p] = m_new
+    history[p] = h
+    hist_moments[cur, p] = m_new
+    hist_length[cur, p] = h
+    if write_integrated != 0:
         integrated[p] = c
-        moments[p] = m_now
-        history[p] = 1
-        hist_moments[cur, p] = m_now
-        hist_length[cur, p] = 1
-
-
-@wp.kernel
-def filter_moments(
-    moments: wp.array(dtype=wp.vec2),
-    history: wp.array(dtype=wp.int32),
-    depth: wp.array(dtype=wp.float32),
-    normal: wp.array(dtype=wp.vec3),
-    width: int,
-    height: int,
-    sigma_depth: float,
-    sigma_normal: float,
-    integrated: wp.array(dtype=wp.vec3),
-    variance_out: wp.array(dtype=wp.float32),
-    slope_out: wp.array(dtype=wp.float32),
-    guide_out: wp.array(dtype=wp.vec4),
-    color_variance_out: wp.array(dtype=wp.vec4),
-):
-    """Per-pixel luminance variance (Falcor SVGFFilterMoments) and depth slope.
-
-    Reads the outputs of :func:`reproject` (``moments`` vec2, ``history`` int32) and its G-buffer copy
-    (``depth`` [m], 0 = none; ``normal``) and ``integrated`` (vec3 [W/m²]). Writes ``variance_out`` (float32,
-    luminance variance), ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous levels) and the first level's
-    packed input (:mod:`.kernels_atrous`): ``guide_out`` = (n, z) and ``color_variance_out`` = (colour, Var),
-    H*W vec4 each, (0, 0, 0, 0) and (0, 0, 0, -1) without a surface.
-
-    With at least ``SPATIAL_VARIANCE_HISTORY`` frames the variance is temporal, E[l²] − E[l]². Below
-    that, the moments are averaged over a 7x7 bilateral neighbourhood weighted by depth and normal
-    (paper section 4.2) and the variance boosted by 4/h. Unlike Falcor, the colour is not replaced by
-    that average (the paper only estimates variance here; the à-trous levels do the spatial filtering,
-    and the colour stays untouched by any filter that does not conserve energy), and Falcor's luminance
-    term in absolute units, which has no meaning for W/m², is left out.
-    """
-    y, x = wp.tid()
-    p = y * width + x
-    z = depth[p]
-    if z <= 0.0:
-        variance_out[p] = 0.0
-        slope_out[p] = 0.0
-        guide_out[p] = wp.vec4(0.0)
-        color_variance_out[p] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-        return
-    slope = depth_gradient_length(depth, x, y, width, height)
-    slope_out[p] = slope
-    n = normal[p]
-    guide_out[p] = wp.vec4(n[0], n[1], n[2], z)
-    c = integrated[p]
-    h = history[p]
+    var = float(0.0)  # below SPATIAL_VARIANCE_HISTORY filter_moments writes it
     if h >= SPATIAL_VARIANCE_HISTORY:
-        mo = moments[p]
-        var = wp.max(mo[1] - mo[0] * mo[0], 0.0)
-        variance_out[p] = var
-        color_variance_out[p] = wp.vec4(c[0], c[1], c[2], var)
-        return
+        var = wp.max(m_new[1] - m_new[0] * m_new[0], 0.0)
+        if write_variance != 0:
+            variance_out[p] = var
+    store_vec4(color_variance_out, p, wp.vec4(c[0], c[1], c[2], var))
 
+
+#: pixels of a row that one thread of :func:`filter_moments` takes (most need nothing: four loads a thread instead
+#: of a thread a load, which the launch's cost followed)
+MOMENTS_RUN = wp.constant(4)
+
+
+@wp.func
+def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4),
+                     slope: wp.array(dtype=wp.float32), x: int, y: int, width: int, height: int, sigma_depth: float,
+                     sigma_normal: float, h: int) -> float:
+    """The spatial luminance variance of pixel (x, y) (with a surface, history ``h`` frames): its moments averaged
+    over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section 4.2), boosted by 4/h."""
+    p = y * width + x
+    g = load_vec4(guide, p)
+    z = g[3]
+    n = wp.vec3(g[0], g[1], g[2])
+    slope_p = slope[p]
     sum_w = float(0.0)
     sum_m = wp.vec2(0.0)
     for dy in range(-SPATIAL_VARIANCE_RADIUS, SPATIAL_VARIANCE_RADIUS + 1):
@@ -265,17 +308,67 @@ def filter_moments(
             qy = y + dy
             if qx >= 0 and qx < width and qy >= 0 and qy < height:
                 q = qy * width + qx
-                z_q = depth[q]
+                g_q = load_vec4(guide, q)
+                z_q = g_q[3]
                 if z_q > 0.0:
                     dist = wp.sqrt(float(dx * dx + dy * dy))
-                    phi_z = sigma_depth * (slope * dist + DEPTH_NOISE_REL * z)
-                    w = edge_stop_depth_normal(z, z_q, phi_z, n, normal[q], sigma_normal)
+                    phi_z = sigma_depth * (slope_p * dist + DEPTH_NOISE_REL * z)
+                    w = edge_stop_depth_normal(z, z_q, phi_z, n, wp.vec3(g_q[0], g_q[1], g_q[2]), sigma_normal)
                     sum_w += w
                     sum_m += w * moments[q]
     sum_m = sum_m / sum_w  # the centre pixel has weight 1
-    var = wp.max(sum_m[1] - sum_m[0] * sum_m[0], 0.0) * float(SPATIAL_VARIANCE_HISTORY) / float(h)
-    variance_out[p] = var
-    color_variance_out[p] = wp.vec4(c[0], c[1], c[2], var)
+    return wp.max(sum_m[1] - sum_m[0] * sum_m[0], 0.0) * float(SPATIAL_VARIANCE_HISTORY) / float(h)
+
+
+@wp.kernel
+def filter_moments(
+    moments: wp.array(dtype=wp.vec2),
+    history: wp.array(dtype=wp.int32),
+    guide: wp.array(dtype=wp.vec4),
+    slope: wp.array(dtype=wp.float32),
+    width: int,
+    height: int,
+    sigma_depth: float,
+    sigma_normal: float,
+    variance_out: wp.array(dtype=wp.float32),
+    color_variance: wp.array(dtype=wp.vec4),
+):
+    """The spatial luminance variance of FilterMoments (Falcor SVGFFilterMoments) where the history is short;
+    ``dim=(height, ceil(width / MOMENTS_RUN))``, a thread the ``MOMENTS_RUN`` pixels of a row from x = tid *
+    ``MOMENTS_RUN``.
+
+    Reads the outputs of :func:`reproject` (``moments`` vec2, ``history`` int32 [frames], ``guide`` vec4 (n, z
+    [m]), z = 0 = no surface, ``slope`` float32 [m/pixel]). For a pixel with a surface and a history below
+    ``SPATIAL_VARIANCE_HISTORY`` frames it writes the variance (:func:`spatial_variance`) into ``variance_out``
+    (float32) and the Var of its packed ``color_variance`` (vec4: colour, Var); every other pixel keeps what
+    :func:`reproject` wrote there (the temporal variance E[l²] − E[l]²).
+
+    Unlike Falcor, the colour is not replaced by the moments' neighbourhood average (the paper only estimates
+    variance here; the à-trous levels do the spatial filtering, and the colour stays untouched by any filter that
+    does not conserve energy), and Falcor's luminance term in absolute units, which has no meaning for W/m², is
+    left out.
+    """
+    y, i = wp.tid()
+    x0 = i * MOMENTS_RUN
+    p0 = y * width + x0
+    run = wp.min(width - x0, MOMENTS_RUN)  # pixels of the row from x0
+    need = int(0)  # bit k: pixel x0 + k needs the spatial variance
+    for k in range(MOMENTS_RUN):  # unrolled: the loads in flight together
+        h = history[p0 + wp.min(k, run - 1)]
+        if k < run and h > 0 and h < SPATIAL_VARIANCE_HISTORY:
+            need = need | (1 << k)
+    if need == 0:
+        return
+    k = int(0)
+    while k < run:
+        if ((need >> k) & 1) != 0:
+            p = p0 + k
+            h = history[p]
+            var = spatial_variance(moments, guide, slope, x0 + k, y, width, height, sigma_depth, sigma_normal, h)
+            variance_out[p] = var
+            cv = color_variance[p]
+            color_variance[p] = wp.vec4(cv[0], cv[1], cv[2], var)
+        k += 1
 
 
 @wp.kernel

@@ -54,18 +54,20 @@ class SVGF:
     """SVGF denoiser for one ``width`` x ``height`` caustic irradiance map on ``device``.
 
     History (2 x H*W each; row ``parity[0]`` holds the last frame, the next frame writes the other row and
-    flips ``parity`` on the device): ``hist_depth`` (float32 [m], 0 = no surface), ``hist_normal`` (vec3),
-    ``hist_color`` (vec3 [W/m²]), ``hist_moments`` (vec2: luminance mean, mean square), ``hist_length``
-    (int32 [frames]); ``parity`` (1 int32).
-    Per frame (H*W each): ``depth``/``normal`` (the G-buffer copy the filters read; depth 0 without a
-    surface), ``integrated`` (vec3 [W/m²], temporal accumulation), ``moments`` (vec2), ``history`` (int32),
-    ``depth_slope`` (float32 [m/pixel]), ``guide`` (vec4: n, z [m]) and ``color_variance`` (2 x vec4: colour,
-    Var; the à-trous levels' packed input and output, ping-ponged; a last level of step >= ``UNPACK_STEP``
-    writes its output there packed, unpacked into ``out`` densely), ``level_guides`` (vec4: a level's ‖∇z‖,
-    g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a little more
-    than H*W), ``lattice`` (2 x vec4: those levels' input and guide copied in that order by their guide pass;
-    None with fewer levels), ``filtered_variance`` (float32: luminance variance of the last level, or of
-    filter_moments without levels).
+    flips ``parity`` on the device): ``hist_guide`` (vec4: n, z [m], z = 0 = no surface; one array of 2*H*W,
+    row r at r*H*W), ``hist_color`` (vec3 [W/m²]), ``hist_moments`` (vec2: luminance mean, mean square),
+    ``hist_length`` (int32 [frames]); ``parity`` (1 int32).
+    Per frame (H*W each): ``guide`` (vec4: n, z [m], the G-buffer copy the filters read; 0 without a surface),
+    ``moments`` (vec2), ``history`` (int32), ``depth_slope`` (float32 [m/pixel]), ``integrated`` (vec3 [W/m²],
+    the temporal accumulation; written only where it is the output or the colour history: without levels or
+    with ``feedback_level`` -1; the levels read it packed in ``color_variance[0]``), ``color_variance`` (2 x
+    vec4: colour, Var; the à-trous levels' packed input and output, ping-ponged; a last level of step >=
+    ``UNPACK_STEP`` writes its output there packed, unpacked into ``out`` densely), ``level_guides`` (vec4: a
+    level's ‖∇z‖, g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a
+    little more than H*W), ``lattice_guides`` ({step: vec4}: the guide in the sub-lattice-major order of the first
+    two such steps, written by ``reproject``), ``lattice`` (2 x vec4: those levels' input, and the guide of any
+    further step, copied in that order by their guide pass; None with fewer levels), ``filtered_variance``
+    (float32: luminance variance of the last level, or of the temporal accumulation without levels).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
@@ -82,25 +84,27 @@ class SVGF:
         def two(dtype):
             return wp.zeros((2, n), dtype=dtype, device=d)
 
-        self.hist_depth = two(wp.float32)
-        self.hist_normal = two(wp.vec3)
+        self.hist_guide = wp.zeros(2 * n, dtype=wp.vec4, device=d)
         self.hist_color = two(wp.vec3)
         self.hist_moments = two(wp.vec2)
         self.hist_length = two(wp.int32)
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
-        self.depth = one(wp.float32)
-        self.normal = one(wp.vec3)
         self.integrated = one(wp.vec3)
         self.moments = one(wp.vec2)
         self.history = one(wp.int32)
         self.depth_slope = one(wp.float32)
         self.guide = one(wp.vec4)
         self.color_variance = one(wp.vec4), one(wp.vec4)
-        # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order
-        lattice = max([lattice_size(width, height, 1 << k) for k in range(settings.atrous_levels)
-                       if (1 << k) >= LATTICE_STEP], default=0)
+        # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order; the
+        # guide of the first two such steps is written so by reproject (one buffer each), of any further step copied
+        # by its level's guide pass into lattice[1] (with the input into lattice[0])
+        steps = [1 << k for k in range(settings.atrous_levels) if (1 << k) >= LATTICE_STEP]
+        lattice = max([lattice_size(width, height, st) for st in steps], default=0)
         self.level_guides = wp.zeros(max(n, lattice), dtype=wp.vec4, device=d)
-        self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d), wp.zeros(lattice, dtype=wp.vec4, device=d)) if lattice else None
+        self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d),
+                        wp.zeros(lattice if len(steps) > 2 else 1, dtype=wp.vec4, device=d)) if lattice else None
+        self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d)
+                               for st in steps[:2]}
         self.filtered_variance = one(wp.float32)
         spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
@@ -116,7 +120,7 @@ class SVGF:
 
     def reset(self) -> None:
         """Forget all history: the next frame is treated as disoccluded everywhere."""
-        for a in (self.hist_depth, self.hist_normal, self.hist_color, self.hist_moments, self.hist_length):
+        for a in (self.hist_guide, self.hist_color, self.hist_moments, self.hist_length):
             a.zero_()
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
@@ -133,28 +137,34 @@ class SVGF:
         w, h = self.width, self.height
         dim = (h, w)
         d = self.device
+        temporal_only = s.atrous_levels == 0
+        lg = list(self.lattice_guides.items()) + [(0, spare_outputs(d)["vec4"])] * 2
         wp.launch(K.reproject, dim=dim, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id,
-                          self.hist_depth, self.hist_normal, self.hist_color, self.hist_moments, self.hist_length,
+                          self.hist_guide, self.hist_color, self.hist_moments, self.hist_length,
                           self.parity, w, h, s.alpha_color, s.alpha_moments, s.max_history, s.depth_tolerance,
-                          s.normal_tolerance],
-                  outputs=[self.depth, self.normal, self.integrated, self.moments, self.history])
+                          s.normal_tolerance, int(temporal_only or s.feedback_level == -1), int(temporal_only),
+                          lg[0][0], lg[1][0]],
+                  outputs=[self.guide, self.color_variance[0], self.depth_slope, self.moments, self.history,
+                           self.integrated, self.filtered_variance, lg[0][1], lg[1][1]])
         if s.feedback_level == -1:
             wp.launch(K.store_history, dim=w * h, device=d, inputs=[self.integrated, self.parity],
                       outputs=[self.hist_color])
-        wp.launch(K.filter_moments, dim=dim, device=d,
-                  inputs=[self.moments, self.history, self.depth, self.normal, w, h, s.sigma_depth, s.sigma_normal,
-                          self.integrated],
-                  outputs=[self.filtered_variance, self.depth_slope, self.guide, self.color_variance[0]])
+        wp.launch(K.filter_moments, dim=(h, (w + K.MOMENTS_RUN - 1) // K.MOMENTS_RUN), device=d,
+                  inputs=[self.moments, self.history, self.guide, self.depth_slope, w, h, s.sigma_depth,
+                          s.sigma_normal],
+                  outputs=[self.filtered_variance, self.color_variance[0]])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
         for level in range(s.atrous_levels):
             last = level == s.atrous_levels - 1
             feedback = level == s.feedback_level
+            ready = (1 << level) in self.lattice_guides
             launch_atrous(self.color_variance[level % 2], self.guide, self.depth_slope, w, h, 1 << level,
                           s.sigma_depth, s.sigma_normal, s.sigma_luminance, s.conserve_energy, self.level_guides,
                           color_variance_out=None if last else self.color_variance[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
                           hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
-                          lattice=self.lattice, unpack_from=self.color_variance[(level + 1) % 2] if last else None)
+                          lattice=(self.lattice[0], self.lattice_guides[1 << level]) if ready else self.lattice,
+                          unpack_from=self.color_variance[(level + 1) % 2] if last else None, lattice_guide_ready=ready)
         wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
