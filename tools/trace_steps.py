@@ -166,7 +166,7 @@ def run_scene(name: str, args) -> dict:
     checks: list[str] = []
 
     def counted_launch(kernel, n, inputs):
-        if kernel is not K.trace_photons:
+        if kernel not in (K.trace_photons, K.trace_photons_flow):
             return launch(kernel, n, inputs)
         inputs = list(inputs)
         if inputs[i_use] == 0:
