@@ -551,8 +551,8 @@ def walk_to_sample(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry
 
 
 @wp.func
-def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec3, texel_normal: wp.vec3,
-                      geometry: SurfaceGeometry):
+def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_position: wp.array(dtype=wp.vec3),
+                      rsm_normal: wp.array(dtype=wp.vec3), geometry: SurfaceGeometry):
     """Where the light ray ``lo + ld·t`` meets the surface under it, and the vertex normals interpolated
     there: (point [m], unit normal). Sub-texel exact, so a texel's photons leave with the normals of the
     surface under their own sample points instead of one normal per texel.
@@ -561,11 +561,12 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec
     towards the sample (:func:`walk_to_sample`) until the ray cuts the triangle inside, so texels larger than triangles are exact too. At a boundary edge (or after
     ``MAX_WALK`` steps) it keeps the last triangle's plane and the linear extension of its vertex
     normals up to ``BARY_EXTRAPOLATION`` outside, clamped onto the triangle beyond. A ray in a
-    triangle's plane keeps the texel's point and normal.
+    triangle's plane keeps the texel's point and normal (``rsm_position[texel]``, ``rsm_normal[texel]``: read only
+    then, not for every photon; perf_notes section 38).
     """
     ok, cur, b0, b1, b2, t, steps = walk_to_sample(lo, ld, tri, geometry)
     if ok == 0:
-        return texel_position, texel_normal
+        return rsm_position[texel], rsm_normal[texel]
     p0 = geometry.points[geometry.indices[3 * cur + 0]]
     p1 = geometry.points[geometry.indices[3 * cur + 1]]
     p2 = geometry.points[geometry.indices[3 * cur + 2]]
@@ -581,7 +582,7 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec
     n = nrm[ind[3 * cur + 0]] * b0 + nrm[ind[3 * cur + 1]] * b1 + nrm[ind[3 * cur + 2]] * b2
     ln = wp.length(n)
     if ln < 1.0e-12:
-        return x, texel_normal
+        return x, rsm_normal[texel]
     return x, n / ln
 
 
@@ -635,7 +636,7 @@ def emit_photon(
         return int(-1), zero, zero, zero, zero
     # origin and normal: the light ray through the sample point, cut with the texel's triangle
     lo, ld = pixel_ray_world(light, sx, sy)
-    origin, n = surface_at_sample(lo, ld, rsm_tri[texel], rsm_position[texel], rsm_normal[texel], geometry)
+    origin, n = surface_at_sample(lo, ld, rsm_tri[texel], texel, rsm_position, rsm_normal, geometry)
     d_in = wp.normalize(ld)
     if light_kind != 0:
         d_in = wp.normalize(origin - light_pos)

@@ -12,9 +12,9 @@ import warp as wp
 from ..scene.device import SurfaceGeometry
 from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, read_again, world_project
-from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
-                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
-                     photon_index, tally_new)
+from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED,
+                     L_REFRACTED, L_REJECTED, L_SAMPLED, L_STEPS, L_STORED, PHOTON_LAUNCH_BOUNDS, Tally, book, deposit,
+                     emit_and_bounce, entry_mask, ledger_slot, record_outcome, photon_index, tally_new)
 from .caustic_flow import add_landing, flow_cell
 from .hidden_flux import store_hidden
 from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, counted_marches, screen_march_bounded,
@@ -25,6 +25,40 @@ wp.set_module_options({"enable_backward": False})  # forward only (the ledger's 
 #: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else): written to its outcome
 #: record by trace_photons, added to the ledger by ledger_add_outcomes
 CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED)
+
+#: the emission's six entries (EMISSION_ENTRIES: sampled, culled by roughness, by luminance, absorbed, reflected,
+#: refracted) side by side, RGB each: one block reduction for all of them (emission_add)
+vec6d = wp.types.vector(length=6, dtype=wp.float64)
+
+
+@wp.func
+def _entry_power(tally: Tally, entry: int) -> wp.vec3d:
+    """The tally's final power if its entry is ``entry``, else zero (float64)."""
+    if tally.entry == entry:
+        return wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
+    return wp.vec3d()
+
+
+@wp.func
+def _add_pair(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, e0: int, x: wp.vec3d, e1: int, y: wp.vec3d):
+    v = vec6d(x[0], x[1], x[2], y[0], y[1], y[2])
+    s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
+    if lane == 0:
+        wp.atomic_add(ledger, ledger_slot(ledger, block, e0), wp.vec3d(s[0], s[1], s[2]))
+        wp.atomic_add(ledger, ledger_slot(ledger, block, e1), wp.vec3d(s[3], s[4], s[5]))
+
+
+@wp.func
+def emission_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, block: int, lane: int):
+    """What ``ledger_add(ledger, tally, block, EMISSION_ENTRIES)`` adds, the same per-entry values summed over the
+    block in three tile reductions of two entries each (6 float64) instead of six, and added by the block's first
+    thread in the same entry order (on the CPU a block is one thread: the same adds in photon order, bit for bit).
+    Every thread of the block calls it (no early return before it); entries other than the six are not booked."""
+    d = tally.absorbed
+    _add_pair(ledger, block, lane, L_SAMPLED, tally.sampled, L_CULLED_ROUGH, _entry_power(tally, L_CULLED_ROUGH))
+    _add_pair(ledger, block, lane, L_CULLED_LUM, _entry_power(tally, L_CULLED_LUM), L_ABSORBED,
+              wp.vec3d(wp.float64(d[0]), wp.float64(d[1]), wp.float64(d[2])))
+    _add_pair(ledger, block, lane, L_REFLECTED, tally.reflected, L_REFRACTED, tally.refracted)
 
 
 @wp.func
@@ -460,7 +494,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
                     light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal,
                     rsm_flux, rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity,
                     mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
-            ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
+            emission_add(ledger, emitted, block, lane)
             tally = tally_new()
             if texel >= 0:  # the views are read again where each march needs them (trace_photon)
                 stored, x_end, pix = trace_photon(
