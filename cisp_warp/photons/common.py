@@ -587,6 +587,63 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_positi
 
 
 @wp.func
+def emit_sample(
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,
+    k: int,
+    n_photons: int,
+    scramble: wp.vec2i,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
+    skip_window: wp.vec4,
+    max_lum: float,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+):
+    """Photon k of an RSM view, booking nothing (:func:`emit_photon` books; ``kernels_cisp`` keeps the values
+    instead of a tally). Returns (texel or -1 when none is emitted, power [W] as sampled, origin, incident
+    direction, surface normal, entry): entry -1 when no texel is sampled (zero power), ``L_CULLED_ROUGH`` or
+    ``L_CULLED_LUM`` when the sampled texel is culled (its power; texel -1, the rest zero), ``L_SAMPLED`` when the
+    photon is emitted.
+
+    ``geometry``: the scene's triangles (``DeviceScene.geometry``), read: the photon starts where the
+    light ray through its sample point meets the surface, found from the texel's triangle, with the
+    vertex normals interpolated there (:func:`surface_at_sample`). ``skip_window``: (x0, y0, x1, y1) in this view's
+    pixels, the window a finer cascade samples; a sample inside it is left to that view (not sampled here, not
+    booked); empty when x1 <= x0.
+    """
+    u = r2_point(k, scramble)
+    sx = u[0] * float(light.width)
+    sy = u[1] * float(light.height)
+    i = wp.min(int(sx), light.width - 1)
+    j = wp.min(int(sy), light.height - 1)
+    texel = j * light.width + i
+    zero = wp.vec3(0.0)
+    tri = rsm_tri[texel]
+    if tri < 0:
+        return int(-1), zero, zero, zero, zero, int(-1)
+    if sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]:
+        return int(-1), zero, zero, zero, zero, int(-1)
+    power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
+    if rsm_roughness[texel] > roughness_cutoff:
+        return int(-1), power, zero, zero, zero, L_CULLED_ROUGH
+    if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
+        return int(-1), power, zero, zero, zero, L_CULLED_LUM
+    # origin and normal: the light ray through the sample point, cut with the texel's triangle
+    lo, ld = pixel_ray_world(light, sx, sy)
+    origin, n = surface_at_sample(lo, ld, tri, texel, rsm_position, rsm_normal, geometry)
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(origin - light_pos)
+    return texel, power, origin, d_in, n, L_SAMPLED
+
+
+@wp.func
 def emit_photon(
     light: ViewParams,
     light_kind: int,  # 0 distant, 1 point, 2 spot
@@ -606,40 +663,20 @@ def emit_photon(
     luminance_cutoff: float,
     tally: wp.ref[Tally],
 ):
-    """Photon k of an RSM view. Returns (texel or -1 when none is emitted, power [W], origin, incident
-    direction, surface normal); books the power as sampled, and culled when the texel is culled.
-
-    ``geometry``: the scene's triangles (``DeviceScene.geometry``), read: the photon starts where the
-    light ray through its sample point meets the surface, found from the texel's triangle, with the
-    vertex normals interpolated there (:func:`surface_at_sample`). ``skip_window``: (x0, y0, x1, y1) in this view's pixels, the window a
-    finer cascade samples; a sample inside it is left to that view (not sampled here, not booked);
-    empty when x1 <= x0.
-    """
-    u = r2_point(k, scramble)
-    sx = u[0] * float(light.width)
-    sy = u[1] * float(light.height)
-    i = wp.min(int(sx), light.width - 1)
-    j = wp.min(int(sy), light.height - 1)
-    texel = j * light.width + i
-    zero = wp.vec3(0.0)
-    if rsm_tri[texel] < 0:
-        return int(-1), zero, zero, zero, zero
-    if sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]:
-        return int(-1), zero, zero, zero, zero
-    power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
-    book(tally, L_SAMPLED, power)
-    if rsm_roughness[texel] > roughness_cutoff:
+    """Photon k of an RSM view (:func:`emit_sample`). Returns (texel or -1 when none is emitted, power [W], origin,
+    incident direction, surface normal); books the power as sampled, and culled when the texel is culled."""
+    texel, power, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
+                                                       rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_tri,
+                                                       geometry, skip_window, max_lum, roughness_cutoff,
+                                                       luminance_cutoff)
+    if entry >= 0:
+        book(tally, L_SAMPLED, power)
+    if entry == L_CULLED_ROUGH:
         book(tally, L_CULLED_ROUGH, power)
-        return int(-1), zero, zero, zero, zero
-    if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
+        power = wp.vec3(0.0)
+    elif entry == L_CULLED_LUM:
         book(tally, L_CULLED_LUM, power)
-        return int(-1), zero, zero, zero, zero
-    # origin and normal: the light ray through the sample point, cut with the texel's triangle
-    lo, ld = pixel_ray_world(light, sx, sy)
-    origin, n = surface_at_sample(lo, ld, rsm_tri[texel], texel, rsm_position, rsm_normal, geometry)
-    d_in = wp.normalize(ld)
-    if light_kind != 0:
-        d_in = wp.normalize(origin - light_pos)
+        power = wp.vec3(0.0)
     return texel, power, origin, d_in, n
 
 
@@ -696,13 +733,11 @@ def book_outside_window(
 
 
 @wp.func
-def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
-                    state: wp.uint32, tally: wp.ref[Tally]):
-    """Scatter a photon off a smooth surface. Returns (direction, power, refracted 0/1, rng state).
-
-    Dielectric: reflect with probability F(θ), else refract (power unchanged either way).
-    Metal: reflect, keeping albedo × power; the rest is booked as absorbed.
-    """
+def specular_scatter(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
+                     state: wp.uint32):
+    """Scatter a photon off a smooth surface, booking nothing. Returns (direction, power kept, refracted 0/1, rng
+    state). Dielectric: reflect with probability F(θ), else refract (power unchanged either way). Metal: reflect,
+    keeping albedo × power; the rest, ``power - kept``, is absorbed (:func:`specular_bounce` books it)."""
     nn = n
     eta = ior
     if wp.dot(d_in, n) > 0.0:  # arriving from inside the medium
@@ -713,9 +748,20 @@ def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, al
         if wp.randf(state) < f:
             return reflect(d_in, nn), power, int(0), state
         return refract(d_in, nn, eta), power, int(1), state
-    kept = wp.cw_mul(power, albedo)
-    book(tally, L_ABSORBED, power - kept)
-    return reflect(d_in, nn), kept, int(0), state
+    return reflect(d_in, nn), wp.cw_mul(power, albedo), int(0), state
+
+
+@wp.func
+def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
+                    state: wp.uint32, tally: wp.ref[Tally]):
+    """Scatter a photon off a smooth surface (:func:`specular_scatter`). Returns (direction, power, refracted 0/1,
+    rng state). Dielectric: reflect with probability F(θ), else refract (power unchanged either way). Metal:
+    reflect, keeping albedo × power; the rest is booked as absorbed.
+    """
+    d, kept, refracted, state = specular_scatter(d_in, n, transmissive, ior, albedo, power, state)
+    if transmissive == 0:
+        book(tally, L_ABSORBED, power - kept)
+    return d, kept, refracted, state
 
 
 @wp.func

@@ -14,7 +14,7 @@ from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, read_again, world_project
 from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED,
                      L_REFRACTED, L_REJECTED, L_SAMPLED, L_STEPS, L_STORED, PHOTON_LAUNCH_BOUNDS, Tally, book, deposit,
-                     emit_and_bounce, entry_mask, ledger_slot, record_outcome, photon_index, tally_new)
+                     emit_sample, entry_mask, ledger_slot, record_outcome, photon_index, specular_scatter, tally_new)
 from .caustic_flow import add_landing, flow_cell
 from .hidden_flux import store_hidden
 from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, counted_marches, screen_march_bounded,
@@ -28,37 +28,92 @@ CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJEC
 
 #: the emission's six entries (EMISSION_ENTRIES: sampled, culled by roughness, by luminance, absorbed, reflected,
 #: refracted) side by side, RGB each: one block reduction for all of them (emission_add)
-vec6d = wp.types.vector(length=6, dtype=wp.float64)
+vec18d = wp.types.vector(length=18, dtype=wp.float64)
 
 
 @wp.func
-def _entry_power(tally: Tally, entry: int) -> wp.vec3d:
-    """The tally's final power if its entry is ``entry``, else zero (float64)."""
-    if tally.entry == entry:
-        return wp.vec3d(wp.float64(tally.power[0]), wp.float64(tally.power[1]), wp.float64(tally.power[2]))
-    return wp.vec3d()
+def _add_entry(ledger: wp.array(dtype=wp.vec3d), block: int, entry: int, s: vec18d, i: int):
+    """Add entry ``entry``, values ``3i``..``3i+2`` of the block's sums ``s``, to the block's ledger stripe."""
+    wp.atomic_add(ledger, ledger_slot(ledger, block, entry), wp.vec3d(s[3 * i], s[3 * i + 1], s[3 * i + 2]))
 
 
 @wp.func
-def _add_pair(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, e0: int, x: wp.vec3d, e1: int, y: wp.vec3d):
-    v = vec6d(x[0], x[1], x[2], y[0], y[1], y[2])
+def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry: int, sampled: wp.vec3,
+                 absorbed: wp.vec3, power: wp.vec3, refracted: int):
+    """The emission's ledger entries (``EMISSION_ENTRIES``) of the block's photons from what each thread kept of
+    its emission and bounce (:func:`emit_and_scatter`: ``entry`` -1 none sampled, ``L_CULLED_*`` culled,
+    ``L_SAMPLED`` emitted; the power as sampled, absorbed at a metal, and after the bounce): all six summed in
+    float64 over the block in one tile reduction (18 values), added by the block's first thread in entry order.
+    These are the values ``emit_and_bounce`` books into a tally and ``ledger_add(..., EMISSION_ENTRIES)`` adds, each
+    at most once a photon, so a float32 value converted equals the float64 tally's sum (on the CPU, a block of one
+    thread: the same adds bit for bit); no tally is held through the emission, and one reduction replaces six
+    (docs/perf_notes.md section 38). Every thread of the block calls it (no early return before it)."""
+    zero = wp.vec3(0.0)
+    a = sampled
+    b = wp.where(entry == L_CULLED_ROUGH, sampled, zero)
+    c = wp.where(entry == L_CULLED_LUM, sampled, zero)
+    d = absorbed
+    emitted = entry == L_SAMPLED
+    f = wp.where(emitted and refracted == 0, power, zero)
+    g = wp.where(emitted and refracted != 0, power, zero)
+    v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
+               wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
+               wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
+               wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
     s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
     if lane == 0:
-        wp.atomic_add(ledger, ledger_slot(ledger, block, e0), wp.vec3d(s[0], s[1], s[2]))
-        wp.atomic_add(ledger, ledger_slot(ledger, block, e1), wp.vec3d(s[3], s[4], s[5]))
+        _add_entry(ledger, block, L_SAMPLED, s, 0)
+        _add_entry(ledger, block, L_CULLED_ROUGH, s, 1)
+        _add_entry(ledger, block, L_CULLED_LUM, s, 2)
+        _add_entry(ledger, block, L_ABSORBED, s, 3)
+        _add_entry(ledger, block, L_REFLECTED, s, 4)
+        _add_entry(ledger, block, L_REFRACTED, s, 5)
 
 
 @wp.func
-def emission_add(ledger: wp.array(dtype=wp.vec3d), tally: Tally, block: int, lane: int):
-    """What ``ledger_add(ledger, tally, block, EMISSION_ENTRIES)`` adds, the same per-entry values summed over the
-    block in three tile reductions of two entries each (6 float64) instead of six, and added by the block's first
-    thread in the same entry order (on the CPU a block is one thread: the same adds in photon order, bit for bit).
-    Every thread of the block calls it (no early return before it); entries other than the six are not booked."""
-    d = tally.absorbed
-    _add_pair(ledger, block, lane, L_SAMPLED, tally.sampled, L_CULLED_ROUGH, _entry_power(tally, L_CULLED_ROUGH))
-    _add_pair(ledger, block, lane, L_CULLED_LUM, _entry_power(tally, L_CULLED_LUM), L_ABSORBED,
-              wp.vec3d(wp.float64(d[0]), wp.float64(d[1]), wp.float64(d[2])))
-    _add_pair(ledger, block, lane, L_REFLECTED, tally.reflected, L_REFRACTED, tally.refracted)
+def emit_and_scatter(
+    light: ViewParams,
+    light_kind: int,
+    light_pos: wp.vec3,
+    k: int,
+    n_photons: int,
+    scramble: wp.vec2i,
+    seed: int,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
+    skip_window: wp.vec4,
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    max_lum: float,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+):
+    """``emit_and_bounce`` without a tally: photon k emitted (:func:`~.common.emit_sample`) and scattered by its
+    specular surface (:func:`~.common.specular_scatter`). Returns (texel or -1 when none, power [W] after the
+    bounce, origin [m], surface normal, outgoing direction, rng state, entry, power as sampled, power absorbed,
+    refracted 0/1): what :func:`emission_add` books."""
+    texel, sampled, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
+                                                         rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_tri,
+                                                         geometry, skip_window, max_lum, roughness_cutoff,
+                                                         luminance_cutoff)
+    state = wp.rand_init(seed, k)
+    zero = wp.vec3(0.0)
+    if texel < 0:
+        return texel, zero, origin, n, d_in, state, entry, sampled, zero, int(0)
+    m = triangle_material[rsm_tri[texel]]
+    transmissive = int(mat_opacity[m] < 1.0)
+    d, power, refracted, state = specular_scatter(d_in, n, transmissive, rsm_ior[texel], mat_albedo[m], sampled,
+                                                  state)
+    absorbed = zero
+    if transmissive == 0:
+        absorbed = sampled - power
+    return texel, power, origin, n, d, state, entry, sampled, absorbed, refracted
 
 
 @wp.func
@@ -481,7 +536,10 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
             n = wp.vec3(0.0)
             d = wp.vec3(0.0)
             state = wp.uint32(0)
-            emitted = tally_new()
+            entry = int(-1)  # the emission's bookings (emission_add): none sampled yet
+            sampled = wp.vec3(0.0)
+            absorbed = wp.vec3(0.0)
+            refracted = int(0)
             if t < n_photons:
                 k = photon_index(order, use_order, t)
                 if hits.shape[0] > 0:
@@ -490,11 +548,11 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
                         write_counts(hits, k, 0, 0, 0, 0)  # not traced (trace_photon writes its own)
                 # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by
                 # exact Fresnel as a probability (power unchanged); metals reflect with their albedo
-                texel, power, origin, n, d, state = emit_and_bounce(
+                texel, power, origin, n, d, state, entry, sampled, absorbed, refracted = emit_and_scatter(
                     light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal,
                     rsm_flux, rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity,
-                    mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
-            emission_add(ledger, emitted, block, lane)
+                    mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale)
+            emission_add(ledger, block, lane, entry, sampled, absorbed, power, refracted)
             tally = tally_new()
             if texel >= 0:  # the views are read again where each march needs them (trace_photon)
                 stored, x_end, pix = trace_photon(
