@@ -65,7 +65,7 @@ def make_walk_kernel():
         sy = u[1] * float(light.height)
         texel = wp.min(int(sy), light.height - 1) * light.width + wp.min(int(sx), light.width - 1)
         lo, ld = pixel_ray_world(light, sx, sy)
-        ok, cur, b0, b1, b2, t, step = walk_to_sample(lo, ld, rsm_tri[texel], geometry)
+        ok, cur, b0, b1, b2, t, step, ind = walk_to_sample(lo, ld, rsm_tri[texel], geometry)
         out[r] = step
 
     return walk_steps

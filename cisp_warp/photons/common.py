@@ -496,11 +496,18 @@ BARY_EXTRAPOLATION = wp.constant(0.5)  #: how far (barycentric units) past a bou
 
 
 @wp.func
-def _barycentrics(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry):
-    """(b0, b1, b2, t, ok): the ray ``lo + ld·t`` cut with triangle ``tri``'s plane, in its barycentrics."""
-    p0 = geometry.points[geometry.indices[3 * tri + 0]]
-    e1 = geometry.points[geometry.indices[3 * tri + 1]] - p0
-    e2 = geometry.points[geometry.indices[3 * tri + 2]] - p0
+def _corners(tri: int, geometry: SurfaceGeometry) -> wp.vec3i:
+    """Triangle ``tri``'s vertex indices."""
+    return wp.vec3i(geometry.indices[3 * tri + 0], geometry.indices[3 * tri + 1], geometry.indices[3 * tri + 2])
+
+
+@wp.func
+def _barycentrics(lo: wp.vec3, ld: wp.vec3, ind: wp.vec3i, geometry: SurfaceGeometry):
+    """(b0, b1, b2, t, ok): the ray ``lo + ld·t`` cut with the plane of the triangle of vertices ``ind``, in its
+    barycentrics."""
+    p0 = geometry.points[ind[0]]
+    e1 = geometry.points[ind[1]] - p0
+    e2 = geometry.points[ind[2]] - p0
     pv = wp.cross(ld, e2)
     det = wp.dot(e1, pv)
     if wp.abs(det) <= 1.0e-12 * wp.length(ld) * wp.length(e1) * wp.length(e2):
@@ -518,12 +525,13 @@ def walk_to_sample(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry
     """The triangle walk of :func:`surface_at_sample`: from triangle ``tri`` across edges towards where the ray
     ``lo + ld·t`` cuts the surface (to the neighbour opposite the most negative barycentric), until the cut lies
     inside, a boundary edge or ``MAX_WALK`` steps. Returns (ok: 0 when the ray lies in ``tri``'s plane, the last
-    triangle, its barycentrics b0, b1, b2 and t of the cut, the steps walked)."""
+    triangle, its barycentrics b0, b1, b2 and t of the cut, the steps walked, the last triangle's vertex indices)."""
     cur = tri
-    b0, b1, b2, t, ok = _barycentrics(lo, ld, cur, geometry)
+    ind = _corners(cur, geometry)
+    b0, b1, b2, t, ok = _barycentrics(lo, ld, ind, geometry)
     step = int(0)
     if ok == 0:
-        return int(0), cur, b0, b1, b2, t, step
+        return int(0), cur, b0, b1, b2, t, step, ind
     while step < MAX_WALK:
         corner = int(0)
         bmin = b0
@@ -538,16 +546,18 @@ def walk_to_sample(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry
         nxt = geometry.neighbors[3 * cur + corner]
         if nxt < 0:
             break
-        c0, c1, c2, tc, okc = _barycentrics(lo, ld, nxt, geometry)
+        ind_n = _corners(nxt, geometry)
+        c0, c1, c2, tc, okc = _barycentrics(lo, ld, ind_n, geometry)
         if okc == 0:
             break
         cur = nxt
+        ind = ind_n
         b0 = c0
         b1 = c1
         b2 = c2
         t = tc
         step += 1
-    return int(1), cur, b0, b1, b2, t, step
+    return int(1), cur, b0, b1, b2, t, step, ind
 
 
 @wp.func
@@ -564,12 +574,12 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_positi
     triangle's plane keeps the texel's point and normal (``rsm_position[texel]``, ``rsm_normal[texel]``: read only
     then, not for every photon; perf_notes section 38).
     """
-    ok, cur, b0, b1, b2, t, steps = walk_to_sample(lo, ld, tri, geometry)
+    ok, cur, b0, b1, b2, t, steps, ind = walk_to_sample(lo, ld, tri, geometry)
     if ok == 0:
         return rsm_position[texel], rsm_normal[texel]
-    p0 = geometry.points[geometry.indices[3 * cur + 0]]
-    p1 = geometry.points[geometry.indices[3 * cur + 1]]
-    p2 = geometry.points[geometry.indices[3 * cur + 2]]
+    p0 = geometry.points[ind[0]]
+    p1 = geometry.points[ind[1]]
+    p2 = geometry.points[ind[2]]
     x = lo + ld * t
     lim = -BARY_EXTRAPOLATION
     if b0 < lim or b1 < lim or b2 < lim:
@@ -578,8 +588,7 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_positi
         b0 = 1.0 - b1 - b2
         x = p0 * b0 + p1 * b1 + p2 * b2
     nrm = geometry.normals
-    ind = geometry.indices
-    n = nrm[ind[3 * cur + 0]] * b0 + nrm[ind[3 * cur + 1]] * b1 + nrm[ind[3 * cur + 2]] * b2
+    n = nrm[ind[0]] * b0 + nrm[ind[1]] * b1 + nrm[ind[2]] * b2
     ln = wp.length(n)
     if ln < 1.0e-12:
         return x, rsm_normal[texel]
