@@ -97,3 +97,49 @@ def test_flow_follows_a_turning_sun():
         took_flow = np.any(np.abs(used - motion) > 1e-6, -1)
         assert took_flow[lit].mean() > 0.5
         np.testing.assert_allclose(used, caustic_motion_naive(motion, flow, s.flow_radius, s.flow_sigmas)[0], atol=1e-4)
+
+
+def test_trace_without_the_flow_code_equals_the_flow_kernel():
+    """``kernels_cisp.trace_photons`` (the caustic flow's code left out at compile time, the pass's kernel without a
+    flow) against ``trace_photons_flow`` on each launch's own inputs, frames of the turning sun with a flow kept:
+    outcome records, landings, photon map, its second moment, the hidden map and the ledger bit for bit the same;
+    the flow's cells and records are written by the flow's kernel only. And each pass launches the kernel it needs."""
+    from cisp_warp.photons import kernels_cisp as K
+
+    c = case("moving_light")
+    s = E.render_settings(E.Config("cisp", 20_000, "caustic", "point", "rsm"), 64)
+    off = dataclasses.replace(s, caustic=dataclasses.replace(s.caustic, caustic_flow=False))
+    assert E.Renderer(c.scene_at(0, W, H), off, device="cpu").photons.trace_kernel() is K.trace_photons
+    s = dataclasses.replace(s, caustic=dataclasses.replace(s.caustic, caustic_flow=True))
+    r = E.Renderer(c.scene_at(0, W, H), s, device="cpu")
+    p = r.photons
+    assert p.trace_kernel() is K.trace_photons_flow
+    p.record_hits = True
+    at = {a.label: i for i, a in enumerate(K.trace_photons.adj.args)}
+    assert [a.label for a in K.trace_photons_flow.adj.args] == list(at)
+    outputs = ("photon_map", "photon_m2", "ledger", "hits", "outcome", "hidden_flux", "flow_cells", "flow_records")
+    launch = p.launch_photons
+    compared = []
+
+    def both(kernel, n, inputs):
+        if kernel is not K.trace_photons_flow:
+            return launch(kernel, n, inputs)
+        before = {o: inputs[at[o]].numpy().copy() for o in outputs}
+        launch(K.trace_photons_flow, n, inputs)
+        flowed = {o: inputs[at[o]].numpy().copy() for o in outputs}
+        for o in outputs[:6]:
+            inputs[at[o]].assign(before[o])
+        launch(K.trace_photons, n, inputs)
+        plain = {o: inputs[at[o]].numpy() for o in outputs}
+        for o in outputs[:6]:
+            assert np.array_equal(plain[o], flowed[o]), o
+        for o in outputs[6:]:  # the plain kernel leaves the flow's state as the flow's kernel wrote it
+            assert np.array_equal(plain[o], flowed[o]), o
+        compared.append(int((flowed["flow_records"] != before["flow_records"]).any(-1).sum()))
+
+    p.launch_photons = both
+    for f in range(3):
+        if f > 0:
+            E.advance(r, c.scene_at(f, W, H))
+        r.render_frame()
+    assert len(compared) >= 3 and min(compared) > 100  # the flow's kernel did record landings each launch

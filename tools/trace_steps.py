@@ -65,7 +65,7 @@ def make_walk_kernel():
         sy = u[1] * float(light.height)
         texel = wp.min(int(sy), light.height - 1) * light.width + wp.min(int(sx), light.width - 1)
         lo, ld = pixel_ray_world(light, sx, sy)
-        ok, cur, b0, b1, b2, t, step = walk_to_sample(lo, ld, rsm_tri[texel], geometry)
+        ok, cur, b0, b1, b2, t, step, ind = walk_to_sample(lo, ld, rsm_tri[texel], geometry)
         out[r] = step
 
     return walk_steps
@@ -166,7 +166,7 @@ def run_scene(name: str, args) -> dict:
     checks: list[str] = []
 
     def counted_launch(kernel, n, inputs):
-        if kernel is not K.trace_photons:
+        if kernel not in (K.trace_photons, K.trace_photons_flow):
             return launch(kernel, n, inputs)
         inputs = list(inputs)
         if inputs[i_use] == 0:

@@ -86,6 +86,11 @@ class CISP(PhotonPass):
             return self.flow.trace_args(b.light_index, b.view_index)
         return [b.lights.views] + self._no_flow
 
+    def trace_kernel(self):
+        """The trace kernel for this pass: with the caustic flow's code only while a flow is kept
+        (``K.trace_photons_flow``), else ``K.trace_photons``, compiled without it (perf_notes section 39)."""
+        return K.trace_photons_flow if self.flow is not None else K.trace_photons
+
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
 
@@ -123,7 +128,7 @@ class CISP(PhotonPass):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
             rsm_bounds = self.build_rsm_bounds(b.lights, b.light_index, b.view_index)
-            self.launch_photons(K.trace_photons, b.slots, inputs=[
+            self.launch_photons(self.trace_kernel(), b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
                 sc.geometry, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],

@@ -496,11 +496,18 @@ BARY_EXTRAPOLATION = wp.constant(0.5)  #: how far (barycentric units) past a bou
 
 
 @wp.func
-def _barycentrics(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry):
-    """(b0, b1, b2, t, ok): the ray ``lo + ld·t`` cut with triangle ``tri``'s plane, in its barycentrics."""
-    p0 = geometry.points[geometry.indices[3 * tri + 0]]
-    e1 = geometry.points[geometry.indices[3 * tri + 1]] - p0
-    e2 = geometry.points[geometry.indices[3 * tri + 2]] - p0
+def _corners(tri: int, geometry: SurfaceGeometry) -> wp.vec3i:
+    """Triangle ``tri``'s vertex indices."""
+    return wp.vec3i(geometry.indices[3 * tri + 0], geometry.indices[3 * tri + 1], geometry.indices[3 * tri + 2])
+
+
+@wp.func
+def _barycentrics(lo: wp.vec3, ld: wp.vec3, ind: wp.vec3i, geometry: SurfaceGeometry):
+    """(b0, b1, b2, t, ok): the ray ``lo + ld·t`` cut with the plane of the triangle of vertices ``ind``, in its
+    barycentrics."""
+    p0 = geometry.points[ind[0]]
+    e1 = geometry.points[ind[1]] - p0
+    e2 = geometry.points[ind[2]] - p0
     pv = wp.cross(ld, e2)
     det = wp.dot(e1, pv)
     if wp.abs(det) <= 1.0e-12 * wp.length(ld) * wp.length(e1) * wp.length(e2):
@@ -518,12 +525,13 @@ def walk_to_sample(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry
     """The triangle walk of :func:`surface_at_sample`: from triangle ``tri`` across edges towards where the ray
     ``lo + ld·t`` cuts the surface (to the neighbour opposite the most negative barycentric), until the cut lies
     inside, a boundary edge or ``MAX_WALK`` steps. Returns (ok: 0 when the ray lies in ``tri``'s plane, the last
-    triangle, its barycentrics b0, b1, b2 and t of the cut, the steps walked)."""
+    triangle, its barycentrics b0, b1, b2 and t of the cut, the steps walked, the last triangle's vertex indices)."""
     cur = tri
-    b0, b1, b2, t, ok = _barycentrics(lo, ld, cur, geometry)
+    ind = _corners(cur, geometry)
+    b0, b1, b2, t, ok = _barycentrics(lo, ld, ind, geometry)
     step = int(0)
     if ok == 0:
-        return int(0), cur, b0, b1, b2, t, step
+        return int(0), cur, b0, b1, b2, t, step, ind
     while step < MAX_WALK:
         corner = int(0)
         bmin = b0
@@ -538,21 +546,23 @@ def walk_to_sample(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry
         nxt = geometry.neighbors[3 * cur + corner]
         if nxt < 0:
             break
-        c0, c1, c2, tc, okc = _barycentrics(lo, ld, nxt, geometry)
+        ind_n = _corners(nxt, geometry)
+        c0, c1, c2, tc, okc = _barycentrics(lo, ld, ind_n, geometry)
         if okc == 0:
             break
         cur = nxt
+        ind = ind_n
         b0 = c0
         b1 = c1
         b2 = c2
         t = tc
         step += 1
-    return int(1), cur, b0, b1, b2, t, step
+    return int(1), cur, b0, b1, b2, t, step, ind
 
 
 @wp.func
-def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec3, texel_normal: wp.vec3,
-                      geometry: SurfaceGeometry):
+def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_position: wp.array(dtype=wp.vec3),
+                      rsm_normal: wp.array(dtype=wp.vec3), geometry: SurfaceGeometry):
     """Where the light ray ``lo + ld·t`` meets the surface under it, and the vertex normals interpolated
     there: (point [m], unit normal). Sub-texel exact, so a texel's photons leave with the normals of the
     surface under their own sample points instead of one normal per texel.
@@ -561,14 +571,15 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec
     towards the sample (:func:`walk_to_sample`) until the ray cuts the triangle inside, so texels larger than triangles are exact too. At a boundary edge (or after
     ``MAX_WALK`` steps) it keeps the last triangle's plane and the linear extension of its vertex
     normals up to ``BARY_EXTRAPOLATION`` outside, clamped onto the triangle beyond. A ray in a
-    triangle's plane keeps the texel's point and normal.
+    triangle's plane keeps the texel's point and normal (``rsm_position[texel]``, ``rsm_normal[texel]``: read only
+    then, not for every photon; perf_notes section 39).
     """
-    ok, cur, b0, b1, b2, t, steps = walk_to_sample(lo, ld, tri, geometry)
+    ok, cur, b0, b1, b2, t, steps, ind = walk_to_sample(lo, ld, tri, geometry)
     if ok == 0:
-        return texel_position, texel_normal
-    p0 = geometry.points[geometry.indices[3 * cur + 0]]
-    p1 = geometry.points[geometry.indices[3 * cur + 1]]
-    p2 = geometry.points[geometry.indices[3 * cur + 2]]
+        return rsm_position[texel], rsm_normal[texel]
+    p0 = geometry.points[ind[0]]
+    p1 = geometry.points[ind[1]]
+    p2 = geometry.points[ind[2]]
     x = lo + ld * t
     lim = -BARY_EXTRAPOLATION
     if b0 < lim or b1 < lim or b2 < lim:
@@ -577,12 +588,68 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel_position: wp.vec
         b0 = 1.0 - b1 - b2
         x = p0 * b0 + p1 * b1 + p2 * b2
     nrm = geometry.normals
-    ind = geometry.indices
-    n = nrm[ind[3 * cur + 0]] * b0 + nrm[ind[3 * cur + 1]] * b1 + nrm[ind[3 * cur + 2]] * b2
+    n = nrm[ind[0]] * b0 + nrm[ind[1]] * b1 + nrm[ind[2]] * b2
     ln = wp.length(n)
     if ln < 1.0e-12:
-        return x, texel_normal
+        return x, rsm_normal[texel]
     return x, n / ln
+
+
+@wp.func
+def emit_sample(
+    light: ViewParams,
+    light_kind: int,  # 0 distant, 1 point, 2 spot
+    light_pos: wp.vec3,
+    k: int,
+    n_photons: int,
+    scramble: wp.vec2i,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
+    skip_window: wp.vec4,
+    max_lum: float,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+):
+    """Photon k of an RSM view, booking nothing (:func:`emit_photon` books; ``kernels_cisp`` keeps the values
+    instead of a tally). Returns (texel or -1 when none is emitted, power [W] as sampled, origin, incident
+    direction, surface normal, entry): entry -1 when no texel is sampled (zero power), ``L_CULLED_ROUGH`` or
+    ``L_CULLED_LUM`` when the sampled texel is culled (its power; texel -1, the rest zero), ``L_SAMPLED`` when the
+    photon is emitted.
+
+    ``geometry``: the scene's triangles (``DeviceScene.geometry``), read: the photon starts where the
+    light ray through its sample point meets the surface, found from the texel's triangle, with the
+    vertex normals interpolated there (:func:`surface_at_sample`). ``skip_window``: (x0, y0, x1, y1) in this view's
+    pixels, the window a finer cascade samples; a sample inside it is left to that view (not sampled here, not
+    booked); empty when x1 <= x0.
+    """
+    u = r2_point(k, scramble)
+    sx = u[0] * float(light.width)
+    sy = u[1] * float(light.height)
+    i = wp.min(int(sx), light.width - 1)
+    j = wp.min(int(sy), light.height - 1)
+    texel = j * light.width + i
+    zero = wp.vec3(0.0)
+    tri = rsm_tri[texel]
+    if tri < 0:
+        return int(-1), zero, zero, zero, zero, int(-1)
+    if sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]:
+        return int(-1), zero, zero, zero, zero, int(-1)
+    power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
+    if rsm_roughness[texel] > roughness_cutoff:
+        return int(-1), power, zero, zero, zero, L_CULLED_ROUGH
+    if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
+        return int(-1), power, zero, zero, zero, L_CULLED_LUM
+    # origin and normal: the light ray through the sample point, cut with the texel's triangle
+    lo, ld = pixel_ray_world(light, sx, sy)
+    origin, n = surface_at_sample(lo, ld, tri, texel, rsm_position, rsm_normal, geometry)
+    d_in = wp.normalize(ld)
+    if light_kind != 0:
+        d_in = wp.normalize(origin - light_pos)
+    return texel, power, origin, d_in, n, L_SAMPLED
 
 
 @wp.func
@@ -605,40 +672,20 @@ def emit_photon(
     luminance_cutoff: float,
     tally: wp.ref[Tally],
 ):
-    """Photon k of an RSM view. Returns (texel or -1 when none is emitted, power [W], origin, incident
-    direction, surface normal); books the power as sampled, and culled when the texel is culled.
-
-    ``geometry``: the scene's triangles (``DeviceScene.geometry``), read: the photon starts where the
-    light ray through its sample point meets the surface, found from the texel's triangle, with the
-    vertex normals interpolated there (:func:`surface_at_sample`). ``skip_window``: (x0, y0, x1, y1) in this view's pixels, the window a
-    finer cascade samples; a sample inside it is left to that view (not sampled here, not booked);
-    empty when x1 <= x0.
-    """
-    u = r2_point(k, scramble)
-    sx = u[0] * float(light.width)
-    sy = u[1] * float(light.height)
-    i = wp.min(int(sx), light.width - 1)
-    j = wp.min(int(sy), light.height - 1)
-    texel = j * light.width + i
-    zero = wp.vec3(0.0)
-    if rsm_tri[texel] < 0:
-        return int(-1), zero, zero, zero, zero
-    if sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]:
-        return int(-1), zero, zero, zero, zero
-    power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
-    book(tally, L_SAMPLED, power)
-    if rsm_roughness[texel] > roughness_cutoff:
+    """Photon k of an RSM view (:func:`emit_sample`). Returns (texel or -1 when none is emitted, power [W], origin,
+    incident direction, surface normal); books the power as sampled, and culled when the texel is culled."""
+    texel, power, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
+                                                       rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_tri,
+                                                       geometry, skip_window, max_lum, roughness_cutoff,
+                                                       luminance_cutoff)
+    if entry >= 0:
+        book(tally, L_SAMPLED, power)
+    if entry == L_CULLED_ROUGH:
         book(tally, L_CULLED_ROUGH, power)
-        return int(-1), zero, zero, zero, zero
-    if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
+        power = wp.vec3(0.0)
+    elif entry == L_CULLED_LUM:
         book(tally, L_CULLED_LUM, power)
-        return int(-1), zero, zero, zero, zero
-    # origin and normal: the light ray through the sample point, cut with the texel's triangle
-    lo, ld = pixel_ray_world(light, sx, sy)
-    origin, n = surface_at_sample(lo, ld, rsm_tri[texel], rsm_position[texel], rsm_normal[texel], geometry)
-    d_in = wp.normalize(ld)
-    if light_kind != 0:
-        d_in = wp.normalize(origin - light_pos)
+        power = wp.vec3(0.0)
     return texel, power, origin, d_in, n
 
 
@@ -695,13 +742,11 @@ def book_outside_window(
 
 
 @wp.func
-def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
-                    state: wp.uint32, tally: wp.ref[Tally]):
-    """Scatter a photon off a smooth surface. Returns (direction, power, refracted 0/1, rng state).
-
-    Dielectric: reflect with probability F(θ), else refract (power unchanged either way).
-    Metal: reflect, keeping albedo × power; the rest is booked as absorbed.
-    """
+def specular_scatter(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
+                     state: wp.uint32):
+    """Scatter a photon off a smooth surface, booking nothing. Returns (direction, power kept, refracted 0/1, rng
+    state). Dielectric: reflect with probability F(θ), else refract (power unchanged either way). Metal: reflect,
+    keeping albedo × power; the rest, ``power - kept``, is absorbed (:func:`specular_bounce` books it)."""
     nn = n
     eta = ior
     if wp.dot(d_in, n) > 0.0:  # arriving from inside the medium
@@ -712,9 +757,20 @@ def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, al
         if wp.randf(state) < f:
             return reflect(d_in, nn), power, int(0), state
         return refract(d_in, nn, eta), power, int(1), state
-    kept = wp.cw_mul(power, albedo)
-    book(tally, L_ABSORBED, power - kept)
-    return reflect(d_in, nn), kept, int(0), state
+    return reflect(d_in, nn), wp.cw_mul(power, albedo), int(0), state
+
+
+@wp.func
+def specular_bounce(d_in: wp.vec3, n: wp.vec3, transmissive: int, ior: float, albedo: wp.vec3, power: wp.vec3,
+                    state: wp.uint32, tally: wp.ref[Tally]):
+    """Scatter a photon off a smooth surface (:func:`specular_scatter`). Returns (direction, power, refracted 0/1,
+    rng state). Dielectric: reflect with probability F(θ), else refract (power unchanged either way). Metal:
+    reflect, keeping albedo × power; the rest is booked as absorbed.
+    """
+    d, kept, refracted, state = specular_scatter(d_in, n, transmissive, ior, albedo, power, state)
+    if transmissive == 0:
+        book(tally, L_ABSORBED, power - kept)
+    return d, kept, refracted, state
 
 
 @wp.func

@@ -75,7 +75,7 @@ def pilot_branch(
     if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
         return 0.0
     lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
-    x, n_s = surface_at_sample(lo, ld, tri, rsm_position[p], rsm_normal[p], geometry)
+    x, n_s = surface_at_sample(lo, ld, tri, p, rsm_position, rsm_normal, geometry)
     d_in = wp.normalize(ld)
     if light_kind != 0:
         d_in = wp.normalize(x - light_pos)

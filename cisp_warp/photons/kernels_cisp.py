@@ -12,9 +12,9 @@ import warp as wp
 from ..scene.device import SurfaceGeometry
 from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, read_again, world_project
-from .common import (EMISSION_ENTRIES, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED,
-                     PHOTON_LAUNCH_BOUNDS, Tally, book, deposit, emit_and_bounce, entry_mask, ledger_add, record_outcome,
-                     photon_index, tally_new)
+from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED,
+                     L_REFRACTED, L_REJECTED, L_SAMPLED, L_STEPS, L_STORED, PHOTON_LAUNCH_BOUNDS, Tally, book, deposit,
+                     emit_sample, entry_mask, ledger_slot, record_outcome, photon_index, specular_scatter, tally_new)
 from .caustic_flow import add_landing, flow_cell
 from .hidden_flux import store_hidden
 from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, counted_marches, screen_march_bounded,
@@ -25,6 +25,95 @@ wp.set_module_options({"enable_backward": False})  # forward only (the ledger's 
 #: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else): written to its outcome
 #: record by trace_photons, added to the ledger by ledger_add_outcomes
 CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED)
+
+#: the emission's six entries (EMISSION_ENTRIES: sampled, culled by roughness, by luminance, absorbed, reflected,
+#: refracted) side by side, RGB each: one block reduction for all of them (emission_add)
+vec18d = wp.types.vector(length=18, dtype=wp.float64)
+
+
+@wp.func
+def _add_entry(ledger: wp.array(dtype=wp.vec3d), block: int, entry: int, s: vec18d, i: int):
+    """Add entry ``entry``, values ``3i``..``3i+2`` of the block's sums ``s``, to the block's ledger stripe."""
+    wp.atomic_add(ledger, ledger_slot(ledger, block, entry), wp.vec3d(s[3 * i], s[3 * i + 1], s[3 * i + 2]))
+
+
+@wp.func
+def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry: int, sampled: wp.vec3,
+                 absorbed: wp.vec3, power: wp.vec3, refracted: int):
+    """The emission's ledger entries (``EMISSION_ENTRIES``) of the block's photons from what each thread kept of
+    its emission and bounce (:func:`emit_and_scatter`: ``entry`` -1 none sampled, ``L_CULLED_*`` culled,
+    ``L_SAMPLED`` emitted; the power as sampled, absorbed at a metal, and after the bounce): all six summed in
+    float64 over the block in one tile reduction (18 values), added by the block's first thread in entry order.
+    These are the values ``emit_and_bounce`` books into a tally and ``ledger_add(..., EMISSION_ENTRIES)`` adds, each
+    at most once a photon, so a float32 value converted equals the float64 tally's sum (on the CPU, a block of one
+    thread: the same adds bit for bit); no tally is held through the emission, and one reduction replaces six
+    (docs/perf_notes.md section 39). Every thread of the block calls it (no early return before it)."""
+    zero = wp.vec3(0.0)
+    a = sampled
+    b = wp.where(entry == L_CULLED_ROUGH, sampled, zero)
+    c = wp.where(entry == L_CULLED_LUM, sampled, zero)
+    d = absorbed
+    emitted = entry == L_SAMPLED
+    f = wp.where(emitted and refracted == 0, power, zero)
+    g = wp.where(emitted and refracted != 0, power, zero)
+    v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
+               wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
+               wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
+               wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
+    s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
+    if lane == 0:
+        _add_entry(ledger, block, L_SAMPLED, s, 0)
+        _add_entry(ledger, block, L_CULLED_ROUGH, s, 1)
+        _add_entry(ledger, block, L_CULLED_LUM, s, 2)
+        _add_entry(ledger, block, L_ABSORBED, s, 3)
+        _add_entry(ledger, block, L_REFLECTED, s, 4)
+        _add_entry(ledger, block, L_REFRACTED, s, 5)
+
+
+@wp.func
+def emit_and_scatter(
+    light: ViewParams,
+    light_kind: int,
+    light_pos: wp.vec3,
+    k: int,
+    n_photons: int,
+    scramble: wp.vec2i,
+    seed: int,
+    rsm_position: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
+    skip_window: wp.vec4,
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    mat_albedo: wp.array(dtype=wp.vec3),
+    max_lum: float,
+    roughness_cutoff: float,
+    luminance_cutoff: float,
+):
+    """``emit_and_bounce`` without a tally: photon k emitted (:func:`~.common.emit_sample`) and scattered by its
+    specular surface (:func:`~.common.specular_scatter`). Returns (texel or -1 when none, power [W] after the
+    bounce, origin [m], surface normal, outgoing direction, rng state, entry, power as sampled, power absorbed,
+    refracted 0/1): what :func:`emission_add` books."""
+    texel, sampled, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
+                                                         rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_tri,
+                                                         geometry, skip_window, max_lum, roughness_cutoff,
+                                                         luminance_cutoff)
+    state = wp.rand_init(seed, k)
+    zero = wp.vec3(0.0)
+    if texel < 0:
+        return texel, zero, origin, n, d_in, state, entry, sampled, zero, int(0)
+    m = triangle_material[rsm_tri[texel]]
+    transmissive = int(mat_opacity[m] < 1.0)
+    d, power, refracted, state = specular_scatter(d_in, n, transmissive, rsm_ior[texel], mat_albedo[m], sampled,
+                                                  state)
+    absorbed = zero
+    if transmissive == 0:
+        absorbed = sampled - power
+    return texel, power, origin, n, d, state, entry, sampled, absorbed, refracted
 
 
 @wp.func
@@ -239,11 +328,14 @@ def write_counts(hits: wp.array(dtype=wp.vec4), k: int, work_l: int, work_0: int
     hits[n + 2 * k + 1] = wp.vec4(float(work_1 / WORK_TESTS), float(work_1 % WORK_TESTS), float(phases), 1.0)
 
 
-def _make_trace(counted: bool):
-    """:func:`trace_photon` and the kernel :func:`trace_photons`, or with ``counted`` (probes only,
-    ``tools/trace_steps.py``; :func:`counted_trace`) the same trace on the ``counted`` marches
+def _make_trace(counted: bool, flows: tuple = (False, True)):
+    """:func:`trace_photon` and the kernels :func:`trace_photons` (one per entry of ``flows``: with ``flow`` False
+    the caustic flow's code is left out at compile time, ``trace_photons``; True: ``trace_photons_flow``, which adds
+    each stored photon's landing to its flow cell where ``flow_records`` is not empty), or with ``counted`` (probes
+    only, ``tools/trace_steps.py``; :func:`counted_trace`) the same trace on the ``counted`` marches
     (:func:`~.march.counted_marches`), which writes each photon's work per phase into ``hits`` (:func:`write_counts`;
-    ``hits`` then holds 3 records a slot) and is a module of its own; everything else, outputs included, the same."""
+    ``hits`` then holds 3 records a slot) and is a module of its own; everything else, outputs included, the same.
+    Every variant takes the same inputs (a kernel without the flow ignores its eight flow inputs)."""
     camera_march = screen_march_bounded
     light_march = screen_march_bounded_plain
     kernel_module = None
@@ -358,129 +450,138 @@ def _make_trace(counted: bool):
         return stored, x_end, pix
 
 
-    def trace_photons(
-        light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
-        states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
-        view_index: int,  # the view these photons leave from
-        light_kind: int,  # 0 distant, 1 point, 2 spot
-        light_pos: wp.vec3,
-        # RSM view of the light (flat H*W arrays)
-        rsm_opaque_depth: wp.array(dtype=wp.float32),
-        rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
-        rsm_position: wp.array(dtype=wp.vec3),
-        rsm_normal: wp.array(dtype=wp.vec3),
-        rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-        rsm_roughness: wp.array(dtype=wp.float32),
-        rsm_ior: wp.array(dtype=wp.float32),
-        rsm_tri: wp.array(dtype=wp.int32),
-        geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
-        triangle_material: wp.array(dtype=wp.int32),
-        mat_opacity: wp.array(dtype=wp.float32),
-        mat_albedo: wp.array(dtype=wp.vec3),
-        max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
-        # camera G-buffer (flat H*W arrays)
-        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
-        cam_depth: wp.array(dtype=wp.float32),
-        cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
-        cam_position: wp.array(dtype=wp.vec3),
-        cam_normal: wp.array(dtype=wp.vec3),
-        cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
-        # settings
-        light_photons: int,  # the light's photons, split over its active views (cascade_photons)
-        n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
-        randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (frame.FrameInputs, read)
-        stream: int,  # this (light, view)'s stream
-        order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
-        use_order: int,
-        roughness_cutoff: float,
-        luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
-        max_steps: int,
-        thickness: float,
-        thickness_rel: float,
-        t_max: float,
-        footprint_mode: int,
-        use_cascade: int,  # 0: light view only (no camera march), for comparisons
-        # outputs
-        photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
-        photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (accumulate)
-        ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
-        hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), for tests and stats
-        # (write; an empty array: not recorded, as in the frame loop)
-        outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
-        hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
-        hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; accumulate; empty: none)
-        hidden_w: int,  # its texels per whole view, across
-        hidden_h: int,  # and down
-        flow_views: wp.array(dtype=ViewParams),  # the light's whole views, of the caustic flow's cells (read)
-        flow_w: int,  # cells per whole view, across
-        flow_h: int,  # and down
-        flow_base: int,  # the light's first cell
-        flow_cells: wp.array2d(dtype=wp.vec4),  # (2, cells) caustic_flow.CausticFlow.cells (accumulate this frame's row)
-        flow_parity: wp.array(dtype=wp.int32),  # (1,) its parity (read)
-        flow_records: wp.array(dtype=wp.vec2i),  # per slot (cell + 1, pixel) where stored (write; empty: no flow kept)
-        flow_offset: int,  # this view's first record
-    ):
-        """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`). The
-        ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted), so that
-        no float64 sum is held in registers through the march; each photon's final entry goes to its outcome record,
-        added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after the march)."""
-        block, lane = wp.tid()
-        t = block * wp.block_dim() + lane
-        light = light_views[view_index]
-        cascade = states[view_index]
-        n_photons = cascade_photons(cascade, light_photons)
-        if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed launch dims)
-            return
-        skip_window = cascade.skip_window
-        rnd = randoms[stream]
-        seed = rnd[2]  # seed of this (frame, view)'s random streams
-        scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of the R2 sequence (fixed point)
-        k = int(0)
-        texel = int(-1)
-        power = wp.vec3(0.0)
-        origin = wp.vec3(0.0)
-        n = wp.vec3(0.0)
-        d = wp.vec3(0.0)
-        state = wp.uint32(0)
-        emitted = tally_new()
-        if t < n_photons:
-            k = photon_index(order, use_order, t)
-            if hits.shape[0] > 0:
-                hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
-                if wp.static(counted):
-                    write_counts(hits, k, 0, 0, 0, 0)  # not traced (trace_photon writes its own)
-            # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by exact
-            # Fresnel as a probability (power unchanged); metals reflect with their albedo
-            texel, power, origin, n, d, state = emit_and_bounce(
-                light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
-                rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
-                max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
-        ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
-        tally = tally_new()
-        if texel >= 0:  # the views are read again where each march needs them (trace_photon)
-            stored, x_end, pix = trace_photon(
-                k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras, cam_depth,
-                cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness, thickness_rel, t_max,
-                footprint_mode, use_cascade, photon_map, photon_m2, tally, hits, hidden_views, hidden_flux, hidden_w,
-                hidden_h)
-            if stored != 0 and flow_records.shape[0] > 0:  # the caustic flow (caustic_flow.py): its cell's landings
-                camera = read_again(cameras, 0, pix)
-                cell = flow_cell(flow_views, flow_w, flow_h, origin)
-                add_landing(flow_cells, flow_parity, flow_records, flow_offset + t,
-                            wp.where(cell >= 0, cell + flow_base, -1), pix, world_project(camera, x_end), camera.width,
-                            camera.height)
-        if t < n_slots:
-            record_outcome(outcome, t, tally)
+    def make_kernel(flow: bool):
+        def trace_photons(
+            light_views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+            states: wp.array(dtype=CascadeState),  # (V,) what each emits (LightMaps.states, read)
+            view_index: int,  # the view these photons leave from
+            light_kind: int,  # 0 distant, 1 point, 2 spot
+            light_pos: wp.vec3,
+            # RSM view of the light (flat H*W arrays)
+            rsm_opaque_depth: wp.array(dtype=wp.float32),
+            rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
+            rsm_position: wp.array(dtype=wp.vec3),
+            rsm_normal: wp.array(dtype=wp.vec3),
+            rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
+            rsm_roughness: wp.array(dtype=wp.float32),
+            rsm_ior: wp.array(dtype=wp.float32),
+            rsm_tri: wp.array(dtype=wp.int32),
+            geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
+            triangle_material: wp.array(dtype=wp.int32),
+            mat_opacity: wp.array(dtype=wp.float32),
+            mat_albedo: wp.array(dtype=wp.vec3),
+            max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+            # camera G-buffer (flat H*W arrays)
+            cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+            cam_depth: wp.array(dtype=wp.float32),
+            cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
+            cam_position: wp.array(dtype=wp.vec3),
+            cam_normal: wp.array(dtype=wp.vec3),
+            cam_solid_angle: wp.array(dtype=wp.float32),  # (H*W,) exact pixel solid angle [sr]
+            # settings
+            light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+            n_slots: int,  # threads launched (>= this view's photons; the surplus emits nothing and records zero power)
+            randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and rng seed (FrameInputs, read)
+            stream: int,  # this (light, view)'s stream
+            order: wp.array(dtype=wp.int32),  # (N,) photon index per thread when use_order (read)
+            use_order: int,
+            roughness_cutoff: float,
+            luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
+            max_steps: int,
+            thickness: float,
+            thickness_rel: float,
+            t_max: float,
+            footprint_mode: int,
+            use_cascade: int,  # 0: light view only (no camera march), for comparisons
+            # outputs
+            photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (accumulate)
+            photon_m2: wp.array(dtype=wp.float32),  # (H*W,) Σ luminance(e)² of the stored photons [(W/m²)²] (add)
+            ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
+            hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), tests and stats
+            # (write; an empty array: not recorded, as in the frame loop)
+            outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
+            hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
+            hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; add; empty: none)
+            hidden_w: int,  # its texels per whole view, across
+            hidden_h: int,  # and down
+            flow_views: wp.array(dtype=ViewParams),  # the light's whole views, of the caustic flow's cells (read)
+            flow_w: int,  # cells per whole view, across
+            flow_h: int,  # and down
+            flow_base: int,  # the light's first cell
+            flow_cells: wp.array2d(dtype=wp.vec4),  # (2, cells) CausticFlow.cells (add to this frame's row)
+            flow_parity: wp.array(dtype=wp.int32),  # (1,) its parity (read)
+            flow_records: wp.array(dtype=wp.vec2i),  # per slot (cell + 1, pixel) where stored (write; empty: no flow)
+            flow_offset: int,  # this view's first record
+        ):
+            """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`).
+            The ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted),
+            so that no float64 sum is held in registers through the march; each photon's final entry goes to its
+            outcome record, added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after
+            the march)."""
+            block, lane = wp.tid()
+            t = block * wp.block_dim() + lane
+            light = light_views[view_index]
+            cascade = states[view_index]
+            n_photons = cascade_photons(cascade, light_photons)
+            if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed dims)
+                return
+            skip_window = cascade.skip_window
+            rnd = randoms[stream]
+            seed = rnd[2]  # seed of this (frame, view)'s random streams
+            scramble = wp.vec2i(rnd[0], rnd[1])  # per-frame Cranley-Patterson rotation of R2 (fixed point)
+            k = int(0)
+            texel = int(-1)
+            power = wp.vec3(0.0)
+            origin = wp.vec3(0.0)
+            n = wp.vec3(0.0)
+            d = wp.vec3(0.0)
+            state = wp.uint32(0)
+            entry = int(-1)  # the emission's bookings (emission_add): none sampled yet
+            sampled = wp.vec3(0.0)
+            absorbed = wp.vec3(0.0)
+            refracted = int(0)
+            if t < n_photons:
+                k = photon_index(order, use_order, t)
+                if hits.shape[0] > 0:
+                    hits[k] = wp.vec4(0.0, 0.0, 0.0, -1.0)
+                    if wp.static(counted):
+                        write_counts(hits, k, 0, 0, 0, 0)  # not traced (trace_photon writes its own)
+                # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by
+                # exact Fresnel as a probability (power unchanged); metals reflect with their albedo
+                texel, power, origin, n, d, state, entry, sampled, absorbed, refracted = emit_and_scatter(
+                    light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal,
+                    rsm_flux, rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity,
+                    mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale)
+            emission_add(ledger, block, lane, entry, sampled, absorbed, power, refracted)
+            tally = tally_new()
+            if texel >= 0:  # the views are read again where each march needs them (trace_photon)
+                stored, x_end, pix = trace_photon(
+                    k, origin, d, power, light_views, view_index, rsm_opaque_depth, rsm_depth_bounds, cameras,
+                    cam_depth, cam_depth_bounds, cam_position, cam_normal, cam_solid_angle, max_steps, thickness,
+                    thickness_rel, t_max, footprint_mode, use_cascade, photon_map, photon_m2, tally, hits,
+                    hidden_views, hidden_flux, hidden_w, hidden_h)
+                if wp.static(flow):  # compiled only into the flow's kernel (perf_notes section 39)
+                    # the caustic flow (caustic_flow.py): its cell's landings
+                    if stored != 0 and flow_records.shape[0] > 0:
+                        camera = read_again(cameras, 0, pix)
+                        cell = flow_cell(flow_views, flow_w, flow_h, origin)
+                        add_landing(flow_cells, flow_parity, flow_records, flow_offset + t,
+                                    wp.where(cell >= 0, cell + flow_base, -1), pix, world_project(camera, x_end),
+                                    camera.width, camera.height)
+            if t < n_slots:
+                record_outcome(outcome, t, tally)
 
-    # named as a kernel at module level (the per-kernel tables, tools/regcount.py), the counted one apart
-    trace_photons.__qualname__ = "trace_photons_counted" if counted else "trace_photons"
-    trace_photons = wp.kernel(trace_photons, launch_bounds=PHOTON_LAUNCH_BOUNDS, enable_backward=False,
-                              module=kernel_module)
-    return trace_photon, trace_photons
+        # named as a kernel at module level (the per-kernel tables, tools/regcount.py), the counted one apart
+        trace_photons.__qualname__ = "trace_photons" + ("_flow" if flow else "") + ("_counted" if counted else "")
+        return wp.kernel(trace_photons, launch_bounds=PHOTON_LAUNCH_BOUNDS, enable_backward=False,
+                         module=kernel_module)
+
+    return (trace_photon, *[make_kernel(f) for f in flows])
 
 
-#: the trace (one photon: :func:`trace_photon`; the kernel: :func:`trace_photons`)
-trace_photon, trace_photons = _make_trace(False)
+#: the trace (one photon: :func:`trace_photon`; the kernels: :func:`trace_photons` without the caustic flow's code,
+#: :func:`trace_photons_flow` with it, launched when the pass keeps a flow: ``CISP.trace_kernel``)
+trace_photon, trace_photons, trace_photons_flow = _make_trace(False)
 
 _COUNTED_TRACE = []
 
@@ -488,5 +589,5 @@ _COUNTED_TRACE = []
 def counted_trace():
     """The ``counted`` :func:`trace_photons` (made on first use; ``tools/trace_steps.py``)."""
     if not _COUNTED_TRACE:
-        _COUNTED_TRACE.append(_make_trace(True)[1])
+        _COUNTED_TRACE.append(_make_trace(True, (True,))[1])  # with the flow's code (run only where records exist)
     return _COUNTED_TRACE[0]
