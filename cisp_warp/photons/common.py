@@ -205,6 +205,26 @@ def record_absorbed(outcome: wp.array(dtype=wp.vec4), slot: int, tally: Tally):
 OutcomeSums = wp.types.matrix(shape=(LEDGER_ENTRIES, 3), dtype=wp.float64)
 
 
+@wp.func
+def _outcome_at(outcome: wp.array(dtype=wp.vec4), r: int, end: int, run: int, n_photons: int) -> wp.vec4:
+    """Outcome record ``r``, or an empty one (entry -1) past ``end`` or past the view's photons in its run."""
+    if r < end and r % run < n_photons:
+        return outcome[r]
+    return wp.vec4(0.0, 0.0, 0.0, -1.0)
+
+
+@wp.func
+def _outcome_add(sums: OutcomeSums, o: wp.vec4) -> OutcomeSums:
+    """``sums`` with record ``o``'s power added to its entry (none for entry -1)."""
+    code = int(o[3])
+    p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
+    out = sums
+    for e in range(LEDGER_ENTRIES):
+        if ((FINAL_ENTRIES >> e) & 1) != 0 and code == e:  # a constant test per unrolled e, then one compare
+            out[e] = out[e] + p
+    return out
+
+
 @wp.kernel
 def ledger_add_outcomes(
     outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
@@ -226,18 +246,21 @@ def ledger_add_outcomes(
     n_photons = cascade_photons(states[view_index], light_photons)
     t = block * wp.block_dim() + lane
     sums = OutcomeSums()
+    # records past the last run's last written one were never written: the loop ends there
+    end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
+    # four records a step, their loads issued together (one thread sums many records: a loop of one load a step
+    # waits a round trip to memory for each), added in the order one at a time would add them
     r = t
-    while r < count:
-        if r % run >= n_photons:
-            r += threads
-            continue
-        o = outcome[r]
-        code = int(o[3])
-        p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
-        for e in range(LEDGER_ENTRIES):
-            if ((FINAL_ENTRIES >> e) & 1) != 0 and code == e:  # a constant test per unrolled e, then one compare
-                sums[e] = sums[e] + p
-        r += threads
+    while r < end:
+        o0 = _outcome_at(outcome, r, end, run, n_photons)
+        o1 = _outcome_at(outcome, r + threads, end, run, n_photons)
+        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons)
+        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons)
+        sums = _outcome_add(sums, o0)
+        sums = _outcome_add(sums, o1)
+        sums = _outcome_add(sums, o2)
+        sums = _outcome_add(sums, o3)
+        r += 4 * threads
     for e in range(LEDGER_ENTRIES):
         if ((FINAL_ENTRIES >> e) & 1) != 0 and ((entries >> e) & 1) != 0:
             wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(sums[e], preserve_type=True)),
@@ -318,6 +341,26 @@ def photon_sort_keys(
     values[k] = k
 
 
+@wp.kernel
+def photon_texel_keys(
+    width: int,  # the view's texels across
+    height: int,  # and down
+    keys: wp.array(dtype=wp.int32),  # (>= N,) Morton code of photon k's texel without the frame's rotation (write)
+    values: wp.array(dtype=wp.int32),  # (>= N,) photon index k (write)
+):
+    """Keys of the fixed texel order (``PhotonPass.texel_order``): photon k's texel as the R2 sequence places it
+    before the frame's Cranley-Patterson rotation, as a Morton code. Sorted once per view size and photon count,
+    not per frame: each frame's rotation moves every point by the same offset (mod 1), so points that were
+    neighbours (one warp's worth in a small Morton cell) stay neighbours; only a cell that the wrap-around cuts
+    is split, in two (about 2 x 8 / 2048 of the warps per axis at 2048² texels and 8×8-texel cells)."""
+    k = wp.tid()
+    u = r2_point(k, wp.vec2i(0, 0))
+    i = wp.min(int(u[0] * float(width)), width - 1)
+    j = wp.min(int(u[1] * float(height)), height - 1)
+    keys[k] = _spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)
+    values[k] = k
+
+
 SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
 SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
 SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
@@ -343,12 +386,9 @@ def _march_group(
     views: wp.array(dtype=ViewParams),
     states: wp.array(dtype=CascadeState),
     view_index: int,
-    light_photons: int,
-    light_kind: int,
-    light_pos: wp.vec3,
+    n_photons: int,
     randoms: wp.array(dtype=wp.vec3i),
     stream: int,
-    rsm_position: wp.array(dtype=wp.vec3),
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
@@ -362,42 +402,45 @@ def _march_group(
     order: wp.array(dtype=wp.int32),
     t: int,
 ) -> int:
-    """The march group of thread ``t``'s photon (see :func:`photon_group_keys`)."""
-    cascade = states[view_index]
-    if t >= cascade_photons(cascade, light_photons):  # slots past the view's photons (fixed launch dims): last
+    """The march group of thread ``t``'s photon (see :func:`photon_group_keys`); ``n_photons`` > 0."""
+    k = order[t]
+    if k >= n_photons:  # slots past the view's photons (fixed launch dims): last
         return SORT_GROUP_LAST
+    cascade = states[view_index]
     light = views[view_index]
     rnd = randoms[stream]
-    seed = rnd[2]
     skip_window = cascade.skip_window
-    k = order[t]
     u = r2_point(k, wp.vec2i(rnd[0], rnd[1]))
     sx = u[0] * float(light.width)
     sy = u[1] * float(light.height)
     i = wp.min(int(sx), light.width - 1)
     j = wp.min(int(sy), light.height - 1)
     texel = j * light.width + i
-    group = SORT_NOT_TRACED
     tri = rsm_tri[texel]
-    in_window = sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]
-    if tri >= 0 and not in_window and rsm_roughness[texel] <= roughness_cutoff:
-        if luminance(rsm_flux[texel]) >= luminance_cutoff * cascade.texel_scale * max_lum[0]:
-            group = SORT_REFLECTED
-            m = triangle_material[tri]
-            if mat_opacity[m] < 1.0:
-                lo, ld = pixel_ray_world(light, sx, sy)
-                d_in = wp.normalize(ld)
-                if light_kind != 0:
-                    d_in = wp.normalize(rsm_position[texel] - light_pos)
-                n = rsm_normal[texel]
-                eta = rsm_ior[texel]
-                if wp.dot(d_in, n) > 0.0:
-                    n = -n
-                    eta = 1.0 / eta
-                state = wp.rand_init(seed, k)
-                if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
-                    group = SORT_REFRACTED
-    return group
+    if tri < 0 or (sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]):
+        return SORT_NOT_TRACED
+    # every texel value the prediction may need, read together: one dependent round trip to memory instead of
+    # three (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels
+    rough = rsm_roughness[texel]
+    flux = rsm_flux[texel]
+    n = rsm_normal[texel]
+    eta = rsm_ior[texel]
+    opacity = mat_opacity[triangle_material[tri]]
+    if rough > roughness_cutoff or luminance(flux) < luminance_cutoff * cascade.texel_scale * max_lum[0]:
+        return SORT_NOT_TRACED  # culled as emit_photon culls (the same two tests)
+    if opacity >= 1.0:
+        return SORT_REFLECTED
+    # the incident direction along the light ray through the sample (the trace's, for every light kind: a point or
+    # spot light's view has its eye at the light), not from the texel's stored position: one array fewer to read
+    lo, ld = pixel_ray_world(light, sx, sy)
+    d_in = wp.normalize(ld)
+    if wp.dot(d_in, n) > 0.0:
+        n = -n
+        eta = 1.0 / eta
+    state = wp.rand_init(rnd[2], k)
+    if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
+        return SORT_REFRACTED
+    return SORT_REFLECTED
 
 
 @wp.kernel
@@ -406,12 +449,9 @@ def photon_group_keys(
     states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
     view_index: int,
     light_photons: int,  # the light's photons, split over its active views (cascade_photons)
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,  # [m]
     randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
     stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
-    rsm_position: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -423,25 +463,30 @@ def photon_group_keys(
     luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
     order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read, first N)
     n_slots: int,  # N: threads to group (the launch is whole blocks; lanes past N are padding)
-    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, first N)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, first N; not when inactive)
     block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) photons per (group, block), group-major (write)
 ):
     """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent),
     and how many of each group each block holds; :func:`photon_group_scatter` then groups the photons stably, so
     texel order holds inside each group. The group is a cheap prediction of what the trace kernel will do with
     photon k: not traced (culled exactly as :func:`emit_photon` culls), reflected or refracted (the first draw of
-    the photon's own random stream against Fresnel at the texel's normal; the trace uses the exact normal under the
-    sample, so a few photons land in the other group). Each photon is still traced in full as photon k: only the
-    order of the threads changes. Launched tiled; a block's counts are one packed tile sum."""
+    the photon's own random stream against Fresnel at the texel's normal, along the light ray through the sample;
+    the trace uses the exact normal under the sample, so a few photons land in the other group); slots whose photon
+    index is past the view's count last. Each photon is still traced in full as photon k: only the order of the
+    threads changes. A view that emits nothing (an inactive cascade) reads no order and writes no keys (its scatter
+    returns at once). Launched tiled; a block's counts are one packed tile sum."""
     block, lane = wp.tid()
     bd = wp.block_dim()
     t = block * bd + lane
+    n_photons = cascade_photons(states[view_index], light_photons)
     group = int(-1)
     if t < n_slots:
-        group = _march_group(views, states, view_index, light_photons, light_kind, light_pos, randoms, stream,
-                             rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri, triangle_material,
-                             mat_opacity, max_lum, roughness_cutoff, luminance_cutoff, order, t)
-        keys[t] = group
+        group = SORT_GROUP_LAST
+        if n_photons > 0:
+            group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_normal, rsm_flux,
+                                 rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, max_lum,
+                                 roughness_cutoff, luminance_cutoff, order, t)
+            keys[t] = group
     packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
     if lane == 0:
         blocks = block_counts.shape[0] / SORT_GROUPS
@@ -457,29 +502,31 @@ def photon_group_keys(
 
 @wp.kernel
 def photon_group_scatter(
+    states: wp.array(dtype=CascadeState),  # (V,) the light's views (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons (cascade_photons)
     keys: wp.array(dtype=wp.int32),  # (>= N,) march group per thread (photon_group_keys, read)
     order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read)
     n_slots: int,  # N
     offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) exclusive scan of the block counts (read)
-    grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first N)
+    grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first n_photons)
 ):
     """A stable partition of the photons by march group (the stable sort on the 2-bit group keys, without a radix
     sort's passes and copies): thread t's photon goes to its group's offset for its block plus the photons of its
-    group before it in the block (an exclusive tile scan of packed counts). Same blocks as photon_group_keys."""
+    group before it in the block (an exclusive tile scan of packed counts). Same blocks as photon_group_keys.
+    Slots of the last group (past the view's photon count) are not written: they would land at positions >= the
+    view's photon count, which no kernel reads (the trace reads ``grouped[t]`` for t < its photon count only); an
+    inactive view writes nothing."""
+    if cascade_photons(states[view_index], light_photons) == 0:
+        return
     block, lane = wp.tid()
     t = block * wp.block_dim() + lane
     group = int(-1)
     if t < n_slots:
         group = keys[t]
     before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
-    if t < n_slots:
-        rank = int(0)
-        if group == SORT_GROUP_LAST:  # the lanes before this one, less those of the other groups
-            rank = lane
-            for g in range(SORT_GROUPS - 1):
-                rank -= (before >> (SORT_COUNT_BITS * g)) & ((1 << SORT_COUNT_BITS) - 1)
-        else:
-            rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
+    if t < n_slots and group != SORT_GROUP_LAST:
+        rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
         grouped[offsets[group * (offsets.shape[0] / SORT_GROUPS) + block] + rank] = order[t]
 
 
