@@ -46,7 +46,10 @@ def test_sort_groups_predict_the_trace(device, monkeypatch, fixed):
     traced = p.outcome.numpy()[:n, 3] >= 0  # outcome records are per thread: a final entry after the bounce
     assert np.array_equal(np.sort(order), np.arange(n))
     b = next(p.rsm_batches(r.frame - 1))  # the same frame's first view again (its order rebuilt, the same)
-    texel_order = p.texel_order(b.lights, b.view_index, b.rsm, n, b.stream).numpy()[:n].copy()
+    table, stride, orders = p.texel_order(b.lights, b.view_index, b.rsm, n, b.stream)
+    active = int(b.lights.states.numpy()[b.view_index]["active_views"])
+    base = (min(max(1, active), orders) - 1) * stride
+    texel_order = table.numpy()[base : base + n].copy()
     assert np.array_equal(np.sort(texel_order), np.arange(n))
     group_of = np.empty(n, np.int32)
     group_of[texel_order] = keys
@@ -59,7 +62,7 @@ def test_sort_groups_predict_the_trace(device, monkeypatch, fixed):
     mkeys = wp.zeros(n, dtype=wp.int32, device=device)
     index = wp.zeros(n, dtype=wp.int32, device=device)
     if fixed:  # the points before the rotation, every key bit
-        wp.launch(C.photon_texel_keys, dim=n, device=device, inputs=[b.rsm.width, b.rsm.height, mkeys, index])
+        wp.launch(C.photon_texel_keys, dim=n, device=device, inputs=[b.rsm.width, b.rsm.height, n, 30, mkeys, index])
         morton = mkeys.numpy()[order]
     else:  # this frame's points, the sorted top bits
         wp.launch(C.photon_sort_keys, dim=n, device=device, inputs=[
@@ -112,15 +115,21 @@ def test_fixed_order_is_a_texel_order(device):
     few percent, about twice a warp's extent over the view's side."""
     r = frame(device, "cisp", True)
     p = r.photons
-    for slots, w, h in ((3_001, 48, 40), (100_000, 512, 512)):
-        order = p._fixed_texel_order(slots, w, h).numpy()
-        assert np.array_equal(np.sort(order), np.arange(slots))
-        keys = wp.zeros(slots, dtype=wp.int32, device=device)
-        index = wp.zeros(slots, dtype=wp.int32, device=device)
-        wp.launch(C.photon_texel_keys, dim=slots, device=device, inputs=[w, h, keys, index])
-        assert np.all(np.diff(keys.numpy()[order]) >= 0)
-        assert np.array_equal(index.numpy(), np.arange(slots))
-        assert p._fixed_texel_order(slots, w, h) is p._fixed_texel_order(slots, w, h)  # sorted once
+    for slots, w, h, counts in ((3_001, 48, 40, (3_001, 1_500)), (100_000, 512, 512, (100_000,))):
+        table = p._fixed_texel_order(slots, w, h, counts).numpy()
+        assert table.shape == (len(counts) * slots,)
+        for i, n in enumerate(counts):
+            order = table[i * slots : (i + 1) * slots]
+            assert np.array_equal(np.sort(order), np.arange(slots))
+            assert np.array_equal(np.sort(order[:n]), np.arange(n))  # the photons first, the slots past them after
+            assert np.array_equal(np.sort(order[n:]), np.arange(n, slots))
+            keys = wp.zeros(slots, dtype=wp.int32, device=device)
+            index = wp.zeros(slots, dtype=wp.int32, device=device)
+            wp.launch(C.photon_texel_keys, dim=slots, device=device, inputs=[w, h, n, 30, keys, index])
+            assert np.all(np.diff(keys.numpy()[order[:n]]) >= 0)
+            assert np.all(keys.numpy()[order[n:]] >= 1 << 30)
+            assert np.array_equal(index.numpy(), np.arange(slots))
+        assert p._fixed_texel_order(slots, w, h, counts) is p._fixed_texel_order(slots, w, h, counts)  # sorted once
     k = np.arange(slots)
     for scramble in ((0x9E3779B9, 0x7F4A7C15), (123456789, 987654321)):
         i, j = _r2_texels(k, scramble, w, h)
@@ -159,7 +168,7 @@ def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block):
     states = wp.array(states, dtype=CascadeState, device=device)
     out = wp.full(n + 7, -1, dtype=wp.int32, device=device)
     wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=block, device=device,
-                    inputs=[states, 0, n, keys, order, n, offsets, out])
+                    inputs=[states, 0, n, keys, order, 0, 1, n, offsets, out])
     want = order_in[np.argsort(groups, kind="stable")]
     last = np.sort(groups, kind="stable") == int(C.SORT_GROUP_LAST)
     want[last] = -1  # the last group (slots past the photon count) is not written: no kernel reads it
@@ -167,7 +176,7 @@ def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block):
     assert np.all(out.numpy()[n:] == -1)
     out.fill_(-1)  # an inactive view writes nothing
     wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=block, device=device,
-                    inputs=[states, 1, n, keys, order, n, offsets, out])
+                    inputs=[states, 1, n, keys, order, 0, 1, n, offsets, out])
     assert np.all(out.numpy() == -1)
 
 

@@ -232,8 +232,8 @@ class PhotonPass:
         self._sort_keys = wp.zeros(max(1, n_max + n_frame), dtype=wp.int32, device=self.device)
         #: (2 * max photons,) int32: the per-frame texel order (the radix sort's two halves); unused when fixed
         self._order = wp.zeros(max(1, 2 * n_frame), dtype=wp.int32, device=self.device)
-        #: fixed texel orders, (slots, width, height) -> (slots,) int32 photon indices (:meth:`texel_order`)
-        self._texel_orders: dict[tuple[int, int, int], wp.array] = {}
+        #: fixed texel orders, (slots, width, height, photon counts) -> one order of slots per count (:meth:`texel_order`)
+        self._texel_orders: dict[tuple, wp.array] = {}
         #: (max photons,) int32: the photons grouped by march (photon_order's result, the trace's ``order``)
         self._grouped = wp.zeros(max(1, n_max), dtype=wp.int32, device=self.device)
         #: blocks of the group partition (photon_group_keys / photon_group_scatter) and their counts per group
@@ -252,7 +252,7 @@ class PhotonPass:
             for lm in lights:  # the slot counts CUDA launches are fixed: sort every view's order now, not in a frame
                 for r, slots in zip(lm.rsm, self.view_slots(lm)):
                     if slots > 0:
-                        self._fixed_texel_order(slots, r.width, r.height)
+                        self._fixed_texel_order(slots, r.width, r.height, self._order_counts(lm, slots))
 
     def keep_photon_m2(self, n: int) -> None:
         """Allocate ``photon_m2`` for ``n`` camera pixels: a method whose photons are stored by ``common.deposit``
@@ -361,44 +361,59 @@ class PhotonPass:
         if self.inputs.frame != frame and not (self.device.is_cuda and self.device.is_capturing):
             self.inputs.write(frame, camera, camera)
 
-    def _fixed_texel_order(self, slots: int, width: int, height: int) -> wp.array:
-        """(slots,) int32: photon indices 0 .. slots-1 by the Morton code of their texel before the frame's rotation
-        (:func:`~.common.photon_texel_keys`), sorted once over every key bit and kept for the views of this size."""
-        key = (slots, width, height)
+    def _fixed_texel_order(self, slots: int, width: int, height: int, counts: tuple[int, ...]) -> wp.array:
+        """(len(counts) * slots,) int32: per photon count n in ``counts``, the ``slots`` photon indices with the first
+        n by the Morton code of their texel before the frame's rotation (:func:`~.common.photon_texel_keys`), the
+        rest after them; sorted once over every key bit and kept for the views of this size."""
+        key = (slots, width, height, counts)
         if key not in self._texel_orders:
+            side = min(max(width, height), 1 << 14)
+            code_bits = 2 * max(1, (side - 1).bit_length())
+            table = wp.zeros(len(counts) * slots, dtype=wp.int32, device=self.device)
             keys = wp.zeros(2 * slots, dtype=wp.int32, device=self.device)
             values = wp.zeros(2 * slots, dtype=wp.int32, device=self.device)
-            wp.launch(C.photon_texel_keys, dim=slots, device=self.device, inputs=[width, height, keys, values])
-            side = min(max(width, height), 1 << 14)
-            wp.utils.radix_sort_pairs(keys, values, slots, begin_bit=0, end_bit=2 * max(1, (side - 1).bit_length()))
-            self._texel_orders[key] = wp.clone(values[:slots])
+            for i, n in enumerate(counts):
+                wp.launch(C.photon_texel_keys, dim=slots, device=self.device,
+                          inputs=[width, height, n, code_bits, keys, values])
+                wp.utils.radix_sort_pairs(keys, values, slots, begin_bit=0, end_bit=code_bits + 1)
+                wp.copy(table, values, dest_offset=i * slots, count=slots)
+            self._texel_orders[key] = table
         return self._texel_orders[key]
 
-    def texel_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int) -> wp.array:
-        """(>= slots,) int32: the photon slots of RSM view ``r`` in texel order. Fixed (:attr:`FIXED_ORDER`): every
-        photon index below ``slots`` by its texel before the frame's Cranley-Patterson rotation, sorted once; the
-        rotation moves all points alike, so neighbours stay neighbours, and indices past the view's photon count
-        (on the device) lie among the others (grouped last by :func:`~.common.photon_group_keys`). Per frame (the
-        twin): a radix sort of this frame's rotated points over the key's top bits (:func:`morton_sort_bits`),
-        indices past the count last."""
+    def _order_counts(self, lm: LightMaps, slots: int) -> tuple[int, ...]:
+        """The photon counts a view of ``lm`` launched with ``slots`` threads may have: one per count of active views
+        for fitted views (``cascade_photons``), else the view's own (its slots)."""
+        if not lm.fitted:
+            return (slots,)
+        return tuple(min(slots, max(1, self.settings.photons // a)) for a in range(1, len(lm.rsm) + 1))
+
+    def texel_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int) -> tuple[wp.array, int, int]:
+        """The photon slots of RSM view ``r`` in texel order, as (table, stride, orders): the view's photons (its
+        count, on the device) first, in texel order, from ``common.order_base`` (``stride`` × (active views − 1),
+        fewer than ``orders``), then the slots past the count. Fixed (:attr:`FIXED_ORDER`): the photon indices by
+        their texel before the frame's Cranley-Patterson rotation, sorted once per view size and photon count (one
+        order per count of active views of a fitted light): the rotation moves all points alike, so neighbours stay
+        neighbours. Per frame (the twin): a radix sort of this frame's rotated points over the key's top bits
+        (:func:`morton_sort_bits`), indices past the count last, one order."""
         if self.fixed_order:
-            return self._fixed_texel_order(slots, r.width, r.height)
+            counts = self._order_counts(lm, slots)
+            return self._fixed_texel_order(slots, r.width, r.height, counts), slots, len(counts)
         wp.launch(C.photon_sort_keys, dim=slots, device=self.device,
                   inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
                           self._sort_keys, self._order])
         side = min(max(r.width, r.height), 1 << 14)
         begin, end = morton_sort_bits(side)
         wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
-        return self._order
+        return self._order, 0, 1
 
     def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
         """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
         ``use_order``): by texel (:meth:`texel_order`), then stably grouped by how each will march (refracted,
         reflected, not traced; :func:`~.common.photon_group_keys` counts each group per block, a scan of the counts
         places the blocks, :func:`~.common.photon_group_scatter` writes the grouped order into ``_grouped``: no
-        second sort, no device copies); slots past the view's photon count (on the device) last, and not written."""
+        second sort, no device copies); slots past the view's photon count (on the device) are not written."""
         if self.use_order and slots > 0:
-            order = self.texel_order(lm, view_index, r, slots, stream)
+            order, stride, orders = self.texel_order(lm, view_index, r, slots, stream)
             sp, sc = r.specular, lm.scene
             blocks = (slots + self.group_block - 1) // self.group_block
             if blocks not in self._group_views:  # CUDA launches fixed slots: one pair of views, made at the first frame
@@ -409,11 +424,11 @@ class PhotonPass:
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
                 sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, sc.triangle_material, sc.opacity, max_lum,
                 float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
-                order, slots, self._sort_keys, counts])
+                order, stride, orders, slots, self._sort_keys, counts])
             wp.utils.array_scan(counts, offsets, inclusive=False)
             wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=self.group_block, device=self.device,
-                            inputs=[lm.states, view_index, self.settings.photons, self._sort_keys, order, slots,
-                                    offsets, self._grouped])
+                            inputs=[lm.states, view_index, self.settings.photons, self._sort_keys, order, stride,
+                                    orders, slots, offsets, self._grouped])
             return self._grouped
         return self._order
 

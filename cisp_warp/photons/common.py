@@ -201,8 +201,14 @@ def record_absorbed(outcome: wp.array(dtype=wp.vec4), slot: int, tally: Tally):
     outcome[slot] = wp.vec4(a[0], a[1], a[2], float(L_ABSORBED))
 
 
-#: an outcome record's power summed per entry: the final entries, and the absorption records of SSPM
-OutcomeSums = wp.types.matrix(shape=(LEDGER_ENTRIES, 3), dtype=wp.float64)
+#: the final entries an outcome record may hold, in two groups of five: a thread's sums are two 5×3 float64
+#: matrices (rows in this order), summed over the block as two tiles of matrices
+OUTCOME_ROWS = ((1, 3, 4, 5, 6), (7, 8, 9, 12, 13))
+assert sorted(OUTCOME_ROWS[0] + OUTCOME_ROWS[1]) == [e for e in range(LEDGER_ENTRIES) if (int(FINAL_ENTRIES) >> e) & 1]
+#: five final entries' power [W] RGB (one of OUTCOME_ROWS' groups)
+OutcomeSums = wp.types.matrix(shape=(5, 3), dtype=wp.float64)
+#: the entries of a group's five rows
+OutcomeRows = wp.types.vector(length=5, dtype=wp.int32)
 
 
 @wp.func
@@ -214,15 +220,42 @@ def _outcome_at(outcome: wp.array(dtype=wp.vec4), r: int, end: int, run: int, n_
 
 
 @wp.func
-def _outcome_add(sums: OutcomeSums, o: wp.vec4) -> OutcomeSums:
-    """``sums`` with record ``o``'s power added to its entry (none for entry -1)."""
+def _outcome_add(a: OutcomeSums, b: OutcomeSums, o: wp.vec4):
+    """(a, b) with record ``o``'s power added to its entry's row (OUTCOME_ROWS; nothing for entry -1)."""
     code = int(o[3])
     p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
-    out = sums
-    for e in range(LEDGER_ENTRIES):
-        if ((FINAL_ENTRIES >> e) & 1) != 0 and code == e:  # a constant test per unrolled e, then one compare
-            out[e] = out[e] + p
-    return out
+    sa = a
+    sb = b
+    if code == 1:
+        sa[0] = sa[0] + p
+    elif code == 3:
+        sa[1] = sa[1] + p
+    elif code == 4:
+        sa[2] = sa[2] + p
+    elif code == 5:
+        sa[3] = sa[3] + p
+    elif code == 6:
+        sa[4] = sa[4] + p
+    elif code == 7:
+        sb[0] = sb[0] + p
+    elif code == 8:
+        sb[1] = sb[1] + p
+    elif code == 9:
+        sb[2] = sb[2] + p
+    elif code == 12:
+        sb[3] = sb[3] + p
+    elif code == 13:
+        sb[4] = sb[4] + p
+    return sa, sb
+
+
+@wp.func
+def _outcome_rows_add(ledger: wp.array(dtype=wp.vec3d), block: int, entries: int, sums: OutcomeSums, row_entries: OutcomeRows):
+    """Add each row of ``sums`` whose entry (``row_entries``) is in the mask ``entries`` to the block's stripe."""
+    for i in range(5):
+        e = row_entries[i]
+        if ((entries >> e) & 1) != 0:
+            wp.atomic_add(ledger, ledger_slot(ledger, block, e), sums[i])
 
 
 @wp.kernel
@@ -238,33 +271,37 @@ def ledger_add_outcomes(
     run: int,  # records per run (the trace's slots): record r is photon slot r % run of its run
 ):
     """The final entries of ``count`` outcome records: each thread sums its records per entry in registers, the
-    block tile-sums each entry of ``entries`` and adds it once to its ledger stripe. On CUDA a few hundred blocks
-    read the records once (16 B each, coalesced); on the CPU (one thread per block, one record per thread) the
-    entries are summed in photon order, as when the trace kernel added them itself. Records of slots past the
-    view's photon count (launched for the most a fitted cascade can get; never written this frame) are skipped."""
+    block sums every entry at once (two tiles of 5×3 matrices, OUTCOME_ROWS) and lane 0 adds each entry of
+    ``entries`` once to its ledger stripe. On CUDA a few hundred blocks read the records once (16 B each,
+    coalesced); on the CPU (one thread per block, one record per thread) the entries are summed in photon order, as
+    when the trace kernel added them itself. Records of slots past the view's photon count (launched for the most
+    a fitted cascade can get; never written this frame) are skipped."""
     block, lane = wp.tid()
     n_photons = cascade_photons(states[view_index], light_photons)
     t = block * wp.block_dim() + lane
-    sums = OutcomeSums()
+    sa = OutcomeSums()
+    sb = OutcomeSums()
     # records past the last run's last written one were never written: the loop ends there
     end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
-    # four records a step, their loads issued together (one thread sums many records: a loop of one load a step
-    # waits a round trip to memory for each), added in the order one at a time would add them
+    # four records a step, their loads issued together, added in the order one at a time would add them
     r = t
     while r < end:
         o0 = _outcome_at(outcome, r, end, run, n_photons)
         o1 = _outcome_at(outcome, r + threads, end, run, n_photons)
         o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons)
         o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons)
-        sums = _outcome_add(sums, o0)
-        sums = _outcome_add(sums, o1)
-        sums = _outcome_add(sums, o2)
-        sums = _outcome_add(sums, o3)
+        sa, sb = _outcome_add(sa, sb, o0)
+        sa, sb = _outcome_add(sa, sb, o1)
+        sa, sb = _outcome_add(sa, sb, o2)
+        sa, sb = _outcome_add(sa, sb, o3)
         r += 4 * threads
-    for e in range(LEDGER_ENTRIES):
-        if ((FINAL_ENTRIES >> e) & 1) != 0 and ((entries >> e) & 1) != 0:
-            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(sums[e], preserve_type=True)),
-                               offset=ledger_slot(ledger, block, e))
+    # the block's sums of all entries in two tile sums (ten sums of one entry each cost a block ~25 µs on an H100,
+    # the loop above ~4 µs: tools/bench_order.py), added by lane 0 in entry order
+    ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
+    tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
+    if lane == 0:
+        _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
+        _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
@@ -345,20 +382,32 @@ def photon_sort_keys(
 def photon_texel_keys(
     width: int,  # the view's texels across
     height: int,  # and down
+    n_photons: int,  # photons of the view: indices from it on sort after every texel
+    last_bit: int,  # a key bit above every texel code's: set for the indices past n_photons
     keys: wp.array(dtype=wp.int32),  # (>= N,) Morton code of photon k's texel without the frame's rotation (write)
     values: wp.array(dtype=wp.int32),  # (>= N,) photon index k (write)
 ):
-    """Keys of the fixed texel order (``PhotonPass.texel_order``): photon k's texel as the R2 sequence places it
-    before the frame's Cranley-Patterson rotation, as a Morton code. Sorted once per view size and photon count,
-    not per frame: each frame's rotation moves every point by the same offset (mod 1), so points that were
-    neighbours (one warp's worth in a small Morton cell) stay neighbours; only a cell that the wrap-around cuts
-    is split, in two (about 2 x 8 / 2048 of the warps per axis at 2048² texels and 8×8-texel cells)."""
+    """Keys of a fixed texel order (``PhotonPass.texel_order``): photon k's texel as the R2 sequence places it
+    before the frame's Cranley-Patterson rotation, as a Morton code; indices k >= n_photons after every code (the
+    slots a fitted view launches past its photons). Sorted once per view size and photon count, not per frame: each
+    frame's rotation moves every point by the same offset (mod 1), so points that were neighbours (one warp's worth
+    in a small Morton cell) stay neighbours; only a cell that the wrap-around cuts is split, in two."""
     k = wp.tid()
     u = r2_point(k, wp.vec2i(0, 0))
     i = wp.min(int(u[0] * float(width)), width - 1)
     j = wp.min(int(u[1] * float(height)), height - 1)
-    keys[k] = _spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)
+    key = _spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)
+    if k >= n_photons:
+        key = key | (1 << last_bit)
+    keys[k] = key
     values[k] = k
+
+
+@wp.func
+def order_base(cascade: CascadeState, order_stride: int, orders: int) -> int:
+    """Where a view's texel order starts in its light's table of orders (``PhotonPass.texel_order``): one order per
+    count of active views (their photon counts differ), ``order_stride`` apart (0: a single order)."""
+    return wp.min(wp.max(1, cascade.active_views), orders) * order_stride - order_stride
 
 
 SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
@@ -400,12 +449,11 @@ def _march_group(
     roughness_cutoff: float,
     luminance_cutoff: float,
     order: wp.array(dtype=wp.int32),
-    t: int,
+    at: int,
 ) -> int:
-    """The march group of thread ``t``'s photon (see :func:`photon_group_keys`); ``n_photons`` > 0."""
-    k = order[t]
-    if k >= n_photons:  # slots past the view's photons (fixed launch dims): last
-        return SORT_GROUP_LAST
+    """The march group of photon ``order[at]`` (a thread's entry of its view's texel order; see
+    :func:`photon_group_keys`)."""
+    k = order[at]
     cascade = states[view_index]
     light = views[view_index]
     rnd = randoms[stream]
@@ -461,9 +509,11 @@ def photon_group_keys(
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
     luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
-    order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read, first N)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, the first n_photons from order_base (read)
+    order_stride: int,  # the light's orders per count of active views lie this far apart (0: one order)
+    orders: int,  # orders in the table
     n_slots: int,  # N: threads to group (the launch is whole blocks; lanes past N are padding)
-    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, first N; not when inactive)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, the first n_photons)
     block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) photons per (group, block), group-major (write)
 ):
     """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent),
@@ -471,22 +521,30 @@ def photon_group_keys(
     texel order holds inside each group. The group is a cheap prediction of what the trace kernel will do with
     photon k: not traced (culled exactly as :func:`emit_photon` culls), reflected or refracted (the first draw of
     the photon's own random stream against Fresnel at the texel's normal, along the light ray through the sample;
-    the trace uses the exact normal under the sample, so a few photons land in the other group); slots whose photon
-    index is past the view's count last. Each photon is still traced in full as photon k: only the order of the
-    threads changes. A view that emits nothing (an inactive cascade) reads no order and writes no keys (its scatter
-    returns at once). Launched tiled; a block's counts are one packed tile sum."""
+    the trace uses the exact normal under the sample, so a few photons land in the other group); slots past the
+    view's photon count last. Each photon is still traced in full as photon k: only the order of the
+    threads changes. A block wholly past the view's photons (every block of an inactive cascade) reads nothing and
+    writes its counts only (its scatter returns at once). Launched tiled; a block's counts are one packed tile sum.""" 
     block, lane = wp.tid()
     bd = wp.block_dim()
     t = block * bd + lane
-    n_photons = cascade_photons(states[view_index], light_photons)
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if block * bd >= n_photons:  # a block wholly past the view's photons (an inactive view: every block): all last
+        if lane == 0:
+            blocks = block_counts.shape[0] / SORT_GROUPS
+            for g in range(SORT_GROUPS - 1):
+                block_counts[g * blocks + block] = 0
+            block_counts[(SORT_GROUPS - 1) * blocks + block] = wp.min(n_slots - block * bd, bd)
+        return
     group = int(-1)
     if t < n_slots:
         group = SORT_GROUP_LAST
-        if n_photons > 0:
+        if t < n_photons:
             group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_normal, rsm_flux,
                                  rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, max_lum,
-                                 roughness_cutoff, luminance_cutoff, order, t)
-            keys[t] = group
+                                 roughness_cutoff, luminance_cutoff, order, order_base(cascade, order_stride, orders) + t)
+        keys[t] = group
     packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
     if lane == 0:
         blocks = block_counts.shape[0] / SORT_GROUPS
@@ -506,7 +564,9 @@ def photon_group_scatter(
     view_index: int,
     light_photons: int,  # the light's photons (cascade_photons)
     keys: wp.array(dtype=wp.int32),  # (>= N,) march group per thread (photon_group_keys, read)
-    order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, from order_base (read)
+    order_stride: int,  # as photon_group_keys'
+    orders: int,
     n_slots: int,  # N
     offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) exclusive scan of the block counts (read)
     grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first n_photons)
@@ -515,19 +575,23 @@ def photon_group_scatter(
     sort's passes and copies): thread t's photon goes to its group's offset for its block plus the photons of its
     group before it in the block (an exclusive tile scan of packed counts). Same blocks as photon_group_keys.
     Slots of the last group (past the view's photon count) are not written: they would land at positions >= the
-    view's photon count, which no kernel reads (the trace reads ``grouped[t]`` for t < its photon count only); an
-    inactive view writes nothing."""
-    if cascade_photons(states[view_index], light_photons) == 0:
-        return
+    view's photon count, which no kernel reads (the trace reads ``grouped[t]`` for t < its photon count only); a block
+    wholly past the count (every block of an inactive view) returns at once."""
     block, lane = wp.tid()
-    t = block * wp.block_dim() + lane
+    bd = wp.block_dim()
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if block * bd >= n_photons:  # only slots past the photons (every block of an inactive view): nothing to write
+        return
+    t = block * bd + lane
     group = int(-1)
     if t < n_slots:
         group = keys[t]
     before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
     if t < n_slots and group != SORT_GROUP_LAST:
         rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
-        grouped[offsets[group * (offsets.shape[0] / SORT_GROUPS) + block] + rank] = order[t]
+        grouped[offsets[group * (offsets.shape[0] / SORT_GROUPS) + block] + rank] = order[
+            order_base(cascade, order_stride, orders) + t]
 
 
 @wp.func
