@@ -73,6 +73,23 @@ def test_sort_groups_predict_the_trace(device, monkeypatch, fixed):
         assert np.all(np.diff(morton[group == g]) >= 0)
 
 
+def test_few_blocks_group_as_one_a_tile(device):
+    """The partition launched with fewer blocks than tiles (each block over every grid-th tile, as on CUDA) writes
+    the same keys and grouped order as one block a tile."""
+    r = frame(device, "cisp", True)
+    p = r.photons
+    b = next(p.rsm_batches(r.frame - 1))
+    n = b.slots
+    want = [a.numpy()[:n].copy() for a in (p._grouped, p._sort_keys)]
+    p._grouped.fill_(-7)
+    p._sort_keys.fill_(-7)
+    p.group_max_blocks = 3
+    b = next(p.rsm_batches(r.frame - 1))
+    got = [a.numpy()[:n] for a in (p._grouped, p._sort_keys)]
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+
+
 @pytest.mark.parametrize("method", ["cisp", "sspm"])
 def test_fixed_order_traces_as_the_frame_order(device, monkeypatch, method):
     """The fixed texel order (sorted once) and the per-frame sort (its twin) trace the same photons: the same
@@ -144,8 +161,8 @@ def test_fixed_order_is_a_texel_order(device):
         assert cut <= 3 * np.median(fixed) / w, cut
 
 
-@pytest.mark.parametrize("block", [1, 32])
-def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block):
+@pytest.mark.parametrize("block, grid", [(1, None), (32, None), (32, 2)])
+def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block, grid):
     """photon_group_keys' block counts, their scan and photon_group_scatter give the stable sort of the photons by
     group (numpy's stable argsort), in blocks of one thread and in CPU blocks of 32 with a partial last block, all
     four groups (slots past the photon count last, left unwritten) and a padded tail; an inactive view writes nothing."""
@@ -154,6 +171,7 @@ def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block):
     groups = rng.integers(0, C.SORT_GROUPS, n).astype(np.int32)
     order_in = rng.permutation(n).astype(np.int32)
     blocks = -(-n // block)
+    grid = grid or blocks  # fewer blocks than tiles: each block takes every grid-th tile
     keys = wp.array(groups, dtype=wp.int32, device=device)
     order = wp.array(order_in, dtype=wp.int32, device=device)
     offsets = wp.array(np.zeros(C.SORT_GROUPS * blocks, np.int32), device=device)
@@ -167,16 +185,16 @@ def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block):
     states["active_views"] = 1
     states = wp.array(states, dtype=CascadeState, device=device)
     out = wp.full(n + 7, -1, dtype=wp.int32, device=device)
-    wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=block, device=device,
-                    inputs=[states, 0, n, keys, order, 0, 1, n, offsets, out])
+    wp.launch_tiled(C.photon_group_scatter, dim=grid, block_dim=block, device=device,
+                    inputs=[states, 0, n, keys, order, 0, 1, n, offsets, out, grid])
     want = order_in[np.argsort(groups, kind="stable")]
     last = np.sort(groups, kind="stable") == int(C.SORT_GROUP_LAST)
     want[last] = -1  # the last group (slots past the photon count) is not written: no kernel reads it
     np.testing.assert_array_equal(out.numpy()[:n], want)
     assert np.all(out.numpy()[n:] == -1)
     out.fill_(-1)  # an inactive view writes nothing
-    wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=block, device=device,
-                    inputs=[states, 1, n, keys, order, 0, 1, n, offsets, out])
+    wp.launch_tiled(C.photon_group_scatter, dim=grid, block_dim=block, device=device,
+                    inputs=[states, 1, n, keys, order, 0, 1, n, offsets, out, grid])
     assert np.all(out.numpy() == -1)
 
 

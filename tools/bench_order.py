@@ -9,9 +9,10 @@ view's launches ``--reps`` times per variant and reports the median ms per frame
 Warp's CUDA activity timing (kernel execution only; L2 flushed before each launch), per view too:
 
 * ``photon_group_keys``: as in the frame (fixed texel order, the texel's values read in one round trip, no
-  position); ``per-frame order`` (the frame's rotated points sorted, as main did, instead of the fixed order);
+  position, a few blocks over many tiles); ``per-frame order`` (the frame's rotated points sorted, as main did, instead of the fixed order);
   ``chained reads`` (main's prediction: each read after the test before it, the incident direction from the
-  texel's position for point and spot lights; a copy of main's function here, with the fixed order); the same
+  texel's position for point and spot lights, one block a tile; a copy of main's kernel here, with the fixed
+  order); the same
   without the position (the light ray's direction, as in the frame); and main's reads with the per-frame order;
 * ``photon_group_scatter``: as in the frame; ``per-frame order`` (the keys and order of the per-frame variant);
 * ``ledger_add_outcomes``: as in the frame (four records a step, two block sums of five entries each); ``one
@@ -261,7 +262,8 @@ def run_scene(name: str, args, device) -> None:
         frame_order[at["order"]], frame_order[at["order_stride"]], frame_order[at["orders"]] = morder, 0, 1
         scatter_frame = list(s[3])
         scatter_frame[4:7] = [morder, 0, 1]
-        views.append({"vi": vi, "light": P.lights.index(lm), "g": g, "s": s, "o": o, "frame_order": frame_order,
+        tiles = gi[at["block_counts"]].shape[0] // C.SORT_GROUPS
+        views.append({"vi": vi, "light": P.lights.index(lm), "tiles": tiles, "g": g, "s": s, "o": o, "frame_order": frame_order,
                       "chained": chained, "chained_nopos": chained_nopos, "chained_frame": chained_frame, "scatter_frame": scatter_frame})
 
     def L(kernel, dim, bd, inputs):
@@ -277,9 +279,11 @@ def run_scene(name: str, args, device) -> None:
 
     variant("group_keys: frame", lambda v: [L(*v["g"][:3], v["g"][3])])
     variant("group_keys: per-frame order", lambda v: [L(*v["g"][:3], v["frame_order"])])
-    variant("group_keys: chained reads", lambda v: [L(group_keys_chained, *v["g"][1:3], v["chained"])])
-    variant("group_keys: chained, no position", lambda v: [L(group_keys_chained, *v["g"][1:3], v["chained_nopos"])])
-    variant("group_keys: chained + per-frame (main)", lambda v: [L(group_keys_chained, *v["g"][1:3], v["chained_frame"])])
+    # main's kernel: one block a tile (the frame's launch has fewer blocks, each over many tiles)
+    variant("group_keys: chained reads", lambda v: [L(group_keys_chained, v["tiles"], v["g"][2], v["chained"])])
+    variant("group_keys: chained, no position", lambda v: [L(group_keys_chained, v["tiles"], v["g"][2], v["chained_nopos"])])
+    variant("group_keys: chained + per-frame (main)",
+            lambda v: [L(group_keys_chained, v["tiles"], v["g"][2], v["chained_frame"])])
     variant("scatter: frame (after its keys)", lambda v: [L(*v["g"][:3], v["g"][3]), L(*v["s"][:3], v["s"][3])])
     variant("scatter: per-frame order (after its keys)",
             lambda v: [L(*v["g"][:3], v["frame_order"]), L(*v["s"][:3], v["scatter_frame"])])

@@ -238,6 +238,8 @@ class PhotonPass:
         self._grouped = wp.zeros(max(1, n_max), dtype=wp.int32, device=self.device)
         #: blocks of the group partition (photon_group_keys / photon_group_scatter) and their counts per group
         self.group_block = C.SORT_GROUP_BLOCK if self.device.is_cuda else 1
+        #: most blocks of the group partition (each over many tiles of ``group_block`` slots); None: one per tile
+        self.group_max_blocks = C.SORT_GROUP_BLOCKS_PER_SM * self.device.sm_count if self.device.is_cuda else None
         n_blocks = max(1, (n_max + self.group_block - 1) // self.group_block)
         self._group_counts = wp.zeros(C.SORT_GROUPS * n_blocks, dtype=wp.int32, device=self.device)
         self._group_offsets = wp.zeros(C.SORT_GROUPS * n_blocks, dtype=wp.int32, device=self.device)
@@ -420,15 +422,16 @@ class PhotonPass:
                 n = C.SORT_GROUPS * blocks
                 self._group_views[blocks] = (self._group_counts[:n], self._group_offsets[:n])
             counts, offsets = self._group_views[blocks]
-            wp.launch_tiled(C.photon_group_keys, dim=blocks, block_dim=self.group_block, device=self.device, inputs=[
+            grid = blocks if self.group_max_blocks is None else min(blocks, self.group_max_blocks)
+            wp.launch_tiled(C.photon_group_keys, dim=grid, block_dim=self.group_block, device=self.device, inputs=[
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
                 sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, sc.triangle_material, sc.opacity, max_lum,
                 float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
-                order, stride, orders, slots, self._sort_keys, counts])
+                order, stride, orders, slots, self._sort_keys, counts, grid])
             wp.utils.array_scan(counts, offsets, inclusive=False)
-            wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=self.group_block, device=self.device,
+            wp.launch_tiled(C.photon_group_scatter, dim=grid, block_dim=self.group_block, device=self.device,
                             inputs=[lm.states, view_index, self.settings.photons, self._sort_keys, order, stride,
-                                    orders, slots, offsets, self._grouped])
+                                    orders, slots, offsets, self._grouped, grid])
             return self._grouped
         return self._order
 

@@ -295,8 +295,8 @@ def ledger_add_outcomes(
         sa, sb = _outcome_add(sa, sb, o2)
         sa, sb = _outcome_add(sa, sb, o3)
         r += 4 * threads
-    # the block's sums of all entries in two tile sums (ten sums of one entry each cost a block ~25 µs on an H100,
-    # the loop above ~4 µs: tools/bench_order.py), added by lane 0 in entry order
+    # the block's sums of all entries in two tile sums instead of ten (H100, in the frame against main's kernel in the
+    # same call: -16% / -9% with ten, -20% / -18% with two; docs/perf_notes.md section 38), added by lane 0 in order
     ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
     tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
     if lane == 0:
@@ -417,7 +417,8 @@ SORT_GROUP_LAST = wp.constant(3)  #: slots past the view's photon count (fixed l
 
 
 SORT_GROUPS = 4  #: march groups including SORT_GROUP_LAST: the partition's block counts per group
-SORT_GROUP_BLOCK = 256  #: threads per block of the group partition on CUDA (< 2^SORT_COUNT_BITS)
+SORT_GROUP_BLOCK = 256  #: threads per block (and slots per tile) of the group partition on CUDA (< 2^SORT_COUNT_BITS)
+SORT_GROUP_BLOCKS_PER_SM = 4  #: blocks of the group partition per SM on CUDA (55 registers: 4 of 256 fit), each over many tiles
 SORT_COUNT_BITS = wp.constant(10)  #: bits of one group's count in a packed block count (blocks of <= 1023 threads)
 
 
@@ -514,7 +515,8 @@ def photon_group_keys(
     orders: int,  # orders in the table
     n_slots: int,  # N: threads to group (the launch is whole blocks; lanes past N are padding)
     keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, the first n_photons)
-    block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) photons per (group, block), group-major (write)
+    block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * tiles,) photons per (group, tile), group-major (write)
+    grid: int,  # blocks launched
 ):
     """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent),
     and how many of each group each block holds; :func:`photon_group_scatter` then groups the photons stably, so
@@ -523,39 +525,47 @@ def photon_group_keys(
     the photon's own random stream against Fresnel at the texel's normal, along the light ray through the sample;
     the trace uses the exact normal under the sample, so a few photons land in the other group); slots past the
     view's photon count last. Each photon is still traced in full as photon k: only the order of the
-    threads changes. A block wholly past the view's photons (every block of an inactive cascade) reads nothing and
-    writes its counts only (its scatter returns at once). Launched tiled; a block's counts are one packed tile sum.""" 
+    threads changes. Launched tiled, ``grid`` blocks, block b taking tiles b, b + grid, ... of ``block_dim`` slots
+    (few blocks, each over many tiles: 8192 blocks of 256 cost ~15 µs to schedule even when they do nothing); a
+    tile's counts are one packed tile sum. A tile wholly past the view's photons reads nothing and writes its counts
+    only; an inactive view writes nothing (its scatter returns at once).""" 
     block, lane = wp.tid()
     bd = wp.block_dim()
-    t = block * bd + lane
     cascade = states[view_index]
     n_photons = cascade_photons(cascade, light_photons)
-    if block * bd >= n_photons:  # a block wholly past the view's photons (an inactive view: every block): all last
-        if lane == 0:
-            blocks = block_counts.shape[0] / SORT_GROUPS
-            for g in range(SORT_GROUPS - 1):
-                block_counts[g * blocks + block] = 0
-            block_counts[(SORT_GROUPS - 1) * blocks + block] = wp.min(n_slots - block * bd, bd)
+    if n_photons == 0:  # an inactive view: nothing (its scatter returns at once and reads no counts)
         return
-    group = int(-1)
-    if t < n_slots:
-        group = SORT_GROUP_LAST
-        if t < n_photons:
-            group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_normal, rsm_flux,
-                                 rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, max_lum,
-                                 roughness_cutoff, luminance_cutoff, order, order_base(cascade, order_stride, orders) + t)
-        keys[t] = group
-    packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
-    if lane == 0:
-        blocks = block_counts.shape[0] / SORT_GROUPS
-        c = packed[0]
-        mask = (1 << SORT_COUNT_BITS) - 1
-        rest = wp.min(n_slots - block * bd, bd)
-        for g in range(SORT_GROUPS - 1):
-            n_g = (c >> (SORT_COUNT_BITS * g)) & mask
-            block_counts[g * blocks + block] = n_g
-            rest -= n_g
-        block_counts[(SORT_GROUPS - 1) * blocks + block] = rest
+    base = order_base(cascade, order_stride, orders)
+    tiles = block_counts.shape[0] / SORT_GROUPS
+    mask = (1 << SORT_COUNT_BITS) - 1
+    tile = block
+    while tile < tiles:  # the same trip count for every thread of the block
+        first = tile * bd
+        if first >= n_photons:  # a tile wholly past the view's photons: all last
+            if lane == 0:
+                for g in range(SORT_GROUPS - 1):
+                    block_counts[g * tiles + tile] = 0
+                block_counts[(SORT_GROUPS - 1) * tiles + tile] = wp.min(n_slots - first, bd)
+        else:
+            t = first + lane
+            group = int(-1)
+            if t < n_slots:
+                group = SORT_GROUP_LAST
+                if t < n_photons:
+                    group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_normal, rsm_flux,
+                                         rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, max_lum,
+                                         roughness_cutoff, luminance_cutoff, order, base + t)
+                keys[t] = group
+            packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
+            if lane == 0:
+                c = packed[0]
+                rest = wp.min(n_slots - first, bd)
+                for g in range(SORT_GROUPS - 1):
+                    n_g = (c >> (SORT_COUNT_BITS * g)) & mask
+                    block_counts[g * tiles + tile] = n_g
+                    rest -= n_g
+                block_counts[(SORT_GROUPS - 1) * tiles + tile] = rest
+        tile += grid
 
 
 @wp.kernel
@@ -568,30 +578,33 @@ def photon_group_scatter(
     order_stride: int,  # as photon_group_keys'
     orders: int,
     n_slots: int,  # N
-    offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) exclusive scan of the block counts (read)
+    offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * tiles,) exclusive scan of the tile counts (read)
     grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first n_photons)
+    grid: int,  # blocks launched (block b takes tiles b, b + grid, ...)
 ):
     """A stable partition of the photons by march group (the stable sort on the 2-bit group keys, without a radix
     sort's passes and copies): thread t's photon goes to its group's offset for its block plus the photons of its
-    group before it in the block (an exclusive tile scan of packed counts). Same blocks as photon_group_keys.
+    group before it in the tile (an exclusive tile scan of packed counts). Same tiles as photon_group_keys.
     Slots of the last group (past the view's photon count) are not written: they would land at positions >= the
-    view's photon count, which no kernel reads (the trace reads ``grouped[t]`` for t < its photon count only); a block
-    wholly past the count (every block of an inactive view) returns at once."""
+    view's photon count, which no kernel reads (the trace reads ``grouped[t]`` for t < its photon count only); tiles
+    wholly past the count (every tile of an inactive view) are skipped."""
     block, lane = wp.tid()
     bd = wp.block_dim()
     cascade = states[view_index]
     n_photons = cascade_photons(cascade, light_photons)
-    if block * bd >= n_photons:  # only slots past the photons (every block of an inactive view): nothing to write
-        return
-    t = block * bd + lane
-    group = int(-1)
-    if t < n_slots:
-        group = keys[t]
-    before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
-    if t < n_slots and group != SORT_GROUP_LAST:
-        rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
-        grouped[offsets[group * (offsets.shape[0] / SORT_GROUPS) + block] + rank] = order[
-            order_base(cascade, order_stride, orders) + t]
+    base = order_base(cascade, order_stride, orders)
+    tiles = offsets.shape[0] / SORT_GROUPS
+    tile = block
+    while tile < tiles and tile * bd < n_photons:  # tiles past the photons have nothing to write; uniform per block
+        t = tile * bd + lane
+        group = int(-1)
+        if t < n_slots:
+            group = keys[t]
+        before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
+        if t < n_slots and group != SORT_GROUP_LAST:
+            rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
+            grouped[offsets[group * tiles + tile] + rank] = order[base + t]
+        tile += grid
 
 
 @wp.func
