@@ -169,6 +169,9 @@ class PhotonPass:
     """Base of every photon method: allocates the photon map, the ledger and per-light scratch once."""
 
     name = "photons"
+    #: trace photons in a texel order sorted once per view size and photon slots (True), or sorted every frame
+    #: over the frame's rotated R2 points (False: the twin, main's order up to section 40 of docs/perf_notes.md)
+    FIXED_ORDER = True
     denoise = True  #: whether the renderer's denoiser runs on ``photon_map`` (False: shown raw)
     final = None  #: a method that renders its own final image sets this (H*W,) vec3 array
     #: the photons that land where the camera cannot see, per light view (``hidden_flux.HiddenFlux``), for the
@@ -220,13 +223,23 @@ class PhotonPass:
         #: threads per block of the photon kernels; each block adds its tallies to the ledger once. Warp runs CPU
         #: tiles one thread per block unless ``wp.config.enable_cpu_blocks`` is set (a test does, to check the sums)
         self.ledger_block = C.LEDGER_BLOCK if self.device.is_cuda else 1
-        #: (2 * max photons,) int32: Morton keys and texel order (the radix sort's two halves), then march groups
-        self._sort_keys = wp.zeros(max(1, 2 * n_max), dtype=wp.int32, device=self.device)
-        self._order = wp.zeros(max(1, 2 * n_max), dtype=wp.int32, device=self.device)
+        #: texel order: fixed (sorted once per view size and slot count, :meth:`texel_order`) or sorted every frame
+        #: (main's order before the fixed one, kept as its twin: the tests compare the two)
+        self.fixed_order = self.FIXED_ORDER
+        n_frame = n_max if not self.fixed_order else 0
+        #: (max photons,) int32: march group per thread (photon_group_keys); with a per-frame order, (2 * max
+        #: photons,): first the Morton keys of the radix sort's two halves
+        self._sort_keys = wp.zeros(max(1, n_max + n_frame), dtype=wp.int32, device=self.device)
+        #: (2 * max photons,) int32: the per-frame texel order (the radix sort's two halves); unused when fixed
+        self._order = wp.zeros(max(1, 2 * n_frame), dtype=wp.int32, device=self.device)
+        #: fixed texel orders, (slots, width, height, photon counts) -> one order of slots per count (:meth:`texel_order`)
+        self._texel_orders: dict[tuple, wp.array] = {}
         #: (max photons,) int32: the photons grouped by march (photon_order's result, the trace's ``order``)
         self._grouped = wp.zeros(max(1, n_max), dtype=wp.int32, device=self.device)
         #: blocks of the group partition (photon_group_keys / photon_group_scatter) and their counts per group
         self.group_block = C.SORT_GROUP_BLOCK if self.device.is_cuda else 1
+        #: most blocks of the group partition (each over many tiles of ``group_block`` slots); None: one per tile
+        self.group_max_blocks = C.SORT_GROUP_BLOCKS_PER_SM * self.device.sm_count if self.device.is_cuda else None
         n_blocks = max(1, (n_max + self.group_block - 1) // self.group_block)
         self._group_counts = wp.zeros(C.SORT_GROUPS * n_blocks, dtype=wp.int32, device=self.device)
         self._group_offsets = wp.zeros(C.SORT_GROUPS * n_blocks, dtype=wp.int32, device=self.device)
@@ -237,6 +250,11 @@ class PhotonPass:
         #: it writes once per frame before tracing (or replaying a captured frame)
         self.inputs = FrameInputs(lights, settings.seed, self.device)
         self._no_hidden = wp.zeros(0, dtype=wp.vec3, device=self.device)  #: the empty hidden map (hidden_args)
+        if sort and n_max > 0 and self.fixed_order and self.device.is_cuda:
+            for lm in lights:  # the slot counts CUDA launches are fixed: sort every view's order now, not in a frame
+                for r, slots in zip(lm.rsm, self.view_slots(lm)):
+                    if slots > 0:
+                        self._fixed_texel_order(slots, r.width, r.height, self._order_counts(lm, slots))
 
     def keep_photon_m2(self, n: int) -> None:
         """Allocate ``photon_m2`` for ``n`` camera pixels: a method whose photons are stored by ``common.deposit``
@@ -345,35 +363,75 @@ class PhotonPass:
         if self.inputs.frame != frame and not (self.device.is_cuda and self.device.is_capturing):
             self.inputs.write(frame, camera, camera)
 
+    def _fixed_texel_order(self, slots: int, width: int, height: int, counts: tuple[int, ...]) -> wp.array:
+        """(len(counts) * slots,) int32: per photon count n in ``counts``, the ``slots`` photon indices with the first
+        n by the Morton code of their texel before the frame's rotation (:func:`~.common.photon_texel_keys`), the
+        rest after them; sorted once over every key bit and kept for the views of this size."""
+        key = (slots, width, height, counts)
+        if key not in self._texel_orders:
+            side = min(max(width, height), 1 << 14)
+            code_bits = 2 * max(1, (side - 1).bit_length())
+            table = wp.zeros(len(counts) * slots, dtype=wp.int32, device=self.device)
+            keys = wp.zeros(2 * slots, dtype=wp.int32, device=self.device)
+            values = wp.zeros(2 * slots, dtype=wp.int32, device=self.device)
+            for i, n in enumerate(counts):
+                wp.launch(C.photon_texel_keys, dim=slots, device=self.device,
+                          inputs=[width, height, n, code_bits, keys, values])
+                wp.utils.radix_sort_pairs(keys, values, slots, begin_bit=0, end_bit=code_bits + 1)
+                wp.copy(table, values, dest_offset=i * slots, count=slots)
+            self._texel_orders[key] = table
+        return self._texel_orders[key]
+
+    def _order_counts(self, lm: LightMaps, slots: int) -> tuple[int, ...]:
+        """The photon counts a view of ``lm`` launched with ``slots`` threads may have: one per count of active views
+        for fitted views (``cascade_photons``), else the view's own (its slots)."""
+        if not lm.fitted:
+            return (slots,)
+        return tuple(min(slots, max(1, self.settings.photons // a)) for a in range(1, len(lm.rsm) + 1))
+
+    def texel_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int) -> tuple[wp.array, int, int]:
+        """The photon slots of RSM view ``r`` in texel order, as (table, stride, orders): the view's photons (its
+        count, on the device) first, in texel order, from ``common.order_base`` (``stride`` × (active views − 1),
+        fewer than ``orders``), then the slots past the count. Fixed (:attr:`FIXED_ORDER`): the photon indices by
+        their texel before the frame's Cranley-Patterson rotation, sorted once per view size and photon count (one
+        order per count of active views of a fitted light): the rotation moves all points alike, so neighbours stay
+        neighbours. Per frame (the twin): a radix sort of this frame's rotated points over the key's top bits
+        (:func:`morton_sort_bits`), indices past the count last, one order."""
+        if self.fixed_order:
+            counts = self._order_counts(lm, slots)
+            return self._fixed_texel_order(slots, r.width, r.height, counts), slots, len(counts)
+        wp.launch(C.photon_sort_keys, dim=slots, device=self.device,
+                  inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
+                          self._sort_keys, self._order])
+        side = min(max(r.width, r.height), 1 << 14)
+        begin, end = morton_sort_bits(side)
+        wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
+        return self._order, 0, 1
+
     def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
         """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
-        ``use_order``): by texel (Morton: a radix sort over the key's top bits, :func:`morton_sort_bits`), then
-        stably grouped by how each will march (refracted, reflected, not traced; :func:`~.common.photon_group_keys`
-        counts each group per block, a scan of the counts places the blocks, :func:`~.common.photon_group_scatter`
-        writes the grouped order into ``_grouped``: no second sort, no device copies); slots past the view's photon
-        count (on the device) last."""
+        ``use_order``): by texel (:meth:`texel_order`), then stably grouped by how each will march (refracted,
+        reflected, not traced; :func:`~.common.photon_group_keys` counts each group per block, a scan of the counts
+        places the blocks, :func:`~.common.photon_group_scatter` writes the grouped order into ``_grouped``: no
+        second sort, no device copies); slots past the view's photon count (on the device) are not written."""
         if self.use_order and slots > 0:
-            wp.launch(C.photon_sort_keys, dim=slots, device=self.device,
-                      inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
-                              self._sort_keys, self._order])
-            side = min(max(r.width, r.height), 1 << 14)
-            begin, end = morton_sort_bits(side)
-            wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
+            order, stride, orders = self.texel_order(lm, view_index, r, slots, stream)
             sp, sc = r.specular, lm.scene
             blocks = (slots + self.group_block - 1) // self.group_block
             if blocks not in self._group_views:  # CUDA launches fixed slots: one pair of views, made at the first frame
                 n = C.SORT_GROUPS * blocks
                 self._group_views[blocks] = (self._group_counts[:n], self._group_offsets[:n])
             counts, offsets = self._group_views[blocks]
-            wp.launch_tiled(C.photon_group_keys, dim=blocks, block_dim=self.group_block, device=self.device, inputs=[
-                lm.views, lm.states, view_index, self.settings.photons, int(lm.light.kind),
-                wp.vec3(*np.asarray(lm.light.position, np.float32)), self.inputs.randoms, stream,
-                sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, sc.triangle_material,
-                sc.opacity, max_lum, float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
-                self._order, slots, self._sort_keys, counts])
+            grid = blocks if self.group_max_blocks is None else min(blocks, self.group_max_blocks)
+            wp.launch_tiled(C.photon_group_keys, dim=grid, block_dim=self.group_block, device=self.device, inputs=[
+                lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
+                sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, sc.triangle_material, sc.opacity, max_lum,
+                float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
+                order, stride, orders, slots, self._sort_keys, counts, grid])
             wp.utils.array_scan(counts, offsets, inclusive=False)
-            wp.launch_tiled(C.photon_group_scatter, dim=blocks, block_dim=self.group_block, device=self.device,
-                            inputs=[self._sort_keys, self._order, slots, offsets, self._grouped])
+            wp.launch_tiled(C.photon_group_scatter, dim=grid, block_dim=self.group_block, device=self.device,
+                            inputs=[lm.states, view_index, self.settings.photons, self._sort_keys, order, stride,
+                                    orders, slots, offsets, self._grouped, grid])
             return self._grouped
         return self._order
 

@@ -201,8 +201,61 @@ def record_absorbed(outcome: wp.array(dtype=wp.vec4), slot: int, tally: Tally):
     outcome[slot] = wp.vec4(a[0], a[1], a[2], float(L_ABSORBED))
 
 
-#: an outcome record's power summed per entry: the final entries, and the absorption records of SSPM
-OutcomeSums = wp.types.matrix(shape=(LEDGER_ENTRIES, 3), dtype=wp.float64)
+#: the final entries an outcome record may hold, in two groups of five: a thread's sums are two 5×3 float64
+#: matrices (rows in this order), summed over the block as two tiles of matrices
+OUTCOME_ROWS = ((1, 3, 4, 5, 6), (7, 8, 9, 12, 13))
+assert sorted(OUTCOME_ROWS[0] + OUTCOME_ROWS[1]) == [e for e in range(LEDGER_ENTRIES) if (int(FINAL_ENTRIES) >> e) & 1]
+#: five final entries' power [W] RGB (one of OUTCOME_ROWS' groups)
+OutcomeSums = wp.types.matrix(shape=(5, 3), dtype=wp.float64)
+#: the entries of a group's five rows
+OutcomeRows = wp.types.vector(length=5, dtype=wp.int32)
+
+
+@wp.func
+def _outcome_at(outcome: wp.array(dtype=wp.vec4), r: int, end: int, run: int, n_photons: int) -> wp.vec4:
+    """Outcome record ``r``, or an empty one (entry -1) past ``end`` or past the view's photons in its run."""
+    if r < end and r % run < n_photons:
+        return outcome[r]
+    return wp.vec4(0.0, 0.0, 0.0, -1.0)
+
+
+@wp.func
+def _outcome_add(a: OutcomeSums, b: OutcomeSums, o: wp.vec4):
+    """(a, b) with record ``o``'s power added to its entry's row (OUTCOME_ROWS; nothing for entry -1)."""
+    code = int(o[3])
+    p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
+    sa = a
+    sb = b
+    if code == 1:
+        sa[0] = sa[0] + p
+    elif code == 3:
+        sa[1] = sa[1] + p
+    elif code == 4:
+        sa[2] = sa[2] + p
+    elif code == 5:
+        sa[3] = sa[3] + p
+    elif code == 6:
+        sa[4] = sa[4] + p
+    elif code == 7:
+        sb[0] = sb[0] + p
+    elif code == 8:
+        sb[1] = sb[1] + p
+    elif code == 9:
+        sb[2] = sb[2] + p
+    elif code == 12:
+        sb[3] = sb[3] + p
+    elif code == 13:
+        sb[4] = sb[4] + p
+    return sa, sb
+
+
+@wp.func
+def _outcome_rows_add(ledger: wp.array(dtype=wp.vec3d), block: int, entries: int, sums: OutcomeSums, row_entries: OutcomeRows):
+    """Add each row of ``sums`` whose entry (``row_entries``) is in the mask ``entries`` to the block's stripe."""
+    for i in range(5):
+        e = row_entries[i]
+        if ((entries >> e) & 1) != 0:
+            wp.atomic_add(ledger, ledger_slot(ledger, block, e), sums[i])
 
 
 @wp.kernel
@@ -218,30 +271,37 @@ def ledger_add_outcomes(
     run: int,  # records per run (the trace's slots): record r is photon slot r % run of its run
 ):
     """The final entries of ``count`` outcome records: each thread sums its records per entry in registers, the
-    block tile-sums each entry of ``entries`` and adds it once to its ledger stripe. On CUDA a few hundred blocks
-    read the records once (16 B each, coalesced); on the CPU (one thread per block, one record per thread) the
-    entries are summed in photon order, as when the trace kernel added them itself. Records of slots past the
-    view's photon count (launched for the most a fitted cascade can get; never written this frame) are skipped."""
+    block sums every entry at once (two tiles of 5×3 matrices, OUTCOME_ROWS) and lane 0 adds each entry of
+    ``entries`` once to its ledger stripe. On CUDA a few hundred blocks read the records once (16 B each,
+    coalesced); on the CPU (one thread per block, one record per thread) the entries are summed in photon order, as
+    when the trace kernel added them itself. Records of slots past the view's photon count (launched for the most
+    a fitted cascade can get; never written this frame) are skipped."""
     block, lane = wp.tid()
     n_photons = cascade_photons(states[view_index], light_photons)
     t = block * wp.block_dim() + lane
-    sums = OutcomeSums()
+    sa = OutcomeSums()
+    sb = OutcomeSums()
+    # records past the last run's last written one were never written: the loop ends there
+    end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
+    # four records a step, their loads issued together, added in the order one at a time would add them
     r = t
-    while r < count:
-        if r % run >= n_photons:
-            r += threads
-            continue
-        o = outcome[r]
-        code = int(o[3])
-        p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
-        for e in range(LEDGER_ENTRIES):
-            if ((FINAL_ENTRIES >> e) & 1) != 0 and code == e:  # a constant test per unrolled e, then one compare
-                sums[e] = sums[e] + p
-        r += threads
-    for e in range(LEDGER_ENTRIES):
-        if ((FINAL_ENTRIES >> e) & 1) != 0 and ((entries >> e) & 1) != 0:
-            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(sums[e], preserve_type=True)),
-                               offset=ledger_slot(ledger, block, e))
+    while r < end:
+        o0 = _outcome_at(outcome, r, end, run, n_photons)
+        o1 = _outcome_at(outcome, r + threads, end, run, n_photons)
+        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons)
+        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons)
+        sa, sb = _outcome_add(sa, sb, o0)
+        sa, sb = _outcome_add(sa, sb, o1)
+        sa, sb = _outcome_add(sa, sb, o2)
+        sa, sb = _outcome_add(sa, sb, o3)
+        r += 4 * threads
+    # the block's sums of all entries in two tile sums instead of ten (H100, in the frame against main's kernel in the
+    # same call: -16% / -9% with ten, -20% / -18% with two; docs/perf_notes.md section 40), added by lane 0 in order
+    ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
+    tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
+    if lane == 0:
+        _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
+        _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
@@ -318,6 +378,38 @@ def photon_sort_keys(
     values[k] = k
 
 
+@wp.kernel
+def photon_texel_keys(
+    width: int,  # the view's texels across
+    height: int,  # and down
+    n_photons: int,  # photons of the view: indices from it on sort after every texel
+    last_bit: int,  # a key bit above every texel code's: set for the indices past n_photons
+    keys: wp.array(dtype=wp.int32),  # (>= N,) Morton code of photon k's texel without the frame's rotation (write)
+    values: wp.array(dtype=wp.int32),  # (>= N,) photon index k (write)
+):
+    """Keys of a fixed texel order (``PhotonPass.texel_order``): photon k's texel as the R2 sequence places it
+    before the frame's Cranley-Patterson rotation, as a Morton code; indices k >= n_photons after every code (the
+    slots a fitted view launches past its photons). Sorted once per view size and photon count, not per frame: each
+    frame's rotation moves every point by the same offset (mod 1), so points that were neighbours (one warp's worth
+    in a small Morton cell) stay neighbours; only a cell that the wrap-around cuts is split, in two."""
+    k = wp.tid()
+    u = r2_point(k, wp.vec2i(0, 0))
+    i = wp.min(int(u[0] * float(width)), width - 1)
+    j = wp.min(int(u[1] * float(height)), height - 1)
+    key = _spread_bits(i & 0x3FFF) | (_spread_bits(j & 0x3FFF) << 1)
+    if k >= n_photons:
+        key = key | (1 << last_bit)
+    keys[k] = key
+    values[k] = k
+
+
+@wp.func
+def order_base(cascade: CascadeState, order_stride: int, orders: int) -> int:
+    """Where a view's texel order starts in its light's table of orders (``PhotonPass.texel_order``): one order per
+    count of active views (their photon counts differ), ``order_stride`` apart (0: a single order)."""
+    return wp.min(wp.max(1, cascade.active_views), orders) * order_stride - order_stride
+
+
 SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
 SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
 SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
@@ -325,7 +417,8 @@ SORT_GROUP_LAST = wp.constant(3)  #: slots past the view's photon count (fixed l
 
 
 SORT_GROUPS = 4  #: march groups including SORT_GROUP_LAST: the partition's block counts per group
-SORT_GROUP_BLOCK = 256  #: threads per block of the group partition on CUDA (< 2^SORT_COUNT_BITS)
+SORT_GROUP_BLOCK = 256  #: threads per block (and slots per tile) of the group partition on CUDA (< 2^SORT_COUNT_BITS)
+SORT_GROUP_BLOCKS_PER_SM = 4  #: blocks of the group partition per SM on CUDA (55 registers: 4 of 256 fit), each over many tiles
 SORT_COUNT_BITS = wp.constant(10)  #: bits of one group's count in a packed block count (blocks of <= 1023 threads)
 
 
@@ -343,12 +436,9 @@ def _march_group(
     views: wp.array(dtype=ViewParams),
     states: wp.array(dtype=CascadeState),
     view_index: int,
-    light_photons: int,
-    light_kind: int,
-    light_pos: wp.vec3,
+    n_photons: int,
     randoms: wp.array(dtype=wp.vec3i),
     stream: int,
-    rsm_position: wp.array(dtype=wp.vec3),
     rsm_normal: wp.array(dtype=wp.vec3),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
@@ -360,44 +450,46 @@ def _march_group(
     roughness_cutoff: float,
     luminance_cutoff: float,
     order: wp.array(dtype=wp.int32),
-    t: int,
+    at: int,
 ) -> int:
-    """The march group of thread ``t``'s photon (see :func:`photon_group_keys`)."""
+    """The march group of photon ``order[at]`` (a thread's entry of its view's texel order; see
+    :func:`photon_group_keys`)."""
+    k = order[at]
     cascade = states[view_index]
-    if t >= cascade_photons(cascade, light_photons):  # slots past the view's photons (fixed launch dims): last
-        return SORT_GROUP_LAST
     light = views[view_index]
     rnd = randoms[stream]
-    seed = rnd[2]
     skip_window = cascade.skip_window
-    k = order[t]
     u = r2_point(k, wp.vec2i(rnd[0], rnd[1]))
     sx = u[0] * float(light.width)
     sy = u[1] * float(light.height)
     i = wp.min(int(sx), light.width - 1)
     j = wp.min(int(sy), light.height - 1)
     texel = j * light.width + i
-    group = SORT_NOT_TRACED
     tri = rsm_tri[texel]
-    in_window = sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]
-    if tri >= 0 and not in_window and rsm_roughness[texel] <= roughness_cutoff:
-        if luminance(rsm_flux[texel]) >= luminance_cutoff * cascade.texel_scale * max_lum[0]:
-            group = SORT_REFLECTED
-            m = triangle_material[tri]
-            if mat_opacity[m] < 1.0:
-                lo, ld = pixel_ray_world(light, sx, sy)
-                d_in = wp.normalize(ld)
-                if light_kind != 0:
-                    d_in = wp.normalize(rsm_position[texel] - light_pos)
-                n = rsm_normal[texel]
-                eta = rsm_ior[texel]
-                if wp.dot(d_in, n) > 0.0:
-                    n = -n
-                    eta = 1.0 / eta
-                state = wp.rand_init(seed, k)
-                if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
-                    group = SORT_REFRACTED
-    return group
+    if tri < 0 or (sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]):
+        return SORT_NOT_TRACED
+    # every texel value the prediction may need, read together: one dependent round trip to memory instead of
+    # three (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels
+    rough = rsm_roughness[texel]
+    flux = rsm_flux[texel]
+    n = rsm_normal[texel]
+    eta = rsm_ior[texel]
+    opacity = mat_opacity[triangle_material[tri]]
+    if rough > roughness_cutoff or luminance(flux) < luminance_cutoff * cascade.texel_scale * max_lum[0]:
+        return SORT_NOT_TRACED  # culled as emit_photon culls (the same two tests)
+    if opacity >= 1.0:
+        return SORT_REFLECTED
+    # the incident direction along the light ray through the sample (the trace's, for every light kind: a point or
+    # spot light's view has its eye at the light), not from the texel's stored position: one array fewer to read
+    lo, ld = pixel_ray_world(light, sx, sy)
+    d_in = wp.normalize(ld)
+    if wp.dot(d_in, n) > 0.0:
+        n = -n
+        eta = 1.0 / eta
+    state = wp.rand_init(rnd[2], k)
+    if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
+        return SORT_REFRACTED
+    return SORT_REFLECTED
 
 
 @wp.kernel
@@ -406,12 +498,9 @@ def photon_group_keys(
     states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
     view_index: int,
     light_photons: int,  # the light's photons, split over its active views (cascade_photons)
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,  # [m]
     randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
     stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
-    rsm_position: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -421,66 +510,101 @@ def photon_group_keys(
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
     roughness_cutoff: float,
     luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
-    order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read, first N)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, the first n_photons from order_base (read)
+    order_stride: int,  # the light's orders per count of active views lie this far apart (0: one order)
+    orders: int,  # orders in the table
     n_slots: int,  # N: threads to group (the launch is whole blocks; lanes past N are padding)
-    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, first N)
-    block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) photons per (group, block), group-major (write)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, the first n_photons)
+    block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * tiles,) photons per (group, tile), group-major (write)
+    grid: int,  # blocks launched
 ):
     """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent),
     and how many of each group each block holds; :func:`photon_group_scatter` then groups the photons stably, so
     texel order holds inside each group. The group is a cheap prediction of what the trace kernel will do with
     photon k: not traced (culled exactly as :func:`emit_photon` culls), reflected or refracted (the first draw of
-    the photon's own random stream against Fresnel at the texel's normal; the trace uses the exact normal under the
-    sample, so a few photons land in the other group). Each photon is still traced in full as photon k: only the
-    order of the threads changes. Launched tiled; a block's counts are one packed tile sum."""
+    the photon's own random stream against Fresnel at the texel's normal, along the light ray through the sample;
+    the trace uses the exact normal under the sample, so a few photons land in the other group); slots past the
+    view's photon count last. Each photon is still traced in full as photon k: only the order of the
+    threads changes. Launched tiled, ``grid`` blocks, block b taking tiles b, b + grid, ... of ``block_dim`` slots
+    (few blocks, each over many tiles: 8192 blocks of 256 cost ~15 µs to schedule even when they do nothing); a
+    tile's counts are one packed tile sum. A tile wholly past the view's photons reads nothing and writes its counts
+    only; an inactive view writes nothing (its scatter returns at once).""" 
     block, lane = wp.tid()
     bd = wp.block_dim()
-    t = block * bd + lane
-    group = int(-1)
-    if t < n_slots:
-        group = _march_group(views, states, view_index, light_photons, light_kind, light_pos, randoms, stream,
-                             rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri, triangle_material,
-                             mat_opacity, max_lum, roughness_cutoff, luminance_cutoff, order, t)
-        keys[t] = group
-    packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
-    if lane == 0:
-        blocks = block_counts.shape[0] / SORT_GROUPS
-        c = packed[0]
-        mask = (1 << SORT_COUNT_BITS) - 1
-        rest = wp.min(n_slots - block * bd, bd)
-        for g in range(SORT_GROUPS - 1):
-            n_g = (c >> (SORT_COUNT_BITS * g)) & mask
-            block_counts[g * blocks + block] = n_g
-            rest -= n_g
-        block_counts[(SORT_GROUPS - 1) * blocks + block] = rest
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if n_photons == 0:  # an inactive view: nothing (its scatter returns at once and reads no counts)
+        return
+    base = order_base(cascade, order_stride, orders)
+    tiles = block_counts.shape[0] / SORT_GROUPS
+    mask = (1 << SORT_COUNT_BITS) - 1
+    tile = block
+    while tile < tiles:  # the same trip count for every thread of the block
+        first = tile * bd
+        if first >= n_photons:  # a tile wholly past the view's photons: all last
+            if lane == 0:
+                for g in range(SORT_GROUPS - 1):
+                    block_counts[g * tiles + tile] = 0
+                block_counts[(SORT_GROUPS - 1) * tiles + tile] = wp.min(n_slots - first, bd)
+        else:
+            t = first + lane
+            group = int(-1)
+            if t < n_slots:
+                group = SORT_GROUP_LAST
+                if t < n_photons:
+                    group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_normal, rsm_flux,
+                                         rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, max_lum,
+                                         roughness_cutoff, luminance_cutoff, order, base + t)
+                keys[t] = group
+            packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
+            if lane == 0:
+                c = packed[0]
+                rest = wp.min(n_slots - first, bd)
+                for g in range(SORT_GROUPS - 1):
+                    n_g = (c >> (SORT_COUNT_BITS * g)) & mask
+                    block_counts[g * tiles + tile] = n_g
+                    rest -= n_g
+                block_counts[(SORT_GROUPS - 1) * tiles + tile] = rest
+        tile += grid
 
 
 @wp.kernel
 def photon_group_scatter(
+    states: wp.array(dtype=CascadeState),  # (V,) the light's views (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons (cascade_photons)
     keys: wp.array(dtype=wp.int32),  # (>= N,) march group per thread (photon_group_keys, read)
-    order: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, in texel order (read)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, from order_base (read)
+    order_stride: int,  # as photon_group_keys'
+    orders: int,
     n_slots: int,  # N
-    offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * blocks,) exclusive scan of the block counts (read)
-    grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first N)
+    offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * tiles,) exclusive scan of the tile counts (read)
+    grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first n_photons)
+    grid: int,  # blocks launched (block b takes tiles b, b + grid, ...)
 ):
     """A stable partition of the photons by march group (the stable sort on the 2-bit group keys, without a radix
     sort's passes and copies): thread t's photon goes to its group's offset for its block plus the photons of its
-    group before it in the block (an exclusive tile scan of packed counts). Same blocks as photon_group_keys."""
+    group before it in the tile (an exclusive tile scan of packed counts). Same tiles as photon_group_keys.
+    Slots of the last group (past the view's photon count) are not written: they would land at positions >= the
+    view's photon count, which no kernel reads (the trace reads ``grouped[t]`` for t < its photon count only); tiles
+    wholly past the count (every tile of an inactive view) are skipped."""
     block, lane = wp.tid()
-    t = block * wp.block_dim() + lane
-    group = int(-1)
-    if t < n_slots:
-        group = keys[t]
-    before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
-    if t < n_slots:
-        rank = int(0)
-        if group == SORT_GROUP_LAST:  # the lanes before this one, less those of the other groups
-            rank = lane
-            for g in range(SORT_GROUPS - 1):
-                rank -= (before >> (SORT_COUNT_BITS * g)) & ((1 << SORT_COUNT_BITS) - 1)
-        else:
+    bd = wp.block_dim()
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    base = order_base(cascade, order_stride, orders)
+    tiles = offsets.shape[0] / SORT_GROUPS
+    tile = block
+    while tile < tiles and tile * bd < n_photons:  # tiles past the photons have nothing to write; uniform per block
+        t = tile * bd + lane
+        group = int(-1)
+        if t < n_slots:
+            group = keys[t]
+        before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
+        if t < n_slots and group != SORT_GROUP_LAST:
             rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
-        grouped[offsets[group * (offsets.shape[0] / SORT_GROUPS) + block] + rank] = order[t]
+            grouped[offsets[group * tiles + tile] + rank] = order[base + t]
+        tile += grid
 
 
 @wp.func

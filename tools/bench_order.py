@@ -1,0 +1,331 @@
+#!/usr/bin/env python3
+"""The photon order's kernels and the ledger's outcome pass, each replayed alone with variants, timed on the GPU
+(docs/perf_notes.md section 40): which part of a change moved a kernel, which Warp's per-kernel table of a whole
+frame (``tools/bench_frame.py --kernels``) cannot separate.
+
+Renders a few frames of each scene with `cisp`, keeps one frame's launches of ``photon_group_keys``,
+``photon_group_scatter`` and ``ledger_add_outcomes`` (their inputs as the frame passed them), then replays each
+view's launches ``--reps`` times per variant and reports the median ms per frame (the frame's views summed) from
+Warp's CUDA activity timing (kernel execution only; L2 flushed before each launch), per view too:
+
+* ``photon_group_keys``: as in the frame (fixed texel order, the texel's values read in one round trip, no
+  position, a few blocks over many tiles); ``per-frame order`` (the frame's rotated points sorted, as main did, instead of the fixed order);
+  ``chained reads`` (main's prediction: each read after the test before it, the incident direction from the
+  texel's position for point and spot lights, one block a tile; a copy of main's kernel here, with the fixed
+  order); the same
+  without the position (the light ray's direction, as in the frame); and main's reads with the per-frame order;
+* ``photon_group_scatter``: as in the frame; ``per-frame order`` (the keys and order of the per-frame variant);
+* ``ledger_add_outcomes``: as in the frame (four records a step, two block sums of five entries each); ``one
+  record a step`` (main's kernel, a copy here: one block sum per entry); ``no block sums`` (the loop only).
+
+The variants are timings only: the replays rewrite the frame's scratch (keys, counts, grouped order) and add into the
+frame's ledger stripes, which nothing reads afterwards.
+
+    PYTHONPATH=. python3 tools/bench_order.py --scenes cornell,pool       # 1920x1080, RSM 2048², 2M per light
+    PYTHONPATH=. python3 tools/bench_order.py --smoke --device cpu         # tiny, wall clock on the CPU
+"""
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+import warp as wp
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+SCENES = {"cornell": os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda"),
+          "pool": os.path.join(ROOT, "scenes_usd", "pool.usda")}
+
+from cisp_warp.denoise.kernels_svgf import luminance  # noqa: E402
+from cisp_warp.optics import fresnel_dielectric  # noqa: E402
+from cisp_warp.photons import common as C  # noqa: E402
+from cisp_warp.raster.light_maps import CascadeState, cascade_photons  # noqa: E402
+from cisp_warp.raster.views import ViewParams, pixel_ray_world  # noqa: E402
+
+
+@wp.kernel(module="unique")
+def group_keys_chained(
+    views: wp.array(dtype=ViewParams), states: wp.array(dtype=CascadeState), view_index: int, light_photons: int,
+    light_kind: int, light_pos: wp.vec3, randoms: wp.array(dtype=wp.vec3i), stream: int,
+    rsm_position: wp.array(dtype=wp.vec3), rsm_normal: wp.array(dtype=wp.vec3), rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_roughness: wp.array(dtype=wp.float32), rsm_ior: wp.array(dtype=wp.float32), rsm_tri: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32), mat_opacity: wp.array(dtype=wp.float32),
+    max_lum: wp.array(dtype=wp.float32), roughness_cutoff: float, luminance_cutoff: float,
+    order: wp.array(dtype=wp.int32), order_stride: int, orders: int, n_slots: int, keys: wp.array(dtype=wp.int32),
+    block_counts: wp.array(dtype=wp.int32),
+):
+    """Main's photon_group_keys (7704868): reads chained behind their tests, position for point/spot lights; the
+    order from common.order_base (the fixed orders' table)."""
+    block, lane = wp.tid()
+    bd = wp.block_dim()
+    t = block * bd + lane
+    group = int(-1)
+    if t < n_slots:
+        cascade = states[view_index]
+        n_photons = cascade_photons(cascade, light_photons)
+        group = C.SORT_GROUP_LAST
+        if t < n_photons:
+            k = order[C.order_base(cascade, order_stride, orders) + t]
+            if k >= 0:
+                light = views[view_index]
+                rnd = randoms[stream]
+                skip_window = cascade.skip_window
+                u = C.r2_point(k, wp.vec2i(rnd[0], rnd[1]))
+                sx = u[0] * float(light.width)
+                sy = u[1] * float(light.height)
+                i = wp.min(int(sx), light.width - 1)
+                j = wp.min(int(sy), light.height - 1)
+                texel = j * light.width + i
+                group = C.SORT_NOT_TRACED
+                tri = rsm_tri[texel]
+                in_window = sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]
+                if tri >= 0 and not in_window and rsm_roughness[texel] <= roughness_cutoff:
+                    if luminance(rsm_flux[texel]) >= luminance_cutoff * cascade.texel_scale * max_lum[0]:
+                        group = C.SORT_REFLECTED
+                        m = triangle_material[tri]
+                        if mat_opacity[m] < 1.0:
+                            lo, ld = pixel_ray_world(light, sx, sy)
+                            d_in = wp.normalize(ld)
+                            if light_kind != 0:
+                                d_in = wp.normalize(rsm_position[texel] - light_pos)
+                            n = rsm_normal[texel]
+                            eta = rsm_ior[texel]
+                            if wp.dot(d_in, n) > 0.0:
+                                n = -n
+                                eta = 1.0 / eta
+                            state = wp.rand_init(rnd[2], k)
+                            if wp.randf(state) >= fresnel_dielectric(-wp.dot(d_in, n), eta):
+                                group = C.SORT_REFRACTED
+            keys[t] = group
+    packed = wp.tile_sum(wp.tile(C._group_count_bit(group)))
+    if lane == 0:
+        blocks = block_counts.shape[0] / C.SORT_GROUPS
+        c = packed[0]
+        mask = (1 << C.SORT_COUNT_BITS) - 1
+        rest = wp.min(n_slots - block * bd, bd)
+        for g in range(C.SORT_GROUPS - 1):
+            n_g = (c >> (C.SORT_COUNT_BITS * g)) & mask
+            block_counts[g * blocks + block] = n_g
+            rest -= n_g
+        block_counts[(C.SORT_GROUPS - 1) * blocks + block] = rest
+
+
+#: main's per-thread sums: every ledger entry (15 × 3 float64)
+AllSums = wp.types.matrix(shape=(C.LEDGER_ENTRIES, 3), dtype=wp.float64)
+
+
+@wp.kernel(module="unique")
+def outcomes_one_a_step(
+    outcome: wp.array(dtype=wp.vec4), count: int, threads: int, entries: int, ledger: wp.array(dtype=wp.vec3d),
+    states: wp.array(dtype=CascadeState), view_index: int, light_photons: int, run: int,
+):
+    """Main's ledger_add_outcomes (7704868): one record a loop step, over every slot, one block sum per entry."""
+    block, lane = wp.tid()
+    n_photons = cascade_photons(states[view_index], light_photons)
+    t = block * wp.block_dim() + lane
+    sums = AllSums()
+    r = t
+    while r < count:
+        if r % run >= n_photons:
+            r += threads
+            continue
+        o = outcome[r]
+        code = int(o[3])
+        p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
+        for e in range(C.LEDGER_ENTRIES):
+            if ((C.FINAL_ENTRIES >> e) & 1) != 0 and code == e:
+                sums[e] = sums[e] + p
+        r += threads
+    for e in range(C.LEDGER_ENTRIES):
+        if ((C.FINAL_ENTRIES >> e) & 1) != 0 and ((entries >> e) & 1) != 0:
+            wp.tile_atomic_add(ledger, wp.tile_sum(wp.tile(sums[e], preserve_type=True)),
+                               offset=C.ledger_slot(ledger, block, e))
+
+
+@wp.kernel(module="unique")
+def outcomes_no_block_sums(
+    outcome: wp.array(dtype=wp.vec4), count: int, threads: int, entries: int, ledger: wp.array(dtype=wp.vec3d),
+    states: wp.array(dtype=CascadeState), view_index: int, light_photons: int, run: int,
+):
+    """ledger_add_outcomes' loop (four records a step) without the block sums: each thread's sums written only
+    when ``entries`` is negative (never here), so the loop is not compiled away."""
+    block, lane = wp.tid()
+    n_photons = cascade_photons(states[view_index], light_photons)
+    t = block * wp.block_dim() + lane
+    sa = C.OutcomeSums()
+    sb = C.OutcomeSums()
+    end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
+    r = t
+    while r < end:
+        o0 = C._outcome_at(outcome, r, end, run, n_photons)
+        o1 = C._outcome_at(outcome, r + threads, end, run, n_photons)
+        o2 = C._outcome_at(outcome, r + 2 * threads, end, run, n_photons)
+        o3 = C._outcome_at(outcome, r + 3 * threads, end, run, n_photons)
+        sa, sb = C._outcome_add(sa, sb, o0)
+        sa, sb = C._outcome_add(sa, sb, o1)
+        sa, sb = C._outcome_add(sa, sb, o2)
+        sa, sb = C._outcome_add(sa, sb, o3)
+        r += 4 * threads
+    if entries < 0:
+        for i in range(5):
+            ledger[(2 * i) % ledger.shape[0]] = sa[i]
+            ledger[(2 * i + 1) % ledger.shape[0]] = sb[i]
+
+
+def timed(device, calls, reps: int, flush=None) -> float:
+    """Median over ``reps`` runs (after a warm-up) of the GPU time of ``calls`` (a list of no-argument functions) run
+    in turn: the kernels' own execution times from Warp's CUDA activity timing, summed (host launch gaps left out:
+    they would dominate kernels of tens of µs); wall clock on the CPU. ``flush``: an array zeroed before each call
+    (a memset, not timed), larger than the L2 cache, so that no call finds the last one's reads there."""
+    times = []
+    for rep in range(reps + 1):
+        if device.is_cuda:
+            wp.synchronize_device(device)
+            wp.timing_begin(cuda_filter=wp.TIMING_KERNEL)
+            for c in calls:
+                if flush is not None:
+                    flush.zero_()
+                c()
+            wp.synchronize_device(device)
+            ms = sum(r.elapsed for r in wp.timing_end())
+        else:
+            t0 = time.perf_counter()
+            for c in calls:
+                c()
+            ms = 1e3 * (time.perf_counter() - t0)
+        if rep > 0:
+            times.append(ms)
+    return float(np.median(times))
+
+
+def run_scene(name: str, args, device) -> None:
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.photons.base import morton_sort_bits
+    from cisp_warp.render import Renderer, RenderSettings
+    from cisp_warp.usd import load_usd
+
+    if not os.path.exists(SCENES[name]):
+        raise SystemExit(f"bench_order: {SCENES[name]} not found")
+    scene = load_usd(SCENES[name], width=args.width, height=args.height, device=device)
+    settings = RenderSettings(rsm_size=args.rsm, method="cisp", denoiser="none",
+                              photons=PhotonSettings(photons=args.n_photons, sort_photons=True))
+    r = Renderer(scene, settings, device=device)
+    r.use_graph = False
+    for _ in range(3):
+        r.render_frame()
+    P = r.photons
+    kept = []
+    launch_tiled = wp.launch_tiled
+
+    def keep(kernel, dim, block_dim, device, inputs):
+        launch_tiled(kernel, dim=dim, block_dim=block_dim, device=device, inputs=inputs)
+        if kernel in (C.photon_group_keys, C.photon_group_scatter, C.ledger_add_outcomes):
+            kept.append((kernel, dim, block_dim, list(inputs)))
+
+    wp.launch_tiled = keep
+    try:
+        r.render_frame()
+    finally:
+        wp.launch_tiled = launch_tiled
+    wp.synchronize_device(device)
+    keys_args = [a.label for a in C.photon_group_keys.adj.args]
+    at = {n: i for i, n in enumerate(keys_args)}
+    views = []  # per view: (group_keys, scatter, outcome) launches, in the frame's order
+    gk = [k for k in kept if k[0] is C.photon_group_keys]
+    sc = [k for k in kept if k[0] is C.photon_group_scatter]
+    oc = [k for k in kept if k[0] is C.ledger_add_outcomes]
+    for g, s, o in zip(gk, sc, oc):
+        states, vi, stream, slots = (g[3][at[a]] for a in ("states", "view_index", "stream", "n_slots"))
+        lm = next(lm for lm in P.lights if lm.states.ptr == states.ptr)
+        rv = lm.rsm[vi]
+        # this view's per-frame order (main's): the frame's rotated points by their Morton code's top bits
+        mkeys = wp.zeros(2 * slots, dtype=wp.int32, device=device)
+        morder = wp.zeros(2 * slots, dtype=wp.int32, device=device)
+        wp.launch(C.photon_sort_keys, dim=slots, device=device, inputs=[
+            lm.views, lm.states, vi, P.settings.photons, P.inputs.randoms, stream, mkeys, morder])
+        begin, end = morton_sort_bits(min(max(rv.width, rv.height), 1 << 14))
+        wp.utils.radix_sort_pairs(mkeys, morder, slots, begin_bit=begin, end_bit=end)
+        gi = list(g[3])
+        chained = [gi[at["views"]], gi[at["states"]], vi, gi[at["light_photons"]], int(lm.light.kind),
+                   wp.vec3(*np.asarray(lm.light.position, np.float32)), gi[at["randoms"]], stream,
+                   rv.specular.position, gi[at["rsm_normal"]], gi[at["rsm_flux"]], gi[at["rsm_roughness"]],
+                   gi[at["rsm_ior"]], gi[at["rsm_tri"]], gi[at["triangle_material"]], gi[at["mat_opacity"]],
+                   gi[at["max_lum"]], gi[at["roughness_cutoff"]], gi[at["luminance_cutoff"]], gi[at["order"]],
+                   gi[at["order_stride"]], gi[at["orders"]], slots, gi[at["keys"]], gi[at["block_counts"]]]
+        chained_nopos = list(chained)
+        chained_nopos[4] = 0  # as a distant light: the direction from the light ray, no position read
+        chained_frame = list(chained)
+        chained_frame[19:22] = [morder, 0, 1]
+        frame_order = list(gi)
+        frame_order[at["order"]], frame_order[at["order_stride"]], frame_order[at["orders"]] = morder, 0, 1
+        scatter_frame = list(s[3])
+        scatter_frame[4:7] = [morder, 0, 1]
+        tiles = gi[at["block_counts"]].shape[0] // C.SORT_GROUPS
+        views.append({"vi": vi, "light": P.lights.index(lm), "tiles": tiles, "g": g, "s": s, "o": o, "frame_order": frame_order,
+                      "chained": chained, "chained_nopos": chained_nopos, "chained_frame": chained_frame, "scatter_frame": scatter_frame})
+
+    def L(kernel, dim, bd, inputs):
+        return lambda: launch_tiled(kernel, dim=dim, block_dim=bd, device=device, inputs=inputs)
+
+    rows = {}
+    flush = wp.zeros(48 << 20, dtype=wp.float32, device=device) if device.is_cuda else None  # 192 MB > L2
+
+    def variant(label, per_view):
+        total = timed(device, [c for v in views for c in per_view(v)], args.reps, flush)
+        each = [timed(device, per_view(v), args.reps, flush) for v in views]
+        rows[label] = (total, each)
+
+    variant("group_keys: frame", lambda v: [L(*v["g"][:3], v["g"][3])])
+    variant("group_keys: per-frame order", lambda v: [L(*v["g"][:3], v["frame_order"])])
+    # main's kernel: one block a tile (the frame's launch has fewer blocks, each over many tiles)
+    variant("group_keys: chained reads", lambda v: [L(group_keys_chained, v["tiles"], v["g"][2], v["chained"])])
+    variant("group_keys: chained, no position", lambda v: [L(group_keys_chained, v["tiles"], v["g"][2], v["chained_nopos"])])
+    variant("group_keys: chained + per-frame (main)",
+            lambda v: [L(group_keys_chained, v["tiles"], v["g"][2], v["chained_frame"])])
+    variant("scatter: frame (after its keys)", lambda v: [L(*v["g"][:3], v["g"][3]), L(*v["s"][:3], v["s"][3])])
+    variant("scatter: per-frame order (after its keys)",
+            lambda v: [L(*v["g"][:3], v["frame_order"]), L(*v["s"][:3], v["scatter_frame"])])
+    variant("outcomes: frame", lambda v: [L(*v["o"][:3], v["o"][3])])
+    variant("outcomes: one record a step (main)", lambda v: [L(outcomes_one_a_step, *v["o"][1:3], v["o"][3])])
+    variant("outcomes: no block sums", lambda v: [L(outcomes_no_block_sums, *v["o"][1:3], v["o"][3])])
+    print(f"{name} {args.width}x{args.height}, RSM {args.rsm}², {args.n_photons:,} photons per light, {device}: "
+          f"ms per frame, median of {args.reps} (per view: light/view)")
+    head = "  ".join(f"{v['light']}/{v['vi']:<6}" for v in views)
+    print(f"  {'variant':44s} {'frame':>8s}   {head}")
+    for label, (total, each) in rows.items():
+        print(f"  {label:44s} {total:8.4f}   " + "  ".join(f"{x:8.4f}" for x in each))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenes", default="cornell,pool", help="comma-separated: cornell, pool (default both)")
+    p.add_argument("--width", type=int, default=1920)
+    p.add_argument("--height", type=int, default=1080)
+    p.add_argument("--rsm", type=int, default=2048)
+    p.add_argument("--photons", default="2M", help="photons per light (default 2M)")
+    p.add_argument("--reps", type=int, default=20, help="timed replays per variant (default 20)")
+    p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
+    p.add_argument("--smoke", action="store_true", help="tiny (96x54, RSM 64, 4k photons, 2 reps)")
+    args = p.parse_args(argv)
+    if args.smoke:
+        args.width, args.height, args.rsm, args.photons, args.reps = 96, 54, 64, "4k", 2
+    from cisp_warp.cli import parse_count
+
+    try:
+        args.n_photons = parse_count(args.photons)
+    except Exception as e:  # noqa: BLE001 - one sentence for bad input
+        raise SystemExit(f"bench_order: {e}")
+    wp.config.quiet = True
+    wp.init()
+    device = wp.get_device(args.device)
+    for s in args.scenes.split(","):
+        if s.strip() not in SCENES:
+            raise SystemExit(f"bench_order: unknown scene {s!r}: cornell, pool")
+        run_scene(s.strip(), args, device)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
