@@ -41,11 +41,14 @@ def test_sort_groups_predict_the_trace(device, monkeypatch, fixed):
     r = frame(device, "cisp", True)
     p = r.photons
     n = p.photons_per_view(p.lights[0])
+    traced = p.outcome.numpy()[:n, 3] >= 0  # outcome records are per thread: a final entry after the bounce
+    # every view's order of the same frame again (rebuilt, the same), so that the scratch holds the last one's, the view
+    # whose trace wrote the outcome records: the CPU yields the active view alone, CUDA every view (here an inactive
+    # one first), and the per-frame twin's orders differ from view to view
+    *_, b = p.rsm_batches(r.frame - 1)
     keys = p._sort_keys.numpy()[:n].copy()  # march group per texel-order thread
     order = p._grouped.numpy()[:n].copy()
-    traced = p.outcome.numpy()[:n, 3] >= 0  # outcome records are per thread: a final entry after the bounce
     assert np.array_equal(np.sort(order), np.arange(n))
-    b = next(p.rsm_batches(r.frame - 1))  # the same frame's first view again (its order rebuilt, the same)
     table, stride, orders = p.texel_order(b.lights, b.view_index, b.rsm, n, b.stream)
     active = int(b.lights.states.numpy()[b.view_index]["active_views"])
     base = (min(max(1, active), orders) - 1) * stride
