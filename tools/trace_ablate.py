@@ -22,7 +22,6 @@ replays add into the frame's photon map and ledger, which nothing reads afterwar
     PYTHONPATH=. python3 tools/trace_ablate.py --smoke --device cpu         # tiny, wall clock on the CPU
 """
 
-import argparse
 import os
 import sys
 import time
@@ -30,10 +29,8 @@ import time
 import numpy as np
 import warp as wp
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
-SCENES = {"cornell": os.path.join(ROOT, "scenes_usd", "cornell_flooded.usda"),
-          "pool": os.path.join(ROOT, "scenes_usd", "pool.usda")}
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _scene_bench import SCENES, scene_bench_main  # noqa: E402
 
 
 def variants(kernel, inputs: list, device) -> dict[str, list]:
@@ -118,32 +115,7 @@ def run_scene(name: str, args, device) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scenes", default="cornell,pool", help="comma-separated: cornell, pool (default both)")
-    p.add_argument("--width", type=int, default=1920)
-    p.add_argument("--height", type=int, default=1080)
-    p.add_argument("--rsm", type=int, default=2048)
-    p.add_argument("--photons", default="2M", help="photons per light (default 2M)")
-    p.add_argument("--reps", type=int, default=10, help="timed replays per variant (default 10)")
-    p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
-    p.add_argument("--smoke", action="store_true", help="tiny (96x54, RSM 64, 4k photons, 2 reps)")
-    args = p.parse_args(argv)
-    if args.smoke:
-        args.width, args.height, args.rsm, args.photons, args.reps = 96, 54, 64, "4k", 2
-    from cisp_warp.cli import parse_count
-
-    try:
-        args.n_photons = parse_count(args.photons)
-    except Exception as e:  # noqa: BLE001 - one sentence for bad input
-        raise SystemExit(f"trace_ablate: {e}")
-    wp.config.quiet = True
-    wp.init()
-    device = wp.get_device(args.device)
-    for s in args.scenes.split(","):
-        if s.strip() not in SCENES:
-            raise SystemExit(f"trace_ablate: unknown scene {s!r}: cornell, pool")
-        run_scene(s.strip(), args, device)
-    return 0
+    return scene_bench_main("trace_ablate", __doc__, run_scene, 10, argv)
 
 
 if __name__ == "__main__":
