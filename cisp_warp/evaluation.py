@@ -107,20 +107,16 @@ def render_settings(cfg: Config, rsm_size: int, base: PhotonSettings = PhotonSet
     if not applicable(cfg.method, cfg.denoiser):
         raise ValueError(f"denoiser {cfg.denoiser!r} does not apply to method {cfg.method!r}")
     photons = replace(base, photons=int(cfg.photons), splat=cfg.splat, wavefront_grid=cfg.wavefront_grid)
-    if cfg.method == "caustics_map":
-        own = cfg.denoiser == "own"
-        photons = replace(photons, cmap_gather="light" if own else "eye", cmap_history=4 if own else 1)
-        return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons,
-                              denoiser="none" if own else cfg.denoiser)
-    if cfg.denoiser == SINGLE_DENOISER:  # the history reset before every frame: play_case(reset_history=True)
-        return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser="caustic",
-                              caustic=CausticSettings(caustic_flow=False))
-    if cfg.denoiser == SURFACE_DENOISER:
-        if cfg.splat != "point":
+    denoiser, extra = cfg.denoiser, {}
+    if cfg.denoiser in EXTRA_DENOISERS:  # the caustics denoiser without the flow (caustic-single: play_case resets it)
+        if cfg.denoiser == SURFACE_DENOISER and cfg.splat != "point":
             raise ValueError(f"denoiser {SURFACE_DENOISER!r} needs point splats")
-        return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser="caustic",
-                              caustic=CausticSettings(caustic_flow=False))
-    return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser=cfg.denoiser)
+        denoiser, extra = "caustic", {"caustic": CausticSettings(caustic_flow=False)}
+    if cfg.method == "caustics_map":
+        own = denoiser == "own"
+        photons = replace(photons, cmap_gather="light" if own else "eye", cmap_history=4 if own else 1)
+        denoiser = "none" if own else denoiser
+    return RenderSettings(rsm_size=rsm_size, method=cfg.method, photons=photons, denoiser=denoiser, **extra)
 
 
 def host_aovs(r: Renderer, keys=MEASURED_AOVS) -> dict[str, np.ndarray]:
