@@ -419,7 +419,10 @@ SORT_GROUP_LAST = wp.constant(3)  #: slots past the view's photon count (fixed l
 
 SORT_GROUPS = 4  #: march groups including SORT_GROUP_LAST: the partition's block counts per group
 SORT_GROUP_BLOCK = 256  #: threads per block (and slots per tile) of the group partition on CUDA (< 2^SORT_COUNT_BITS)
-SORT_GROUP_BLOCKS_PER_SM = 4  #: blocks of the group partition per SM on CUDA (55 registers: 4 of 256 fit), each over many tiles
+#: blocks of the group partition per SM on CUDA, each over many tiles: photon_group_keys' launch bound (64 registers
+#: and 32 B of stack on sm_90 with the texel normal computed, kernels.texel_surface; 76 registers unbounded, which fit
+#: only 3 blocks of 256; perf_notes section 43)
+SORT_GROUP_BLOCKS_PER_SM = 4
 SORT_COUNT_BITS = wp.constant(10)  #: bits of one group's count in a packed block count (blocks of <= 1023 threads)
 
 
@@ -470,18 +473,19 @@ def _march_group(
     if tri < 0 or (sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]):
         return SORT_NOT_TRACED
     # every texel value the prediction may need, read together: one dependent round trip to memory instead of
-    # three (roughness, then flux, then IOR), at the price of the IOR of culled texels
+    # three (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels. The
+    # normal is the one the texel's resolve finds (the RSM keeps no normal array: kernels.texel_surface from the
+    # texel's triangle, its vertex indices read beside the texel's values, its points and normals beside the
+    # material's opacity; the point it also gives is not used, so not computed)
     rough = rsm_roughness[texel]
     flux = rsm_flux[texel]
+    x_t, n = texel_surface(light, texel, tri, 0.0, geometry.points, geometry.normals, geometry.indices)
     eta = rsm_ior[texel]
     opacity = mat_opacity[triangle_material[tri]]
     if rough > roughness_cutoff or luminance(flux) < luminance_cutoff * cascade.texel_scale * max_lum[0]:
         return SORT_NOT_TRACED  # culled as emit_photon culls (the same two tests)
     if opacity >= 1.0:
         return SORT_REFLECTED
-    # the texel's normal as its resolve finds it (the RSM keeps no normal array: kernels.texel_surface, from its
-    # triangle's vertices; the point it also gives is not used, so not computed), for dielectric texels only
-    x_t, n = texel_surface(light, texel, tri, 0.0, geometry.points, geometry.normals, geometry.indices)
     # the incident direction along the light ray through the sample (the trace's, for every light kind: a point or
     # spot light's view has its eye at the light), not from the texel's stored position: one array fewer to read
     lo, ld = pixel_ray_world(light, sx, sy)
@@ -495,7 +499,7 @@ def _march_group(
     return SORT_REFLECTED
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=(SORT_GROUP_BLOCK, SORT_GROUP_BLOCKS_PER_SM))  # 64 registers: 4 blocks an SM
 def photon_group_keys(
     views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
     states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
