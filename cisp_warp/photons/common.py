@@ -560,8 +560,8 @@ def photon_group_keys(
                 group = SORT_GROUP_LAST
                 if t < n_photons:
                     group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_flux,
-                                         rsm_roughness, rsm_ior, rsm_tri, geometry, triangle_material, mat_opacity, max_lum,
-                                         roughness_cutoff, luminance_cutoff, order, base + t)
+                                         rsm_roughness, rsm_ior, rsm_tri, geometry, triangle_material, mat_opacity,
+                                         max_lum, roughness_cutoff, luminance_cutoff, order, base + t)
                 keys[t] = group
             packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
             if lane == 0:

@@ -79,7 +79,7 @@ def emit_and_scatter(
     n_photons: int,
     scramble: wp.vec2i,
     seed: int,
-    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (its point and normal: kernels.texel_surface)
+    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -459,7 +459,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
             # RSM view of the light (flat H*W arrays)
             rsm_opaque_depth: wp.array(dtype=wp.float32),
             rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
-            rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (its point and normal: kernels.texel_surface)
+            rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
             rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
             rsm_roughness: wp.array(dtype=wp.float32),
             rsm_ior: wp.array(dtype=wp.float32),

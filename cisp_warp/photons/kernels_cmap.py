@@ -131,7 +131,7 @@ def trace_to_caustic_map(
     # RSM view of the light (flat Hl*Wl arrays, read)
     rsm_opaque_depth: wp.array(dtype=wp.float32),  # linear depth of the nearest opaque surface [m], 0 = none
     rsm_opaque_tri: wp.array(dtype=wp.int32),  # its triangle, -1 = none
-    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (its point and normal: kernels.texel_surface)
+    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
     rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),

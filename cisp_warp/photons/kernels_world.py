@@ -229,7 +229,7 @@ def trace_sspm(
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
     # RSM view of the light (flat H*W arrays, read)
-    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (its point and normal: kernels.texel_surface)
+    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
     rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),

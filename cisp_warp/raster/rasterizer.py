@@ -303,7 +303,7 @@ class RSMView(_Buffers):
 
     @staticmethod
     def allocate(view: View, device, surface: bool = True) -> "RSMView":
-        """``surface``: whether the specular layer keeps its ``position`` and ``normal`` (:meth:`SpecularLayer.allocate`)."""
+        """``surface``: whether the specular layer keeps ``position`` and ``normal`` (:meth:`SpecularLayer.allocate`)."""
         w, h = view.width, view.height
         check_memory(w * h * (96 if surface else 72), f"a {w}x{h} reflective shadow map", device)
         hw = (h, w)
