@@ -42,6 +42,8 @@ def test_flat_water_irradiance_is_analytic(device, theta_deg):
     np.testing.assert_allclose(measured, expected, rtol=0.01)
     ledger = r.photons.read_ledger()
     assert ledger.closure() < 1e-5
+    # point splats read no RSM position or normal: the views keep none (kernels.texel_surface gives them)
+    assert not any(v.specular.has_surface for lm in r.lights for v in lm.rsm + lm.pilot)
     # irradiance × exact footprint area, summed, is the stored power
     stored = (a["photon_map"][..., 0].astype(np.float64) * footprint_area(a, r.view)).sum()
     np.testing.assert_allclose(stored, ledger["stored"][0], rtol=1e-4)

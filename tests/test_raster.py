@@ -459,7 +459,7 @@ def test_column_raster_is_the_tile_raster(device, stride):
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 
-def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02)):
+def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False):
     """Every buffer of a light's RSM views after ``frames`` (light poses) drawn with the fused resolve or its twins,
     and the depth bounds of each view's opaque depth (written by the fused resolve; built by ``photons.cisp``'s
     ``build_bounds``, the twin kernels ``depth_bounds`` + ``coarsen_bounds``, otherwise)."""
@@ -469,6 +469,8 @@ def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02)):
     raster = Rasterizer(ds)
     lm = LightMaps(ds, frames[0], size)
     lm.fused_resolve = fused
+    if surface:  # the specular layers keep their position and normal (LightMaps.keep_surface_maps)
+        lm.keep_surface_maps()
     bounds = [wp.full(bounds_size(r.width, r.height), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=ds.device)
               for r in lm.rsm]
     lm.keep_depth_bounds(bounds, *thickness)
@@ -502,17 +504,131 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
              (box_room()[1:], [Light(LightKind.DISTANT, "sun", intensity=500.0, direction=(0.3, -1.0, 0.1))])]
     for parts, frames in cases:
         ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
-        fused = _rsm_frame(ds, frames[0], size, True, frames)
-        twins = _rsm_frame(ds, frames[0], size, False, frames)
-        assert fused.keys() == twins.keys()
-        for k in fused:
-            np.testing.assert_array_equal(fused[k], twins[k], err_msg=f"{frames[0].name} {k}")
-        b = fused["0_bounds"]
-        assert (b[:, 0] < 1e29).any() and (b[:, 1] > 0).all()  # real surfaces bounded, every cell written
+        for surface in (False, True):  # without the specular layer's position and normal (the default), and with
+            fused = _rsm_frame(ds, frames[0], size, True, frames, surface=surface)
+            twins = _rsm_frame(ds, frames[0], size, False, frames, surface=surface)
+            assert fused.keys() == twins.keys()
+            assert ("0_specular_position" in fused) == surface and ("0_specular_normal" in fused) == surface
+            for k in fused:
+                np.testing.assert_array_equal(fused[k], twins[k], err_msg=f"{frames[0].name} {k}")
+            b = fused["0_bounds"]
+            assert (b[:, 0] < 1e29).any() and (b[:, 1] > 0).all()  # real surfaces bounded, every cell written
     lm = LightMaps(ds, frames[0], size)
     with pytest.raises(ValueError, match="bounds_size"):  # a bounds array the kernel would write past
         lm.keep_depth_bounds([wp.zeros(len(b) - 1, dtype=wp.vec2, device=device) for _ in lm.rsm], 0.03, 0.02)
         assert any((fused[f"{k}_specular_tri_id"] >= 0).any() for k in range(len([x for x in fused if x.endswith("_bounds")])))
+
+
+@wp.kernel
+def _texel_surface_of_layer(views: wp.array(dtype=ViewParams), k: int, tri_id: wp.array(dtype=wp.int32),
+                            depth: wp.array(dtype=wp.float32), points: wp.array(dtype=wp.vec3),
+                            normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32),
+                            x_out: wp.array(dtype=wp.vec3), n_out: wp.array(dtype=wp.vec3)):
+    p = wp.tid()
+    tri = tri_id[p]
+    if tri >= 0:
+        x, n = RK.texel_surface(views[k], p, tri, depth[p], points, normals, indices)
+        x_out[p] = x
+        n_out[p] = n
+
+
+def _bits(a):
+    return np.ascontiguousarray(a, dtype=np.float32).view(np.uint32)
+
+
+def test_texel_surface_is_what_the_resolve_writes(device, rng):
+    """``texel_surface`` (the point and normal a reader computes from a specular texel's triangle and depth, for RSM
+    views that keep no position and normal) gives, on every covered texel, the bits ``resolve_rsm_view`` writes
+    into ``position`` and ``normal`` where they are kept: random spot, point and distant lights over the room (its
+    sphere, box and wavy water), two poses each (texels that gain and lose the water), odd view sizes."""
+    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
+    covered = 0
+    for trial in range(6):
+        kind = (LightKind.SPOT, LightKind.POINT, LightKind.DISTANT)[trial % 3]
+        frames = []
+        for _ in range(2):
+            pos = tuple(float(v) for v in rng.uniform((-0.6, 0.5, -0.6), (0.6, 0.9, 0.6)))
+            aim = rng.uniform((-0.4, -1.0, -0.4), (0.4, -0.6, 0.4))
+            frames.append(Light(kind, f"l{trial}", intensity=2.0, position=pos, direction=tuple(float(v) for v in aim),
+                                cone_angle=math.radians(float(rng.uniform(25, 60))), cone_softness=0.2))
+        parts = box_room()[1:] if kind == LightKind.DISTANT else box_room()  # no room: the sun reaches the water
+        ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
+        size = int(rng.integers(40, 72))
+        raster = Rasterizer(ds)
+        lm = LightMaps(ds, frames[0], size)
+        assert not any(r.specular.has_surface for r in lm.rsm)  # the default: no position and normal kept
+        assert lm.rsm[0].specular.position.shape == (0,)
+        lm.keep_surface_maps()
+        for light in frames:
+            if lm.light is not light:
+                lm.set_light(light)
+            lm.render(raster)
+            for k, r in enumerate(lm.rsm):
+                sp = r.specular
+                x_t, n_t = wp.zeros_like(sp.position), wp.zeros_like(sp.normal)
+                wp.launch(_texel_surface_of_layer, dim=r.width * r.height, device=device,
+                          inputs=[lm.views, k, sp.tri_id, sp.depth, ds.points, ds.normals, ds.indices, x_t, n_t])
+                on = sp.tri_id.numpy() >= 0
+                covered += int(on.sum())
+                np.testing.assert_array_equal(_bits(x_t.numpy()[on]), _bits(sp.position.numpy()[on]))
+                np.testing.assert_array_equal(_bits(n_t.numpy()[on]), _bits(sp.normal.numpy()[on]))
+    assert covered > 5000
+
+
+@wp.kernel
+def _hit_and_surface(views: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.uint64),
+                     pixels: wp.array(dtype=wp.int32), points: wp.array(dtype=wp.vec3),
+                     normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32),
+                     hit: wp.array(dtype=wp.vec3), surf: wp.array(dtype=wp.vec3)):
+    """Per probe i: triangle_hit's point and interpolated normal (what specular_texel_key writes) at hit[2i], [2i+1];
+    texel_surface's from its triangle and depth at surf[2i], [2i+1]."""
+    i = wp.tid()
+    view = views[0]
+    tri, t, x, bary, d = RK.triangle_hit(view, keys[i], pixels[i], points, indices)
+    hit[2 * i] = x
+    hit[2 * i + 1] = RK.interp_normal(tri, bary, normals, indices)
+    xs, ns = RK.texel_surface(view, pixels[i], tri, t, points, normals, indices)
+    surf[2 * i] = xs
+    surf[2 * i + 1] = ns
+
+
+def test_texel_surface_of_a_ray_in_the_triangles_plane(device, rng):
+    """A pixel ray in its triangle's plane (triangle_hit falls back to the key's quantised depth and barycentrics
+    (1, 0, 0)): texel_surface gives the same point and normal from that depth. An orthographic view looking down -z
+    (its rays exactly along -z) and triangles in planes x = const, which contain every ray; beside them triangles
+    in general position (the ordinary case) and triangles the ray misses (clamped barycentrics)."""
+    w = h = 16
+    view = ViewParams()
+    view.world_to_view = wp.mat44(*np.eye(4, dtype=np.float32).ravel())
+    view.view_to_world = wp.mat44(*np.eye(4, dtype=np.float32).ravel())
+    view.fx = view.fy = 8.0
+    view.cx, view.cy = w / 2.0, h / 2.0
+    view.near, view.far = 0.01, 10.0
+    view.width, view.height, view.orthographic = w, h, 1
+    n_in, n_gen = 40, 200
+    x0 = rng.uniform(-1, 1, n_in)
+    in_plane = np.stack([np.stack([np.full(n_in, 0.0), rng.uniform(-1, 1, n_in), rng.uniform(-5, -1, n_in)], -1)
+                         for _ in range(3)], 1)
+    in_plane[:, :, 0] = x0[:, None]
+    general = rng.uniform((-1, -1, -5), (1, 1, -1), (n_gen, 3, 3))
+    pts = np.concatenate([in_plane, general]).reshape(-1, 3).astype(np.float32)
+    nrm = rng.normal(size=pts.shape).astype(np.float32)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    tris = n_in + n_gen
+    depth_q = rng.integers(1, 1 << 31, tris).astype(np.uint64)
+    keys = (depth_q << np.uint64(32)) | np.arange(tris, dtype=np.uint64)
+    pixels = rng.integers(0, w * h, tris).astype(np.int32)
+    arr = lambda a, t: wp.array(a, dtype=t, device=device)  # noqa: E731
+    hit, surf = wp.zeros(2 * tris, dtype=wp.vec3, device=device), wp.zeros(2 * tris, dtype=wp.vec3, device=device)
+    wp.launch(_hit_and_surface, dim=tris, device=device,
+              inputs=[arr([view], ViewParams), arr(keys, wp.uint64), arr(pixels, wp.int32), arr(pts, wp.vec3),
+                      arr(nrm, wp.vec3), arr(np.arange(3 * tris, dtype=np.int32), wp.int32), hit, surf])
+    h_np, s_np = hit.numpy(), surf.numpy()
+    np.testing.assert_array_equal(_bits(s_np), _bits(h_np))
+    # the in-plane probes took the fallback: the vertex normal of corner 0, the point at the key's depth
+    np.testing.assert_allclose(h_np[1:2 * n_in:2], nrm[0:3 * n_in:3], atol=3e-7)  # (normalised again)
+    t_key = (depth_q[:n_in].astype(np.float64) / float(RK.DEPTH_STEPS)) * 10.0
+    np.testing.assert_allclose(-h_np[0:2 * n_in:2, 2], t_key, rtol=1e-6)
 
 
 @pytest.mark.parametrize("size", [(48, 32), (70, 45)])

@@ -141,6 +141,9 @@ def test_fitted_cascades_share_the_light_as_whole_views_do(device, method):
     rc, ac = render(plate_scene(), device, method, 64)
     rs, as_ = render(plate_scene(), device, method, 64, fit="scene")
     assert all(rc.lights[0].active) and rc.lights[0].skip_windows[1][2] > 0  # two cascades, a window skipped
+    # the grid's corners read the RSM texels' position and normal: kept (LightMaps.keep_surface_maps), not the pilots
+    assert all(r.specular.has_surface for r in rc.lights[0].rsm + rs.lights[0].rsm)
+    assert not any(r.specular.has_surface for r in rc.lights[0].pilot)
     lc, ls = rc.photons.read_ledger(), rs.photons.read_ledger()
     assert lc.closure() < 1e-5
     whole = lc["sampled"].sum()

@@ -425,7 +425,7 @@ class PhotonPass:
             grid = blocks if self.group_max_blocks is None else min(blocks, self.group_max_blocks)
             wp.launch_tiled(C.photon_group_keys, dim=grid, block_dim=self.group_block, device=self.device, inputs=[
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
-                sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id, sc.triangle_material, sc.opacity, max_lum,
+                r.flux, sp.roughness, sp.ior, sp.tri_id, sc.geometry, sc.triangle_material, sc.opacity, max_lum,
                 float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
                 order, stride, orders, slots, self._sort_keys, counts, grid])
             wp.utils.array_scan(counts, offsets, inclusive=False)

@@ -18,6 +18,7 @@ import warp as wp
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.light_maps import CascadeState, cascade_photons
+from ..raster.kernels import texel_surface
 from ..raster.views import ViewParams, pixel_ray_world
 from ..scene.device import SurfaceGeometry
 
@@ -418,7 +419,10 @@ SORT_GROUP_LAST = wp.constant(3)  #: slots past the view's photon count (fixed l
 
 SORT_GROUPS = 4  #: march groups including SORT_GROUP_LAST: the partition's block counts per group
 SORT_GROUP_BLOCK = 256  #: threads per block (and slots per tile) of the group partition on CUDA (< 2^SORT_COUNT_BITS)
-SORT_GROUP_BLOCKS_PER_SM = 4  #: blocks of the group partition per SM on CUDA (55 registers: 4 of 256 fit), each over many tiles
+#: blocks of the group partition per SM on CUDA, each over many tiles: photon_group_keys' launch bound (64 registers
+#: and 32 B of stack on sm_90 with the texel normal computed, kernels.texel_surface; 76 registers unbounded, which fit
+#: only 3 blocks of 256; perf_notes section 43)
+SORT_GROUP_BLOCKS_PER_SM = 4
 SORT_COUNT_BITS = wp.constant(10)  #: bits of one group's count in a packed block count (blocks of <= 1023 threads)
 
 
@@ -439,11 +443,11 @@ def _march_group(
     n_photons: int,
     randoms: wp.array(dtype=wp.vec3i),
     stream: int,
-    rsm_normal: wp.array(dtype=wp.vec3),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     max_lum: wp.array(dtype=wp.float32),
@@ -469,10 +473,13 @@ def _march_group(
     if tri < 0 or (sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]):
         return SORT_NOT_TRACED
     # every texel value the prediction may need, read together: one dependent round trip to memory instead of
-    # three (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels
+    # three (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels. The
+    # normal is the one the texel's resolve finds (the RSM keeps no normal array: kernels.texel_surface from the
+    # texel's triangle, its vertex indices read beside the texel's values, its points and normals beside the
+    # material's opacity; the point it also gives is not used, so not computed)
     rough = rsm_roughness[texel]
     flux = rsm_flux[texel]
-    n = rsm_normal[texel]
+    x_t, n = texel_surface(light, texel, tri, 0.0, geometry.points, geometry.normals, geometry.indices)
     eta = rsm_ior[texel]
     opacity = mat_opacity[triangle_material[tri]]
     if rough > roughness_cutoff or luminance(flux) < luminance_cutoff * cascade.texel_scale * max_lum[0]:
@@ -492,7 +499,7 @@ def _march_group(
     return SORT_REFLECTED
 
 
-@wp.kernel
+@wp.kernel(launch_bounds=(SORT_GROUP_BLOCK, SORT_GROUP_BLOCKS_PER_SM))  # 64 registers: 4 blocks an SM
 def photon_group_keys(
     views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
     states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
@@ -500,11 +507,11 @@ def photon_group_keys(
     light_photons: int,  # the light's photons, split over its active views (cascade_photons)
     randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
     stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
-    rsm_normal: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
-    rsm_flux: wp.array(dtype=wp.vec3),
+    rsm_flux: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles: the texel's normal (kernels.texel_surface, read)
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
@@ -552,9 +559,9 @@ def photon_group_keys(
             if t < n_slots:
                 group = SORT_GROUP_LAST
                 if t < n_photons:
-                    group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_normal, rsm_flux,
-                                         rsm_roughness, rsm_ior, rsm_tri, triangle_material, mat_opacity, max_lum,
-                                         roughness_cutoff, luminance_cutoff, order, base + t)
+                    group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_flux,
+                                         rsm_roughness, rsm_ior, rsm_tri, geometry, triangle_material, mat_opacity,
+                                         max_lum, roughness_cutoff, luminance_cutoff, order, base + t)
                 keys[t] = group
             packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
             if lane == 0:
@@ -685,8 +692,8 @@ def walk_to_sample(lo: wp.vec3, ld: wp.vec3, tri: int, geometry: SurfaceGeometry
 
 
 @wp.func
-def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_position: wp.array(dtype=wp.vec3),
-                      rsm_normal: wp.array(dtype=wp.vec3), geometry: SurfaceGeometry):
+def surface_at_sample(light: ViewParams, lo: wp.vec3, ld: wp.vec3, tri: int, texel: int,
+                      rsm_depth: wp.array(dtype=wp.float32), geometry: SurfaceGeometry):
     """Where the light ray ``lo + ld·t`` meets the surface under it, and the vertex normals interpolated
     there: (point [m], unit normal). Sub-texel exact, so a texel's photons leave with the normals of the
     surface under their own sample points instead of one normal per texel.
@@ -695,12 +702,13 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_positi
     towards the sample (:func:`walk_to_sample`) until the ray cuts the triangle inside, so texels larger than triangles are exact too. At a boundary edge (or after
     ``MAX_WALK`` steps) it keeps the last triangle's plane and the linear extension of its vertex
     normals up to ``BARY_EXTRAPOLATION`` outside, clamped onto the triangle beyond. A ray in a
-    triangle's plane keeps the texel's point and normal (``rsm_position[texel]``, ``rsm_normal[texel]``: read only
-    then, not for every photon; perf_notes section 39).
+    triangle's plane keeps the texel's point and normal as the RSM's resolve finds them (``kernels.texel_surface``
+    of view ``light``'s texel, its triangle ``tri`` and depth ``rsm_depth[texel]``: computed only then, not for
+    every photon; perf_notes sections 39 and 43).
     """
     ok, cur, b0, b1, b2, t, steps, ind = walk_to_sample(lo, ld, tri, geometry)
     if ok == 0:
-        return rsm_position[texel], rsm_normal[texel]
+        return texel_surface(light, texel, tri, rsm_depth[texel], geometry.points, geometry.normals, geometry.indices)
     p0 = geometry.points[ind[0]]
     p1 = geometry.points[ind[1]]
     p2 = geometry.points[ind[2]]
@@ -715,7 +723,8 @@ def surface_at_sample(lo: wp.vec3, ld: wp.vec3, tri: int, texel: int, rsm_positi
     n = nrm[ind[0]] * b0 + nrm[ind[1]] * b1 + nrm[ind[2]] * b2
     ln = wp.length(n)
     if ln < 1.0e-12:
-        return x, rsm_normal[texel]
+        x_t, n_t = texel_surface(light, texel, tri, 0.0, geometry.points, geometry.normals, geometry.indices)
+        return x, n_t
     return x, n / ln
 
 
@@ -727,8 +736,7 @@ def emit_sample(
     k: int,
     n_photons: int,
     scramble: wp.vec2i,
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_depth: wp.array(dtype=wp.float32),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
@@ -769,7 +777,7 @@ def emit_sample(
         return int(-1), power, zero, zero, zero, L_CULLED_LUM
     # origin and normal: the light ray through the sample point, cut with the texel's triangle
     lo, ld = pixel_ray_world(light, sx, sy)
-    origin, n = surface_at_sample(lo, ld, tri, texel, rsm_position, rsm_normal, geometry)
+    origin, n = surface_at_sample(light, lo, ld, tri, texel, rsm_depth, geometry)
     d_in = wp.normalize(ld)
     if light_kind != 0:
         d_in = wp.normalize(origin - light_pos)
@@ -784,8 +792,7 @@ def emit_photon(
     k: int,
     n_photons: int,
     scramble: wp.vec2i,
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_depth: wp.array(dtype=wp.float32),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
@@ -799,7 +806,7 @@ def emit_photon(
     """Photon k of an RSM view (:func:`emit_sample`). Returns (texel or -1 when none is emitted, power [W], origin,
     incident direction, surface normal); books the power as sampled, and culled when the texel is culled."""
     texel, power, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
-                                                       rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_tri,
+                                                       rsm_depth, rsm_flux, rsm_roughness, rsm_tri,
                                                        geometry, skip_window, max_lum, roughness_cutoff,
                                                        luminance_cutoff)
     if entry >= 0:
@@ -906,8 +913,7 @@ def emit_and_bounce(
     n_photons: int,
     scramble: wp.vec2i,
     seed: int,
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_depth: wp.array(dtype=wp.float32),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -925,8 +931,8 @@ def emit_and_bounce(
     """Photon k of an RSM view, emitted (:func:`emit_photon`) and scattered by the specular surface it
     starts on (:func:`specular_bounce`), all booked. Returns (texel or -1 when none, power [W] after the
     bounce, origin [m], surface normal, outgoing direction, rng state)."""
-    texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_position,
-                                                rsm_normal, rsm_flux, rsm_roughness, rsm_tri, geometry, skip_window,
+    texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_depth,
+                                                rsm_flux, rsm_roughness, rsm_tri, geometry, skip_window,
                                                 max_lum, roughness_cutoff, luminance_cutoff, tally)
     state = wp.rand_init(seed, k)
     if texel < 0:

@@ -50,8 +50,7 @@ def pilot_branch(
     light: ViewParams,
     light_kind: int,
     light_pos: wp.vec3,
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_depth: wp.array(dtype=wp.float32),
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -75,7 +74,7 @@ def pilot_branch(
     if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
         return 0.0
     lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
-    x, n_s = surface_at_sample(lo, ld, tri, p, rsm_position, rsm_normal, geometry)
+    x, n_s = surface_at_sample(light, lo, ld, tri, p, rsm_depth, geometry)
     d_in = wp.normalize(ld)
     if light_kind != 0:
         d_in = wp.normalize(x - light_pos)
@@ -111,8 +110,7 @@ def pilot_receivers(
     light: ViewParams,  # a pilot (whole) view of the light
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
-    rsm_position: wp.array(dtype=wp.vec3),  # (P*P,) specular layer [m] (read)
-    rsm_normal: wp.array(dtype=wp.vec3),  # (P*P,) authored unit normal (read)
+    rsm_depth: wp.array(dtype=wp.float32),  # (P*P,) specular layer's depth [m] (read)
     rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
     rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
     rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
@@ -136,7 +134,7 @@ def pilot_receivers(
     seed = randoms[stream][2]
     nearest = float(0.0)
     for branch in range(2):
-        z = pilot_branch(light, light_kind, light_pos, rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
+        z = pilot_branch(light, light_kind, light_pos, rsm_depth, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
                          geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces, seed, p,
                          branch)
         if z > 0.0 and (nearest == 0.0 or z < nearest):
@@ -156,8 +154,7 @@ def pilot_branches(
     light: ViewParams,  # a pilot (whole) view of the light
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
-    rsm_position: wp.array(dtype=wp.vec3),  # (P*P,) specular layer [m] (read)
-    rsm_normal: wp.array(dtype=wp.vec3),  # (P*P,) authored unit normal (read)
+    rsm_depth: wp.array(dtype=wp.float32),  # (P*P,) specular layer's depth [m] (read)
     rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
     rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
     rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
@@ -185,7 +182,7 @@ def pilot_branches(
     p = tid - branch * n
     branch_depth[tid] = PILOT_NONE
     cam.view = cameras[0]
-    z = pilot_branch(light, light_kind, light_pos, rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
+    z = pilot_branch(light, light_kind, light_pos, rsm_depth, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
                      geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces,
                      randoms[stream][2], p, branch)
     if z > 0.0:
@@ -731,7 +728,7 @@ class LightViewFitter:
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
             for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
                 sp = r.specular
-                inputs = [r.view.params(), int(lm.light.kind), light_pos, sp.position, sp.normal, r.flux, sp.roughness,
+                inputs = [r.view.params(), int(lm.light.kind), light_pos, sp.depth, r.flux, sp.roughness,
                           sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
                           float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel),
                           float(self.t_max), int(self.max_bounces), self.inputs.randoms,

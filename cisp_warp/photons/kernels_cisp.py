@@ -79,8 +79,7 @@ def emit_and_scatter(
     n_photons: int,
     scramble: wp.vec2i,
     seed: int,
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
     rsm_flux: wp.array(dtype=wp.vec3),
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -99,7 +98,7 @@ def emit_and_scatter(
     bounce, origin [m], surface normal, outgoing direction, rng state, entry, power as sampled, power absorbed,
     refracted 0/1): what :func:`emission_add` books."""
     texel, sampled, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
-                                                         rsm_position, rsm_normal, rsm_flux, rsm_roughness, rsm_tri,
+                                                         rsm_depth, rsm_flux, rsm_roughness, rsm_tri,
                                                          geometry, skip_window, max_lum, roughness_cutoff,
                                                          luminance_cutoff)
     state = wp.rand_init(seed, k)
@@ -460,8 +459,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
             # RSM view of the light (flat H*W arrays)
             rsm_opaque_depth: wp.array(dtype=wp.float32),
             rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
-            rsm_position: wp.array(dtype=wp.vec3),
-            rsm_normal: wp.array(dtype=wp.vec3),
+            rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
             rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
             rsm_roughness: wp.array(dtype=wp.float32),
             rsm_ior: wp.array(dtype=wp.float32),
@@ -549,7 +547,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
                 # 1.-3. texel from the scrambled R2 sequence, origin and normal on the texel's triangle, bounce by
                 # exact Fresnel as a probability (power unchanged); metals reflect with their albedo
                 texel, power, origin, n, d, state, entry, sampled, absorbed, refracted = emit_and_scatter(
-                    light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal,
+                    light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth,
                     rsm_flux, rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity,
                     mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale)
             emission_add(ledger, block, lane, entry, sampled, absorbed, power, refracted)

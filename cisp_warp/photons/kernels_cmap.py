@@ -131,8 +131,7 @@ def trace_to_caustic_map(
     # RSM view of the light (flat Hl*Wl arrays, read)
     rsm_opaque_depth: wp.array(dtype=wp.float32),  # linear depth of the nearest opaque surface [m], 0 = none
     rsm_opaque_tri: wp.array(dtype=wp.int32),  # its triangle, -1 = none
-    rsm_position: wp.array(dtype=wp.vec3),  # specular layer: world position [m]
-    rsm_normal: wp.array(dtype=wp.vec3),  # specular layer: authored unit normal
+    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
     rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -176,7 +175,7 @@ def trace_to_caustic_map(
     if t < n_photons:
         k = photon_index(order, use_order, t)
         texel, power, origin, n, d, state = emit_and_bounce(
-            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth, rsm_flux,
             rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
             max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
     ledger_add(ledger, emitted, block, EMISSION_ENTRIES)

@@ -229,8 +229,7 @@ def trace_sspm(
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
     # RSM view of the light (flat H*W arrays, read)
-    rsm_position: wp.array(dtype=wp.vec3),
-    rsm_normal: wp.array(dtype=wp.vec3),
+    rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
     rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
     rsm_roughness: wp.array(dtype=wp.float32),
     rsm_ior: wp.array(dtype=wp.float32),
@@ -290,7 +289,7 @@ def trace_sspm(
     if t < n_photons:
         k = photon_index(order, use_order, t)
         texel, power, origin, n, d, state = emit_and_bounce(
-            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_position, rsm_normal, rsm_flux,
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth, rsm_flux,
             rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
             max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
     ledger_add(ledger, emitted, block, EMISSION_ENTRIES)

@@ -62,6 +62,7 @@ class WavefrontSplat:
         d = photon_pass.device
         corners, tris = 1, 1
         for lm in photon_pass.lights:
+            lm.keep_surface_maps()  # the grid's corners read the RSM texels' point and normal (kernels_wavefront)
             most = photon_pass.settings.photons if lm.fitted else photon_pass.photons_per_view(lm)  # one active view
             for r in lm.rsm:
                 g = self.grid(r, most)

@@ -540,6 +540,45 @@ def still_empty(key: wp.uint64, tri_id: wp.array(dtype=wp.int32), p: int) -> boo
 
 
 @wp.func
+def interp_normal(tri: int, bary: wp.vec3, normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)) -> wp.vec3:
+    n = normals[indices[3 * tri]] * bary[0] + normals[indices[3 * tri + 1]] * bary[1] + normals[indices[3 * tri + 2]] * bary[2]
+    return wp.normalize(n)
+
+
+@wp.func
+def _ray_barycentrics(o: wp.vec3, d: wp.vec3, tri: int, points: wp.array(dtype=wp.vec3),
+                      indices: wp.array(dtype=wp.int32)):
+    """The ray ``o + d·t``'s cut with triangle ``tri`` (Möller-Trumbore): (u, v, t, 1), or (0, 0, 0, 0) when the ray
+    lies in the triangle's plane. :func:`triangle_hit` and :func:`texel_surface` share it, so their barycentrics are
+    the same bits."""
+    p0 = points[indices[3 * tri + 0]]
+    p1 = points[indices[3 * tri + 1]]
+    p2 = points[indices[3 * tri + 2]]
+    e1 = p1 - p0
+    e2 = p2 - p0
+    pv = wp.cross(d, e2)
+    det = wp.dot(e1, pv)
+    if wp.abs(det) > 1.0e-30:
+        inv = 1.0 / det
+        s = o - p0
+        u = wp.dot(s, pv) * inv
+        qv = wp.cross(s, e1)
+        v = wp.dot(d, qv) * inv
+        return u, v, wp.dot(e2, qv) * inv, int(1)
+    return float(0.0), float(0.0), float(0.0), int(0)
+
+
+@wp.func
+def _clamped_barycentrics(u: float, v: float) -> wp.vec3:
+    """Barycentrics (1 − u − v, u, v) clamped onto the triangle (:func:`triangle_hit`'s)."""
+    b1 = wp.clamp(u, 0.0, 1.0)
+    b2 = wp.clamp(v, 0.0, 1.0)
+    b0 = wp.max(1.0 - b1 - b2, 0.0)
+    sb = b0 + b1 + b2
+    return wp.vec3(b0, b1, b2) / sb
+
+
+@wp.func
 def triangle_hit(view: ViewParams, key: wp.uint64, pixel: int, points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)):
     """Exact hit of a pixel's ray with the triangle of a visibility key.
 
@@ -551,37 +590,26 @@ def triangle_hit(view: ViewParams, key: wp.uint64, pixel: int, points: wp.array(
     if key == EMPTY_KEY:
         return int(-1), float(0.0), wp.vec3(0.0), wp.vec3(0.0), d
     tri = int(key & wp.uint64(0xFFFFFFFF))
-    p0 = points[indices[3 * tri + 0]]
-    p1 = points[indices[3 * tri + 1]]
-    p2 = points[indices[3 * tri + 2]]
-    e1 = p1 - p0
-    e2 = p2 - p0
-    pv = wp.cross(d, e2)
-    det = wp.dot(e1, pv)
-    t = float(0.0)
-    u = float(0.0)
-    v = float(0.0)
-    if wp.abs(det) > 1.0e-30:
-        inv = 1.0 / det
-        s = o - p0
-        u = wp.dot(s, pv) * inv
-        qv = wp.cross(s, e1)
-        v = wp.dot(d, qv) * inv
-        t = wp.dot(e2, qv) * inv
-    else:  # ray in the triangle's plane: fall back to the quantised raster depth
+    u, v, t, ok = _ray_barycentrics(o, d, tri, points, indices)
+    if ok == 0:  # ray in the triangle's plane: fall back to the quantised raster depth (u = v = 0)
         t = float(wp.float64(key >> wp.uint64(32)) / wp.float64(DEPTH_STEPS) * wp.float64(view.far))
-    b1 = wp.clamp(u, 0.0, 1.0)
-    b2 = wp.clamp(v, 0.0, 1.0)
-    b0 = wp.max(1.0 - b1 - b2, 0.0)
-    sb = b0 + b1 + b2
-    bary = wp.vec3(b0, b1, b2) / sb
-    return tri, t, o + d * t, bary, d
+    return tri, t, o + d * t, _clamped_barycentrics(u, v), d
 
 
 @wp.func
-def interp_normal(tri: int, bary: wp.vec3, normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)) -> wp.vec3:
-    n = normals[indices[3 * tri]] * bary[0] + normals[indices[3 * tri + 1]] * bary[1] + normals[indices[3 * tri + 2]] * bary[2]
-    return wp.normalize(n)
+def texel_surface(view: ViewParams, pixel: int, tri: int, t: float, points: wp.array(dtype=wp.vec3),
+                  normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32)):
+    """The world point [m] and authored unit normal a specular resolve (:func:`specular_texel_key`) writes for pixel
+    ``pixel`` of ``view`` whose triangle is ``tri`` (>= 0) at depth ``t`` [m] (the layer's ``depth``), computed from
+    them with :func:`triangle_hit`'s arithmetic, the same bits: the point ``o + d·t`` on the pixel centre's ray, the
+    normal interpolated at the clamped barycentrics of the ray's cut with ``tri`` ((1, 0, 0) for a ray in its plane).
+    Lets a reader of an RSM view that keeps no ``position`` and ``normal`` (LightMaps.keep_surface_maps) have them.
+    Reads the triangle's vertices and normals (``t`` unused for the normal alone: the compiler drops the point)."""
+    px = float(pixel % view.width) + 0.5
+    py = float(pixel / view.width) + 0.5
+    o, d = pixel_ray_world(view, px, py)
+    u, v, t_hit, ok = _ray_barycentrics(o, d, tri, points, indices)
+    return o + d * t, interp_normal(tri, _clamped_barycentrics(u, v), normals, indices)
 
 
 @wp.func
@@ -843,16 +871,19 @@ def specular_texel_key(
     tri_id[p] = tri
     if nearest_depth.shape[0] > 0:
         nearest_depth[p] = wp.where(tri >= 0 and t > 0.0, t, od)
+    surface = position.shape[0] > 0  # the point and normal kept (else texel_surface gives them from tri_id, depth)
     if tri < 0:
         depth[p] = 0.0
-        position[p] = wp.vec3(0.0)
-        normal[p] = wp.vec3(0.0)
+        if surface:
+            position[p] = wp.vec3(0.0)
+            normal[p] = wp.vec3(0.0)
         roughness[p] = 0.0
         ior[p] = 1.0
         return -1
     depth[p] = t
-    position[p] = x
-    normal[p] = interp_normal(tri, bary, normals, indices)
+    if surface:
+        position[p] = x
+        normal[p] = interp_normal(tri, bary, normals, indices)
     m = triangle_material[tri]
     roughness[p] = mat_roughness[m]
     ior[p] = mat_ior[m]
@@ -1116,8 +1147,8 @@ def resolve_rsm_view(
     opaque_depth: wp.array(dtype=wp.float32),  # (H*W,) nearest opaque surface [m], 0 = none (write)
     opaque_tri: wp.array(dtype=wp.int32),  # (H*W,) its triangle, -1 = none (write; an empty array: not wanted)
     depth: wp.array(dtype=wp.float32),  # (H*W,) specular layer [m], 0 = none or hidden behind opaque (write)
-    position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write)
-    normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write)
+    position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write; an empty array: not wanted, texel_surface gives it)
+    normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write; empty with position)
     roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
     ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)

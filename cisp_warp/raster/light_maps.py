@@ -318,13 +318,14 @@ class LightMaps:
         whole = light_views(scene.scene, light, rsm_size)
         d = scene.device
         if self.fitted:
-            self.pilot = [RSMView.allocate(resized_view(v, vs.pilot_size, f"pilot_{v.name[4:]}"), d) for v in whole]
-            self.rsm = [RSMView.allocate(window_view(v, (0, 0, v.width, v.height), rsm_size, f"{v.name}_c{c}"), d)
-                        for v in whole for c in range(vs.cascades)]
+            self.pilot = [RSMView.allocate(resized_view(v, vs.pilot_size, f"pilot_{v.name[4:]}"), d, False)
+                          for v in whole]
+            self.rsm = [RSMView.allocate(window_view(v, (0, 0, v.width, v.height), rsm_size, f"{v.name}_c{c}"), d,
+                                         False) for v in whole for c in range(vs.cascades)]
             self.cascades = vs.cascades
         else:
             self.pilot = []
-            self.rsm = [RSMView.allocate(v, d) for v in whole]
+            self.rsm = [RSMView.allocate(v, d, False) for v in whole]
             self.cascades = 1
         #: host ViewParams of the RSM views: exact for whole views; for fitted ones the views they start from
         #: (the fit writes ``views`` on the device)
@@ -337,6 +338,9 @@ class LightMaps:
         self.outside_angle = wp.zeros(n_pilot, dtype=wp.float32, device=d)
         self._shadows: list[_ShadowView] = []
         self._make_shadows(light, whole)
+        #: the views' specular layers keep no per-texel ``position`` and ``normal`` (24 B a texel the resolve does not
+        #: write): the photon passes compute them where they need them (``kernels.texel_surface``, from ``tri_id`` and
+        #: ``depth``); a reader of the arrays (wavefront splats) asks for them with :meth:`keep_surface_maps`
         #: resolve each RSM view's ``opaque_tri`` (its opaque triangle per texel): only the caustics map reads it, so a
         #: renderer of another method sets False and the opaque resolve writes 4 B per texel fewer (the array then
         #: keeps what it held; it is not an AOV of :meth:`RSMView.numpy`)
@@ -524,6 +528,13 @@ class LightMaps:
                              f"march.bounds_size of its view")
         self._bounds = list(bounds)
         self._bounds_thickness = (float(thickness), float(thickness_rel))
+
+    def keep_surface_maps(self) -> None:
+        """Have every RSM view's specular layer keep its per-texel ``position`` and ``normal`` (allocated here and
+        written by each resolve from the next on; by default they are not: ``RSMView.allocate(surface=False)``), for a
+        consumer that reads the arrays (``photons.wavefront``); pilot views are left without (the fit computes them)."""
+        for r in self.rsm:
+            r.specular.keep_surface()
 
     def builds_depth_bounds(self, bounds: wp.array) -> bool:
         """Whether the resolve writes ``bounds`` (one of :meth:`keep_depth_bounds`'s) each frame the view is drawn."""

@@ -150,11 +150,26 @@ class SpecularLayer(_Buffers):
     tri_id: wp.array  #: (H*W,) int32 triangle id; -1 = none
 
     @staticmethod
-    def allocate(width: int, height: int, device) -> "SpecularLayer":
-        hw = (height, width)
-        return SpecularLayer(width, height, visibility_buffer(width * height, device), _pixels(hw, wp.float32, device),
-                             _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.float32, device),
-                             _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device))
+    def allocate(width: int, height: int, device, surface: bool = True) -> "SpecularLayer":
+        """``surface`` False: ``position`` and ``normal`` empty (not written by the resolves; a reader computes them
+        from ``tri_id`` and ``depth`` with ``kernels.texel_surface``) until :meth:`keep_surface`."""
+        hw = (height, width) if surface else (0, 0)
+        return SpecularLayer(width, height, visibility_buffer(width * height, device),
+                             _pixels((height, width), wp.float32, device), _pixels(hw, wp.vec3, device),
+                             _pixels(hw, wp.vec3, device), _pixels((height, width), wp.float32, device),
+                             _pixels((height, width), wp.float32, device), _pixels((height, width), wp.int32, device))
+
+    @property
+    def has_surface(self) -> bool:
+        """Whether the resolves write ``position`` and ``normal``."""
+        return self.position.shape[0] == self.width * self.height
+
+    def keep_surface(self) -> None:
+        """Allocate ``position`` and ``normal`` (zero), so the resolves write them from the next one on."""
+        if not self.has_surface:
+            d = self.depth.device
+            self.position = _pixels((self.height, self.width), wp.vec3, d)
+            self.normal = _pixels((self.height, self.width), wp.vec3, d)
 
     def resolve(self, scene: DeviceScene, views: wp.array, view_index: int, opaque_depth: wp.array,
                 nearest_depth: wp.array | None = None) -> None:
@@ -287,14 +302,15 @@ class RSMView(_Buffers):
     solid_angle: wp.array  #: (H*W,) float32 [sr] per texel (perspective views; zeros for orthographic)
 
     @staticmethod
-    def allocate(view: View, device) -> "RSMView":
+    def allocate(view: View, device, surface: bool = True) -> "RSMView":
+        """``surface``: whether the specular layer keeps ``position`` and ``normal`` (:meth:`SpecularLayer.allocate`)."""
         w, h = view.width, view.height
-        check_memory(w * h * 96, f"a {w}x{h} reflective shadow map", device)
+        check_memory(w * h * (96 if surface else 72), f"a {w}x{h} reflective shadow map", device)
         hw = (h, w)
         sa = view.texel_solid_angle().astype(np.float32).reshape(-1) if not view.orthographic else np.zeros(w * h, np.float32)
         return RSMView(view, w, h, visibility_buffer(w * h, device), _pixels(hw, wp.float32, device),
                        _pixels(hw, wp.int32, device), _pixels(hw, wp.float32, device),
-                       SpecularLayer.allocate(w, h, device), _pixels(hw, wp.vec3, device),
+                       SpecularLayer.allocate(w, h, device, surface), _pixels(hw, wp.vec3, device),
                        wp.array(sa, dtype=wp.float32, device=device))
 
     def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
