@@ -874,8 +874,9 @@ def test_svgf_levels_match_naive_twin(device, feedback, levels):
 
 
 def test_atrous_fast_math_helpers(device):
-    """The pair weight's ln cos (series above 0.5) and its CUDA intrinsics against numpy in float64."""
-    from cisp_warp.denoise.kernels_atrous import fast_div, fast_exp, fast_rcp, fast_rsqrt, log_cosine
+    """The pair weight's ln cos (series above 0.5), atanh series and its CUDA intrinsics against numpy in float64."""
+    from cisp_warp.denoise.kernels_atrous import (atanh_series, fast_div, fast_exp, fast_exp2, fast_rcp, fast_rsqrt,
+                                                  log_cosine)
 
     @wp.kernel
     def helpers(c: wp.array(dtype=float), out: wp.array2d(dtype=float)):
@@ -885,9 +886,11 @@ def test_atrous_fast_math_helpers(device):
         out[i, 2] = fast_div(c[i], 3.0)
         out[i, 3] = fast_rsqrt(c[i])
         out[i, 4] = fast_rcp(c[i])
+        out[i, 5] = fast_exp2(-30.0 * c[i])
+        out[i, 6] = atanh_series(-c[i] / 3.0)
 
     c = np.concatenate([np.linspace(1e-3, 1.0, 997), 1.0 - np.logspace(-7, -1, 50)]).astype(np.float32)
-    out = wp.zeros((c.size, 5), dtype=float, device=device)
+    out = wp.zeros((c.size, 7), dtype=float, device=device)
     wp.launch(helpers, dim=c.size, inputs=[wp.array(c, dtype=float, device=device)], outputs=[out], device=device)
     r = out.numpy().astype(np.float64)
     c64 = c.astype(np.float64)
@@ -896,6 +899,9 @@ def test_atrous_fast_math_helpers(device):
     np.testing.assert_allclose(r[:, 2], c64 / 3.0, rtol=1e-6)
     np.testing.assert_allclose(r[:, 3], 1.0 / np.sqrt(c64), rtol=1e-6)
     np.testing.assert_allclose(r[:, 4], 1.0 / c64, rtol=1e-6)
+    np.testing.assert_allclose(r[:, 5], np.exp2(-30.0 * c64), rtol=3e-6)
+    t = -c.astype(np.float32) / np.float32(3.0)  # t in [-1/3, 0), as the pair weight takes it
+    np.testing.assert_allclose(r[:, 6], np.arctanh(t.astype(np.float64)), rtol=3e-7)  # float32 rounding
 
 
 @pytest.mark.parametrize("radius", [1, 3])
