@@ -20,8 +20,9 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
 sub-lattice, in shared memory (Warp shared tiles):
 
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
-   ``(n, z)``, the guide pass's terms and the input (colour, Var), three 16-byte loads a point, two points a
-   thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
+   ``(n, z)``, the guide pass's terms and the input (colour, Var), three loads a point (16, 16 and, ungated
+   (SVGF), 8 bytes: the guide pass writes only σ_z ‖∇z‖ and g3x3(Var) there, the luminance comes from the colour;
+   gated, 16), two points a thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
    tile has any pixel to filter;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
@@ -422,6 +423,44 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
     block_sync()
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float2 v = __ldg(reinterpret_cast<const float2*>(a.data) + p);
+return wp::vec2(v.x, v.y);
+#else
+return reinterpret_cast<const wp::vec2*>(a.data)[p];
+#endif
+""")
+def load_half(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec2:
+    """Entry ``p`` of a vec4 buffer read as a vec2 array (its first half holds 2 x its length of them): one 8-byte
+    load on CUDA."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+reinterpret_cast<float2*>(a.data)[p] = make_float2(v[0], v[1]);
+#else
+reinterpret_cast<wp::vec2*>(a.data)[p] = v;
+#endif
+""")
+def store_half(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec2):
+    """Entry ``p`` of a vec4 buffer written as a vec2 array (:func:`load_half`): one 8-byte store on CUDA."""
+    ...
+
+
+@wp.func
+def load_aux(aux: wp.array(dtype=wp.vec4), p: int, cv: wp.vec4, luminance_scale: float, gated: int) -> wp.vec4:
+    """The guide-pass terms of point ``p`` as :func:`pair_weight` takes them (σ_z ‖∇z‖ ln 2, g3x3(Var) / 2,
+    luminance log2(e) / σ_l, R) from ``aux`` as :func:`atrous_guide` wrote it: gated, the vec4; ungated, the vec2 of
+    the first two (8 bytes a point), the luminance from the point's colour ``cv`` (the guide pass's expression, the
+    same value) and R = 0 (never read)."""
+    if gated != 0:
+        return load_vec4(aux, p)
+    a = load_half(aux, p)
+    return wp.vec4(a[0], a[1], luminance(wp.vec3(cv[0], cv[1], cv[2])) * luminance_scale, 0.0)
+
+
 @wp.func
 def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
                 variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
@@ -511,11 +550,10 @@ def atrous_guide(
     ``color_in``, ``variance_in``, ``depth``, ``normal``) and ``slope`` (H*W float32 [m/pixel]). Writes ``aux``
     (H*W vec4: σ_z ‖∇z‖ ln 2, g3x3(Var) / 2, luminance log2(e) / σ_l, R, the scaled terms :func:`pair_weight`
     takes, with ``depth_scale`` = σ_z ln 2 and ``luminance_scale`` = log2(e) / σ_l, :func:`pair_scales`; 0 without a
-    surface) and, with ``write_packed``
-    (unpacked input only), the packed input ``color_variance_out`` (colour, Var; Var = NO_SURFACE without a
-    surface) and ``guide_out`` (n, z) that the level then reads instead. ``gated`` != 0: R from g3x3(Var) and
-    the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``), else
-    ``UNGATED_RADIUS``.
+    surface; ``gated`` == 0: only the first two, as a vec2 array in the buffer's first half, :func:`load_aux`) and,
+    with ``write_packed`` (unpacked input only), the packed input ``color_variance_out`` (colour, Var; Var =
+    NO_SURFACE without a surface) and ``guide_out`` (n, z) that the level then reads instead. ``gated`` != 0: R from
+    g3x3(Var) and the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``).
 
     ``lattice`` = the level's step (>= 2; 0: off): ``aux`` is written in that step's sub-lattice-major order
     (:func:`lattice_index`, :func:`lattice_size` entries) and so are copies of the packed input,
@@ -541,11 +579,17 @@ def atrous_guide(
         if copy_guide != 0:
             store_vec4(guide_lattice, o, load_vec4(guide_in, p))
     if cv[3] < 0.0:
-        store_vec4(aux, o, wp.vec4(0.0))
+        if gated != 0:
+            store_vec4(aux, o, wp.vec4(0.0))
+        else:
+            store_half(aux, o, wp.vec2(0.0))
         return
     b = blur_variance(packed, color_variance, color_in, variance_in, depth, x, y, width, height, gated, noise_target)
-    store_vec4(aux, o, wp.vec4(depth_scale * slope[p], 0.5 * b[0], luminance(wp.vec3(cv[0], cv[1], cv[2])) * luminance_scale,
-                               b[1]))
+    if gated != 0:
+        store_vec4(aux, o, wp.vec4(depth_scale * slope[p], 0.5 * b[0],
+                                   luminance(wp.vec3(cv[0], cv[1], cv[2])) * luminance_scale, b[1]))
+    else:  # the level takes the luminance from the colour it reads anyway, and no R
+        store_half(aux, o, wp.vec2(depth_scale * slope[p], 0.5 * b[0]))
 
 
 @wp.func
@@ -655,8 +699,8 @@ def make_atrous_level(gated: int):
             cv1 = load_vec4(color_variance, p1)
             gs0 = load_vec4(guide, p0)
             gs1 = load_vec4(guide, p1)
-            ax0 = load_vec4(aux, p0)
-            ax1 = load_vec4(aux, p1)
+            ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
+            ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
             filtered += store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
             if r1 < _GUIDE_REAL:
                 filtered += store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
