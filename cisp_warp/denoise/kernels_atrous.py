@@ -30,7 +30,7 @@ sub-lattice, in shared memory (Warp shared tiles):
    memory;
 3. 1 / W_q, W_q = Σ_r w_qr, for the tile plus its apron of 2 (sums of the shared pair weights);
 4. the filter of the tile's pixels from the same pair weights, branch-free over the 24 taps:
-   c'_p = c_p + Σ_{q≠p} A_pq (c_q − c_p), Var'_p = Σ_q A_pq² Var_q, with
+   c'_p = A_pp c_p + Σ_{q≠p} A_pq c_q, A_pp = 1 − Σ_{q≠p} A_pq, Var'_p = Σ_q A_pq² Var_q, with
    A_pq = w_pq min(1/W_p, 1/W_q) = w_pq / max(W_p, W_q) (energy-conserving) or w_pq / W_p (the paper's gather).
 
 w_pq (Schied et al. 2017, eqs. 3-5, made symmetric in p and q) is evaluated as one exponential:
@@ -741,7 +741,7 @@ def make_atrous_level(gated: int):
                 if surface and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
                     iw_p = read_guide_scalar(inv_weight_sum, u)
                     sum_a = float(0.0)  # Σ_{q≠p} A_pq
-                    sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
+                    sum_ac = wp.vec3(0.0)  # Σ_{q≠p} A_pq c_q
                     sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q (w_pq = 0 where q has no surface: no branch)
                     for f in range(FORWARD_TAPS):
                         off = forward_offset(f)
@@ -749,16 +749,16 @@ def make_atrous_level(gated: int):
                         a = read_pair(pair, f * _PAIR_PIXELS + u) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
                         cv_q = read_guide(signal, q)
                         sum_a += a
-                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                        sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
                         sum_av += a * a * cv_q[3]
                         q = u - off
                         a = read_pair(pair, f * _PAIR_PIXELS + q) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
                         cv_q = read_guide(signal, q)
                         sum_a += a
-                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                        sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
                         sum_av += a * a * cv_q[3]
-                    a_centre = 1.0 - sum_a
-                    c_new = c_p + sum_dc
+                    a_centre = 1.0 - sum_a  # A_pp, in (0, 1]: Σ_{q≠p} A_pq <= (W_p − w_pp) / W_p
+                    c_new = a_centre * c_p + sum_ac
                     v_new = sum_av + a_centre * a_centre * v_p
                 if write_packed != 0:
                     store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
