@@ -845,21 +845,26 @@ def test_svgf_levels_match_naive_twin(device, feedback, levels):
     """SVGF's chained levels (packed by reproject and filter_moments, ping-ponged packed, the last one unpacked, the
     feedback level writing the colour history; steps 8 and up read in sub-lattice-major order, the guide of steps 8
     and 16 written so by reproject, of step 32 copied by its guide pass) equal the float64 twin's levels applied to
-    the same temporal result."""
+    the same temporal result. Without feedback (the temporal result is the same then), over two frames: the second
+    reads the other row of the history (its guide among them)."""
     rng = np.random.default_rng(31)
     w, h = 37, 29
-    g = plane(w, h)
-    g["depth"][8:20, 9:25] = 1.4
-    e = photon_map(rng, h, w, 0.3, [5.0, 3.0, 1.0])
+    gs = [plane(w, h), plane(w, h)]
+    gs[0]["depth"][8:20, 9:25] = 1.4
+    gs[1]["depth"][10:24, 4:20] = 1.2  # the second frame's G-buffer differs from the first's (a wrong row shows)
+    frames = [(gs[k], photon_map(rng, h, w, 0.3, [5.0, 3.0, 1.0])) for k in range(2 if feedback == -1 else 1)]
+    g = frames[-1][0]
     base = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0)
     temporal = SVGF(w, h, device, replace(base, atrous_levels=0, feedback_level=-1))
     out = wp.zeros(w * h, dtype=wp.vec3, device=device)
-    color = run_frame(temporal, g, e, out).astype(np.float64)
+    for gk, e in frames:
+        color = run_frame(temporal, gk, e, out).astype(np.float64)
     variance = temporal.variance.numpy().reshape(h, w).astype(np.float64)
     s = replace(base, atrous_levels=levels, feedback_level=feedback)
     svgf = SVGF(w, h, device, s)
-    res = run_frame(svgf, g, e, out)
-    hist = svgf.hist_color.numpy()[1].reshape(h, w, 3)  # the row the first frame writes
+    for gk, e in frames:
+        res = run_frame(svgf, gk, e, out)
+    hist = svgf.hist_color.numpy()[len(frames) % 2].reshape(h, w, 3)  # the row the last frame writes
     c_ref, v_ref = color, variance
     assert (svgf.lattice is not None) == (levels > 3)
     for level in range(levels):

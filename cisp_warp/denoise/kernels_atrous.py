@@ -541,6 +541,8 @@ def atrous_guide(
     color_variance_lattice: wp.array(dtype=wp.vec4),
     guide_lattice: wp.array(dtype=wp.vec4),
     copy_guide: int,
+    guide_parity: wp.array(dtype=wp.int32),
+    guide_row: int,
 ):
     """The per-pixel guides of a level that its input's 3x3 neighbourhood gives, dense over
     ``dim=height * width``, so that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered
@@ -559,7 +561,8 @@ def atrous_guide(
     (:func:`lattice_index`, :func:`lattice_size` entries) and so are copies of the packed input,
     ``color_variance_lattice``, and of the packed guide ``guide_in`` (n, z), ``guide_lattice``, which the level
     then reads instead (packed input only); the guide only with ``copy_guide`` (else ``guide_lattice`` holds it in
-    that order already: SVGF's :func:`.kernels_svgf.reproject` writes it so).
+    that order already: SVGF's :func:`.kernels_svgf.reproject` writes it so), from ``guide_in``'s row
+    ``1 - guide_parity[0]`` of ``guide_row`` entries (0: one row).
     """
     p = wp.tid()
     y = p // width
@@ -577,7 +580,7 @@ def atrous_guide(
         o = lattice_index(y, x, width, height, lattice)
         store_vec4(color_variance_lattice, o, cv)
         if copy_guide != 0:
-            store_vec4(guide_lattice, o, load_vec4(guide_in, p))
+            store_vec4(guide_lattice, o, load_vec4(guide_in, (1 - guide_parity[0]) * guide_row + p))
     if cv[3] < 0.0:
         if gated != 0:
             store_vec4(aux, o, wp.vec4(0.0))
@@ -645,6 +648,8 @@ def make_atrous_level(gated: int):
         parity: wp.array(dtype=wp.int32),
         hist_color: wp.array2d(dtype=wp.vec3),
         lattice: int,
+        guide_parity: wp.array(dtype=wp.int32),
+        guide_row: int,
     ):
         """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
         ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -660,6 +665,8 @@ def make_atrous_level(gated: int):
         ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
         (2 x H*W vec3, the colour history). The outputs must not alias the inputs. ``lattice`` != 0: the three
         inputs are in the step's sub-lattice-major order (:func:`atrous_guide`'s ``lattice``), the outputs not.
+        ``guide_row`` != 0: ``guide`` holds rows of that many entries and the level reads row ``1 -
+        guide_parity[0]`` (SVGF's guide history, whose row this frame's :func:`.kernels_svgf.reproject` wrote).
         """
         block, lane = wp.tid()
         threads = wp.block_dim()
@@ -673,6 +680,7 @@ def make_atrous_level(gated: int):
         s = float(step)
         sub_w = (width + step - 1) // step
         lattice_row = sub * ((height + step - 1) // step)  # sub-lattice-major: point (sy, sx) at (lattice_row + sy) sub_w + sx
+        guide_offset = (1 - guide_parity[0]) * guide_row  # the guide's row (SVGF: its history's, this frame's)
 
         # 1. guides of the tile and an apron of 4, read once
         guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
@@ -697,8 +705,8 @@ def make_atrous_level(gated: int):
             p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
             cv0 = load_vec4(color_variance, p0)
             cv1 = load_vec4(color_variance, p1)
-            gs0 = load_vec4(guide, p0)
-            gs1 = load_vec4(guide, p1)
+            gs0 = load_vec4(guide, guide_offset + p0)
+            gs1 = load_vec4(guide, guide_offset + p1)
             ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
             ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
             filtered += store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
@@ -822,7 +830,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
                   lattice: tuple | None = None, unpack_from: wp.array | None = None,
-                  lattice_guide_ready: bool = False, flip: wp.array | None = None) -> bool:
+                  lattice_guide_ready: bool = False, flip: wp.array | None = None,
+                  guide_parity: wp.array | None = None) -> bool:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -843,6 +852,9 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     ``unpack_from`` (H*W vec4 scratch, aliasing no input; only with ``color_out`` and no ``color_variance_out``): at
     a step of ``UNPACK_STEP`` or more the level writes its output packed there and :func:`unpack_level` writes
     ``color_out`` and ``variance_out`` densely (the same values).
+
+    ``guide_parity`` (1 int32; packed input only): ``guide`` holds two rows of H*W (row r at r*H*W, SVGF's guide
+    history) and the level reads row ``1 - guide_parity[0]``.
 
     ``flip``: the frame's parity (1 int32) to flip at the end, where :func:`unpack_level` runs (it flips it then,
     one launch fewer than :func:`.kernels_svgf.flip_parity`). Returns whether it was flipped (else the caller
@@ -868,6 +880,10 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         color_variance = cv_out = pack_into[0]
         guide = guide_out = pack_into[1]
     use_lattice = lattice is not None and unpacked is None and step >= LATTICE_STEP
+    if guide_parity is not None and unpacked is not None:
+        raise ValueError("guide_parity names a row of a packed guide; an unpacked input has none")
+    guide_row = width * height if guide_parity is not None else 0
+    guide_parity = guide_parity if guide_parity is not None else spare["parity"]
     if lattice_guide_ready and not use_lattice:
         raise ValueError("lattice_guide_ready needs a packed input, the lattice buffers and a step >= LATTICE_STEP")
     if use_lattice:
@@ -881,11 +897,11 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         cv_lattice = guide_lattice = spare["vec4"]
     wp.launch(atrous_guide, dim=height * width, device=d,
               inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
-                      height, int(gated), float(noise_target) if gated else 0.0, depth_scale, luminance_scale, aux, int(unpacked is not None),
-                      cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice,
-                      int(not lattice_guide_ready)])
+                      height, int(gated), float(noise_target) if gated else 0.0, depth_scale, luminance_scale, aux,
+                      int(unpacked is not None), cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice,
+                      guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row])
     if use_lattice:
-        color_variance, guide = cv_lattice, guide_lattice
+        color_variance, guide, guide_row = cv_lattice, guide_lattice, 0
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
@@ -897,7 +913,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             int(write_public), color_out if write_public else spare["vec3"],
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
-                            hist_color if write_history else spare["hist"], int(use_lattice)])
+                            hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
+                            guide_row])
     if unpack:
         wp.launch(unpack_level, dim=height * width, device=d,
                   inputs=[color_variance_out, *unpack_out, int(flip is not None),

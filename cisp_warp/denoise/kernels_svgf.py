@@ -214,7 +214,6 @@ def reproject(
     write_variance: int,
     lattice_a: int,
     lattice_b: int,
-    guide_out: wp.array(dtype=wp.vec4),
     color_variance_out: wp.array(dtype=wp.vec4),
     slope_out: wp.array(dtype=wp.float32),
     integrated: wp.array(dtype=wp.vec3),
@@ -231,17 +230,17 @@ def reproject(
     [W/m²], colour history), ``hist_moments`` (vec2: luminance mean and mean square), ``hist_length`` (int32
     [frames]).
 
-    Writes (H*W each): ``guide_out`` (vec4 (n, z) [m], 0 without a surface: the G-buffer copy the later stages
-    filter with; no surface where depth <= 0 or ``tri_id`` < 0), ``color_variance_out`` (vec4: the accumulated
+    Writes (H*W each): into row ``1 - parity[0]`` of the history, which this frame's later stages and the next
+    frame read, the guide (vec4 (n, z) [m], 0 without a surface: the G-buffer copy the filters use; no surface
+    where depth <= 0 or ``tri_id`` < 0; one copy, not a per-frame one besides), the moments (vec2) and the history
+    length (int32 [frames], 1 on disocclusion, 0 without a surface); ``color_variance_out`` (vec4: the accumulated
     colour [W/m²] and, with a history of at least ``SPATIAL_VARIANCE_HISTORY`` frames, the temporal luminance
     variance E[l²] − E[l]², the first à-trous level's packed input; (0, 0, 0, −1) without a surface; below that
     history :func:`filter_moments` writes the variance), ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous
     levels); with ``write_integrated`` the colour alone, ``integrated`` (vec3 [W/m²]); with ``write_variance`` the
     temporal variance, ``variance_out`` (float32; 0 without a surface); the guide again in the sub-lattice-major
     order of step ``lattice_a`` into ``guide_lattice_a`` and of ``lattice_b`` into ``guide_lattice_b`` (each where
-    != 0; :func:`lattice_index`), which those à-trous levels read; and the same guide, the moments (vec2) and the
-    history length (int32 [frames], 1 on disocclusion, 0 without a surface) into row ``1 - parity[0]`` of the
-    history, which :func:`filter_moments` and the next frame read.
+    != 0; :func:`lattice_index`), which those à-trous levels read.
 
     A previous-frame tap is consistent when it lies on screen, has a surface, its depth is within
     ``depth_tolerance`` (relative) of this pixel's and its normal's cosine to this one's is at least
@@ -260,7 +259,6 @@ def reproject(
     t_id = tri_id[p]
     surface = z > 0.0 and t_id >= 0
     if warp_any(surface) == 0:  # a warp without a surface (uniform: the loads below are not issued for it)
-        store_vec4(guide_out, p, wp.vec4(0.0))
         if lattice_a != 0:
             store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), wp.vec4(0.0))
         if lattice_b != 0:
@@ -282,7 +280,6 @@ def reproject(
     c = load_vec3_now(irradiance, p)
     slope = wp.where(surface, depth_gradient_length(depth, tri_id, z, x, y, width, height), 0.0)
     g = wp.where(surface, wp.vec4(n[0], n[1], n[2], z), wp.vec4(0.0))
-    store_vec4(guide_out, p, g)
     if lattice_a != 0:
         store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), g)
     if lattice_b != 0:
@@ -361,13 +358,14 @@ MOMENTS_RUN = wp.constant(4)
 
 
 @wp.func
-def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4),
+def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4), guide_row: int,
                      slope: wp.array(dtype=wp.float32), x: int, y: int, width: int, height: int, sigma_depth: float,
                      sigma_normal: float, h: int) -> float:
     """The spatial luminance variance of pixel (x, y) (with a surface, history ``h`` frames): its moments averaged
-    over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section 4.2), boosted by 4/h."""
+    over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section 4.2), boosted by 4/h; the guide
+    (n, z) of pixel q at ``guide[guide_row + q]``."""
     p = y * width + x
-    g = load_vec4(guide, p)
+    g = load_vec4(guide, guide_row + p)
     z = g[3]
     n = wp.vec3(g[0], g[1], g[2])
     slope_p = slope[p]
@@ -379,7 +377,7 @@ def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.
             qy = y + dy
             if qx >= 0 and qx < width and qy >= 0 and qy < height:
                 q = qy * width + qx
-                g_q = load_vec4(guide, q)
+                g_q = load_vec4(guide, guide_row + q)
                 z_q = g_q[3]
                 if z_q > 0.0:
                     dist = wp.sqrt(float(dx * dx + dy * dy))
@@ -396,7 +394,7 @@ def filter_moments(
     hist_moments: wp.array2d(dtype=wp.vec2),
     hist_length: wp.array2d(dtype=wp.int32),
     parity: wp.array(dtype=wp.int32),
-    guide: wp.array(dtype=wp.vec4),
+    hist_guide: wp.array(dtype=wp.vec4),
     slope: wp.array(dtype=wp.float32),
     width: int,
     height: int,
@@ -409,8 +407,9 @@ def filter_moments(
     ``dim=(height, ceil(width / MOMENTS_RUN))``, a thread the ``MOMENTS_RUN`` pixels of a row from x = tid *
     ``MOMENTS_RUN``.
 
-    Reads the outputs of :func:`reproject` (row ``1 - parity[0]`` of ``hist_moments`` vec2 and ``hist_length``
-    int32 [frames], 2 x H*W each; ``guide`` vec4 (n, z [m]), z = 0 = no surface, ``slope`` float32 [m/pixel]). For a pixel with a surface and a history below
+    Reads the outputs of :func:`reproject` (row ``1 - parity[0]`` of ``hist_moments`` vec2, ``hist_length``
+    int32 [frames], 2 x H*W each, and ``hist_guide`` vec4 (n, z [m]), 2*H*W, row r at r*H*W, z = 0 = no surface;
+    ``slope`` float32 [m/pixel]). For a pixel with a surface and a history below
     ``SPATIAL_VARIANCE_HISTORY`` frames it writes the variance (:func:`spatial_variance`) into ``variance_out``
     (float32) and the Var of its packed ``color_variance`` (vec4: colour, Var); every other pixel keeps what
     :func:`reproject` wrote there (the temporal variance E[l²] − E[l]²).
@@ -439,7 +438,8 @@ def filter_moments(
         if ((need >> k) & 1) != 0:
             p = p0 + k
             h = history[p]
-            var = spatial_variance(moments, guide, slope, x0 + k, y, width, height, sigma_depth, sigma_normal, h)
+            var = spatial_variance(moments, hist_guide, cur * width * height, slope, x0 + k, y, width, height,
+                                   sigma_depth, sigma_normal, h)
             variance_out[p] = var
             cv = color_variance[p]
             color_variance[p] = wp.vec4(cv[0], cv[1], cv[2], var)
