@@ -49,14 +49,14 @@ denoiser's first :func:`atrous_guide` does): ``color_variance`` = (colour, Var),
 surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
 
-Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11, 26 and 38): SVGF's 5 levels (``atrous_level`` +
-``unpack_level``) 0.73 ms on the Cornell box, 1.15 ms on the pool, plus 0.18 / 0.22 ms of guide passes. Of the
-pool's 1.16: 0.43 the blocks' guide loads, barriers and the filter phase's reads, whether or not they filter (a
-dense kernel that reads three vec4 a pixel and writes one runs 0.050 ms a level), 0.05 their stores, ~0.50 the pair weights and
-weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two, which is why the pool (96%
-of its blocks) costs more than the Cornell box (41%). Per pixel a level evaluates 20.6 pair weights (~45
-instructions each on the common path), 24 filter taps (~13) and reads 1.9 guides; two blocks an SM (the shared
-tables, 101 KB, and 64 registers a thread allow no more).
+Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11, 26, 38 and 46): SVGF's 5 levels (``atrous_level`` +
+``unpack_level``) 0.69 ms on the Cornell box, 1.09 ms on the pool, plus 0.17 / 0.21 ms of guide passes. Of the
+pool's 1.16 before section 46: 0.43 the blocks' guide loads, barriers and the filter phase's reads, whether or not
+they filter (a dense kernel that reads three vec4 a pixel and writes one runs 0.050 ms a level), 0.05 their stores,
+~0.50 the pair weights and weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two,
+which is why the pool (96% of its blocks) costs more than the Cornell box (41%). Per pixel a level evaluates 20.6
+pair weights (~37 instructions each on the common path, ~43 before section 46), 24 filter taps (~10) and reads 1.9
+guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
 """
 
 from __future__ import annotations
