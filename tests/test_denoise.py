@@ -845,21 +845,26 @@ def test_svgf_levels_match_naive_twin(device, feedback, levels):
     """SVGF's chained levels (packed by reproject and filter_moments, ping-ponged packed, the last one unpacked, the
     feedback level writing the colour history; steps 8 and up read in sub-lattice-major order, the guide of steps 8
     and 16 written so by reproject, of step 32 copied by its guide pass) equal the float64 twin's levels applied to
-    the same temporal result."""
+    the same temporal result. Without feedback (the temporal result is the same then), over two frames: the second
+    reads the other row of the history (its guide among them)."""
     rng = np.random.default_rng(31)
     w, h = 37, 29
-    g = plane(w, h)
-    g["depth"][8:20, 9:25] = 1.4
-    e = photon_map(rng, h, w, 0.3, [5.0, 3.0, 1.0])
+    gs = [plane(w, h), plane(w, h)]
+    gs[0]["depth"][8:20, 9:25] = 1.4
+    gs[1]["depth"][10:24, 4:20] = 1.2  # the second frame's G-buffer differs from the first's (a wrong row shows)
+    frames = [(gs[k], photon_map(rng, h, w, 0.3, [5.0, 3.0, 1.0])) for k in range(2 if feedback == -1 else 1)]
+    g = frames[-1][0]
     base = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0)
     temporal = SVGF(w, h, device, replace(base, atrous_levels=0, feedback_level=-1))
     out = wp.zeros(w * h, dtype=wp.vec3, device=device)
-    color = run_frame(temporal, g, e, out).astype(np.float64)
+    for gk, e in frames:
+        color = run_frame(temporal, gk, e, out).astype(np.float64)
     variance = temporal.variance.numpy().reshape(h, w).astype(np.float64)
     s = replace(base, atrous_levels=levels, feedback_level=feedback)
     svgf = SVGF(w, h, device, s)
-    res = run_frame(svgf, g, e, out)
-    hist = svgf.hist_color.numpy()[1].reshape(h, w, 3)  # the row the first frame writes
+    for gk, e in frames:
+        res = run_frame(svgf, gk, e, out)
+    hist = svgf.hist_color.numpy()[len(frames) % 2].reshape(h, w, 3)  # the row the last frame writes
     c_ref, v_ref = color, variance
     assert (svgf.lattice is not None) == (levels > 3)
     for level in range(levels):
@@ -874,8 +879,9 @@ def test_svgf_levels_match_naive_twin(device, feedback, levels):
 
 
 def test_atrous_fast_math_helpers(device):
-    """The pair weight's ln cos (series above 0.5) and its CUDA intrinsics against numpy in float64."""
-    from cisp_warp.denoise.kernels_atrous import fast_div, fast_exp, fast_rcp, fast_rsqrt, log_cosine
+    """The pair weight's ln cos (series above 0.5), atanh series and its CUDA intrinsics against numpy in float64."""
+    from cisp_warp.denoise.kernels_atrous import (atanh_series, fast_div, fast_exp, fast_exp2, fast_rcp, fast_rsqrt,
+                                                  log_cosine)
 
     @wp.kernel
     def helpers(c: wp.array(dtype=float), out: wp.array2d(dtype=float)):
@@ -885,9 +891,11 @@ def test_atrous_fast_math_helpers(device):
         out[i, 2] = fast_div(c[i], 3.0)
         out[i, 3] = fast_rsqrt(c[i])
         out[i, 4] = fast_rcp(c[i])
+        out[i, 5] = fast_exp2(-30.0 * c[i])
+        out[i, 6] = atanh_series(-c[i] / 3.0)
 
     c = np.concatenate([np.linspace(1e-3, 1.0, 997), 1.0 - np.logspace(-7, -1, 50)]).astype(np.float32)
-    out = wp.zeros((c.size, 5), dtype=float, device=device)
+    out = wp.zeros((c.size, 7), dtype=float, device=device)
     wp.launch(helpers, dim=c.size, inputs=[wp.array(c, dtype=float, device=device)], outputs=[out], device=device)
     r = out.numpy().astype(np.float64)
     c64 = c.astype(np.float64)
@@ -896,6 +904,9 @@ def test_atrous_fast_math_helpers(device):
     np.testing.assert_allclose(r[:, 2], c64 / 3.0, rtol=1e-6)
     np.testing.assert_allclose(r[:, 3], 1.0 / np.sqrt(c64), rtol=1e-6)
     np.testing.assert_allclose(r[:, 4], 1.0 / c64, rtol=1e-6)
+    np.testing.assert_allclose(r[:, 5], np.exp2(-30.0 * c64), rtol=3e-6)
+    t = -c.astype(np.float32) / np.float32(3.0)  # t in [-1/3, 0), as the pair weight takes it
+    np.testing.assert_allclose(r[:, 6], np.arctanh(t.astype(np.float64)), rtol=3e-7)  # float32 rounding
 
 
 @pytest.mark.parametrize("radius", [1, 3])

@@ -20,8 +20,9 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
 sub-lattice, in shared memory (Warp shared tiles):
 
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
-   ``(n, z)``, the guide pass's terms and the input (colour, Var), three 16-byte loads a point, two points a
-   thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
+   ``(n, z)``, the guide pass's terms and the input (colour, Var), three loads a point (16, 16 and, ungated
+   (SVGF), 8 bytes: the guide pass writes only σ_z ‖∇z‖ and g3x3(Var) there, the luminance comes from the colour;
+   gated, 16), two points a thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
    tile has any pixel to filter;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
@@ -29,7 +30,7 @@ sub-lattice, in shared memory (Warp shared tiles):
    memory;
 3. 1 / W_q, W_q = Σ_r w_qr, for the tile plus its apron of 2 (sums of the shared pair weights);
 4. the filter of the tile's pixels from the same pair weights, branch-free over the 24 taps:
-   c'_p = c_p + Σ_{q≠p} A_pq (c_q − c_p), Var'_p = Σ_q A_pq² Var_q, with
+   c'_p = A_pp c_p + Σ_{q≠p} A_pq c_q, A_pp = 1 − Σ_{q≠p} A_pq, Var'_p = Σ_q A_pq² Var_q, with
    A_pq = w_pq min(1/W_p, 1/W_q) = w_pq / max(W_p, W_q) (energy-conserving) or w_pq / W_p (the paper's gather).
 
 w_pq (Schied et al. 2017, eqs. 3-5, made symmetric in p and q) is evaluated as one exponential:
@@ -48,14 +49,14 @@ denoiser's first :func:`atrous_guide` does): ``color_variance`` = (colour, Var),
 surface, and the static guide ``guide`` = (n, z). The naive twin is
 :func:`cisp_warp.denoise.naive.atrous_level_naive`.
 
-Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11, 26 and 38): SVGF's 5 levels (``atrous_level`` +
-``unpack_level``) 0.73 ms on the Cornell box, 1.15 ms on the pool, plus 0.18 / 0.22 ms of guide passes. Of the
-pool's 1.16: 0.43 the blocks' guide loads, barriers and the filter phase's reads, whether or not they filter (a
-dense kernel that reads three vec4 a pixel and writes one runs 0.050 ms a level), 0.05 their stores, ~0.50 the pair weights and
-weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two, which is why the pool (96%
-of its blocks) costs more than the Cornell box (41%). Per pixel a level evaluates 20.6 pair weights (~45
-instructions each on the common path), 24 filter taps (~13) and reads 1.9 guides; two blocks an SM (the shared
-tables, 101 KB, and 64 registers a thread allow no more).
+Costs (H100, 1920x1080, docs/perf_notes.md sections 9, 11, 26, 38 and 46): SVGF's 5 levels (``atrous_level`` +
+``unpack_level``) 0.69 ms on the Cornell box, 1.09 ms on the pool, plus 0.17 / 0.21 ms of guide passes. Of the
+pool's 1.16 before section 46: 0.43 the blocks' guide loads, barriers and the filter phase's reads, whether or not
+they filter (a dense kernel that reads three vec4 a pixel and writes one runs 0.050 ms a level), 0.05 their stores,
+~0.50 the pair weights and weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two,
+which is why the pool (96% of its blocks) costs more than the Cornell box (41%). Per pixel a level evaluates 20.6
+pair weights (~37 instructions each on the common path, ~43 before section 46), 24 filter taps (~10) and reads 1.9
+guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
 """
 
 from __future__ import annotations
@@ -126,6 +127,9 @@ _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: W_p's own term h(0)² = (3/8)²
 CENTRE_WEIGHT = wp.constant(0.140625)
+#: ln 2 and log2(e), the scales of :func:`pair_scales`
+LN2 = 0.6931471805599453
+LOG2E = 1.4426950408889634
 
 
 # Single-instruction intrinsics on CUDA (the approximate exp2, reciprocal and reciprocal square root, 2 ulp, with
@@ -141,6 +145,20 @@ return expf(x);
 #endif
 """)
 def fast_exp(x: float) -> float: ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+float y;
+asm("ex2.approx.ftz.f32 %0, %1;" : "=f"(y) : "f"(x));
+return y;
+#else
+return exp2f(x);
+#endif
+""")
+def fast_exp2(x: float) -> float:
+    """2^x (the exponential instruction alone on CUDA, 2 ulp, subnormals flushed to 0)."""
+    ...
 
 
 @wp.func_native("""
@@ -235,10 +253,16 @@ def block_sync_or(t: wp.tile[wp.int32, 1], x: int) -> int:
 
 
 @wp.func
+def atanh_series(t: float) -> float:
+    """atanh(t) = ln((1 + t)/(1 − t)) / 2 for t in [−1/3, 0] by its series to t¹¹ (truncation error below 1.5e-8 |t|)."""
+    t2 = t * t
+    return t + t * (t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0 + t2 * (1.0 / 11.0))))))
+
+
+@wp.func
 def log_series(t: float) -> float:
     """2 atanh(t) = ln((1 + t)/(1 − t)) for t in [−1/3, 0] by its series to t¹¹ (error below 3e-8 |t|)."""
-    t2 = t * t
-    return 2.0 * t * (1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0 + t2 * (1.0 / 11.0))))))
+    return 2.0 * atanh_series(t)
 
 
 @wp.func
@@ -275,6 +299,20 @@ def forward_kernel(f: int) -> float:
 
 
 @wp.func
+def log2_b3(i: int) -> float:
+    """log2 of the B3-spline tap weight at offset ``i`` in [-2, 2] (:func:`b3_spline`), as a literal."""
+    a = wp.abs(i)
+    return wp.where(a == 0, -1.415037499278844, wp.where(a == 1, -2.0, -4.0))
+
+
+@wp.func
+def forward_log2_kernel(f: int) -> float:
+    """log2(h(dy) h(dx)) of forward tap ``f``."""
+    tap = forward_tap(f)
+    return log2_b3(tap[0]) + log2_b3(tap[1])
+
+
+@wp.func
 def forward_distance(f: int) -> float:
     """‖(dy, dx)‖ of forward tap ``f`` [taps], as a literal so that a constant ``f`` folds it."""
     tap = forward_tap(f)
@@ -284,28 +322,38 @@ def forward_distance(f: int) -> float:
 
 
 @wp.func
-def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, kernel_weight: float, dist: float,
+def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, log2_kernel_weight: float, dist: float,
                 two_over_step: float, depth_eps: float, sigma_normal: float, gated: int) -> float:
     """w_pq of the module docstring, symmetric in p and q, from the guides ``gs`` = (n, z) and ``gd`` =
-    (σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R); ``dist`` = ‖p − q‖ [pixels], ``depth_eps`` = σ_z ε_z.
-    p must have a surface; 0 unless q has one too (a pixel without one has the guide 0, so n_p·n_q = 0).
+    (σ_z ‖∇z‖ ln 2, g3x3(Var) / 2, luminance log2(e) / σ_l, R); ``dist`` = ‖p − q‖ [pixels], ``depth_eps`` = σ_z ε_z
+    ln 2, ``sigma_normal`` = 2 σ_n log2(e), ``log2_kernel_weight`` = log2(h(dx) h(dy)). p must have a surface; 0
+    unless q has one too (a pixel without one has the guide 0, so n_p·n_q = 0).
 
-    φ_z enters twice, in 1/φ_z and, for c = n_p·n_q ≥ 0.5, in ln c = 2 atanh((c − 1)/(c + 1)): both divisions
-    come from one reciprocal, r = 1 / ((c + 1) φ_z). Below c = 0.5 (a normal edge, or q without a surface) the
-    rare branch takes ``wp.log``. (Every branch returns: a value assigned in two branches of a loop's body stays
-    live across iterations in Warp's generated code and spills.)"""
+    The exponent is kept in base 2 (:func:`pair_scales`: the factors log2(e), the 2 of 2 atanh and the kernel weight's
+    log2 are folded into the guide pass's terms and the level's constants), so that w_pq = 2^X is the exponential
+    instruction alone with no multiplication before or after it. φ_z (scaled by ln 2) enters twice, in 1/φ_z and, for
+    c = n_p·n_q ≥ 0.5, in ln c = 2 atanh((c − 1)/(c + 1)): both divisions come from one reciprocal, r = 1 / ((c + 1)
+    φ_z). Below c = 0.5 (a normal edge, or q without a surface) the rare branch takes ``wp.log``. g3x3(Var) >= 0,
+    so the sum under the square root needs no clamp. (Every branch returns: a value assigned in two branches of a
+    loop's body stays live across iterations in Warp's generated code and spills.)"""
     c = gs_p[0] * gs_q[0] + gs_p[1] * gs_q[1] + gs_p[2] * gs_q[2]
     gate = wp.where(gated != 0, wp.clamp(wp.min(gd_p[3], gd_q[3]) * two_over_step - 1.0, 0.0, 1.0), 1.0)
     phi_z = wp.max(gd_p[0], gd_q[0]) * dist + depth_eps * wp.max(gs_p[3], gs_q[3])
     dz = wp.abs(gs_p[3] - gs_q[3])
-    e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(wp.max(gd_p[1] + gd_q[1], 0.0) + VARIANCE_EPS)
+    e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(gd_p[1] + gd_q[1] + VARIANCE_EPS) - log2_kernel_weight
     if c < 0.5:
         if gs_q[3] <= 0.0 or c <= 0.0 or gate <= 0.0:
             return 0.0
-        return kernel_weight * fast_exp(sigma_normal * wp.log(c) - fast_div(dz, phi_z) - e_l) * gate
+        return fast_exp2(0.5 * sigma_normal * wp.log(c) - fast_div(dz, phi_z) - e_l) * gate
     den = c + 1.0
     r = fast_rcp(den * phi_z)
-    return kernel_weight * fast_exp(sigma_normal * log_series((c - 1.0) * phi_z * r) - dz * den * r - e_l) * gate
+    return fast_exp2(sigma_normal * atanh_series((c - 1.0) * phi_z * r) - dz * den * r - e_l) * gate
+
+
+def pair_scales(sigma_depth: float, sigma_normal: float, sigma_luminance: float) -> tuple[float, float, float]:
+    """(σ_z ln 2, 2 σ_n log2(e), log2(e) / σ_l): the scales :func:`atrous_guide` and :func:`atrous_level` take, which
+    put :func:`pair_weight`'s exponent in base 2."""
+    return (float(sigma_depth) * LN2, 2.0 * LOG2E * float(sigma_normal), LOG2E / float(sigma_luminance))
 
 
 @wp.func
@@ -315,7 +363,7 @@ def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: in
     a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold."""
     if not active:
         return 0.0
-    return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_kernel(f), s * forward_distance(f), two_over_step, depth_eps,
+    return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f), two_over_step, depth_eps,
                        sigma_normal, gated)
 
 
@@ -373,6 +421,44 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
         write_guide_scalar(inv_weight_sum, u, fast_rcp(sum_w))
         k += threads
     block_sync()
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float2 v = __ldg(reinterpret_cast<const float2*>(a.data) + p);
+return wp::vec2(v.x, v.y);
+#else
+return reinterpret_cast<const wp::vec2*>(a.data)[p];
+#endif
+""")
+def load_half(a: wp.array(dtype=wp.vec4), p: int) -> wp.vec2:
+    """Entry ``p`` of a vec4 buffer read as a vec2 array (its first half holds 2 x its length of them): one 8-byte
+    load on CUDA."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+reinterpret_cast<float2*>(a.data)[p] = make_float2(v[0], v[1]);
+#else
+reinterpret_cast<wp::vec2*>(a.data)[p] = v;
+#endif
+""")
+def store_half(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec2):
+    """Entry ``p`` of a vec4 buffer written as a vec2 array (:func:`load_half`): one 8-byte store on CUDA."""
+    ...
+
+
+@wp.func
+def load_aux(aux: wp.array(dtype=wp.vec4), p: int, cv: wp.vec4, luminance_scale: float, gated: int) -> wp.vec4:
+    """The guide-pass terms of point ``p`` as :func:`pair_weight` takes them (σ_z ‖∇z‖ ln 2, g3x3(Var) / 2,
+    luminance log2(e) / σ_l, R) from ``aux`` as :func:`atrous_guide` wrote it: gated, the vec4; ungated, the vec2 of
+    the first two (8 bytes a point), the luminance from the point's colour ``cv`` (the guide pass's expression, the
+    same value) and R = 0 (never read)."""
+    if gated != 0:
+        return load_vec4(aux, p)
+    a = load_half(aux, p)
+    return wp.vec4(a[0], a[1], luminance(wp.vec3(cv[0], cv[1], cv[2])) * luminance_scale, 0.0)
 
 
 @wp.func
@@ -444,8 +530,8 @@ def atrous_guide(
     height: int,
     gated: int,
     noise_target: float,
-    sigma_depth: float,
-    inv_sigma_luminance: float,
+    depth_scale: float,
+    luminance_scale: float,
     aux: wp.array(dtype=wp.vec4),
     write_packed: int,
     color_variance_out: wp.array(dtype=wp.vec4),
@@ -455,6 +541,8 @@ def atrous_guide(
     color_variance_lattice: wp.array(dtype=wp.vec4),
     guide_lattice: wp.array(dtype=wp.vec4),
     copy_guide: int,
+    guide_parity: wp.array(dtype=wp.int32),
+    guide_row: int,
 ):
     """The per-pixel guides of a level that its input's 3x3 neighbourhood gives, dense over
     ``dim=height * width``, so that :func:`atrous_level` reads three aligned vec4 a guide instead of nine scattered
@@ -462,18 +550,19 @@ def atrous_guide(
 
     Reads the level's input as :func:`atrous_level` does (``packed`` != 0: ``color_variance``; else
     ``color_in``, ``variance_in``, ``depth``, ``normal``) and ``slope`` (H*W float32 [m/pixel]). Writes ``aux``
-    (H*W vec4: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R, the scaled terms :func:`pair_weight` takes, with
-    ``sigma_depth`` = σ_z and ``inv_sigma_luminance`` = 1/σ_l; 0 without a surface) and, with ``write_packed``
-    (unpacked input only), the packed input ``color_variance_out`` (colour, Var; Var = NO_SURFACE without a
-    surface) and ``guide_out`` (n, z) that the level then reads instead. ``gated`` != 0: R from g3x3(Var) and
-    the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``), else
-    ``UNGATED_RADIUS``.
+    (H*W vec4: σ_z ‖∇z‖ ln 2, g3x3(Var) / 2, luminance log2(e) / σ_l, R, the scaled terms :func:`pair_weight`
+    takes, with ``depth_scale`` = σ_z ln 2 and ``luminance_scale`` = log2(e) / σ_l, :func:`pair_scales`; 0 without a
+    surface; ``gated`` == 0: only the first two, as a vec2 array in the buffer's first half, :func:`load_aux`) and,
+    with ``write_packed`` (unpacked input only), the packed input ``color_variance_out`` (colour, Var; Var =
+    NO_SURFACE without a surface) and ``guide_out`` (n, z) that the level then reads instead. ``gated`` != 0: R from
+    g3x3(Var) and the same Gaussian's mean luminance (:func:`footprint_radius`, relative ``noise_target``).
 
     ``lattice`` = the level's step (>= 2; 0: off): ``aux`` is written in that step's sub-lattice-major order
     (:func:`lattice_index`, :func:`lattice_size` entries) and so are copies of the packed input,
     ``color_variance_lattice``, and of the packed guide ``guide_in`` (n, z), ``guide_lattice``, which the level
     then reads instead (packed input only); the guide only with ``copy_guide`` (else ``guide_lattice`` holds it in
-    that order already: SVGF's :func:`.kernels_svgf.reproject` writes it so).
+    that order already: SVGF's :func:`.kernels_svgf.reproject` writes it so), from ``guide_in``'s row
+    ``1 - guide_parity[0]`` of ``guide_row`` entries (0: one row).
     """
     p = wp.tid()
     y = p // width
@@ -491,13 +580,19 @@ def atrous_guide(
         o = lattice_index(y, x, width, height, lattice)
         store_vec4(color_variance_lattice, o, cv)
         if copy_guide != 0:
-            store_vec4(guide_lattice, o, load_vec4(guide_in, p))
+            store_vec4(guide_lattice, o, load_vec4(guide_in, (1 - guide_parity[0]) * guide_row + p))
     if cv[3] < 0.0:
-        store_vec4(aux, o, wp.vec4(0.0))
+        if gated != 0:
+            store_vec4(aux, o, wp.vec4(0.0))
+        else:
+            store_half(aux, o, wp.vec2(0.0))
         return
     b = blur_variance(packed, color_variance, color_in, variance_in, depth, x, y, width, height, gated, noise_target)
-    store_vec4(aux, o, wp.vec4(sigma_depth * slope[p], 0.5 * b[0], luminance(wp.vec3(cv[0], cv[1], cv[2])) * inv_sigma_luminance,
-                               b[1]))
+    if gated != 0:
+        store_vec4(aux, o, wp.vec4(depth_scale * slope[p], 0.5 * b[0],
+                                   luminance(wp.vec3(cv[0], cv[1], cv[2])) * luminance_scale, b[1]))
+    else:  # the level takes the luminance from the colour it reads anyway, and no R
+        store_half(aux, o, wp.vec2(depth_scale * slope[p], 0.5 * b[0]))
 
 
 @wp.func
@@ -540,9 +635,9 @@ def make_atrous_level(gated: int):
         height: int,
         step: int,
         tiles_x: int,
-        sigma_depth: float,
-        sigma_normal: float,
-        inv_sigma_luminance: float,
+        depth_scale: float,
+        normal_scale: float,
+        luminance_scale: float,
         conserve_energy: int,
         write_packed: int,
         color_variance_out: wp.array(dtype=wp.vec4),
@@ -553,6 +648,8 @@ def make_atrous_level(gated: int):
         parity: wp.array(dtype=wp.int32),
         hist_color: wp.array2d(dtype=wp.vec3),
         lattice: int,
+        guide_parity: wp.array(dtype=wp.int32),
+        guide_row: int,
     ):
         """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
         ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -561,12 +658,15 @@ def make_atrous_level(gated: int):
 
         Reads the packed level input ``color_variance`` (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) and
         ``guide`` (H*W vec4: n, z [m]), and ``aux`` (H*W vec4 of :func:`atrous_guide` for this input, with the same
-        ``sigma_depth`` and σ_l: σ_z ‖∇z‖, g3x3(Var) / 2, luminance / σ_l, R). Gated (:func:`make_atrous_level`):
+        scales: σ_z ‖∇z‖ ln 2, g3x3(Var) / 2, luminance log2(e) / σ_l, R; ``depth_scale``, ``normal_scale`` and
+        ``luminance_scale`` from :func:`pair_scales`). Gated (:func:`make_atrous_level`):
         the gates act (R from ``aux``), else every gate is 1 and R is not read. Writes, each when its
         flag is set: ``color_variance_out`` (packed, the next level's input), ``color_out`` (H*W vec3 [W/m²]) and
         ``variance_out`` (H*W float32; both 0 without a surface), and row ``1 - parity[0]`` of ``hist_color``
         (2 x H*W vec3, the colour history). The outputs must not alias the inputs. ``lattice`` != 0: the three
         inputs are in the step's sub-lattice-major order (:func:`atrous_guide`'s ``lattice``), the outputs not.
+        ``guide_row`` != 0: ``guide`` holds rows of that many entries and the level reads row ``1 -
+        guide_parity[0]`` (SVGF's guide history, whose row this frame's :func:`.kernels_svgf.reproject` wrote).
         """
         block, lane = wp.tid()
         threads = wp.block_dim()
@@ -580,6 +680,7 @@ def make_atrous_level(gated: int):
         s = float(step)
         sub_w = (width + step - 1) // step
         lattice_row = sub * ((height + step - 1) // step)  # sub-lattice-major: point (sy, sx) at (lattice_row + sy) sub_w + sx
+        guide_offset = (1 - guide_parity[0]) * guide_row  # the guide's row (SVGF: its history's, this frame's)
 
         # 1. guides of the tile and an apron of 4, read once
         guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
@@ -604,10 +705,10 @@ def make_atrous_level(gated: int):
             p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
             cv0 = load_vec4(color_variance, p0)
             cv1 = load_vec4(color_variance, p1)
-            gs0 = load_vec4(guide, p0)
-            gs1 = load_vec4(guide, p1)
-            ax0 = load_vec4(aux, p0)
-            ax1 = load_vec4(aux, p1)
+            gs0 = load_vec4(guide, guide_offset + p0)
+            gs1 = load_vec4(guide, guide_offset + p1)
+            ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
+            ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
             filtered += store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
             if r1 < _GUIDE_REAL:
                 filtered += store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
@@ -624,8 +725,8 @@ def make_atrous_level(gated: int):
         # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
         # half the step (converged) skips 2 and 3: step 4 reads neither table then
         if block_sync_or(flag, filtered) != 0:
-            fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, sigma_depth * DEPTH_NOISE_REL,
-                         sigma_normal, GATED)
+            fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
+                         normal_scale, GATED)
 
         # 4. the filter of the tile's pixels
         k = lane
@@ -648,7 +749,7 @@ def make_atrous_level(gated: int):
                 if surface and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
                     iw_p = read_guide_scalar(inv_weight_sum, u)
                     sum_a = float(0.0)  # Σ_{q≠p} A_pq
-                    sum_dc = wp.vec3(0.0)  # Σ_{q≠p} A_pq (c_q − c_p)
+                    sum_ac = wp.vec3(0.0)  # Σ_{q≠p} A_pq c_q
                     sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q (w_pq = 0 where q has no surface: no branch)
                     for f in range(FORWARD_TAPS):
                         off = forward_offset(f)
@@ -656,16 +757,16 @@ def make_atrous_level(gated: int):
                         a = read_pair(pair, f * _PAIR_PIXELS + u) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
                         cv_q = read_guide(signal, q)
                         sum_a += a
-                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                        sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
                         sum_av += a * a * cv_q[3]
                         q = u - off
                         a = read_pair(pair, f * _PAIR_PIXELS + q) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
                         cv_q = read_guide(signal, q)
                         sum_a += a
-                        sum_dc += a * (wp.vec3(cv_q[0], cv_q[1], cv_q[2]) - c_p)
+                        sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
                         sum_av += a * a * cv_q[3]
-                    a_centre = 1.0 - sum_a
-                    c_new = c_p + sum_dc
+                    a_centre = 1.0 - sum_a  # A_pp, in (0, 1]: Σ_{q≠p} A_pq <= (W_p − w_pp) / W_p
+                    c_new = a_centre * c_p + sum_ac
                     v_new = sum_av + a_centre * a_centre * v_p
                 if write_packed != 0:
                     store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
@@ -685,14 +786,17 @@ ATROUS_LEVEL = {0: make_atrous_level(0), 1: make_atrous_level(1)}
 
 @wp.kernel
 def unpack_level(color_variance: wp.array(dtype=wp.vec4), color_out: wp.array(dtype=wp.vec3),
-                 variance_out: wp.array(dtype=wp.float32)):
+                 variance_out: wp.array(dtype=wp.float32), flip: int, parity: wp.array(dtype=wp.int32)):
     """A level's packed output (H*W vec4: colour [W/m²], Var; Var < 0 = no surface) as the public colour (H*W
     vec3 [W/m²]) and variance (H*W float32), 0 without a surface, as :func:`atrous_level` writes them itself;
-    dense over ``dim=height * width``."""
+    dense over ``dim=height * width``. ``flip`` != 0: also the end of SVGF's frame, ``parity[0] = 1 - parity[0]``
+    (:func:`.kernels_svgf.flip_parity`, which no launch of the frame reads after this one)."""
     p = wp.tid()
     cv = load_vec4(color_variance, p)
     color_out[p] = wp.vec3(cv[0], cv[1], cv[2])
     variance_out[p] = wp.where(cv[3] < 0.0, 0.0, cv[3])
+    if flip != 0 and p == 0:
+        parity[0] = 1 - parity[0]
 
 
 _SPARE: dict = {}
@@ -726,7 +830,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   hist_color: wp.array | None = None, parity: wp.array | None = None,
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
                   lattice: tuple | None = None, unpack_from: wp.array | None = None,
-                  lattice_guide_ready: bool = False) -> None:
+                  lattice_guide_ready: bool = False, flip: wp.array | None = None,
+                  guide_parity: wp.array | None = None) -> bool:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -746,10 +851,18 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
 
     ``unpack_from`` (H*W vec4 scratch, aliasing no input; only with ``color_out`` and no ``color_variance_out``): at
     a step of ``UNPACK_STEP`` or more the level writes its output packed there and :func:`unpack_level` writes
-    ``color_out`` and ``variance_out`` densely (the same values)."""
+    ``color_out`` and ``variance_out`` densely (the same values).
+
+    ``guide_parity`` (1 int32; packed input only): ``guide`` holds two rows of H*W (row r at r*H*W, SVGF's guide
+    history) and the level reads row ``1 - guide_parity[0]``.
+
+    ``flip``: the frame's parity (1 int32) to flip at the end, where :func:`unpack_level` runs (it flips it then,
+    one launch fewer than :func:`.kernels_svgf.flip_parity`). Returns whether it was flipped (else the caller
+    flips it)."""
     d = slope.device
     spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
+    depth_scale, normal_scale, luminance_scale = pair_scales(sigma_depth, sigma_normal, sigma_luminance)
     gated = noise_target is not None
     write_public = color_out is not None
     if write_public != (variance_out is not None):
@@ -767,9 +880,15 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         color_variance = cv_out = pack_into[0]
         guide = guide_out = pack_into[1]
     use_lattice = lattice is not None and unpacked is None and step >= LATTICE_STEP
+    if guide_parity is not None and unpacked is not None:
+        raise ValueError("guide_parity names a row of a packed guide; an unpacked input has none")
+    guide_row = width * height if guide_parity is not None else 0
+    guide_parity = guide_parity if guide_parity is not None else spare["parity"]
     if lattice_guide_ready and not use_lattice:
         raise ValueError("lattice_guide_ready needs a packed input, the lattice buffers and a step >= LATTICE_STEP")
     if use_lattice:
+        if step & (step - 1):
+            raise ValueError(f"the sub-lattice-major order needs a step that is a power of two, got {step}")
         size = lattice_size(width, height, step)
         if min(lattice[0].shape[0], lattice[1].shape[0], aux.shape[0]) < size:
             raise ValueError(f"the sub-lattice-major buffers and aux need {size} entries at step {step}")
@@ -778,23 +897,26 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         cv_lattice = guide_lattice = spare["vec4"]
     wp.launch(atrous_guide, dim=height * width, device=d,
               inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
-                      height, int(gated), float(noise_target) if gated else 0.0, float(sigma_depth),
-                      1.0 / float(sigma_luminance), aux, int(unpacked is not None),
-                      cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice, guide_lattice,
-                      int(not lattice_guide_ready)])
+                      height, int(gated), float(noise_target) if gated else 0.0, depth_scale, luminance_scale, aux,
+                      int(unpacked is not None), cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice,
+                      guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row])
     if use_lattice:
-        color_variance, guide = cv_lattice, guide_lattice
+        color_variance, guide, guide_row = cv_lattice, guide_lattice, 0
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
     wp.launch_tiled(ATROUS_LEVEL[int(gated)], dim=blocks, block_dim=BLOCK_THREADS, device=d,
-                    inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, float(sigma_depth),
-                            float(sigma_normal), 1.0 / float(sigma_luminance), int(conserve_energy),
+                    inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, depth_scale,
+                            normal_scale, luminance_scale, int(conserve_energy),
                             int(color_variance_out is not None),
                             color_variance_out if color_variance_out is not None else spare["vec4"],
                             int(write_public), color_out if write_public else spare["vec3"],
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
-                            hist_color if write_history else spare["hist"], int(use_lattice)])
+                            hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
+                            guide_row])
     if unpack:
-        wp.launch(unpack_level, dim=height * width, device=d, inputs=[color_variance_out, *unpack_out])
+        wp.launch(unpack_level, dim=height * width, device=d,
+                  inputs=[color_variance_out, *unpack_out, int(flip is not None),
+                          flip if flip is not None else spare["parity"]])
+    return unpack and flip is not None

@@ -76,6 +76,51 @@ def store_vec4(a: wp.array(dtype=wp.vec4), p: int, v: wp.vec4):
     ...
 
 
+# Loads issued where they stand (volatile: the compiler neither drops them nor sinks them into the branch that uses
+# their value, which would put them one memory round trip behind the test before it); plain reads on the CPU.
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float* f = reinterpret_cast<const float*>(a.data) + 3 * p;
+float x, y, z;
+asm volatile("ld.global.nc.f32 %0, [%3];\\n\\tld.global.nc.f32 %1, [%3+4];\\n\\tld.global.nc.f32 %2, [%3+8];"
+             : "=f"(x), "=f"(y), "=f"(z) : "l"(f));
+return wp::vec3(x, y, z);
+#else
+return a.data[p];
+#endif
+""")
+def load_vec3_now(a: wp.array(dtype=wp.vec3), p: int) -> wp.vec3:
+    """``a[p]`` of a contiguous vec3 array, its three 4-byte loads issued here on CUDA (not moved)."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float* f = reinterpret_cast<const float*>(a.data) + 2 * p;
+float x, y;
+asm volatile("ld.global.nc.v2.f32 {%0, %1}, [%2];" : "=f"(x), "=f"(y) : "l"(f));
+return wp::vec2(x, y);
+#else
+return a.data[p];
+#endif
+""")
+def load_vec2_now(a: wp.array(dtype=wp.vec2), p: int) -> wp.vec2:
+    """``a[p]`` of a contiguous vec2 array in one 8-byte load issued here on CUDA (not moved)."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __any_sync(__activemask(), x);
+#else
+return x;
+#endif
+""")
+def warp_any(x: bool) -> int:
+    """1 if ``x`` holds on any active lane of the warp (CUDA), else 0; on the CPU ``x`` itself."""
+    ...
+
+
 @wp.func
 def surface_depth(depth: wp.array(dtype=wp.float32), tri_id: wp.array(dtype=wp.int32), q: int) -> float:
     """Depth [m] of pixel ``q`` as every later stage sees it: the G-buffer's where it has a surface (depth > 0
@@ -85,14 +130,29 @@ def surface_depth(depth: wp.array(dtype=wp.float32), tri_id: wp.array(dtype=wp.i
     return wp.where(z > 0.0 and t >= 0, z, 0.0)
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __ffs(step) - 1;
+#else
+return __builtin_ctz((unsigned)step);
+#endif
+""")
+def step_shift(step: int) -> int:
+    """log2 of a power of two ``step`` > 0 (one instruction pair on CUDA)."""
+    ...
+
+
 @wp.func
 def lattice_index(y: int, x: int, width: int, height: int, step: int) -> int:
-    """Index of pixel (y, x) in the sub-lattice-major order of tap spacing ``step``: sub-lattice
-    (y mod step, x mod step) after sub-lattice, each ceil(height/step) x ceil(width/step) points row-major
-    (points past the image unused; :func:`.kernels_atrous.lattice_size` entries in all)."""
-    sub_h = (height + step - 1) // step
-    sub_w = (width + step - 1) // step
-    return (((y % step) * step + x % step) * sub_h + y // step) * sub_w + x // step
+    """Index of pixel (y, x) (>= 0) in the sub-lattice-major order of tap spacing ``step``, a power of two:
+    sub-lattice (y mod step, x mod step) after sub-lattice, each ceil(height/step) x ceil(width/step) points
+    row-major (points past the image unused; :func:`.kernels_atrous.lattice_size` entries in all). Shifts and masks,
+    not the integer divisions by a runtime ``step`` (~20 instructions each on CUDA, six of them)."""
+    k = step_shift(step)
+    mask = step - 1
+    sub_h = (height + mask) >> k
+    sub_w = (width + mask) >> k
+    return ((((y & mask) << k) + (x & mask)) * sub_h + (y >> k)) * sub_w + (x >> k)
 
 
 
@@ -154,11 +214,8 @@ def reproject(
     write_variance: int,
     lattice_a: int,
     lattice_b: int,
-    guide_out: wp.array(dtype=wp.vec4),
     color_variance_out: wp.array(dtype=wp.vec4),
     slope_out: wp.array(dtype=wp.float32),
-    moments: wp.array(dtype=wp.vec2),
-    history: wp.array(dtype=wp.int32),
     integrated: wp.array(dtype=wp.vec3),
     variance_out: wp.array(dtype=wp.float32),
     guide_lattice_a: wp.array(dtype=wp.vec4),
@@ -173,21 +230,25 @@ def reproject(
     [W/m²], colour history), ``hist_moments`` (vec2: luminance mean and mean square), ``hist_length`` (int32
     [frames]).
 
-    Writes (H*W each): ``guide_out`` (vec4 (n, z) [m], 0 without a surface: the G-buffer copy the later stages
-    filter with; no surface where depth <= 0 or ``tri_id`` < 0), ``color_variance_out`` (vec4: the accumulated
+    Writes (H*W each): into row ``1 - parity[0]`` of the history, which this frame's later stages and the next
+    frame read, the guide (vec4 (n, z) [m], 0 without a surface: the G-buffer copy the filters use; no surface
+    where depth <= 0 or ``tri_id`` < 0; one copy, not a per-frame one besides), the moments (vec2) and the history
+    length (int32 [frames], 1 on disocclusion, 0 without a surface); ``color_variance_out`` (vec4: the accumulated
     colour [W/m²] and, with a history of at least ``SPATIAL_VARIANCE_HISTORY`` frames, the temporal luminance
     variance E[l²] − E[l]², the first à-trous level's packed input; (0, 0, 0, −1) without a surface; below that
     history :func:`filter_moments` writes the variance), ``slope_out`` (float32 [m/pixel], ‖∇z‖ for the à-trous
-    levels), ``moments`` (vec2) and ``history`` (int32 [frames], 1 on disocclusion, 0 without a surface); with
-    ``write_integrated`` the colour alone, ``integrated`` (vec3 [W/m²]); with ``write_variance`` the temporal
-    variance, ``variance_out`` (float32; 0 without a surface); the guide again in the sub-lattice-major order of
-    step ``lattice_a`` into ``guide_lattice_a`` and of ``lattice_b`` into ``guide_lattice_b`` (each where != 0;
-    :func:`lattice_index`), which those à-trous levels read; and the same guide, moments and history into row
-    ``1 - parity[0]`` of the history, which the next frame reads.
+    levels); with ``write_integrated`` the colour alone, ``integrated`` (vec3 [W/m²]); with ``write_variance`` the
+    temporal variance, ``variance_out`` (float32; 0 without a surface); the guide again in the sub-lattice-major
+    order of step ``lattice_a`` into ``guide_lattice_a`` and of ``lattice_b`` into ``guide_lattice_b`` (each where
+    != 0; :func:`lattice_index`), which those à-trous levels read.
 
     A previous-frame tap is consistent when it lies on screen, has a surface, its depth is within
     ``depth_tolerance`` (relative) of this pixel's and its normal's cosine to this one's is at least
     ``normal_tolerance``. The 2x2 bilinear taps that pass are renormalised; none → disoccluded.
+
+    Loads are issued in two rounds, not four: the pixel's own G-buffer, motion and signal and its four neighbours'
+    depths before the surface test, and every history value of a tap (guide, colour, moments, length) together,
+    before the consistency test that decides whether they count (a tap that fails it adds 0).
     """
     y, x = wp.tid()
     p = y * width + x
@@ -195,16 +256,15 @@ def reproject(
     prev = parity[0]
     cur = 1 - prev
     z = depth[p]
-    if z <= 0.0 or tri_id[p] < 0:
-        store_vec4(guide_out, p, wp.vec4(0.0))
+    t_id = tri_id[p]
+    surface = z > 0.0 and t_id >= 0
+    if warp_any(surface) == 0:  # a warp without a surface (uniform: the loads below are not issued for it)
         if lattice_a != 0:
             store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), wp.vec4(0.0))
         if lattice_b != 0:
             store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), wp.vec4(0.0))
         store_vec4(color_variance_out, p, wp.vec4(0.0, 0.0, 0.0, -1.0))
         slope_out[p] = 0.0
-        moments[p] = wp.vec2(0.0)
-        history[p] = 0
         store_vec4(hist_guide, cur * pixels + p, wp.vec4(0.0))
         hist_moments[cur, p] = wp.vec2(0.0)
         hist_length[cur, p] = 0
@@ -213,18 +273,21 @@ def reproject(
         if write_variance != 0:
             variance_out[p] = 0.0
         return
-    n = normal[p]
-    g = wp.vec4(n[0], n[1], n[2], z)
-    store_vec4(guide_out, p, g)
+    # every pixel of a warp with a surface takes the one path below, its values selected by `surface` (no branch
+    # on it), so that the pixel's own loads are all issued before the history's
+    n = load_vec3_now(normal, p)
+    m = load_vec2_now(motion, p)
+    c = load_vec3_now(irradiance, p)
+    slope = wp.where(surface, depth_gradient_length(depth, tri_id, z, x, y, width, height), 0.0)
+    g = wp.where(surface, wp.vec4(n[0], n[1], n[2], z), wp.vec4(0.0))
     if lattice_a != 0:
         store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), g)
     if lattice_b != 0:
         store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), g)
     store_vec4(hist_guide, cur * pixels + p, g)
-    slope_out[p] = depth_gradient_length(depth, tri_id, z, x, y, width, height)
+    slope_out[p] = slope
 
     # previous position in pixel units with pixel centres on integers
-    m = motion[p]
     px = float(x) + m[0]
     py = float(y) + m[1]
     fx0 = wp.floor(px)
@@ -247,20 +310,24 @@ def reproject(
         w = wp.where(dx == 1, fx, 1.0 - fx) * wp.where(dy == 1, fy, 1.0 - fy)
         # a tap of weight 0 (a still pixel's three others) adds nothing, and is never the best tap where the
         # history is kept (some tap of weight > 0 is, or the sum stays under MIN_BILINEAR_WEIGHT): not read
-        if w > 0.0 and tx >= 0 and tx < width and ty >= 0 and ty < height:
+        if surface and w > 0.0 and tx >= 0 and tx < width and ty >= 0 and ty < height:
             q = ty * width + tx
             g_q = load_vec4(hist_guide, prev * pixels + q)
+            c_q = hist_color[prev, q]
+            m_q = hist_moments[prev, q]
+            h_q = hist_length[prev, q]
             z_q = g_q[3]
             n_q = wp.vec3(g_q[0], g_q[1], g_q[2])
-            if z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(n_q, n) >= normal_tolerance:
-                sum_w += w
-                color_prev += w * hist_color[prev, q]
-                moments_prev += w * hist_moments[prev, q]
-                if w > best_w:
-                    best_w = w
-                    history_prev = hist_length[prev, q]
+            # the test selects, it does not branch: the tap's four loads stay in flight together
+            ok = z_q > 0.0 and wp.abs(z_q - z) <= depth_tolerance * z and wp.dot(n_q, n) >= normal_tolerance
+            w_ok = wp.where(ok, w, 0.0)
+            sum_w += w_ok
+            color_prev += w_ok * c_q
+            moments_prev += w_ok * m_q
+            better = ok and w > best_w
+            history_prev = wp.where(better, h_q, history_prev)
+            best_w = wp.where(better, w, best_w)
 
-    c = irradiance[p]
     lum = luminance(c)
     m_new = wp.vec2(lum, lum * lum)
     h = int(1)  # disoccluded: this frame alone
@@ -270,8 +337,9 @@ def reproject(
         a_m = wp.max(1.0 / float(h), alpha_moments)
         m_new = wp.lerp(moments_prev / sum_w, m_new, a_m)
         c = wp.lerp(color_prev / sum_w, c, a)
-    moments[p] = m_new
-    history[p] = h
+    h = wp.where(surface, h, 0)
+    m_new = wp.where(surface, m_new, wp.vec2(0.0))
+    c = wp.where(surface, c, wp.vec3(0.0))
     hist_moments[cur, p] = m_new
     hist_length[cur, p] = h
     if write_integrated != 0:
@@ -279,9 +347,9 @@ def reproject(
     var = float(0.0)  # below SPATIAL_VARIANCE_HISTORY filter_moments writes it
     if h >= SPATIAL_VARIANCE_HISTORY:
         var = wp.max(m_new[1] - m_new[0] * m_new[0], 0.0)
-        if write_variance != 0:
-            variance_out[p] = var
-    store_vec4(color_variance_out, p, wp.vec4(c[0], c[1], c[2], var))
+    if write_variance != 0:
+        variance_out[p] = var
+    store_vec4(color_variance_out, p, wp.vec4(c[0], c[1], c[2], wp.where(surface, var, -1.0)))
 
 
 #: pixels of a row that one thread of :func:`filter_moments` takes (most need nothing: four loads a thread instead
@@ -290,13 +358,14 @@ MOMENTS_RUN = wp.constant(4)
 
 
 @wp.func
-def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4),
+def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.vec4), guide_row: int,
                      slope: wp.array(dtype=wp.float32), x: int, y: int, width: int, height: int, sigma_depth: float,
                      sigma_normal: float, h: int) -> float:
     """The spatial luminance variance of pixel (x, y) (with a surface, history ``h`` frames): its moments averaged
-    over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section 4.2), boosted by 4/h."""
+    over a 7x7 bilateral neighbourhood weighted by depth and normal (paper section 4.2), boosted by 4/h; the guide
+    (n, z) of pixel q at ``guide[guide_row + q]``."""
     p = y * width + x
-    g = load_vec4(guide, p)
+    g = load_vec4(guide, guide_row + p)
     z = g[3]
     n = wp.vec3(g[0], g[1], g[2])
     slope_p = slope[p]
@@ -308,7 +377,7 @@ def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.
             qy = y + dy
             if qx >= 0 and qx < width and qy >= 0 and qy < height:
                 q = qy * width + qx
-                g_q = load_vec4(guide, q)
+                g_q = load_vec4(guide, guide_row + q)
                 z_q = g_q[3]
                 if z_q > 0.0:
                     dist = wp.sqrt(float(dx * dx + dy * dy))
@@ -322,9 +391,10 @@ def spatial_variance(moments: wp.array(dtype=wp.vec2), guide: wp.array(dtype=wp.
 
 @wp.kernel
 def filter_moments(
-    moments: wp.array(dtype=wp.vec2),
-    history: wp.array(dtype=wp.int32),
-    guide: wp.array(dtype=wp.vec4),
+    hist_moments: wp.array2d(dtype=wp.vec2),
+    hist_length: wp.array2d(dtype=wp.int32),
+    parity: wp.array(dtype=wp.int32),
+    hist_guide: wp.array(dtype=wp.vec4),
     slope: wp.array(dtype=wp.float32),
     width: int,
     height: int,
@@ -337,8 +407,9 @@ def filter_moments(
     ``dim=(height, ceil(width / MOMENTS_RUN))``, a thread the ``MOMENTS_RUN`` pixels of a row from x = tid *
     ``MOMENTS_RUN``.
 
-    Reads the outputs of :func:`reproject` (``moments`` vec2, ``history`` int32 [frames], ``guide`` vec4 (n, z
-    [m]), z = 0 = no surface, ``slope`` float32 [m/pixel]). For a pixel with a surface and a history below
+    Reads the outputs of :func:`reproject` (row ``1 - parity[0]`` of ``hist_moments`` vec2, ``hist_length``
+    int32 [frames], 2 x H*W each, and ``hist_guide`` vec4 (n, z [m]), 2*H*W, row r at r*H*W, z = 0 = no surface;
+    ``slope`` float32 [m/pixel]). For a pixel with a surface and a history below
     ``SPATIAL_VARIANCE_HISTORY`` frames it writes the variance (:func:`spatial_variance`) into ``variance_out``
     (float32) and the Var of its packed ``color_variance`` (vec4: colour, Var); every other pixel keeps what
     :func:`reproject` wrote there (the temporal variance E[l²] − E[l]²).
@@ -349,6 +420,9 @@ def filter_moments(
     left out.
     """
     y, i = wp.tid()
+    cur = 1 - parity[0]
+    moments = hist_moments[cur]
+    history = hist_length[cur]
     x0 = i * MOMENTS_RUN
     p0 = y * width + x0
     run = wp.min(width - x0, MOMENTS_RUN)  # pixels of the row from x0
@@ -364,7 +438,8 @@ def filter_moments(
         if ((need >> k) & 1) != 0:
             p = p0 + k
             h = history[p]
-            var = spatial_variance(moments, guide, slope, x0 + k, y, width, height, sigma_depth, sigma_normal, h)
+            var = spatial_variance(moments, hist_guide, cur * width * height, slope, x0 + k, y, width, height,
+                                   sigma_depth, sigma_normal, h)
             variance_out[p] = var
             cv = color_variance[p]
             color_variance[p] = wp.vec4(cv[0], cv[1], cv[2], var)

@@ -56,9 +56,10 @@ class SVGF:
     History (2 x H*W each; row ``parity[0]`` holds the last frame, the next frame writes the other row and
     flips ``parity`` on the device): ``hist_guide`` (vec4: n, z [m], z = 0 = no surface; one array of 2*H*W,
     row r at r*H*W), ``hist_color`` (vec3 [W/m²]), ``hist_moments`` (vec2: luminance mean, mean square),
-    ``hist_length`` (int32 [frames]); ``parity`` (1 int32).
-    Per frame (H*W each): ``guide`` (vec4: n, z [m], the G-buffer copy the filters read; 0 without a surface),
-    ``moments`` (vec2), ``history`` (int32), ``depth_slope`` (float32 [m/pixel]), ``integrated`` (vec3 [W/m²],
+    ``hist_length`` (int32 [frames]); ``parity`` (1 int32). During a frame, row ``1 - parity[0]`` holds this
+    frame's: its guide (n, z) is the G-buffer copy the filters read, its moments and lengths what
+    ``filter_moments`` reads (no per-frame copies of them).
+    Per frame (H*W each): ``depth_slope`` (float32 [m/pixel]), ``integrated`` (vec3 [W/m²],
     the temporal accumulation; written only where it is the output or the colour history: without levels or
     with ``feedback_level`` -1; the levels read it packed in ``color_variance[0]``), ``color_variance`` (2 x
     vec4: colour, Var; the à-trous levels' packed input and output, ping-ponged; a last level of step >=
@@ -90,10 +91,7 @@ class SVGF:
         self.hist_length = two(wp.int32)
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.integrated = one(wp.vec3)
-        self.moments = one(wp.vec2)
-        self.history = one(wp.int32)
         self.depth_slope = one(wp.float32)
-        self.guide = one(wp.vec4)
         self.color_variance = one(wp.vec4), one(wp.vec4)
         # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order; the
         # guide of the first two such steps is written so by reproject (one buffer each), of any further step copied
@@ -110,8 +108,9 @@ class SVGF:
 
     @property
     def history_length(self) -> wp.array:
-        """History length [frames] of the last denoised frame, H*W int32 (1 = disoccluded, 0 = no surface)."""
-        return self.history
+        """History length [frames] of the last denoised frame, H*W int32 (1 = disoccluded, 0 = no surface): the
+        row of ``hist_length`` that ``parity`` names (read back from the device: not for use inside a frame)."""
+        return self.hist_length[int(self.parity.numpy()[0])]
 
     @property
     def variance(self) -> wp.array:
@@ -145,26 +144,30 @@ class SVGF:
                           self.parity, w, h, s.alpha_color, s.alpha_moments, s.max_history, s.depth_tolerance,
                           s.normal_tolerance, int(temporal_only or s.feedback_level == -1), int(temporal_only),
                           lg[0][0], lg[1][0]],
-                  outputs=[self.guide, self.color_variance[0], self.depth_slope, self.moments, self.history,
-                           self.integrated, self.filtered_variance, lg[0][1], lg[1][1]])
+                  outputs=[self.color_variance[0], self.depth_slope, self.integrated,
+                           self.filtered_variance, lg[0][1], lg[1][1]])
         if s.feedback_level == -1:
             wp.launch(K.store_history, dim=w * h, device=d, inputs=[self.integrated, self.parity],
                       outputs=[self.hist_color])
         wp.launch(K.filter_moments, dim=(h, (w + K.MOMENTS_RUN - 1) // K.MOMENTS_RUN), device=d,
-                  inputs=[self.moments, self.history, self.guide, self.depth_slope, w, h, s.sigma_depth,
-                          s.sigma_normal],
+                  inputs=[self.hist_moments, self.hist_length, self.parity, self.hist_guide, self.depth_slope, w, h,
+                          s.sigma_depth, s.sigma_normal],
                   outputs=[self.filtered_variance, self.color_variance[0]])
         if s.atrous_levels == 0:
             wp.copy(out, self.integrated)
+        flipped = False
         for level in range(s.atrous_levels):
             last = level == s.atrous_levels - 1
             feedback = level == s.feedback_level
             ready = (1 << level) in self.lattice_guides
-            launch_atrous(self.color_variance[level % 2], self.guide, self.depth_slope, w, h, 1 << level,
-                          s.sigma_depth, s.sigma_normal, s.sigma_luminance, s.conserve_energy, self.level_guides,
-                          color_variance_out=None if last else self.color_variance[(level + 1) % 2],
-                          color_out=out if last else None, variance_out=self.filtered_variance if last else None,
-                          hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
-                          lattice=(self.lattice[0], self.lattice_guides[1 << level]) if ready else self.lattice,
-                          unpack_from=self.color_variance[(level + 1) % 2] if last else None, lattice_guide_ready=ready)
-        wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
+            flipped = launch_atrous(
+                self.color_variance[level % 2], self.hist_guide, self.depth_slope, w, h, 1 << level, s.sigma_depth,
+                s.sigma_normal, s.sigma_luminance, s.conserve_energy, self.level_guides,
+                color_variance_out=None if last else self.color_variance[(level + 1) % 2],
+                color_out=out if last else None, variance_out=self.filtered_variance if last else None,
+                hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
+                lattice=(self.lattice[0], self.lattice_guides[1 << level]) if ready else self.lattice,
+                unpack_from=self.color_variance[(level + 1) % 2] if last else None, lattice_guide_ready=ready,
+                flip=self.parity if last else None, guide_parity=self.parity)
+        if not flipped:  # the last level's unpack flips it where it runs
+            wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
