@@ -272,8 +272,8 @@ class Renderer:
         """Run the frame's independent work concurrently (``on``; the CUDA default where ``graph_capable``): each
         light's pilots, fit, RSM views, shadow maps and photons on a lane (a CUDA stream) of its own, the sky's and
         the direct light's irradiance on another, forked from and joined to the frame's stream inside its graph
-        (:meth:`_launch_lanes`). Each light lane gets its own rasterizer scratch and photon scratch bank, allocated
-        here once. Off: every launch in turn (:meth:`_launch_frame`'s sequential program, the twin). On the CPU, on
+        (:meth:`_launch_lanes`), each RSM view's photon order, trace and outcomes on a lane of its own. Each light
+        lane gets its own rasterizer scratch, each view lane its own photon scratch bank, allocated here once. Off: every launch in turn (:meth:`_launch_frame`'s sequential program, the twin). On the CPU, on
         runs the concurrent program in the order it is written, without streams (a test does); the default keeps
         the sequential one. A frame captured before is captured again."""
         if not on:
@@ -281,26 +281,28 @@ class Renderer:
             if self.photons is not None:
                 self.photons.keep_lanes(None)
             return
-        self.lanes = FrameLanes(self.device, len(self.lights))
+        self.lanes = FrameLanes(self.device, [len(lm.rsm) for lm in self.lights])
         while len(self._lane_rasters) < len(self.lights):
             self._lane_rasters.append(Rasterizer(self.gpu))
         if self.photons is not None:
             self.photons.keep_lanes(self.lanes)
 
     def lane_writes(self) -> dict[str, list[wp.array]]:
-        """Per lane that runs beside others (``light i``), the scratch arrays it writes that are not its light's own
-        maps: its rasterizer's, its fit's and its photon bank's (the structural rule a test checks: no array of one
-        is an array of another). Without lanes, what the sequential frame hands each light (shared)."""
+        """Per lane that runs beside others, the scratch arrays it writes that are not its own light's or view's maps:
+        a light lane's rasterizer and fit scratch, a view lane's photon scratch bank (the structural rule a test
+        checks: no array of one lane is an array of another). Without lanes, what the sequential frame hands each
+        light and view (shared)."""
         fitted = {li: i for i, li in enumerate(self.fitter.light_index)}
         out = {}
-        for li in range(len(self.lights)):
+        for li, lm in enumerate(self.lights):
             raster = self._lane_rasters[li] if self.lanes is not None else self.raster
             arrays = [raster.sub_v, raster.sub_bbox, raster.tile_count, raster.tile_end]
             if li in fitted:
                 arrays += self.fitter.light_scratch(fitted[li])
-            if self.photons is not None:
-                arrays += self.photons.lane_scratch(li)
             out[f"light {li}"] = arrays
+            if self.photons is not None:
+                for vi in range(len(lm.rsm)):
+                    out[f"light {li} view {vi}"] = self.photons.lane_scratch(li, vi)
         return out
 
     def set_camera(self, camera: Camera) -> None:
@@ -400,8 +402,10 @@ class Renderer:
         reads, and joined before the denoiser. The edges:
 
         * light i: its pilots (no camera) from the frame's start; its pilot trace, fit, RSM views and shadow maps
-          after the G-buffer; its luminance maximum, outside booking, photon order, trace and outcomes after the
-          photon pass zeroed its accumulators and built the camera's depth bounds (``PhotonPass.light_lane``);
+          after the G-buffer; its luminance maximum and outside booking after the photon pass zeroed its
+          accumulators (``PhotonPass.light_lane``);
+        * light i's view v: its photon order, trace and outcome pass after light i's lane (its views drawn) and the
+          camera's depth bounds (``PhotonPass.view_lane``, entered by ``rsm_batches``);
         * shade: the sky after the G-buffer, the direct light after every light's shadow maps (marks);
         * main: G-buffer, the photon pass's zeroing, then (joined) denoise, surface radiance, composite, hidden rays.
 

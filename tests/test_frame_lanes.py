@@ -24,19 +24,22 @@ def _ranges(arrays):
 
 
 def test_cpu_default_is_sequential_and_lanes_hand_out_disjoint_scratch():
-    """The CPU keeps the sequential program by default; with lanes no array one light writes (rasterizer, fit, photon
-    order, outcome records) overlaps one another light writes, while without them they are the same arrays."""
+    """The CPU keeps the sequential program by default; with lanes no scratch array one lane writes (a light's
+    rasterizer and fit, a view's photon order and outcome records) overlaps one another lane writes, while without
+    them the lights share one rasterizer and the views one photon scratch."""
     r = _pool("cpu")
     assert r.lanes is None and r.photons.lanes is None
     shared = r.lane_writes()
-    assert len(shared) == 2  # the pool's sun and spot
-    a, b = (_ranges(v) for v in shared.values())
-    assert set(a) & set(b)  # sequential: one rasterizer and one photon scratch for both lights
+    views = [len(lm.rsm) for lm in r.lights]
+    assert len(views) == 2 and len(shared) == 2 + sum(views)  # the pool's sun and spot, and their views
+    assert set(_ranges(shared["light 0"])) & set(_ranges(shared["light 1"]))  # sequential: one rasterizer
+    assert set(_ranges(shared["light 0 view 0"])) == set(_ranges(shared["light 1 view 1"]))  # one photon scratch
     r.set_concurrent(True)
     assert not r.lanes.enabled  # no streams on the CPU
     writes = r.lane_writes()
     names = list(writes)
-    assert len(writes[names[0]]) == len(writes[names[1]]) >= 4 + 6 + 5
+    assert len(writes["light 0"]) == len(writes["light 1"]) == 4 + 6
+    assert all(len(writes[f"light {li} view {vi}"]) == 6 for li, n in enumerate(views) for vi in range(n))
     for i, p in enumerate(names):
         for q in names[i + 1 :]:
             for lo, hi in _ranges(writes[p]):

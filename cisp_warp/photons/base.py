@@ -12,7 +12,7 @@ Every method hands back the same thing, so that they compare pixel for pixel:
 from __future__ import annotations
 
 import hashlib
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from typing import Iterator, NamedTuple
 
@@ -262,51 +262,61 @@ class PhotonPass:
                     if slots > 0:
                         self._fixed_texel_order(slots, r.width, r.height, self._order_counts(lm, slots))
 
-    #: the arrays a light's photon launches write that are not float atomics shared by all lights: the photon order's
-    #: scratch and result, and the trace's outcome records. Lights that run concurrently get a bank each
+    #: the arrays a view's photon launches write that are not float atomics shared by all views: the photon order's
+    #: scratch and result, and the trace's outcome records. Views whose photons run concurrently get a bank each
     LANE_SCRATCH = ("_sort_keys", "_order", "_grouped", "_group_counts", "_group_offsets", "outcome")
 
     def keep_lanes(self, lanes) -> None:
-        """Run each light's photons on its lane of ``lanes`` (``frame.FrameLanes``; None: back to the sequential
-        twin): allocates a scratch bank per light once (bank 0 is the pass's own arrays; later banks are kept when
-        lanes are turned off and on again)."""
+        """Run each light's begin on its light lane and each RSM view's photons on its view lane of ``lanes``
+        (``frame.FrameLanes``; None: back to the sequential twin): allocates a scratch bank per view once (bank 0 is
+        the pass's own arrays; the banks are kept when lanes are turned off and on again)."""
         self.lanes = lanes
         if lanes is None:
             return
         if not self._banks:
             own = {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
             self._banks = [dict(own, _group_views=self._group_views)]
-        while len(self._banks) < len(self.lights):
+        while len(self._banks) < sum(len(lm.rsm) for lm in self.lights):
             bank = {name: wp.zeros(a.shape, dtype=a.dtype, device=self.device)
                     for name, a in self._banks[0].items() if name != "_group_views"}
             bank["_group_views"] = {}
             self._banks.append(bank)
 
-    def lane_scratch(self, light_index: int) -> list[wp.array]:
-        """The scratch arrays light ``light_index``'s photon launches write (its bank; the pass's own without lanes)."""
+    def _bank_index(self, light_index: int, view_index: int) -> int:
+        return sum(len(lm.rsm) for lm in self.lights[:light_index]) + view_index
+
+    def lane_scratch(self, light_index: int, view_index: int) -> list[wp.array]:
+        """The scratch arrays the photon launches of light ``light_index``'s view ``view_index`` write (its bank with
+        lanes; the pass's own without)."""
         if self.lanes is not None and self._banks:
-            bank = self._banks[light_index]
+            bank = self._banks[self._bank_index(light_index, view_index)]
         else:
             bank = {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
         return [a for name, a in bank.items() if name != "_group_views"]
 
     def join_lights(self) -> None:
-        """The current stream waits for every light's lane (before work that reads all lights' photons on it)."""
+        """The current stream (main) waits for every lane (before work that reads all views' photons on it)."""
         if self.lanes is not None:
-            self.lanes.join(range(len(self.lights)))
+            self.lanes.join()
+
+    def light_lane(self, light_index: int):
+        """The body's launches for light ``light_index`` (its luminance maximum, outside booking) on its light lane,
+        when lanes are kept; else on the current stream (nothing changes)."""
+        return nullcontext() if self.lanes is None else self.lanes.branch(light_index)
 
     @contextmanager
-    def light_lane(self, light_index: int):
-        """The body's launches for light ``light_index``: on its lane, with its scratch bank, when lanes are kept;
-        else on the current stream with the pass's own arrays (nothing changes)."""
+    def view_lane(self, light_index: int, view_index: int, after=()):
+        """The body's launches for light ``light_index``'s RSM view ``view_index`` (photon order, trace, outcomes) on
+        its view lane after the marks ``after``, with its scratch bank, when lanes are kept; else on the current stream
+        with the pass's own arrays (nothing changes)."""
         if self.lanes is None:
             yield
             return
-        bank = self._banks[light_index]
+        bank = self._banks[self._bank_index(light_index, view_index)]
         for name, a in bank.items():
             setattr(self, name, a)
         try:
-            with self.lanes.branch(light_index):
+            with self.lanes.branch(self.lanes.view_lane(light_index, view_index), after):
                 yield
         finally:
             for name, a in self._banks[0].items():
@@ -505,12 +515,13 @@ class PhotonPass:
         for li, lm in enumerate(self.lights):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
             slots = self.view_slots(lm)
-            # with lanes, the caller's launches for this light's batches (between the yields) go on the light's lane
-            # with its scratch bank too: its views run in turn, the lights side by side
-            with self.light_lane(li):
-                for vi, r in enumerate(lm.rsm):
-                    if slots[vi] == 0:
-                        continue
+            # with lanes, each view's photons (and the caller's launches for its batch, between the yields) go on the
+            # view's lane with its scratch bank, after its light's lane (its RSM views, its luminance maximum)
+            after = () if self.lanes is None else (self.lanes.mark(li),)
+            for vi, r in enumerate(lm.rsm):
+                if slots[vi] == 0:
+                    continue
+                with self.view_lane(li, vi, after):
                     sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
                     scramble = wp.vec2i(sx, sy)
                     params = None if lm.fitted else lm.params[vi]
