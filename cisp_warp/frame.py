@@ -118,6 +118,9 @@ class FrameLanes:
             self._events = [wp.Event(self.device) for _ in range(self.events)]
         self._next = 0
         self.main = None  #: the stream the frame was issued on (the capturing one), set by :meth:`begin`
+        #: whether a concurrent program is being issued (between :meth:`begin` and :meth:`end`): passes that hold the
+        #: lanes use them only then (a frame issued in turn, e.g. timed by stages, leaves them alone)
+        self.active = False
 
     def view_lane(self, light_index: int, view_index: int) -> int:
         """The lane of light ``light_index``'s RSM view ``view_index``'s photons."""
@@ -130,6 +133,12 @@ class FrameLanes:
         """Start a frame: the device's current stream is main."""
         self._next = 0
         self.main = self.device.stream if self.enabled else None
+        self.active = True
+
+    def end(self) -> None:
+        """End a frame: main waits for every lane."""
+        self.join()
+        self.active = False
 
     def _event(self) -> "wp.Event":
         if self._next >= len(self._events):

@@ -413,6 +413,13 @@ class Renderer:
         come before the shade lane is forked."""
         lanes = self.lanes
         lanes.begin()
+        try:
+            self._issue_lanes(lanes)
+        finally:
+            lanes.active = False
+        self._denoise_and_shade(lambda name: nullcontext())
+
+    def _issue_lanes(self, lanes: FrameLanes) -> None:
         g, f = self.gbuffer, self.fitter
         fitted = {li: i for i, li in enumerate(f.light_index)}
         if fitted:
@@ -436,8 +443,7 @@ class Renderer:
                 self.sky.render(self.raster, g, self.inputs.cameras)
             lanes.wait(maps)
             self.direct.render(g, self.lights)
-        lanes.join()
-        self._denoise_and_shade(lambda name: nullcontext())
+        lanes.end()  # joined
 
     def _denoise_and_shade(self, stage) -> None:
         """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays."""

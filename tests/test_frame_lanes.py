@@ -10,6 +10,7 @@ import warp as wp
 
 from cisp_warp.photons import PhotonSettings
 from cisp_warp.render import Renderer, RenderSettings
+from cisp_warp.timing import StageTimer
 from cisp_warp.usd import load_usd
 
 
@@ -57,6 +58,7 @@ def test_cpu_concurrent_program_equals_sequential_bitwise(method):
         r.set_concurrent(on)
         for _ in range(2):
             r.render_frame()
+        assert r.lanes is None or not r.lanes.active
         out[on] = (r.final.numpy().copy(), r.photons.photon_map.numpy().copy(), r.photons.read_ledger().values)
     for x, y in zip(out[False], out[True]):
         np.testing.assert_array_equal(x, y)
@@ -75,6 +77,10 @@ def test_cuda_concurrent_graph_matches_sequential(method):
         r = _pool("cuda:0", method, photons=200_000, rsm=256, width=96, height=64)
         r.set_concurrent(on)
         assert (r.lanes is not None) == on and (not on or r.lanes.enabled)
+        timer = StageTimer("cuda:0")
+        for _ in range(2):  # timed by stages: the sequential program, the lanes held but left alone
+            r.render_frame(timer)
+        assert r.lanes is None or not r.lanes.active
         frames = []
         for _ in range(4):
             r.render_frame(graph=True)

@@ -288,28 +288,32 @@ class PhotonPass:
     def lane_scratch(self, light_index: int, view_index: int) -> list[wp.array]:
         """The scratch arrays the photon launches of light ``light_index``'s view ``view_index`` write (its bank with
         lanes; the pass's own without)."""
-        if self.lanes is not None and self._banks:
+        if self.lanes is not None and self._banks:  # what a concurrent frame hands the view
             bank = self._banks[self._bank_index(light_index, view_index)]
         else:
             bank = {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
         return [a for name, a in bank.items() if name != "_group_views"]
 
+    def _active_lanes(self):
+        """``lanes`` while a concurrent frame is being issued with them, else None."""
+        return self.lanes if self.lanes is not None and self.lanes.active else None
+
     def join_lights(self) -> None:
         """The current stream (main) waits for every lane (before work that reads all views' photons on it)."""
-        if self.lanes is not None:
+        if self._active_lanes() is not None:
             self.lanes.join()
 
     def light_lane(self, light_index: int):
         """The body's launches for light ``light_index`` (its luminance maximum, outside booking) on its light lane,
-        when lanes are kept; else on the current stream (nothing changes)."""
-        return nullcontext() if self.lanes is None else self.lanes.branch(light_index)
+        in a concurrent frame; else on the current stream (nothing changes)."""
+        return nullcontext() if self._active_lanes() is None else self.lanes.branch(light_index)
 
     @contextmanager
     def view_lane(self, light_index: int, view_index: int, after=()):
         """The body's launches for light ``light_index``'s RSM view ``view_index`` (photon order, trace, outcomes) on
-        its view lane after the marks ``after``, with its scratch bank, when lanes are kept; else on the current stream
-        with the pass's own arrays (nothing changes)."""
-        if self.lanes is None:
+        its view lane after the marks ``after``, with its scratch bank, in a concurrent frame; else on the current
+        stream with the pass's own arrays (nothing changes)."""
+        if self._active_lanes() is None:
             yield
             return
         bank = self._banks[self._bank_index(light_index, view_index)]
@@ -517,7 +521,7 @@ class PhotonPass:
             slots = self.view_slots(lm)
             # with lanes, each view's photons (and the caller's launches for its batch, between the yields) go on the
             # view's lane with its scratch bank, after its light's lane (its RSM views, its luminance maximum)
-            after = () if self.lanes is None else (self.lanes.mark(li),)
+            after = () if self._active_lanes() is None else (self.lanes.mark(li),)
             for vi, r in enumerate(lm.rsm):
                 if slots[vi] == 0:
                     continue
