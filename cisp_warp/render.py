@@ -406,7 +406,8 @@ class Renderer:
           accumulators (``PhotonPass.light_lane``);
         * light i's view v: its photon order, trace and outcome pass after light i's lane (its views drawn) and the
           camera's depth bounds (``PhotonPass.view_lane``, entered by ``rsm_batches``);
-        * shade: the sky after the G-buffer, the direct light after every light's shadow maps (marks);
+        * shade: the sky after the G-buffer, the direct light after every light's shadow maps (marks), the
+          composite's depth bounds (where the photon pass keeps none of the same thickness: ``sspm``);
         * main: G-buffer, the photon pass's zeroing, then (joined) denoise, surface radiance, composite, hidden rays.
 
         Each light lane draws with its own rasterizer; the shade lane with main's, whose draws (the G-buffer) all
@@ -417,7 +418,7 @@ class Renderer:
             self._issue_lanes(lanes)
         finally:
             lanes.active = False
-        self._denoise_and_shade(lambda name: nullcontext())
+        self._denoise_and_shade(lambda name: nullcontext(), bounds_built=True)
 
     def _issue_lanes(self, lanes: FrameLanes) -> None:
         g, f = self.gbuffer, self.fitter
@@ -443,10 +444,19 @@ class Renderer:
                 self.sky.render(self.raster, g, self.inputs.cameras)
             lanes.wait(maps)
             self.direct.render(g, self.lights)
+            self._build_composite_bounds()  # from the G-buffer alone: beside the photons too
         lanes.end()  # joined
 
-    def _denoise_and_shade(self, stage) -> None:
-        """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays."""
+    def _build_composite_bounds(self) -> None:
+        """Build ``depth_bounds`` from this frame's depth where the composite marches on them (:meth:`_composite_bounds`)."""
+        if self._composite_bounds() is self.depth_bounds:
+            g, ps = self.gbuffer, self.settings.photons
+            build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, self.depth_bounds,
+                         self.device)
+
+    def _denoise_and_shade(self, stage, bounds_built: bool = False) -> None:
+        """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
+        (``bounds_built``: the composite's depth bounds are built already, :meth:`_build_composite_bounds`)."""
         g = self.gbuffer
         if self.photons is not None:
             with stage("denoise"):
@@ -470,8 +480,8 @@ class Renderer:
                               self.surface_radiance])
             ps = self.settings.photons
             bounds = self._composite_bounds()
-            if bounds is self.depth_bounds:
-                build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, bounds, self.device)
+            if not bounds_built:
+                self._build_composite_bounds()
             wp.launch(composite, dim=n, device=self.device,
                       inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
                               w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
