@@ -251,11 +251,12 @@ class PhotonPass:
         #: it writes once per frame before tracing (or replaying a captured frame)
         self.inputs = FrameInputs(lights, settings.seed, self.device)
         self._no_hidden = wp.zeros(0, dtype=wp.vec3, device=self.device)  #: the empty hidden map (hidden_args)
-        #: the renderer's ``frame.FrameLanes`` while each light's photons run on the light's own lane (its luminance
-        #: maximum, outside booking, photon order, trace and outcome pass), each light with its own scratch bank
-        #: (:meth:`keep_lanes`); None: every light in turn on the current stream, with bank 0 (the sequential twin)
+        #: the renderer's ``frame.FrameLanes``: in a concurrent frame each light's luminance maximum and outside
+        #: booking run on its light lane, each RSM view's photon order, trace and outcome pass on its view lane with
+        #: a scratch bank of its own (:meth:`keep_lanes`); None: every view in turn on the current stream with the
+        #: pass's own arrays (the sequential twin). ``hits`` (``record_hits``, tests) stays one array: the last view's
         self.lanes = None
-        self._banks: list[dict] = []  #: per light: its scratch (``LANE_SCRATCH``), bank 0 the pass's own arrays
+        self._banks: list[dict] = []  #: per RSM view (lights in turn): its scratch (``LANE_SCRATCH``); 0: the pass's own
         if sort and n_max > 0 and self.fixed_order and self.device.is_cuda:
             for lm in lights:  # the slot counts CUDA launches are fixed: sort every view's order now, not in a frame
                 for r, slots in zip(lm.rsm, self.view_slots(lm)):
