@@ -270,12 +270,13 @@ class Renderer:
 
     def set_concurrent(self, on: bool) -> None:
         """Run the frame's independent work concurrently (``on``; the CUDA default where ``graph_capable``): each
-        light's pilots, fit, RSM views, shadow maps and photons on a lane (a CUDA stream) of its own, the sky's and
-        the direct light's irradiance on another, forked from and joined to the frame's stream inside its graph
-        (:meth:`_launch_lanes`), each RSM view's photon order, trace and outcomes on a lane of its own. Each light
-        lane gets its own rasterizer scratch, each view lane its own photon scratch bank, allocated here once. Off: every launch in turn (:meth:`_launch_frame`'s sequential program, the twin). On the CPU, on
-        runs the concurrent program in the order it is written, without streams (a test does); the default keeps
-        the sequential one. A frame captured before is captured again."""
+        light's pilots, fit, RSM views and shadow maps on a lane (a CUDA stream) of its own, each RSM view's photon
+        order, trace and outcomes on another, the sky and the direct light on a third kind, forked from and joined to
+        the frame's stream inside its graph (:meth:`_launch_lanes`). Each light lane gets its own rasterizer scratch,
+        each view lane its own photon scratch bank, allocated here once. Off: every launch in turn (the sequential
+        program of :meth:`_launch_frame`, the twin). On the CPU, on runs the concurrent program in the order it is
+        written, without streams (a test does); the CPU default keeps the sequential one. A frame captured before is
+        captured again."""
         if not on:
             self.lanes = None
             if self.photons is not None:
@@ -448,7 +449,8 @@ class Renderer:
         lanes.end()  # joined
 
     def _build_composite_bounds(self) -> None:
-        """Build ``depth_bounds`` from this frame's depth where the composite marches on them (:meth:`_composite_bounds`)."""
+        """Build ``depth_bounds`` from this frame's depth where the composite marches on them
+        (:meth:`_composite_bounds`)."""
         if self._composite_bounds() is self.depth_bounds:
             g, ps = self.gbuffer, self.settings.photons
             build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, self.depth_bounds,

@@ -256,7 +256,7 @@ class PhotonPass:
         #: a scratch bank of its own (:meth:`keep_lanes`); None: every view in turn on the current stream with the
         #: pass's own arrays (the sequential twin). ``hits`` (``record_hits``, tests) stays one array: the last view's
         self.lanes = None
-        self._banks: list[dict] = []  #: per RSM view (lights in turn): its scratch (``LANE_SCRATCH``); 0: the pass's own
+        self._banks: list[dict] = []  #: per RSM view (lights in turn): its ``LANE_SCRATCH``; 0: the pass's own
         if sort and n_max > 0 and self.fixed_order and self.device.is_cuda:
             for lm in lights:  # the slot counts CUDA launches are fixed: sort every view's order now, not in a frame
                 for r, slots in zip(lm.rsm, self.view_slots(lm)):
