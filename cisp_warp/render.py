@@ -266,6 +266,7 @@ class Renderer:
         #: streams (:meth:`set_concurrent`); None: every launch in turn on one stream (the sequential twin)
         self.lanes = None
         self._lane_rasters: list[Rasterizer] = []  #: per light lane: its own rasterizer scratch
+        self._kept_lanes = None
         self.set_concurrent(CONCURRENT and self.graph_capable)
 
     def set_concurrent(self, on: bool) -> None:
@@ -282,7 +283,9 @@ class Renderer:
             if self.photons is not None:
                 self.photons.keep_lanes(None)
             return
-        self.lanes = FrameLanes(self.device, [len(lm.rsm) for lm in self.lights])
+        if self._kept_lanes is None:  # streams and events made once, kept when turned off
+            self._kept_lanes = FrameLanes(self.device, [len(lm.rsm) for lm in self.lights])
+        self.lanes = self._kept_lanes
         while len(self._lane_rasters) < len(self.lights):
             self._lane_rasters.append(Rasterizer(self.gpu))
         if self.photons is not None:
