@@ -19,6 +19,8 @@ array           shape, dtype                   holds
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 import warp as wp
 
@@ -82,3 +84,105 @@ class FrameInputs:
         self._randoms_host[:] = self.values(frame)
         wp.copy(self.buffer, self.host)
         self.frame = frame
+
+
+class FrameLanes:
+    """The frame's independent work on CUDA streams ("lanes") that run beside the frame's own stream ("main"), inside
+    one captured graph: CUDA stream capture records an event recorded on one captured stream and waited on by another
+    as a graph edge, so a lane forked from the capturing stream is part of the graph, and the graph's nodes keep only
+    the dependencies the frame states (``branch``, ``mark`` / ``wait``, ``join``).
+
+    Lanes: ``light i`` (i < ``lights``): light i's pilots, fit, RSM views, shadow maps, luminance maximum; ``shade``
+    (index ``lights``): the sky's and the direct light's irradiance; then one per RSM view of every light
+    (:meth:`view_lane`): that view's photon order, trace and outcome pass. Work on one lane runs in the order it is
+    issued; across lanes only through the edges. Every buffer two lanes write is the lane's own (a rasterizer per light
+    lane, a photon scratch bank per view lane) or is written by float atomics only (photon map, ledger stripes).
+
+    ``enabled`` False, or the CPU: no streams, every call is a no-op, so the concurrent program runs in the order it is
+    written (the CPU test runs it so)."""
+
+    def __init__(self, device, views: list[int], enabled: bool = True):
+        """``views``: per light, its RSM views (one photon lane each)."""
+        self.device = wp.get_device(device)
+        self.lights = len(views)
+        self.shade = self.lights  #: the sky's and the direct light's lane
+        self._view_base = [int(v) for v in np.cumsum([self.lights + 1] + list(views))]
+        self.count = self._view_base[-1]  #: lanes in all
+        self.streams = []
+        self._events = []
+        self.enabled = bool(enabled) and self.device.is_cuda
+        #: events one frame may record (a fork per branch, its ``after`` marks, a join per lane): made once, here
+        self.events = 8 * self.count + 16
+        if self.enabled:
+            self.streams = [wp.Stream(self.device) for _ in range(self.count)]
+            self._events = [wp.Event(self.device) for _ in range(self.events)]
+        self._next = 0
+        self.main = None  #: the stream the frame was issued on (the capturing one), set by :meth:`begin`
+        #: whether a concurrent program is being issued (between :meth:`begin` and :meth:`end`): passes that hold the
+        #: lanes use them only then (a frame issued in turn, e.g. timed by stages, leaves them alone)
+        self.active = False
+
+    def view_lane(self, light_index: int, view_index: int) -> int:
+        """The lane of light ``light_index``'s RSM view ``view_index``'s photons."""
+        return self._view_base[light_index] + view_index
+
+    def view_lanes(self) -> list[int]:
+        return list(range(self.lights + 1, self.count))
+
+    def begin(self) -> None:
+        """Start a frame: the device's current stream is main."""
+        self._next = 0
+        self.main = self.device.stream if self.enabled else None
+        self.active = True
+
+    def end(self) -> None:
+        """End a frame: main waits for every lane."""
+        self.join()
+        self.active = False
+
+    def _event(self) -> "wp.Event":
+        if self._next >= len(self._events):
+            raise RuntimeError(f"FrameLanes: more than {self.events} events in one frame")
+        e = self._events[self._next]
+        self._next += 1
+        return e
+
+    @contextmanager
+    def branch(self, lane: int, after=()):
+        """Issue the body's work on ``lane``, after everything issued on main so far (an edge main -> lane) and after
+        the marks ``after`` (:meth:`mark`)."""
+        if not self.enabled:
+            yield
+            return
+        s = self.streams[lane]
+        s.wait_event(self.main.record_event(self._event()))
+        for m in after:
+            if m is not None:
+                s.wait_event(m)
+        self.device.set_stream(s, sync=False)
+        try:
+            yield
+        finally:
+            self.device.set_stream(self.main, sync=False)
+
+    def mark(self, lane: int):
+        """An event at ``lane``'s current end (what it issued so far), for :meth:`wait`; None when disabled."""
+        if not self.enabled:
+            return None
+        return self.streams[lane].record_event(self._event())
+
+    def wait(self, marks) -> None:
+        """Make the device's current stream (main, or the lane in a ``branch``) wait for ``marks``."""
+        if not self.enabled:
+            return
+        for m in marks:
+            if m is not None:
+                self.device.stream.wait_event(m)
+
+    def join(self, lanes=None) -> None:
+        """Main waits for everything issued on ``lanes`` (default: all): every lane must be joined before the capture
+        ends."""
+        if not self.enabled:
+            return
+        for i in range(self.count) if lanes is None else lanes:
+            self.main.wait_event(self.streams[i].record_event(self._event()))

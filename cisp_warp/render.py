@@ -20,7 +20,7 @@ import warp as wp
 
 from .denoise import SVGF, CausticDenoiser, CausticSettings, GaussianGather, SVGFSettings
 from .errors import SceneError
-from .frame import FrameInputs
+from .frame import FrameInputs, FrameLanes
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .photons.cisp import build_bounds
 from .photons.fit import LightViewFitter
@@ -262,6 +262,52 @@ class Renderer:
         self._graph = None
         self._graph_key = None
         self.graph_captures = 0  #: frames captured as a graph so far (a new capture when the lights change)
+        #: ``frame.FrameLanes`` while the frame runs its lights, and the sky and direct light, concurrently on CUDA
+        #: streams (:meth:`set_concurrent`); None: every launch in turn on one stream (the sequential twin)
+        self.lanes = None
+        self._lane_rasters: list[Rasterizer] = []  #: per light lane: its own rasterizer scratch
+        self._kept_lanes = None
+        self.set_concurrent(CONCURRENT and self.graph_capable)
+
+    def set_concurrent(self, on: bool) -> None:
+        """Run the frame's independent work concurrently (``on``; the CUDA default where ``graph_capable``): each
+        light's pilots, fit, RSM views and shadow maps on a lane (a CUDA stream) of its own, each RSM view's photon
+        order, trace and outcomes on another, the sky and the direct light on a third kind, forked from and joined to
+        the frame's stream inside its graph (:meth:`_launch_lanes`). Each light lane gets its own rasterizer scratch,
+        each view lane its own photon scratch bank, allocated here once. Off: every launch in turn (the sequential
+        program of :meth:`_launch_frame`, the twin). On the CPU, on runs the concurrent program in the order it is
+        written, without streams (a test does); the CPU default keeps the sequential one. A frame captured before is
+        captured again."""
+        if not on:
+            self.lanes = None
+            if self.photons is not None:
+                self.photons.keep_lanes(None)
+            return
+        if self._kept_lanes is None:  # streams and events made once, kept when turned off
+            self._kept_lanes = FrameLanes(self.device, [len(lm.rsm) for lm in self.lights])
+        self.lanes = self._kept_lanes
+        while len(self._lane_rasters) < len(self.lights):
+            self._lane_rasters.append(Rasterizer(self.gpu))
+        if self.photons is not None:
+            self.photons.keep_lanes(self.lanes)
+
+    def lane_writes(self) -> dict[str, list[wp.array]]:
+        """Per lane that runs beside others, the scratch arrays it writes that are not its own light's or view's maps:
+        a light lane's rasterizer and fit scratch, a view lane's photon scratch bank (the structural rule a test
+        checks: no array of one lane is an array of another). Without lanes, what the sequential frame hands each
+        light and view (shared)."""
+        fitted = {li: i for i, li in enumerate(self.fitter.light_index)}
+        out = {}
+        for li, lm in enumerate(self.lights):
+            raster = self._lane_rasters[li] if self.lanes is not None else self.raster
+            arrays = [raster.sub_v, raster.sub_bbox, raster.tile_count, raster.tile_end]
+            if li in fitted:
+                arrays += self.fitter.light_scratch(fitted[li])
+            out[f"light {li}"] = arrays
+            if self.photons is not None:
+                for vi in range(len(lm.rsm)):
+                    out[f"light {li} view {vi}"] = self.photons.lane_scratch(li, vi)
+        return out
 
     def set_camera(self, camera: Camera) -> None:
         """Move the camera (same resolution); the previous pose is kept for motion vectors."""
@@ -300,7 +346,7 @@ class Renderer:
         """What a captured frame bakes in besides ``inputs``: the lights (a moved light re-fits its whole views on
         the host), whether their shadow maps are kept while still, and whether the sky's maps are drawn."""
         sky = None if self.sky is None else (self.sky.dynamic, self.sky._drawn)
-        return tuple((id(lm.light), lm.cache_shadows) for lm in self.lights) + (sky,)
+        return tuple((id(lm.light), lm.cache_shadows) for lm in self.lights) + (sky, self.lanes is not None)
 
     def render_frame(self, timer=None, graph: bool | None = None) -> None:
         """Raster, light, trace photons, denoise and composite one frame; everything stays on the device.
@@ -331,7 +377,12 @@ class Renderer:
         self.frame += 1
 
     def _launch_frame(self, timer=None) -> None:
-        """Every launch of one frame, reading the cameras and random streams from ``inputs`` (written already)."""
+        """Every launch of one frame, reading the cameras and random streams from ``inputs`` (written already): with
+        lanes (and no timer, and the fit on the device) the concurrent program, :meth:`_launch_lanes`; else every
+        launch in turn, below."""
+        if self.lanes is not None and timer is None and self.fitter.on_device:
+            self._launch_lanes()
+            return
         stage = timer.stage if timer is not None else (lambda name: nullcontext())
         g = self.gbuffer
         with stage("raster"):
@@ -347,6 +398,72 @@ class Renderer:
         if self.photons is not None:
             with stage("trace+store"):
                 self.photons.trace(g, self.view_params, self.frame)
+        self._denoise_and_shade(stage)
+
+    def _launch_lanes(self) -> None:
+        """The concurrent program: the launches of :meth:`_launch_frame`, each light's on its lane, the sky and the
+        direct light on the shade lane; every lane forked from the frame's stream (``main``) after the work it
+        reads, and joined before the denoiser. The edges:
+
+        * light i: its pilots (no camera) from the frame's start; its pilot trace, fit, RSM views and shadow maps
+          after the G-buffer; its luminance maximum and outside booking after the photon pass zeroed its
+          accumulators (``PhotonPass.light_lane``);
+        * light i's view v: its photon order, trace and outcome pass after light i's lane (its views drawn) and the
+          camera's depth bounds (``PhotonPass.view_lane``, entered by ``rsm_batches``);
+        * shade: the sky after the G-buffer, the direct light after every light's shadow maps (marks), the
+          composite's depth bounds (where the photon pass keeps none of the same thickness: ``sspm``);
+        * main: G-buffer, the photon pass's zeroing, then (joined) denoise, surface radiance, composite, hidden rays.
+
+        Each light lane draws with its own rasterizer; the shade lane with main's, whose draws (the G-buffer) all
+        come before the shade lane is forked."""
+        lanes = self.lanes
+        lanes.begin()
+        try:
+            self._issue_lanes(lanes)
+        finally:
+            lanes.active = False
+        self._denoise_and_shade(lambda name: nullcontext(), bounds_built=True)
+
+    def _issue_lanes(self, lanes: FrameLanes) -> None:
+        g, f = self.gbuffer, self.fitter
+        fitted = {li: i for i, li in enumerate(f.light_index)}
+        if fitted:
+            f.frame_inputs(self.view_params, self.frame)
+        for li, i in fitted.items():
+            with lanes.branch(li):
+                f.render_pilots(i, self._lane_rasters[li])
+        g.render(self.raster, self.inputs.cameras)
+        maps = []
+        for li, lm in enumerate(self.lights):
+            with lanes.branch(li):
+                if li in fitted:
+                    f.trace_light_pilots(fitted[li])
+                    f.fit_light(fitted[li])
+                lm.render(self._lane_rasters[li])
+            maps.append(lanes.mark(li))
+        if self.photons is not None:
+            self.photons.trace(g, self.view_params, self.frame)  # its lights' launches on their lanes
+        with lanes.branch(lanes.shade):
+            if self.sky is not None:
+                self.sky.render(self.raster, g, self.inputs.cameras)
+            lanes.wait(maps)
+            self.direct.render(g, self.lights)
+            self._build_composite_bounds()  # from the G-buffer alone: beside the photons too
+        lanes.end()  # joined
+
+    def _build_composite_bounds(self) -> None:
+        """Build ``depth_bounds`` from this frame's depth where the composite marches on them
+        (:meth:`_composite_bounds`)."""
+        if self._composite_bounds() is self.depth_bounds:
+            g, ps = self.gbuffer, self.settings.photons
+            build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, self.depth_bounds,
+                         self.device)
+
+    def _denoise_and_shade(self, stage, bounds_built: bool = False) -> None:
+        """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
+        (``bounds_built``: the composite's depth bounds are built already, :meth:`_build_composite_bounds`)."""
+        g = self.gbuffer
+        if self.photons is not None:
             with stage("denoise"):
                 if not self.photons.denoise:
                     wp.copy(self.caustic_irradiance, self.photons.photon_map)
@@ -368,8 +485,8 @@ class Renderer:
                               self.surface_radiance])
             ps = self.settings.photons
             bounds = self._composite_bounds()
-            if bounds is self.depth_bounds:
-                build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, bounds, self.device)
+            if not bounds_built:
+                self._build_composite_bounds()
             wp.launch(composite, dim=n, device=self.device,
                       inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
                               w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
@@ -427,6 +544,10 @@ class Renderer:
         g = self.gbuffer
         return box_filter(self.final.numpy().reshape(g.height, g.width, 3), self.settings.supersample)
 
+
+#: the CUDA default of ``Renderer.set_concurrent`` (for graph-capable settings): the frame's lights, and its sky and
+#: direct light, on lanes of their own (docs/perf_notes.md section 45)
+CONCURRENT = True
 
 #: relative surface thickness of the composite's screen-space lookups (``shade.screen_space_lookup``)
 COMPOSITE_THICKNESS_REL = 0.02

@@ -12,6 +12,7 @@ Every method hands back the same thing, so that they compare pixel for pixel:
 from __future__ import annotations
 
 import hashlib
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from typing import Iterator, NamedTuple
 
@@ -250,11 +251,81 @@ class PhotonPass:
         #: it writes once per frame before tracing (or replaying a captured frame)
         self.inputs = FrameInputs(lights, settings.seed, self.device)
         self._no_hidden = wp.zeros(0, dtype=wp.vec3, device=self.device)  #: the empty hidden map (hidden_args)
+        #: the renderer's ``frame.FrameLanes``: in a concurrent frame each light's luminance maximum and outside
+        #: booking run on its light lane, each RSM view's photon order, trace and outcome pass on its view lane with
+        #: a scratch bank of its own (:meth:`keep_lanes`); None: every view in turn on the current stream with the
+        #: pass's own arrays (the sequential twin). ``hits`` (``record_hits``, tests) stays one array: the last view's
+        self.lanes = None
+        self._banks: list[dict] = []  #: per RSM view (lights in turn): its ``LANE_SCRATCH``; 0: the pass's own
         if sort and n_max > 0 and self.fixed_order and self.device.is_cuda:
             for lm in lights:  # the slot counts CUDA launches are fixed: sort every view's order now, not in a frame
                 for r, slots in zip(lm.rsm, self.view_slots(lm)):
                     if slots > 0:
                         self._fixed_texel_order(slots, r.width, r.height, self._order_counts(lm, slots))
+
+    #: the arrays a view's photon launches write that are not float atomics shared by all views: the photon order's
+    #: scratch and result, and the trace's outcome records. Views whose photons run concurrently get a bank each
+    LANE_SCRATCH = ("_sort_keys", "_order", "_grouped", "_group_counts", "_group_offsets", "outcome")
+
+    def keep_lanes(self, lanes) -> None:
+        """Run each light's begin on its light lane and each RSM view's photons on its view lane of ``lanes``
+        (``frame.FrameLanes``; None: back to the sequential twin): allocates a scratch bank per view once (bank 0 is
+        the pass's own arrays; the banks are kept when lanes are turned off and on again)."""
+        self.lanes = lanes
+        if lanes is None:
+            return
+        if not self._banks:
+            own = {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
+            self._banks = [dict(own, _group_views=self._group_views)]
+        while len(self._banks) < sum(len(lm.rsm) for lm in self.lights):
+            bank = {name: wp.zeros(a.shape, dtype=a.dtype, device=self.device)
+                    for name, a in self._banks[0].items() if name != "_group_views"}
+            bank["_group_views"] = {}
+            self._banks.append(bank)
+
+    def _bank_index(self, light_index: int, view_index: int) -> int:
+        return sum(len(lm.rsm) for lm in self.lights[:light_index]) + view_index
+
+    def lane_scratch(self, light_index: int, view_index: int) -> list[wp.array]:
+        """The scratch arrays the photon launches of light ``light_index``'s view ``view_index`` write (its bank with
+        lanes; the pass's own without)."""
+        if self.lanes is not None and self._banks:  # what a concurrent frame hands the view
+            bank = self._banks[self._bank_index(light_index, view_index)]
+        else:
+            bank = {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
+        return [a for name, a in bank.items() if name != "_group_views"]
+
+    def _active_lanes(self):
+        """``lanes`` while a concurrent frame is being issued with them, else None."""
+        return self.lanes if self.lanes is not None and self.lanes.active else None
+
+    def join_lights(self) -> None:
+        """The current stream (main) waits for every lane (before work that reads all views' photons on it)."""
+        if self._active_lanes() is not None:
+            self.lanes.join()
+
+    def light_lane(self, light_index: int):
+        """The body's launches for light ``light_index`` (its luminance maximum, outside booking) on its light lane,
+        in a concurrent frame; else on the current stream (nothing changes)."""
+        return nullcontext() if self._active_lanes() is None else self.lanes.branch(light_index)
+
+    @contextmanager
+    def view_lane(self, light_index: int, view_index: int, after=()):
+        """The body's launches for light ``light_index``'s RSM view ``view_index`` (photon order, trace, outcomes) on
+        its view lane after the marks ``after``, with its scratch bank, in a concurrent frame; else on the current
+        stream with the pass's own arrays (nothing changes)."""
+        if self._active_lanes() is None:
+            yield
+            return
+        bank = self._banks[self._bank_index(light_index, view_index)]
+        for name, a in bank.items():
+            setattr(self, name, a)
+        try:
+            with self.lanes.branch(self.lanes.view_lane(light_index, view_index), after):
+                yield
+        finally:
+            for name, a in self._banks[0].items():
+                setattr(self, name, a)
 
     def keep_photon_m2(self, n: int) -> None:
         """Allocate ``photon_m2`` for ``n`` camera pixels: a method whose photons are stored by ``common.deposit``
@@ -319,16 +390,22 @@ class PhotonPass:
         if self.photon_m2 is not None:
             self.photon_m2.zero_()
         for li, lm in enumerate(self.lights):
-            for r in lm.whole_rsm:
-                n = r.width * r.height
-                block = 256 if self.device.is_cuda else 1
-                blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
-                wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
-                                inputs=[r.flux, n, self._max_lum_of[li]])
-            for b, r in enumerate(lm.pilot):
-                self.launch_photons(C.book_outside_window, r.width * r.height,
-                                    [r.flux, r.width, r.width * r.height, lm.outside, lm.outside_angle, b,
-                                     wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger_rows])
+            with self.light_lane(li):
+                self.begin_light(li, lm)
+
+    def begin_light(self, li: int, lm: LightMaps) -> None:
+        """Light ``li``'s part of :meth:`begin`: its brightest whole-view texel, and the power outside its fitted
+        views booked."""
+        for r in lm.whole_rsm:
+            n = r.width * r.height
+            block = 256 if self.device.is_cuda else 1
+            blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
+            wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
+                            inputs=[r.flux, n, self._max_lum_of[li]])
+        for b, r in enumerate(lm.pilot):
+            self.launch_photons(C.book_outside_window, r.width * r.height,
+                                [r.flux, r.width, r.width * r.height, lm.outside, lm.outside_angle, b,
+                                 wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger_rows])
 
     def launch_photons(self, kernel, n: int, inputs: list) -> None:
         """Launch a photon kernel over ``n`` photons as ``wp.launch_tiled`` blocks of ``ledger_block`` threads
@@ -443,17 +520,21 @@ class PhotonPass:
         for li, lm in enumerate(self.lights):
             light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
             slots = self.view_slots(lm)
+            # with lanes, each view's photons (and the caller's launches for its batch, between the yields) go on the
+            # view's lane with its scratch bank, after its light's lane (its RSM views, its luminance maximum)
+            after = () if self._active_lanes() is None else (self.lanes.mark(li),)
             for vi, r in enumerate(lm.rsm):
                 if slots[vi] == 0:
                     continue
-                sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
-                scramble = wp.vec2i(sx, sy)
-                params = None if lm.fitted else lm.params[vi]
-                skip = None if lm.fitted else wp.vec4(0.0)
-                stream = self.inputs.rsm_stream(li, vi)
-                yield RSMBatch(li, vi, lm, params, r, slots[vi], seed, scramble,
-                               self.photon_order(lm, vi, r, slots[vi], stream, self._max_lum_of[li]), light_pos,
-                               skip, float(s.luminance_cutoff), slots[vi], s.photons, stream)
+                with self.view_lane(li, vi, after):
+                    sx, sy, seed = frame_random(s.seed, frame, li * 64 + vi)
+                    scramble = wp.vec2i(sx, sy)
+                    params = None if lm.fitted else lm.params[vi]
+                    skip = None if lm.fitted else wp.vec4(0.0)
+                    stream = self.inputs.rsm_stream(li, vi)
+                    yield RSMBatch(li, vi, lm, params, r, slots[vi], seed, scramble,
+                                   self.photon_order(lm, vi, r, slots[vi], stream, self._max_lum_of[li]), light_pos,
+                                   skip, float(s.luminance_cutoff), slots[vi], s.photons, stream)
 
     def trace(self, gbuffer: GBuffer, camera: wp.struct, frame: int) -> None:
         raise NotImplementedError

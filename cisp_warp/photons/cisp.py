@@ -140,4 +140,5 @@ class CISP(PhotonPass):
                 *self.hidden_args(b), *self.flow_args(b)])
             self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)
         if self.flow is not None:
+            self.join_lights()  # the flow's cells hold every light's landings
             self.flow.finish()

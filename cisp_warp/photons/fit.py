@@ -719,47 +719,70 @@ class LightViewFitter:
     def trace_pilots(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
         """Draw the pilot views and trace their receiver depths (``receiver_depth``). The camera and the seeds are
         read from ``inputs`` (written here when they do not hold ``frame`` yet and no graph is being captured)."""
+        self.frame_inputs(camera, frame)
+        for i in range(len(self.lights)):
+            self.render_pilots(i, raster)
+        for i in range(len(self.lights)):
+            self.trace_light_pilots(i)
+
+    def frame_inputs(self, camera: wp.struct, frame: int) -> None:
+        """Make ``inputs`` hold ``frame`` (written here when they do not yet and no graph is being captured)."""
         if self.inputs.frame != frame and not (self.device.is_cuda and self.device.is_capturing):
             self.inputs.write(frame, camera, camera)
         self.cam.view = camera
-        for lm in self.lights:
-            lm.render_pilot(raster)
-        for i, (li, lm, depths) in enumerate(zip(self.light_index, self.lights, self.receiver_depth)):
-            light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
-            for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
-                sp = r.specular
-                inputs = [r.view.params(), int(lm.light.kind), light_pos, sp.depth, r.flux, sp.roughness,
-                          sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
-                          float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel),
-                          float(self.t_max), int(self.max_bounces), self.inputs.randoms,
-                          self.inputs.pilot_stream(li, vi)]
-                if self.one_thread_per_texel:
-                    wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=inputs + [depth])
-                else:
-                    wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
-                              inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
-            if not self.one_thread_per_texel:
-                p = lm.pilot[0]
-                wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
-                          inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
+
+    def render_pilots(self, i: int, raster: Rasterizer) -> None:
+        """Draw fitted light ``i``'s pilot views (they read no camera: a renderer may draw them beside the G-buffer)."""
+        self.lights[i].render_pilot(raster)
+
+    def trace_light_pilots(self, i: int) -> None:
+        """Trace fitted light ``i``'s pilot texels to their receivers (reads the camera's G-buffer)."""
+        li, lm, depths = self.light_index[i], self.lights[i], self.receiver_depth[i]
+        light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
+        for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
+            sp = r.specular
+            inputs = [r.view.params(), int(lm.light.kind), light_pos, sp.depth, r.flux, sp.roughness,
+                      sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
+                      float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel),
+                      float(self.t_max), int(self.max_bounces), self.inputs.randoms,
+                      self.inputs.pilot_stream(li, vi)]
+            if self.one_thread_per_texel:
+                wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=inputs + [depth])
+            else:
+                wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
+                          inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
+        if not self.one_thread_per_texel:
+            p = lm.pilot[0]
+            wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
+                      inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
 
     def fit_device(self) -> None:
         """Fit every light's cascades to its pilots' receiver depths in three launches per light."""
+        for i in range(len(self.lights)):
+            self.fit_light(i)
+
+    def fit_light(self, i: int) -> None:
+        """Fit fitted light ``i``'s cascades to its pilots' receiver depths on the device (three launches)."""
         block = self.fit_block
-        for i, lm in enumerate(self.lights):
-            vs = lm.view_settings
-            p = lm.pilot[0]
-            nv = len(lm.pilot)
-            wp.launch_tiled(fit_reduce_angles, dim=(nv, FIT_STEPS + 1), block_dim=block, device=self.device,
-                            inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], self._boxes[i]])
-            wp.launch_tiled(fit_reduce_cascades, dim=(nv, lm.cascades), block_dim=block, device=self.device,
-                            inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], lm.cascades,
-                                    self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i], self._angles[i]])
-            wp.launch(fit_solve, dim=1, device=self.device, inputs=[
-                lm.pilot_views, p.width, p.height, self._aspects[i], nv, lm.cascades, float(vs.margin), lm.rsm_size,
-                self._cascade_boxes[i], self._cascade_counts[i], self._angles[i], lm.views, lm.states, lm.outside,
-                lm.outside_angle])
-            lm.refresh_cascade_solid_angles()
+        lm = self.lights[i]
+        vs = lm.view_settings
+        p = lm.pilot[0]
+        nv = len(lm.pilot)
+        wp.launch_tiled(fit_reduce_angles, dim=(nv, FIT_STEPS + 1), block_dim=block, device=self.device,
+                        inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], self._boxes[i]])
+        wp.launch_tiled(fit_reduce_cascades, dim=(nv, lm.cascades), block_dim=block, device=self.device,
+                        inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], lm.cascades,
+                                self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i], self._angles[i]])
+        wp.launch(fit_solve, dim=1, device=self.device, inputs=[
+            lm.pilot_views, p.width, p.height, self._aspects[i], nv, lm.cascades, float(vs.margin), lm.rsm_size,
+            self._cascade_boxes[i], self._cascade_counts[i], self._angles[i], lm.views, lm.states, lm.outside,
+            lm.outside_angle])
+        lm.refresh_cascade_solid_angles()
+
+    def light_scratch(self, i: int) -> list[wp.array]:
+        """The arrays fitted light ``i``'s pilot trace and fit write besides its own ``LightMaps``."""
+        return [self.receiver_depth_all[i], self.branch_depth_all[i], self._boxes[i], self._cascade_boxes[i],
+                self._cascade_counts[i], self._angles[i]]
 
     def fit_host(self) -> None:
         """The naive twin: read the receiver depths back (a host sync), fit in numpy, ``LightMaps.set_windows``."""
