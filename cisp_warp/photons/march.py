@@ -341,15 +341,13 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
         return (0, MARCH_EXIT, int(0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0),
                 wp.vec2(0.0), wp.vec2(0.0))
     ds = s1 - s0
+    # one division per axis and one for the step, their operands selected first: the same quotients as a division
+    # in each branch, with fewer of the divisions' slow-path merges in the kernels that inline every march
     s_end = float(1.0)
-    if ds[0] > 0.0:
-        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-    elif ds[0] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-    if ds[1] > 0.0:
-        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-    elif ds[1] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+    if ds[0] > 0.0 or ds[0] < 0.0:  # not for 0 (nor NaN), as the branches were
+        s_end = wp.min(s_end, wp.where(ds[0] > 0.0, w - 1.0e-3 - s0[0], 1.0e-3 - s0[0]) / ds[0])
+    if ds[1] > 0.0 or ds[1] < 0.0:
+        s_end = wp.min(s_end, wp.where(ds[1] > 0.0, h - 1.0e-3 - s0[1], 1.0e-3 - s0[1]) / ds[1])
     s_end = wp.max(s_end, 0.0)
     pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
     n = int(wp.ceil(pixels))
@@ -358,9 +356,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
         n = max_steps
         status = MARCH_STEPS
     n = wp.max(n, 1)
-    ds_step = s_end / float(n)
-    if pixels > float(max_steps):
-        ds_step = s_end / pixels
+    ds_step = s_end / wp.where(pixels > float(max_steps), pixels, float(n))
     return 1, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds
 
 
