@@ -594,33 +594,31 @@ def _make_marches(back_layer: bool, counted: bool = False):
         i = int(1)
         while i <= n:
             tx = _texel(view, s0, ds, ds_step * float(i))
-            # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow (each
-            # test continues on its own skip: no skip flag or second end step carried between the two tests)
+            # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
             last = n
-            coarse = (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE
-            if coarse != failed_coarse:
+            skip = False
+            zr_last = float(0.0)
+            if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
-                b = bounds[coarse_0 + coarse]
+                b = bounds[coarse_0 + cj * coarse_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
                 zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-                if wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]:
-                    # no step i..last can hit: continue after them, as the naive march would
-                    s_prev = ds_step * float(last)
-                    zr_prev = zr_last
-                    diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
-                    i = last + 1
-                    continue
-                failed_coarse = coarse
-            last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
-            b = bounds[cj * fine_x + ci]
-            if wp.static(counted):
-                work += WORK_TESTS
-            zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-            if wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]:
+                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+                if not skip:
+                    failed_coarse = cj * coarse_x + ci
+            if not skip:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
+                b = bounds[cj * fine_x + ci]
+                if wp.static(counted):
+                    work += WORK_TESTS
+                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
+                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+            if skip:
+                # no step i..last can hit: continue after them, as the naive march would
                 s_prev = ds_step * float(last)
                 zr_prev = zr_last
-                diff_prev = DIFF_UNREAD
+                diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
                 i = last + 1
                 continue
             while i <= last:
