@@ -161,10 +161,7 @@ def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev
 @wp.func
 def _segment_t(orthographic: int, k0: float, k1: float, t1: float, s: float) -> float:
     """Ray parameter t of screen-segment parameter ``s`` (perspective-correct)."""
-    lam = s
-    if orthographic == 0:
-        lam = s * k1 / ((1.0 - s) * k0 + s * k1)
-    return lam * t1
+    return wp.where(orthographic == 0, s * k1 / ((1.0 - s) * k0 + s * k1), s) * t1
 
 
 # BOUNDS_CELL (8): edge [texels] of the fine cells of :func:`depth_bounds`; BOUNDS_COARSE (32): of its coarse cells
@@ -316,8 +313,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
     if z0 < near:
         return (0, MARCH_EXIT, int(0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0),
                 wp.vec2(0.0), wp.vec2(0.0))
-    if rate < 0.0:
-        t1 = wp.min(t1, (z0 - near) / (-rate))
+    t1 = wp.where(rate < 0.0, wp.min(t1, (z0 - near) / (-rate)), t1)  # (selected: see below)
     if view.orthographic == 0:
         t1 = wp.min(t1, 1.0e6)
     p1 = p0 + dv * t1
@@ -581,11 +577,10 @@ def _make_marches(back_layer: bool, counted: bool = False):
         fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
         coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
         coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
-        inv_step = wp.vec2(0.0)  # 1 / (screen pixels per step) along each axis, for the cell exits
-        if ds[0] != 0.0:
-            inv_step[0] = 1.0 / (ds[0] * ds_step)
-        if ds[1] != 0.0:
-            inv_step[1] = 1.0 / (ds[1] * ds_step)
+        # 1 / (screen pixels per step) along each axis (0 where the segment does not move along it), for the cell
+        # exits; selected, not assigned in branches (the same values, no division merged through local memory)
+        inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
+                           wp.where(ds[1] != 0.0, 1.0 / (ds[1] * ds_step), 0.0))
         s_prev = float(0.0)
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
