@@ -141,19 +141,25 @@ def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev
     section 17). After a sample with no surface (BIG_DEPTH) the crossing is that with the current sample's depth."""
     diff = zr - zs
     if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
+        # the four cases' quotients (orthographic or perspective; eq. 2 or within the pixel), their operands
+        # selected and divided once (the same values as a division in each branch: the kernels that inline every
+        # march merge fewer divisions through local memory; docs/perf_notes.md section 44)
+        persp = orthographic == 0
+        zs_prev = zr_prev - diff_prev
+        eq2 = diff_prev < 0.0 and diff >= 0.0 and (not persp or zs_prev < BIG_DEPTH)
+        inv_prev = 1.0 / zr_prev
+        inv_r = 1.0 / zr
+        inv_s = 1.0 / zs
+        a = inv_prev - 1.0 / zs_prev
+        # orthographic: eq. 2, where the two depth segments cross, or the crossing within this pixel;
+        # perspective: the same in 1/depth
+        num = wp.where(persp, wp.where(eq2, a, inv_prev - inv_s), wp.where(eq2, diff_prev, zs - zr_prev))
+        den = wp.where(persp, wp.where(eq2, a - (inv_r - inv_s), inv_prev - inv_r),
+                       wp.where(eq2, diff_prev - diff, zr - zr_prev))
         u = float(1.0)
-        if orthographic != 0:
-            if diff_prev < 0.0 and diff >= 0.0:
-                u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
-            elif zr != zr_prev:
-                u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
-        else:
-            zs_prev = zr_prev - diff_prev
-            if diff_prev < 0.0 and diff >= 0.0 and zs_prev < BIG_DEPTH:
-                a = 1.0 / zr_prev - 1.0 / zs_prev
-                u = a / (a - (1.0 / zr - 1.0 / zs))  # eq. 2 in 1/depth
-            elif zr != zr_prev:
-                u = wp.clamp((1.0 / zr_prev - 1.0 / zs) / (1.0 / zr_prev - 1.0 / zr), 0.0, 1.0)  # within this pixel
+        if eq2 or zr != zr_prev:
+            q = num / den
+            u = wp.where(eq2, q, wp.clamp(q, 0.0, 1.0))
         return u
     return -1.0
 
