@@ -110,9 +110,7 @@ def surface_far(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int, zs:
     if depth.shape[0] > n:
         zb = depth[n + p]
         if zb > 0.0:
-            foot = float(1.0) / view.fx
-            if view.orthographic == 0:
-                foot = zs / view.fx
+            foot = wp.where(view.orthographic == 0, zs, 1.0) / view.fx  # (one division, its numerator selected)
             far = wp.min(far, wp.max(zs + 0.5 * (zb - zs), zs + MIN_THICKNESS_PX * foot))
     return far
 
