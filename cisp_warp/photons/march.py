@@ -317,7 +317,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
     if z0 < near:
         return (0, MARCH_EXIT, int(0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0),
                 wp.vec2(0.0), wp.vec2(0.0))
-    t1 = wp.where(rate < 0.0, wp.min(t1, (z0 - near) / (-rate)), t1)  # (selected: see below)
+    t1 = wp.where(rate < 0.0, wp.min(t1, (z0 - near) / (-rate)), t1)  # selected, as the divisions below
     if view.orthographic == 0:
         t1 = wp.min(t1, 1.0e6)
     p1 = p0 + dv * t1
