@@ -11,6 +11,11 @@ same compiler's cubin.
     python tools/regcount.py --modules cisp_warp.shade,cisp_warp.raster.kernels  # any module (blocks as launched)
     python tools/regcount.py --modules denoise    # the denoisers' kernels (DENOISE_MODULES)
     python tools/regcount.py --modules denoise --sass out/   # also each module's SASS (cuobjdump, if installed)
+    python tools/regcount.py --kernels trace_photons --local  # and where its local loads/stores are (nvdisasm)
+
+``--local`` compiles with line info (``wp.config.lineinfo``) and attributes every local load and store (STL/LDL:
+spills, and values merged through local memory, such as an IEEE division's fast and slow paths inside a branch) to
+the Python lines it was inlined from and to the innermost SASS loop it lies in (docs/perf_notes.md section 44).
 """
 
 from __future__ import annotations
@@ -103,34 +108,125 @@ def kernel_usage(cubin: Path) -> dict[str, dict[str, int]]:
     return out
 
 
-def compile_module(module_name: str, block_dim: int, arch: int, out_dir: Path) -> Path:
+def compile_module(module_name: str, block_dim: int, arch: int, out_dir: Path, lineinfo: bool = False) -> Path:
     import warp as wp
 
     module = importlib.import_module(module_name)
-    wp.get_module(module.__name__).options["block_dim"] = block_dim
-    paths = wp.compile_aot_module(module, arch=arch, module_dir=out_dir, use_ptx=False)
+    options = wp.get_module(module.__name__).options
+    options["block_dim"] = block_dim
+    kept = options["lineinfo"]
+    options["lineinfo"] = lineinfo  # a compile option of the module (a cubin of its own), restored after
+    try:
+        paths = wp.compile_aot_module(module, arch=arch, module_dir=out_dir, use_ptx=False)
+    finally:
+        options["lineinfo"] = kept
     return next(p for p in paths if p.suffix == ".cubin")
 
 
-def write_sass(cubin: Path, out: Path) -> bool:
-    """The SASS of ``cubin`` into ``out`` with ``cuobjdump -sass`` (on PATH or from the ``nvidia-cuda-cuobjdump``
-    wheel, which needs ``nvdisasm`` beside it: the ``nvidia-cuda-nvdisasm`` wheel); False if there is none."""
+def _cuda_tool(name: str):
+    """(path, environment) of a CUDA binary tool: on PATH or from the ``nvidia-cuda-*`` wheels; (None, None) if none."""
     import os
     import shutil
-    import subprocess
 
-    tool = shutil.which("cuobjdump")
+    tool = shutil.which(name)
     env = dict(os.environ)
     if tool is None:
         try:
             import nvidia
 
             for base in nvidia.__path__:
-                for cand in Path(base).glob("*/bin/cuobjdump"):
+                for cand in Path(base).glob(f"*/bin/{name}"):
                     tool = str(cand)
                     env["PATH"] = f"{cand.parent}{os.pathsep}{env.get('PATH', '')}"
         except ImportError:
             pass
+    return (tool, env) if tool else (None, None)
+
+
+def local_memory(cubin: Path) -> dict[str, list[dict]] | None:
+    """{kernel (Warp's hash and suffix removed): one dict per local load or store (``op`` STL/LDL, ``address``,
+    ``loop``: the start address of the innermost backward branch's range holding it, or None; ``source``: the Python
+    ``file:line`` it comes from, innermost inlined function first)} from ``nvdisasm -gi`` of a cubin compiled with
+    line info; None without nvdisasm."""
+    import subprocess
+
+    tool, env = _cuda_tool("nvdisasm")
+    if tool is None:
+        return None
+    text = subprocess.run([tool, "-gi", "-c", str(cubin)], capture_output=True, text=True, env=env).stdout
+    kernels: dict[str, list] = {}
+    insts = None
+    labels: dict[str, int] = {}
+    pending_labels: list[str] = []
+    chain: list[str] = []
+    in_chain = False
+    for line in text.splitlines():
+        m = re.match(r"//-+ \.text\.(\S+) ", line)
+        if m:
+            kernel = re.sub(r"_[0-9a-f]{8}_cuda_kernel_forward$", "", m.group(1))
+            insts = kernels.setdefault(kernel, []) if kernel != m.group(1) else None
+            labels, pending_labels = {}, []
+            continue
+        if insts is None:
+            continue
+        m = re.match(r"^(\.L_x_\d+):", line)
+        if m:
+            pending_labels.append(m.group(1))
+            continue
+        m = re.match(r"\s*//## File (.*)", line)
+        if m:
+            if not in_chain:
+                chain = []
+            in_chain = True
+            chain += [f"{Path(f).name}:{n}" for f, n in re.findall(r'"([^"]*)", line (\d+)', m.group(1))
+                      if f.endswith(".py")]
+            continue
+        m = re.match(r"\s*/\*([0-9a-f]+)\*/\s+(.*)", line)
+        if m:
+            in_chain = False
+            address = int(m.group(1), 16)
+            for label in pending_labels:
+                labels[label] = address
+            pending_labels = []
+            branch = re.search(r"\bBRA\b[^;]*?(\.L_x_\d+)", m.group(2))
+            insts.append((address, m.group(2), list(dict.fromkeys(chain)), branch.group(1) if branch else None,
+                          labels))
+    out = {}
+    for kernel, insts in kernels.items():
+        loops = []  # (start, end) of each backward branch's range
+        for address, _, _, target, labels in insts:
+            if target in labels and labels[target] < address:
+                loops.append((labels[target], address))
+        out[kernel] = []
+        for address, inst, source, _, _ in insts:
+            op = re.sub(r"^@!?U?P\w+\s+", "", inst).split()[0].split(".")[0]
+            if op in ("STL", "LDL"):
+                inner = [b for b, e in loops if b <= address <= e]
+                # innermost: the latest start; the kernel's own grid-stride loop spans everything and counts as none
+                inner = [b for b in inner if (b, max(e for bb, e in loops if bb == b)) != min(loops)] if inner else []
+                out[kernel].append({"op": op, "address": address, "loop": max(inner) if inner else None,
+                                    "source": source})
+    return out
+
+
+def print_local(kernel: str, ops: list[dict], top: int = 12) -> None:
+    """Print a kernel's local loads and stores: the total, those in loops, and the most frequent (loop, source)."""
+    from collections import Counter
+
+    in_loops = sum(1 for o in ops if o["loop"] is not None)
+    print(f"{'':>18} {kernel}: {len(ops)} local loads/stores, {in_loops} of them in loops")
+    counts = Counter((o["loop"], " <- ".join(o["source"][:4])) for o in ops)
+    for (loop, source), n in counts.most_common(top):
+        where = f"loop {loop:#x}" if loop is not None else "no loop"
+        print(f"{'':>20} {n:4d}  {where:<14} {source}")
+
+
+def write_sass(cubin: Path, out: Path) -> bool:
+    """The SASS of ``cubin`` into ``out`` with ``cuobjdump -sass`` (on PATH or from the ``nvidia-cuda-cuobjdump``
+    wheel, which needs ``nvdisasm`` beside it: the ``nvidia-cuda-nvdisasm`` wheel); False if there is none."""
+    import subprocess
+
+    tool, env = _cuda_tool("cuobjdump")
     if tool is None:
         return False
     res = subprocess.run([tool, "-sass", str(cubin)], capture_output=True, text=True, env=env)
@@ -145,6 +241,8 @@ def main(argv=None) -> int:
                     help="comma-separated module names (blocks as in PHOTON_MODULES / FRAME_MODULES, else 128)")
     ap.add_argument("--kernels", default="", help="comma-separated words; only kernels whose name contains one")
     ap.add_argument("--sass", default="", help="folder: write each module's SASS there (MODULE.sass)")
+    ap.add_argument("--local", action="store_true",
+                    help="also where each kernel's local loads and stores are (line info; nvdisasm, if installed)")
     args = ap.parse_args(argv)
 
     import warp as wp
@@ -160,7 +258,10 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             block = block_of.get(name, 128)
-            cubin = compile_module(name, block, args.arch, Path(tmp) / name)
+            cubin = compile_module(name, block, args.arch, Path(tmp) / name, lineinfo=args.local)
+            local = local_memory(cubin) if args.local else None
+            if args.local and local is None:
+                print("no nvdisasm: local memory not attributed")
             if args.sass:
                 Path(args.sass).mkdir(parents=True, exist_ok=True)
                 if not write_sass(cubin, Path(args.sass) / f"{name}.sass"):
@@ -170,6 +271,8 @@ def main(argv=None) -> int:
                     continue
                 print(f"{name.rsplit('.', 1)[-1]:>18} {kernel:<32} {u.get('registers', 0):4d} regs "
                       f"{u.get('frame_bytes', 0):5d} B frame  (block {block})")
+                if local is not None and kernel in local:
+                    print_local(kernel, local[kernel])
     return 0
 
 

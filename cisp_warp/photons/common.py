@@ -54,11 +54,12 @@ FOOTPRINT_PAPER = wp.constant(1)
 
 
 LEDGER_BLOCK = 128  #: threads per block of the photon kernels on CUDA: each block adds to the ledger once per entry
-#: CUDA launch bounds of CISP's trace kernel: blocks of at most LEDGER_BLOCK threads, 6 resident per SM (<= 80
+#: CUDA launch bounds of CISP's trace kernel: blocks of at most LEDGER_BLOCK threads, 8 resident per SM (<= 64
 #: registers a thread). Measured on an H100 (Cornell box, 2M photons): 3.03 ms at the 128 registers nvcc picks by
-#: itself, 2.51 ms at 80 (a few spilled to L1), 2.76 ms at 96. Not yet measured on sspm / caustics_map, which keep
-#: nvcc's choice.
-PHOTON_LAUNCH_BOUNDS = (LEDGER_BLOCK, 6)
+#: itself, 2.51 ms at 80 (a few spilled to L1), 2.76 ms at 96 (section 8); after the marches' divisions were merged
+#: without local memory (docs/perf_notes.md section 44) 8 blocks beat 6 by 2-3% on both scenes (4 blocks, 128
+#: registers and no spill in any loop, lost 2-6%). Not yet measured on sspm / caustics_map, which keep nvcc's choice.
+PHOTON_LAUNCH_BOUNDS = (LEDGER_BLOCK, 8)
 #: vec3d slots of one ledger stripe: the LEDGER_ENTRIES entries, padded to 384 bytes (three 128-byte lines)
 LEDGER_ROW = wp.constant(16)
 #: stripes of the device ledger on CUDA. A block adds its sums to stripe ``block % stripes`` and :func:`ledger_fold`

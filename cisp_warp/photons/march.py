@@ -110,9 +110,7 @@ def surface_far(view: ViewParams, depth: wp.array(dtype=wp.float32), p: int, zs:
     if depth.shape[0] > n:
         zb = depth[n + p]
         if zb > 0.0:
-            foot = float(1.0) / view.fx
-            if view.orthographic == 0:
-                foot = zs / view.fx
+            foot = wp.where(view.orthographic == 0, zs, 1.0) / view.fx  # (one division, its numerator selected)
             far = wp.min(far, wp.max(zs + 0.5 * (zb - zs), zs + MIN_THICKNESS_PX * foot))
     return far
 
@@ -141,19 +139,25 @@ def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev
     section 17). After a sample with no surface (BIG_DEPTH) the crossing is that with the current sample's depth."""
     diff = zr - zs
     if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
+        # the four cases' quotients (orthographic or perspective; eq. 2 or within the pixel), their operands
+        # selected and divided once (the same values as a division in each branch: the kernels that inline every
+        # march merge fewer divisions through local memory; docs/perf_notes.md section 44)
+        persp = orthographic == 0
+        zs_prev = zr_prev - diff_prev
+        eq2 = diff_prev < 0.0 and diff >= 0.0 and (not persp or zs_prev < BIG_DEPTH)
+        inv_prev = 1.0 / zr_prev
+        inv_r = 1.0 / zr
+        inv_s = 1.0 / zs
+        a = inv_prev - 1.0 / zs_prev
+        # orthographic: eq. 2, where the two depth segments cross, or the crossing within this pixel;
+        # perspective: the same in 1/depth
+        num = wp.where(persp, wp.where(eq2, a, inv_prev - inv_s), wp.where(eq2, diff_prev, zs - zr_prev))
+        den = wp.where(persp, wp.where(eq2, a - (inv_r - inv_s), inv_prev - inv_r),
+                       wp.where(eq2, diff_prev - diff, zr - zr_prev))
         u = float(1.0)
-        if orthographic != 0:
-            if diff_prev < 0.0 and diff >= 0.0:
-                u = diff_prev / (diff_prev - diff)  # eq. 2: where the two depth segments cross
-            elif zr != zr_prev:
-                u = wp.clamp((zs - zr_prev) / (zr - zr_prev), 0.0, 1.0)  # crossing within this pixel
-        else:
-            zs_prev = zr_prev - diff_prev
-            if diff_prev < 0.0 and diff >= 0.0 and zs_prev < BIG_DEPTH:
-                a = 1.0 / zr_prev - 1.0 / zs_prev
-                u = a / (a - (1.0 / zr - 1.0 / zs))  # eq. 2 in 1/depth
-            elif zr != zr_prev:
-                u = wp.clamp((1.0 / zr_prev - 1.0 / zs) / (1.0 / zr_prev - 1.0 / zr), 0.0, 1.0)  # within this pixel
+        if eq2 or zr != zr_prev:
+            q = num / den
+            u = wp.where(eq2, q, wp.clamp(q, 0.0, 1.0))
         return u
     return -1.0
 
@@ -161,10 +165,7 @@ def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev
 @wp.func
 def _segment_t(orthographic: int, k0: float, k1: float, t1: float, s: float) -> float:
     """Ray parameter t of screen-segment parameter ``s`` (perspective-correct)."""
-    lam = s
-    if orthographic == 0:
-        lam = s * k1 / ((1.0 - s) * k0 + s * k1)
-    return lam * t1
+    return wp.where(orthographic == 0, s * k1 / ((1.0 - s) * k0 + s * k1), s) * t1
 
 
 # BOUNDS_CELL (8): edge [texels] of the fine cells of :func:`depth_bounds`; BOUNDS_COARSE (32): of its coarse cells
@@ -316,8 +317,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
     if z0 < near:
         return (0, MARCH_EXIT, int(0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0),
                 wp.vec2(0.0), wp.vec2(0.0))
-    if rate < 0.0:
-        t1 = wp.min(t1, (z0 - near) / (-rate))
+    t1 = wp.where(rate < 0.0, wp.min(t1, (z0 - near) / (-rate)), t1)  # selected, as the divisions below
     if view.orthographic == 0:
         t1 = wp.min(t1, 1.0e6)
     p1 = p0 + dv * t1
@@ -341,15 +341,13 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
         return (0, MARCH_EXIT, int(0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0), float(0.0),
                 wp.vec2(0.0), wp.vec2(0.0))
     ds = s1 - s0
+    # one division per axis and one for the step, their operands selected first: the same quotients as a division
+    # in each branch, with fewer of the divisions' slow-path merges in the kernels that inline every march
     s_end = float(1.0)
-    if ds[0] > 0.0:
-        s_end = wp.min(s_end, (w - 1.0e-3 - s0[0]) / ds[0])
-    elif ds[0] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[0]) / ds[0])
-    if ds[1] > 0.0:
-        s_end = wp.min(s_end, (h - 1.0e-3 - s0[1]) / ds[1])
-    elif ds[1] < 0.0:
-        s_end = wp.min(s_end, (1.0e-3 - s0[1]) / ds[1])
+    if ds[0] > 0.0 or ds[0] < 0.0:  # not for 0 (nor NaN), as the branches were
+        s_end = wp.min(s_end, wp.where(ds[0] > 0.0, w - 1.0e-3 - s0[0], 1.0e-3 - s0[0]) / ds[0])
+    if ds[1] > 0.0 or ds[1] < 0.0:
+        s_end = wp.min(s_end, wp.where(ds[1] > 0.0, h - 1.0e-3 - s0[1], 1.0e-3 - s0[1]) / ds[1])
     s_end = wp.max(s_end, 0.0)
     pixels = wp.max(wp.abs(ds[0]), wp.abs(ds[1])) * s_end
     n = int(wp.ceil(pixels))
@@ -358,9 +356,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
         n = max_steps
         status = MARCH_STEPS
     n = wp.max(n, 1)
-    ds_step = s_end / float(n)
-    if pixels > float(max_steps):
-        ds_step = s_end / pixels
+    ds_step = s_end / wp.where(pixels > float(max_steps), pixels, float(n))
     return 1, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds
 
 
@@ -585,11 +581,10 @@ def _make_marches(back_layer: bool, counted: bool = False):
         fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
         coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
         coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
-        inv_step = wp.vec2(0.0)  # 1 / (screen pixels per step) along each axis, for the cell exits
-        if ds[0] != 0.0:
-            inv_step[0] = 1.0 / (ds[0] * ds_step)
-        if ds[1] != 0.0:
-            inv_step[1] = 1.0 / (ds[1] * ds_step)
+        # 1 / (screen pixels per step) along each axis (0 where the segment does not move along it), for the cell
+        # exits; selected, not assigned in branches (the same values, no division merged through local memory)
+        inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
+                           wp.where(ds[1] != 0.0, 1.0 / (ds[1] * ds_step), 0.0))
         s_prev = float(0.0)
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
