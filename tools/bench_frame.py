@@ -122,6 +122,9 @@ def run_config(scene_path, method, n, args, device):
     if getattr(r.photons, "wavefront", None) is not None:
         row["traced"] = r.photons.wavefront.photons_traced()  # two sheets through every grid corner
     if args.kernels and device.is_cuda:
+        # per kernel from the sequential program: launched on several streams, kernels share the GPU and each one's
+        # own time says little (the concurrent frame's cost is its graph time above)
+        r.set_concurrent(False)
         wp.timing_begin(cuda_filter=wp.TIMING_ALL)
         for _ in range(args.frames):
             frame(r)
@@ -151,7 +154,8 @@ def main(argv=None) -> int:
                    help="--splat wavefront: cells over the RSM's texels or over the water mesh's triangles")
     p.add_argument("--frames", type=int, default=20, help="timed frames per configuration (after 3 warm-up)")
     p.add_argument("--kernels", action="store_true",
-                   help="also time every kernel (CUDA activity timing, separate frames) and count launches")
+                   help="also time every kernel (CUDA activity timing, separate frames of the one-stream program) and count "
+                        "launches")
     p.add_argument("--graph", action="store_true",
                    help="also time the frame replayed as one CUDA graph (CUDA; cisp/sspm with point splats)")
     p.add_argument("--animate", action="store_true",
