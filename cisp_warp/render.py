@@ -211,6 +211,7 @@ class Renderer:
         self.sky_map = self.sky.map if self.sky is not None else sky_map(None, self.device)
         self.sky_irradiance = self.sky.irradiance if self.sky is not None else wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
+        #: the opaque surface's radiance [W/(m² sr)] (the sequential program's; the concurrent one reads it where needed)
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
         #: the composite's rays that screen space cannot follow, traced on the opaque layer's BVH and shaded
@@ -512,16 +513,17 @@ class Renderer:
         w = g.water
         with stage("shade"):
             n = g.width * g.height
-            wp.launch(surface_radiance, dim=n, device=self.device,
-                      inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.sky_irradiance,
-                              self.surface_radiance])
             ps = self.settings.photons
-            if marched:
+            if marched:  # the surface radiance read where the gather needs it (surface_radiance is not written)
                 cs = self.composite_split
                 wp.launch(composite_gather, dim=n, device=self.device,
-                          inputs=[self.surface_radiance, cs.hits, cs.weights, self.hidden.missed, cs.hidden_sum,
+                          inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                                  self.sky_irradiance, cs.hits, cs.weights, self.hidden.missed, cs.hidden_sum,
                                   int(self._traces_hidden()), self.final])
             else:
+                wp.launch(surface_radiance, dim=n, device=self.device,
+                          inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                                  self.sky_irradiance, self.surface_radiance])
                 bounds = self._composite_bounds()
                 self._build_composite_bounds()
                 wp.launch(composite, dim=n, device=self.device,

@@ -172,6 +172,18 @@ def direct_light_pair(
         irradiance[p] = acc
 
 
+@wp.func
+def surface_radiance_at(depth: wp.array(dtype=wp.float32), albedo: wp.array(dtype=wp.vec3),
+                        direct_irradiance: wp.array(dtype=wp.vec3), caustic_irradiance: wp.array(dtype=wp.vec3),
+                        sky_irradiance: wp.array(dtype=wp.vec3), p: int) -> wp.vec3:
+    """Pixel ``p``'s Lambertian radiance [W/(m² sr)] (zero without an opaque surface): :func:`surface_radiance`'s
+    value, computed where it is read by :func:`composite_gather`."""
+    l_surface = wp.vec3(0.0)
+    if depth[p] > 0.0:
+        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
+    return l_surface
+
+
 @wp.kernel
 def surface_radiance(
     depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
@@ -391,7 +403,11 @@ def composite_march(
 
 @wp.kernel
 def composite_gather(
-    radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
+    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+    albedo: wp.array(dtype=wp.vec3),  # the opaque surface's radiance terms, as surface_radiance's (read)
+    direct_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
+    caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (the denoiser's)
+    sky_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
     hits: wp.array(dtype=wp.vec2i),  # (H*W,) composite_march's, with shade_hidden's seen pixels where ``hidden`` (read)
     weights: wp.array(dtype=wp.vec2),  # (H*W,) composite_march's throughputs (read)
     missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read where ``hidden``)
@@ -399,16 +415,17 @@ def composite_gather(
     hidden: int,  # 1: shade_hidden traced the missed rays (trace_hidden_rays): add what they bring
     final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
 ):
-    """:func:`composite`'s photon half, after the denoiser: the opaque radiance at :func:`composite_march`'s hits,
-    blended with its throughputs; with ``hidden``, then what ``shade_hidden.trace_hidden_rays`` found for the missed
-    rays (:func:`composite` + ``shade_hidden.trace_hidden`` in one pass: the same float32 sums in the same order, so
-    the image is theirs bit for bit on the CPU)."""
+    """:func:`composite`'s photon half, after the denoiser: the opaque radiance (:func:`surface_radiance_at`, read
+    where needed: no radiance buffer) at :func:`composite_march`'s hits, blended with its throughputs; with
+    ``hidden``, then what ``shade_hidden.trace_hidden_rays`` found for the missed rays. :func:`surface_radiance` +
+    :func:`composite` + ``shade_hidden.trace_hidden`` in one pass: the same float32 sums in the same order, so the
+    image is theirs bit for bit on the CPU."""
     p = wp.tid()
     h = hits[p]
     if h[0] == PIXEL_SKY:
         return
     if h[0] == PIXEL_OPAQUE:
-        final[p] = radiance[p]
+        final[p] = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
         return
     w = weights[p]
     bits = int(0)
@@ -416,19 +433,23 @@ def composite_gather(
         bits = missed[p]
     l = final[p]
     if h[0] >= 0 and (bits & MISSED_REFLECTED) == 0:
-        l = wp.vec3(0.0) + radiance[h[0]] * w[0]
+        lr = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[0])
+        l = wp.vec3(0.0) + lr * w[0]
     if h[1] >= 0 and (bits & MISSED_REFRACTED) == 0:
-        l = l + radiance[h[1]] * w[1]
+        lt = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[1])
+        l = l + lt * w[1]
     if (bits & (MISSED_REFRACTED | MISSED_REFLECTED)) != 0:
         # trace_hidden's sum: refracted ray first, then reflected; a ray seen by the camera reads its pixel here, the
         # others' terms are summed in hidden_sum (from zero, in that order)
         lh = hidden_sum[p]
         if (bits & MISSED_REFRACTED) != 0 and h[1] >= 0:
-            lh = wp.vec3(0.0) + radiance[h[1]] * w[1]
+            lt = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[1])
+            lh = wp.vec3(0.0) + lt * w[1]
             if (bits & MISSED_REFLECTED) != 0 and h[0] < 0:
                 lh = lh + hidden_sum[p]  # = 0 + the reflected term: adding it to a sum that is never -0 is the same
         if (bits & MISSED_REFLECTED) != 0 and h[0] >= 0:
-            lh = lh + radiance[h[0]] * w[0]
+            lr = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[0])
+            lh = lh + lr * w[0]
         l = l + lh
     final[p] = l
 
@@ -481,4 +502,4 @@ class DirectLighting:
 
 __all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY", "composite",
            "composite_gather", "composite_march", "direct_at", "direct_light",
-           "direct_light_pair", "LightKind", "shadow_map_args", "water_rays"]
+           "direct_light_pair", "LightKind", "shadow_map_args", "surface_radiance_at", "water_rays"]
