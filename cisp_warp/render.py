@@ -424,7 +424,8 @@ class Renderer:
           camera's depth bounds (``PhotonPass.view_lane``, entered by ``rsm_batches``);
         * shade: the sky after the G-buffer, the composite's depth bounds (where the photon pass keeps none of the
           same thickness: ``sspm``), the composite's marches and the hidden rays' trace (what they need of the G-buffer,
-          :meth:`_march_composite`), the direct light after every light's shadow maps (marks);
+          :meth:`_march_composite`), SVGF's guides (``SVGF.guides``), the direct light after every light's shadow
+          maps (marks);
         * main: G-buffer, the photon pass's zeroing, then (joined) denoise, surface radiance, the composite's gather,
           the hidden hits' direct light and caustic.
 
@@ -462,9 +463,15 @@ class Renderer:
                 self.sky.render(self.raster, g, self.inputs.cameras)
             self._build_composite_bounds()  # from the G-buffer alone: beside the photons too
             self._march_composite()  # likewise (the hidden rays read the sky's maps, drawn just before)
+            if self._svgf_guides_early():
+                self.denoiser.guides(g.depth, g.normal, g.tri_id)  # SVGF's G-buffer part, likewise
             lanes.wait(maps)
             self.direct.render(g, self.lights)
         lanes.end()  # joined
+
+    def _svgf_guides_early(self) -> bool:
+        """Whether the concurrent program writes SVGF's guides on the shade lane (``SVGF.guides``)."""
+        return self.photons is not None and self.photons.denoise and isinstance(self.denoiser, SVGF)
 
     def _traces_hidden(self) -> bool:
         """Whether the composite's missed rays go to ``shade_hidden`` (not for a method with its own final image)."""
@@ -493,7 +500,7 @@ class Renderer:
 
     def _denoise_and_shade(self, stage, marched: bool = False) -> None:
         """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
-        (``marched``: the composite's marches and the hidden rays' trace ran already, :meth:`_march_composite`: only
+        (``marched``: the composite's marches, the hidden rays' trace and SVGF's guides ran already, on the shade lane: only
         their gather, ``shade.composite_gather``, and the hidden hits' shading are left)."""
         g = self.gbuffer
         if self.photons is not None:
@@ -505,7 +512,8 @@ class Renderer:
                                           self.caustic_irradiance, self.photons.photon_m2,
                                           None if self.photons.flow is None else self.photons.flow.flow)
                 elif isinstance(self.denoiser, SVGF):
-                    self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
+                    self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
+                                          self.caustic_irradiance, guides_written=marched)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)
                 else:
