@@ -32,6 +32,11 @@ Buffers (per pixel p; slot 2p is the refracted ray, 2p + 1 the reflected one):
                 to face the ray (read only where the HIDDEN bit is set)
 ``hidden_uvw``  (2*H*W,) vec3: the hit's barycentrics (u, v: weights of the triangle's first and second vertex,
                 as ``wp.mesh_query_ray``) and the ray's throughput [1]
+
+The renderer's concurrent program splits this pass round the photons (docs/perf_notes.md section 47):
+:func:`trace_hidden_rays` (after ``shade.composite_march``, beside the photon trace) traces and shades what needs no
+photons, leaving a hit the camera sees as a pixel index in ``hits`` for ``shade.composite_gather``, which adds what
+:func:`trace_hidden` adds, after the denoiser; :func:`trace_hidden` (the sequential program) is its twin.
 """
 
 from __future__ import annotations

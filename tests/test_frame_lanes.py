@@ -96,16 +96,19 @@ def test_cuda_concurrent_graph_matches_sequential(method):
         assert diff.mean() <= 1e-5 * np.abs(fa).mean() and diff.max() <= 1e-3 * fa.max(), (diff.mean(), diff.max())
 
 
-@pytest.mark.parametrize("scene,hidden_rays", [("pool", "both"), ("pool", "none"), ("cornell_flooded", "refracted")])
-def test_cpu_split_composite_equals_composite_bitwise(scene, hidden_rays):
+@pytest.mark.parametrize("scene,hidden_rays,method,denoiser", [
+    ("pool", "both", "cisp", "svgf"), ("pool", "none", "cisp", "svgf"), ("cornell_flooded", "refracted", "cisp", "svgf"),
+    ("pool", "refracted", "cisp", "caustic"), ("pool", "both", "none", "svgf")])
+def test_cpu_split_composite_equals_composite_bitwise(scene, hidden_rays, method, denoiser):
     """The concurrent program's composite split round the photons (``shade.composite_march`` and
     ``shade_hidden.trace_hidden_rays`` on the shade lane, ``shade.composite_gather`` after the denoiser) gives the
     sequential ``composite`` + ``trace_hidden`` image bit for bit, with every case met: sky and opaque pixels, water
-    rays found in screen space, and missed rays that the BVH finds seen by the camera, hidden from it, or none."""
+    rays found in screen space, and missed rays that the BVH finds seen by the camera, hidden from it, or none; SVGF's
+    guides written on the shade lane (``SVGF.guides``) likewise; the caustics denoiser and no photons too."""
     out = {}
     for on in (False, True):
         s = load_usd(f"scenes_usd/{scene}.usda", width=48, height=32)
-        r = Renderer(s, RenderSettings(rsm_size=64, method="cisp", denoiser="svgf", hidden_rays=hidden_rays,
+        r = Renderer(s, RenderSettings(rsm_size=64, method=method, denoiser=denoiser, hidden_rays=hidden_rays,
                                        photons=PhotonSettings(photons=4000)), device="cpu")
         r.set_concurrent(on)
         for _ in range(2):
