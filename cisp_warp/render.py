@@ -211,7 +211,8 @@ class Renderer:
         self.sky_map = self.sky.map if self.sky is not None else sky_map(None, self.device)
         self.sky_irradiance = self.sky.irradiance if self.sky is not None else wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
-        #: the opaque surface's radiance [W/(m² sr)] (the sequential program's; the concurrent one reads it where needed)
+        #: the opaque surface's radiance [W/(m² sr)] (the sequential program's; the concurrent one computes it where
+        #: it reads it, ``shade.composite_gather``)
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
         #: the composite's rays that screen space cannot follow, traced on the opaque layer's BVH and shaded
@@ -426,8 +427,8 @@ class Renderer:
           same thickness: ``sspm``), the composite's marches and the hidden rays' trace (what they need of the G-buffer,
           :meth:`_march_composite`), SVGF's guides (``SVGF.guides``), the direct light after every light's shadow
           maps (marks);
-        * main: G-buffer, the photon pass's zeroing, then (joined) denoise, surface radiance, the composite's gather,
-          the hidden hits' direct light and caustic.
+        * main: G-buffer, the photon pass's zeroing, then (joined) denoise, the composite's gather (the surface
+          radiance read where needed), the hidden hits' direct light and caustic.
 
         Each light lane draws with its own rasterizer; the shade lane with main's, whose draws (the G-buffer) all
         come before the shade lane is forked."""
@@ -500,8 +501,8 @@ class Renderer:
 
     def _denoise_and_shade(self, stage, marched: bool = False) -> None:
         """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
-        (``marched``: the composite's marches, the hidden rays' trace and SVGF's guides ran already, on the shade lane: only
-        their gather, ``shade.composite_gather``, and the hidden hits' shading are left)."""
+        (``marched``: the composite's marches, the hidden rays' trace and SVGF's guides ran already, on the shade
+        lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left)."""
         g = self.gbuffer
         if self.photons is not None:
             with stage("denoise"):

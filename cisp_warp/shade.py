@@ -500,6 +500,6 @@ class DirectLighting:
             first = 0
 
 
-__all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY", "composite",
-           "composite_gather", "composite_march", "direct_at", "direct_light",
+__all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY",
+           "composite", "composite_gather", "composite_march", "direct_at", "direct_light",
            "direct_light_pair", "LightKind", "shadow_map_args", "surface_radiance_at", "water_rays"]

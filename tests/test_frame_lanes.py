@@ -97,8 +97,9 @@ def test_cuda_concurrent_graph_matches_sequential(method):
 
 
 @pytest.mark.parametrize("scene,hidden_rays,method,denoiser", [
-    ("pool", "both", "cisp", "svgf"), ("pool", "none", "cisp", "svgf"), ("cornell_flooded", "refracted", "cisp", "svgf"),
-    ("pool", "refracted", "cisp", "caustic"), ("pool", "both", "none", "svgf")])
+    ("pool", "both", "cisp", "svgf"), ("pool", "none", "cisp", "svgf"),
+    ("cornell_flooded", "refracted", "cisp", "svgf"), ("pool", "refracted", "cisp", "caustic"),
+    ("pool", "both", "none", "svgf")])
 def test_cpu_split_composite_equals_composite_bitwise(scene, hidden_rays, method, denoiser):
     """The concurrent program's composite split round the photons (``shade.composite_march`` and
     ``shade_hidden.trace_hidden_rays`` on the shade lane, ``shade.composite_gather`` after the denoiser) gives the
