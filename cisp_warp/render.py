@@ -27,7 +27,8 @@ from .photons.fit import LightViewFitter
 from .photons.march import bounds_size
 from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
-from .shade import MISSED_REFLECTED, MISSED_REFRACTED, DirectLighting, composite, surface_radiance
+from .shade import (MISSED_REFLECTED, MISSED_REFRACTED, DirectLighting, composite, composite_gather, composite_march,
+                    surface_radiance)
 from .shade_hidden import HiddenSurfaces
 from .sky import SkyLighting, sky_map
 
@@ -210,6 +211,8 @@ class Renderer:
         self.sky_map = self.sky.map if self.sky is not None else sky_map(None, self.device)
         self.sky_irradiance = self.sky.irradiance if self.sky is not None else wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
+        #: the opaque surface's radiance [W/(m² sr)] (the sequential program's; the concurrent one computes it where
+        #: it reads it, ``shade.composite_gather``)
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
         self.final = wp.zeros(n, dtype=wp.vec3, device=self.device)
         #: the composite's rays that screen space cannot follow, traced on the opaque layer's BVH and shaded
@@ -267,6 +270,10 @@ class Renderer:
         self.lanes = None
         self._lane_rasters: list[Rasterizer] = []  #: per light lane: its own rasterizer scratch
         self._kept_lanes = None
+        #: the concurrent program's composite, split round the photons (``shade.composite_march`` on the shade lane,
+        #: ``shade.composite_gather`` after the denoiser): per pixel its rays' hit pixels, their throughputs, and the
+        #: hidden rays' terms that need no radiance (``shade_hidden.trace_hidden_rays``); 28 B a pixel, made once
+        self.composite_split = None
         self.set_concurrent(CONCURRENT and self.graph_capable)
 
     def set_concurrent(self, on: bool) -> None:
@@ -288,6 +295,12 @@ class Renderer:
         self.lanes = self._kept_lanes
         while len(self._lane_rasters) < len(self.lights):
             self._lane_rasters.append(Rasterizer(self.gpu))
+        if self.composite_split is None:
+            n = self.gbuffer.width * self.gbuffer.height
+            self.composite_split = types.SimpleNamespace(
+                hits=wp.zeros(n, dtype=wp.vec2i, device=self.device),
+                weights=wp.zeros(n, dtype=wp.vec2, device=self.device),
+                hidden_sum=wp.zeros(n, dtype=wp.vec3, device=self.device))
         if self.photons is not None:
             self.photons.keep_lanes(self.lanes)
 
@@ -410,9 +423,12 @@ class Renderer:
           accumulators (``PhotonPass.light_lane``);
         * light i's view v: its photon order, trace and outcome pass after light i's lane (its views drawn) and the
           camera's depth bounds (``PhotonPass.view_lane``, entered by ``rsm_batches``);
-        * shade: the sky after the G-buffer, the direct light after every light's shadow maps (marks), the
-          composite's depth bounds (where the photon pass keeps none of the same thickness: ``sspm``);
-        * main: G-buffer, the photon pass's zeroing, then (joined) denoise, surface radiance, composite, hidden rays.
+        * shade: the sky after the G-buffer, the composite's depth bounds (where the photon pass keeps none of the
+          same thickness: ``sspm``), the composite's marches and the hidden rays' trace (what they need of the G-buffer,
+          :meth:`_march_composite`), SVGF's guides (``SVGF.guides``), the direct light after every light's shadow
+          maps (marks);
+        * main: G-buffer, the photon pass's zeroing, then (joined) denoise, the composite's gather (the surface
+          radiance read where needed), the hidden hits' direct light and caustic.
 
         Each light lane draws with its own rasterizer; the shade lane with main's, whose draws (the G-buffer) all
         come before the shade lane is forked."""
@@ -422,7 +438,7 @@ class Renderer:
             self._issue_lanes(lanes)
         finally:
             lanes.active = False
-        self._denoise_and_shade(lambda name: nullcontext(), bounds_built=True)
+        self._denoise_and_shade(lambda name: nullcontext(), marched=True)
 
     def _issue_lanes(self, lanes: FrameLanes) -> None:
         g, f = self.gbuffer, self.fitter
@@ -446,10 +462,34 @@ class Renderer:
         with lanes.branch(lanes.shade):
             if self.sky is not None:
                 self.sky.render(self.raster, g, self.inputs.cameras)
+            self._build_composite_bounds()  # from the G-buffer alone: beside the photons too
+            self._march_composite()  # likewise (the hidden rays read the sky's maps, drawn just before)
+            if self._svgf_guides_early():
+                self.denoiser.guides(g.depth, g.normal, g.tri_id)  # SVGF's G-buffer part, likewise
             lanes.wait(maps)
             self.direct.render(g, self.lights)
-            self._build_composite_bounds()  # from the G-buffer alone: beside the photons too
         lanes.end()  # joined
+
+    def _svgf_guides_early(self) -> bool:
+        """Whether the concurrent program writes SVGF's guides on the shade lane (``SVGF.guides``)."""
+        return self.photons is not None and self.photons.denoise and isinstance(self.denoiser, SVGF)
+
+    def _traces_hidden(self) -> bool:
+        """Whether the composite's missed rays go to ``shade_hidden`` (not for a method with its own final image)."""
+        return self._hidden_bits != 0 and not (self.photons is not None and self.photons.final is not None)
+
+    def _march_composite(self) -> None:
+        """The composite's G-buffer half (``shade.composite_march``: its rays' hits, throughputs, the sky it sees, the
+        ``missed`` bits) and the hidden rays' trace (``HiddenSurfaces.trace_rays``), into ``composite_split``, for
+        ``_denoise_and_shade(marched=True)``'s gather; the depth bounds built already."""
+        g, ps, cs = self.gbuffer, self.settings.photons, self.composite_split
+        w = g.water
+        wp.launch(composite_march, dim=g.width * g.height, device=self.device,
+                  inputs=[self.inputs.cameras, g.depth, self._composite_bounds(), w.depth, w.position, w.normal,
+                          w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final, cs.hits,
+                          cs.weights, self.hidden.missed, self._hidden_bits])
+        if self._traces_hidden():
+            self.hidden.trace_rays(g, self.inputs.cameras, self.sky_map, self.t_max, cs.hits, cs.hidden_sum)
 
     def _build_composite_bounds(self) -> None:
         """Build ``depth_bounds`` from this frame's depth where the composite marches on them
@@ -459,9 +499,10 @@ class Renderer:
             build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, self.depth_bounds,
                          self.device)
 
-    def _denoise_and_shade(self, stage, bounds_built: bool = False) -> None:
+    def _denoise_and_shade(self, stage, marched: bool = False) -> None:
         """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
-        (``bounds_built``: the composite's depth bounds are built already, :meth:`_build_composite_bounds`)."""
+        (``marched``: the composite's marches, the hidden rays' trace and SVGF's guides ran already, on the shade
+        lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left)."""
         g = self.gbuffer
         if self.photons is not None:
             with stage("denoise"):
@@ -472,7 +513,8 @@ class Renderer:
                                           self.caustic_irradiance, self.photons.photon_m2,
                                           None if self.photons.flow is None else self.photons.flow.flow)
                 elif isinstance(self.denoiser, SVGF):
-                    self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id, self.caustic_irradiance)
+                    self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
+                                          self.caustic_irradiance, guides_written=marched)
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)
                 else:
@@ -480,22 +522,32 @@ class Renderer:
         w = g.water
         with stage("shade"):
             n = g.width * g.height
-            wp.launch(surface_radiance, dim=n, device=self.device,
-                      inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance, self.sky_irradiance,
-                              self.surface_radiance])
             ps = self.settings.photons
-            bounds = self._composite_bounds()
-            if not bounds_built:
+            if marched:  # the surface radiance read where the gather needs it (surface_radiance is not written)
+                cs = self.composite_split
+                wp.launch(composite_gather, dim=n, device=self.device,
+                          inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                                  self.sky_irradiance, cs.hits, cs.weights, self.hidden.missed, cs.hidden_sum,
+                                  int(self._traces_hidden()), self.final])
+            else:
+                wp.launch(surface_radiance, dim=n, device=self.device,
+                          inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                                  self.sky_irradiance, self.surface_radiance])
+                bounds = self._composite_bounds()
                 self._build_composite_bounds()
-            wp.launch(composite, dim=n, device=self.device,
-                      inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
-                              w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
-                              self.hidden.missed, self._hidden_bits])
+                wp.launch(composite, dim=n, device=self.device,
+                          inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
+                                  w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
+                                  self.hidden.missed, self._hidden_bits])
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
             elif self._hidden_bits != 0:
-                self.hidden.render(g, self.lights, self.inputs.cameras, self.surface_radiance, self.sky_map,
-                                   self.t_max, self.final, getattr(self.photons, "hidden", None))
+                hidden_flux = getattr(self.photons, "hidden", None)
+                if marched:
+                    self.hidden.shade_hits(g, self.lights, self.final, hidden_flux)
+                else:
+                    self.hidden.render(g, self.lights, self.inputs.cameras, self.surface_radiance, self.sky_map,
+                                       self.t_max, self.final, hidden_flux)
 
     def _composite_bounds(self) -> wp.array:
         """The camera depth bounds the composite marches on: the photon pass's own (CISP builds them from this frame's

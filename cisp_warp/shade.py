@@ -172,6 +172,18 @@ def direct_light_pair(
         irradiance[p] = acc
 
 
+@wp.func
+def surface_radiance_at(depth: wp.array(dtype=wp.float32), albedo: wp.array(dtype=wp.vec3),
+                        direct_irradiance: wp.array(dtype=wp.vec3), caustic_irradiance: wp.array(dtype=wp.vec3),
+                        sky_irradiance: wp.array(dtype=wp.vec3), p: int) -> wp.vec3:
+    """Pixel ``p``'s Lambertian radiance [W/(m² sr)] (zero without an opaque surface): :func:`surface_radiance`'s
+    value, computed where it is read by :func:`composite_gather`."""
+    l_surface = wp.vec3(0.0)
+    if depth[p] > 0.0:
+        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
+    return l_surface
+
+
 @wp.kernel
 def surface_radiance(
     depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
@@ -189,23 +201,34 @@ def surface_radiance(
 
 
 @wp.func
-def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
-                        depth_bounds: wp.array(dtype=wp.vec2), radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3,
-                        t_max: float, max_steps: int, thickness: float):
-    """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer (the camera
-    ``cameras[0]``, read where the march needs it and again after it, ``anchor`` >= 0: see ``views.read_again``).
-
-    Returns (found, radiance); not found when the ray leaves the image or runs out of steps.
-    """
+def screen_space_hit(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
+                     depth_bounds: wp.array(dtype=wp.vec2), o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int,
+                     thickness: float) -> int:
+    """The camera pixel (``j·W + i``) whose opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth
+    buffer, or -1 when the ray leaves the image or runs out of steps (the camera ``cameras[0]``, read where the march
+    needs it and again after it, ``anchor`` >= 0: see ``views.read_again``). Reads the G-buffer's depth only."""
     status, t, steps = screen_march_bounded_plain(read_again(cameras, 0, anchor), depth, depth_bounds, o, d, t_max,
                                                   max_steps, thickness, 0.02)  # the front depths only (H*W)
     if status != MARCH_HIT:
-        return int(0), wp.vec3(0.0)
+        return int(-1)
     camera = read_again(cameras, 0, steps)
     q = world_project(camera, o + d * t)
     i = wp.clamp(int(q[0]), 0, camera.width - 1)
     j = wp.clamp(int(q[1]), 0, camera.height - 1)
-    return int(1), radiance[j * camera.width + i]
+    return j * camera.width + i
+
+
+@wp.func
+def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
+                        depth_bounds: wp.array(dtype=wp.vec2), radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3,
+                        t_max: float, max_steps: int, thickness: float):
+    """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer
+    (:func:`screen_space_hit`'s pixel). Returns (found, radiance); not found when the ray leaves the image or runs
+    out of steps."""
+    h = screen_space_hit(cameras, anchor, depth, depth_bounds, o, d, t_max, max_steps, thickness)
+    if h < 0:
+        return int(0), wp.vec3(0.0)
+    return int(1), radiance[h]
 
 
 #: CUDA launch bounds of :func:`composite` (threads a block, blocks an SM): its two marches are latency-bound (one
@@ -303,6 +326,134 @@ def composite(
     missed[p] = bits
 
 
+HIT_NONE = wp.constant(-1)  #: :func:`composite_march`'s ``hits``: the ray adds no surface's radiance
+PIXEL_OPAQUE = wp.constant(-2)  #: ``hits[p][0]`` of a pixel without water that sees an opaque surface
+PIXEL_SKY = wp.constant(-3)  #: ``hits[p][0]`` of a pixel that sees nothing (its sky radiance is in ``final``)
+
+
+@wp.kernel(launch_bounds=COMPOSITE_LAUNCH_BOUNDS)
+def composite_march(
+    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+    depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
+    water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+    water_position: wp.array(dtype=wp.vec3),
+    water_normal: wp.array(dtype=wp.vec3),
+    water_ior: wp.array(dtype=wp.float32),
+    t_max: float,
+    max_steps: int,
+    thickness: float,
+    sky: SkyMap,
+    final: wp.array(dtype=wp.vec3),  # (H*W,) what the composite adds before any surface's radiance (write; see below)
+    hits: wp.array(dtype=wp.vec2i),  # (H*W,) per pixel (reflected, refracted) hit pixel, HIT_NONE, or a PIXEL_* code
+    weights: wp.array(dtype=wp.vec2),  # (H*W,) water pixels: (F, (1 − F)/η²), the rays' throughputs (write)
+    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits of the rays left to shade_hidden (write)
+    hidden_rays: int,  # MISSED_* bits of the rays handed to shade_hidden when their march finds nothing
+):
+    """:func:`composite`'s G-buffer half: everything it computes but the opaque radiance read at the marches' hits,
+    which :func:`composite_gather` adds once the caustics are known. Reads the camera, depth, bounds and water layer
+    only, so it runs beside the photon trace.
+
+    Per pixel: a sky pixel's radiance goes to ``final`` (``hits`` = (PIXEL_SKY, 0)); an opaque pixel writes
+    (PIXEL_OPAQUE, 0); a water pixel writes the hit pixels of its reflected and refracted rays (HIT_NONE where the
+    ray adds no surface's radiance: F = 0, F = 1, or handed to shade_hidden; the refracted ray's screen-space
+    fallback is the pixel itself), their throughputs, and to ``final`` the composite's sum before its reflected
+    ray's radiance (zero, or the sky's radiance along a missed reflected ray times F), with the same float32
+    operations in the same order as :func:`composite`."""
+    p = wp.tid()
+    camera = cameras[0]
+    bits = int(0)
+    if water_depth[p] > 0.0:
+        x = water_position[p]
+        f, dr, dt, eta = water_rays(camera, x, water_normal[p], water_ior[p])
+        l = wp.vec3(0.0)
+        hr = int(HIT_NONE)
+        ht = int(HIT_NONE)
+        wt = float(0.0)
+        if f > 0.0:
+            hr = screen_space_hit(cameras, p, depth, depth_bounds, x, dr, t_max, max_steps, thickness)
+            if hr < 0:
+                lr = wp.vec3(0.0)
+                if (hidden_rays & MISSED_REFLECTED) != 0:
+                    bits = bits | MISSED_REFLECTED
+                else:
+                    lr = sky_radiance(sky, dr)
+                l = l + lr * f
+        if f < 1.0:
+            wt = (1.0 - f) / (eta * eta)
+            ht = screen_space_hit(cameras, p + 1, depth, depth_bounds, x, dt, t_max, max_steps, thickness)
+            if ht < 0:
+                if (hidden_rays & MISSED_REFRACTED) != 0:
+                    bits = bits | MISSED_REFRACTED  # composite adds zero · wt: l unchanged (l is never -0)
+                else:
+                    ht = p  # the undistorted background
+        final[p] = l
+        hits[p] = wp.vec2i(hr, ht)
+        weights[p] = wp.vec2(f, wt)
+    elif depth[p] <= 0.0:
+        px = float(p % camera.width) + 0.5
+        py = float(p // camera.width) + 0.5
+        o, d = pixel_ray_world(camera, px, py)
+        final[p] = sky_radiance(sky, d)
+        hits[p] = wp.vec2i(PIXEL_SKY, 0)
+    else:
+        hits[p] = wp.vec2i(PIXEL_OPAQUE, 0)
+    missed[p] = bits
+
+
+@wp.kernel
+def composite_gather(
+    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+    albedo: wp.array(dtype=wp.vec3),  # the opaque surface's radiance terms, as surface_radiance's (read)
+    direct_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
+    caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (the denoiser's)
+    sky_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
+    hits: wp.array(dtype=wp.vec2i),  # (H*W,) composite_march's, with shade_hidden's seen pixels where ``hidden`` (read)
+    weights: wp.array(dtype=wp.vec2),  # (H*W,) composite_march's throughputs (read)
+    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read where ``hidden``)
+    hidden_sum: wp.array(dtype=wp.vec3),  # (H*W,) shade_hidden's sum of its rays' terms that need no radiance (read)
+    hidden: int,  # 1: shade_hidden traced the missed rays (trace_hidden_rays): add what they bring
+    final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
+):
+    """:func:`composite`'s photon half, after the denoiser: the opaque radiance (:func:`surface_radiance_at`, read
+    where needed: no radiance buffer) at :func:`composite_march`'s hits, blended with its throughputs; with
+    ``hidden``, then what ``shade_hidden.trace_hidden_rays`` found for the missed rays. :func:`surface_radiance` +
+    :func:`composite` + ``shade_hidden.trace_hidden`` in one pass: the same float32 sums in the same order, so the
+    image is theirs bit for bit on the CPU."""
+    p = wp.tid()
+    h = hits[p]
+    if h[0] == PIXEL_SKY:
+        return
+    if h[0] == PIXEL_OPAQUE:
+        final[p] = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
+        return
+    w = weights[p]
+    bits = int(0)
+    if hidden != 0:
+        bits = missed[p]
+    l = final[p]
+    if h[0] >= 0 and (bits & MISSED_REFLECTED) == 0:
+        lr = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[0])
+        l = wp.vec3(0.0) + lr * w[0]
+    if h[1] >= 0 and (bits & MISSED_REFRACTED) == 0:
+        lt = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[1])
+        l = l + lt * w[1]
+    if (bits & (MISSED_REFRACTED | MISSED_REFLECTED)) != 0:
+        # trace_hidden's sum: refracted ray first, then reflected; a ray seen by the camera reads its pixel here, the
+        # others' terms are summed in hidden_sum (from zero, in that order)
+        lh = hidden_sum[p]
+        if (bits & MISSED_REFRACTED) != 0 and h[1] >= 0:
+            lt = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[1])
+            lh = wp.vec3(0.0) + lt * w[1]
+            if (bits & MISSED_REFLECTED) != 0 and h[0] < 0:
+                lh = lh + hidden_sum[p]  # = 0 + the reflected term: adding it to a sum that is never -0 is the same
+        if (bits & MISSED_REFLECTED) != 0 and h[0] >= 0:
+            lr = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[0])
+            lh = lh + lr * w[0]
+        l = l + lh
+    final[p] = l
+
+
 def shadow_map_args(lights: list[LightMaps]) -> list[list]:
     """The first nine arguments of :func:`direct_light` (those of :func:`direct_at`: view, depth, exclusive, kind,
     RGB, position, direction, cone angle and softness) for every shadow map of every light, in order."""
@@ -349,5 +500,6 @@ class DirectLighting:
             first = 0
 
 
-__all__ = ["DirectLighting", "MISSED_REFLECTED", "MISSED_REFRACTED", "composite", "direct_at", "direct_light",
-           "direct_light_pair", "LightKind", "shadow_map_args", "water_rays"]
+__all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY",
+           "composite", "composite_gather", "composite_march", "direct_at", "direct_light",
+           "direct_light_pair", "LightKind", "shadow_map_args", "surface_radiance_at", "water_rays"]

@@ -32,6 +32,11 @@ Buffers (per pixel p; slot 2p is the refracted ray, 2p + 1 the reflected one):
                 to face the ray (read only where the HIDDEN bit is set)
 ``hidden_uvw``  (2*H*W,) vec3: the hit's barycentrics (u, v: weights of the triangle's first and second vertex,
                 as ``wp.mesh_query_ray``) and the ray's throughput [1]
+
+The renderer's concurrent program splits this pass round the photons (docs/perf_notes.md section 47):
+:func:`trace_hidden_rays` (after ``shade.composite_march``, beside the photon trace) traces and shades what needs no
+photons, leaving a hit the camera sees as a pixel index in ``hits`` for ``shade.composite_gather``, which adds what
+:func:`trace_hidden` adds, after the denoiser; :func:`trace_hidden` (the sequential program) is its twin.
 """
 
 from __future__ import annotations
@@ -242,6 +247,92 @@ trace_hidden = _trace_hidden_kernel(False)
 trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
 
 
+def _trace_hidden_rays_kernel(naive: bool):
+    @wp.kernel(module="unique")
+    def trace_hidden_rays(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+        water_normal: wp.array(dtype=wp.vec3),  # (H*W,) (read)
+        water_ior: wp.array(dtype=wp.float32),  # (H*W,) (read)
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
+        position: wp.array(dtype=wp.vec3),  # (H*W,) its world position [m] (read)
+        normal: wp.array(dtype=wp.vec3),  # (H*W,) its unit normal (read)
+        sky: SkyMap,  # the dome's radiance where a ray meets nothing (black without a sky)
+        occlusion: SkyOcclusion,  # the sky's irradiance at a hidden hit
+        t_max: float,  # longest ray [m]
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read); HIDDEN_* bits added (write)
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) ±(triangle + 1) of a hidden hit (write where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (u, v, throughput) of a hidden hit (write where HIDDEN)
+        hits: wp.array(dtype=wp.vec2i),  # (H*W,) shade.composite_march's; a seen pixel put in a missed ray's slot
+        hidden_sum: wp.array(dtype=wp.vec3),  # (H*W,) the sum of the terms that need no radiance (write where missed)
+    ):
+        """:func:`trace_hidden` without the photons: what it adds, but a hit the camera sees leaves its pixel in the
+        ray's slot of ``hits`` (reflected ``[0]``, refracted ``[1]``) for ``shade.composite_gather`` to read its
+        radiance, after the denoiser; the other rays' terms are summed from zero in trace_hidden's order into
+        ``hidden_sum``. Reads the G-buffer, the BVH and the sky only, so it runs beside the photon trace."""
+        p = wp.tid()
+        bits = missed[p]
+        if bits == 0:
+            return
+        camera = cameras[0]
+        f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
+        x = water_position[p]
+        l = wp.vec3(0.0)
+        for k in range(2):
+            flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
+            if (bits & flag) != 0:
+                d = dr
+                w = f
+                if k == 0:
+                    d = dt
+                    w = (1.0 - f) / (eta * eta)
+                tri = int(-1)
+                u = float(0.0)
+                v = float(0.0)
+                t = float(0.0)
+                if layer.has_mesh != 0:
+                    if wp.static(naive):
+                        tri, u, v, t = opaque_hit_naive(layer, x, d, t_max)
+                    else:
+                        tri, u, v, t = opaque_hit(layer, x, d, t_max)
+                if tri < 0:
+                    l = l + sky_radiance(sky, d) * w
+                else:
+                    y, n, ng = hidden_point(layer, tri, u, v)
+                    pix = seen_by_camera(camera, depth, position, normal, y)
+                    if pix >= 0:
+                        h = hits[p]
+                        if k == 0:
+                            h = wp.vec2i(h[0], pix)
+                        else:
+                            h = wp.vec2i(pix, h[1])
+                        hits[p] = h
+                    else:
+                        sign = int(1)  # the shading normal on the geometric one's side, then facing the ray
+                        if wp.dot(n, ng) < 0.0:
+                            sign = -sign
+                        if wp.dot(n, d) * float(sign) > 0.0:
+                            sign = -sign
+                        n = n * float(sign)
+                        rho = layer.albedo[layer.triangle_material[tri]]
+                        e_sky = sky_irradiance_at(y, n, occlusion.sh, occlusion.views, occlusion.directions,
+                                                  occlusion.luminance, occlusion.map_depth, occlusion.map_texels)
+                        l = l + wp.cw_mul(rho, e_sky) * (INV_PI * w)
+                        hidden_tri[2 * p + k] = (tri + 1) * sign
+                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
+                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
+        missed[p] = bits
+        hidden_sum[p] = l
+
+    return trace_hidden_rays
+
+
+trace_hidden_rays = _trace_hidden_rays_kernel(False)
+trace_hidden_rays_naive = _trace_hidden_rays_kernel(True)
+
+
 @wp.func
 def hidden_hit(layer: OpaqueLayer, hidden_tri: wp.array(dtype=wp.int32), hidden_uvw: wp.array(dtype=wp.vec3), p: int,
                k: int):
@@ -377,6 +468,23 @@ class HiddenSurfaces:
         wp.launch(kernel, dim=n, device=self.device, inputs=[
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             radiance, sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, final])
+        self.shade_hits(gbuffer, lights, final, hidden_flux)
+
+    def trace_rays(self, gbuffer, cameras: wp.array, sky_map: SkyMap, t_max: float, hits: wp.array,
+                   hidden_sum: wp.array) -> None:
+        """:meth:`render`'s trace without the photons (:func:`trace_hidden_rays`, after ``shade.composite_march``):
+        the rays' hits the camera sees go to ``hits``, the other rays' terms to ``hidden_sum``, for
+        ``shade.composite_gather``; then :meth:`shade_hits` adds the direct light and caustic at the hidden hits."""
+        w = gbuffer.water
+        kernel = trace_hidden_rays_naive if self.naive else trace_hidden_rays
+        wp.launch(kernel, dim=gbuffer.width * gbuffer.height, device=self.device, inputs=[
+            cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
+            sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, hits, hidden_sum])
+
+    def shade_hits(self, gbuffer, lights, final: wp.array, hidden_flux=None) -> None:
+        """Add to ``final`` the direct light (:func:`hidden_direct`, once per shadow map of every light) and the
+        caustic (:func:`hidden_caustic`, once per light of ``hidden_flux``; None: none) at the hidden hits."""
+        n = gbuffer.width * gbuffer.height
         for args in shadow_map_args(lights):
             wp.launch(hidden_direct, dim=n, device=self.device,
                       inputs=args + [self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
@@ -391,4 +499,5 @@ class HiddenSurfaces:
 
 __all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",
            "hidden_direct",
-           "opaque_hit", "opaque_hit_naive", "opaque_layer", "sky_occlusion", "trace_hidden", "trace_hidden_naive"]
+           "opaque_hit", "opaque_hit_naive", "opaque_layer", "sky_occlusion", "trace_hidden", "trace_hidden_naive",
+           "trace_hidden_rays", "trace_hidden_rays_naive"]

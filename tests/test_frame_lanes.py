@@ -94,3 +94,37 @@ def test_cuda_concurrent_graph_matches_sequential(method):
         np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-6 * pa.max())
         diff = np.abs(fb - fa)
         assert diff.mean() <= 1e-5 * np.abs(fa).mean() and diff.max() <= 1e-3 * fa.max(), (diff.mean(), diff.max())
+
+
+@pytest.mark.parametrize("scene,hidden_rays,method,denoiser", [
+    ("pool", "both", "cisp", "svgf"), ("pool", "none", "cisp", "svgf"),
+    ("cornell_flooded", "refracted", "cisp", "svgf"), ("pool", "refracted", "cisp", "caustic"),
+    ("pool", "both", "none", "svgf")])
+def test_cpu_split_composite_equals_composite_bitwise(scene, hidden_rays, method, denoiser):
+    """The concurrent program's composite split round the photons (``shade.composite_march`` and
+    ``shade_hidden.trace_hidden_rays`` on the shade lane, ``shade.composite_gather`` after the denoiser) gives the
+    sequential ``composite`` + ``trace_hidden`` image bit for bit, with every case met: sky and opaque pixels, water
+    rays found in screen space, and missed rays that the BVH finds seen by the camera, hidden from it, or none; SVGF's
+    guides written on the shade lane (``SVGF.guides``) likewise; the caustics denoiser and no photons too."""
+    out = {}
+    for on in (False, True):
+        s = load_usd(f"scenes_usd/{scene}.usda", width=48, height=32)
+        r = Renderer(s, RenderSettings(rsm_size=64, method=method, denoiser=denoiser, hidden_rays=hidden_rays,
+                                       photons=PhotonSettings(photons=4000)), device="cpu")
+        r.set_concurrent(on)
+        for _ in range(2):
+            r.render_frame()
+        out[on] = r.final.numpy().copy()
+    np.testing.assert_array_equal(out[False], out[True])
+    h, m = r.composite_split.hits.numpy(), r.hidden.missed.numpy()
+    water = h[:, 0] >= -1
+    assert (h[:, 0] == -3).sum() > 0 and (h[:, 0] == -2).sum() > 0 and water.sum() > 0
+    assert ((h[:, 1] >= 0) & water & (m & 1 == 0)).sum() > 0  # refracted rays found in screen space
+    if hidden_rays == "none":
+        assert m.max() == 0
+    else:
+        assert ((h[:, 1] >= 0) & water & (m & 1 != 0)).sum() > 0  # missed, the BVH's hit seen by the camera
+        assert (m & 4 != 0).sum() > 0  # missed, the BVH's hit hidden from the camera
+    if hidden_rays == "both":
+        assert ((h[:, 0] >= 0) & (m & 2 != 0)).sum() > 0  # a missed reflected ray seen by the camera
+        assert ((h[:, 0] < 0) & (m & 2 != 0) & (m & 8 == 0)).sum() > 0  # one that meets the sky

@@ -191,6 +191,53 @@ def edge_stop_depth_normal(z_p: float, z_q: float, phi_z: float, n_p: wp.vec3, n
     return wp.exp(-wp.abs(z_p - z_q) / phi_z) * w_n
 
 
+@wp.func
+def write_guides(depth: wp.array(dtype=wp.float32), tri_id: wp.array(dtype=wp.int32), n: wp.vec3, z: float,
+                 surface: bool, x: int, y: int, width: int, height: int, hist_guide: wp.array(dtype=wp.vec4),
+                 guide_at: int, lattice_a: int, lattice_b: int, slope_out: wp.array(dtype=wp.float32),
+                 guide_lattice_a: wp.array(dtype=wp.vec4), guide_lattice_b: wp.array(dtype=wp.vec4)):
+    """Pixel (x, y)'s guide (n, z) (0 without a surface) into ``hist_guide[guide_at]`` and the lattices of
+    ``lattice_a`` / ``lattice_b`` (where != 0), its ‖∇z‖ into ``slope_out``: :func:`reproject`'s G-buffer part."""
+    p = y * width + x
+    slope = wp.where(surface, depth_gradient_length(depth, tri_id, z, x, y, width, height), 0.0)
+    g = wp.where(surface, wp.vec4(n[0], n[1], n[2], z), wp.vec4(0.0))
+    if lattice_a != 0:
+        store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), g)
+    if lattice_b != 0:
+        store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), g)
+    store_vec4(hist_guide, guide_at, g)
+    slope_out[p] = slope
+
+
+@wp.kernel
+def reproject_guides(
+    depth: wp.array(dtype=wp.float32),
+    normal: wp.array(dtype=wp.vec3),
+    tri_id: wp.array(dtype=wp.int32),
+    parity: wp.array(dtype=wp.int32),
+    width: int,
+    height: int,
+    lattice_a: int,
+    lattice_b: int,
+    hist_guide: wp.array(dtype=wp.vec4),
+    slope_out: wp.array(dtype=wp.float32),
+    guide_lattice_a: wp.array(dtype=wp.vec4),
+    guide_lattice_b: wp.array(dtype=wp.vec4),
+):
+    """:func:`reproject`'s writes that read the G-buffer alone (the guide into row ``1 - parity[0]`` of
+    ``hist_guide``, its sub-lattice-major copies, ``slope_out``), the same values: launched before the photons are
+    known (beside them, in ``Renderer``'s concurrent program), then :func:`reproject` with ``guides_written``."""
+    y, x = wp.tid()
+    p = y * width + x
+    z = depth[p]
+    surface = z > 0.0 and tri_id[p] >= 0
+    n = wp.vec3(0.0)
+    if surface:
+        n = normal[p]
+    write_guides(depth, tri_id, n, z, surface, x, y, width, height, hist_guide, (1 - parity[0]) * width * height + p,
+                 lattice_a, lattice_b, slope_out, guide_lattice_a, guide_lattice_b)
+
+
 @wp.kernel
 def reproject(
     irradiance: wp.array(dtype=wp.vec3),
@@ -214,6 +261,7 @@ def reproject(
     write_variance: int,
     lattice_a: int,
     lattice_b: int,
+    guides_written: int,
     color_variance_out: wp.array(dtype=wp.vec4),
     slope_out: wp.array(dtype=wp.float32),
     integrated: wp.array(dtype=wp.vec3),
@@ -240,7 +288,9 @@ def reproject(
     levels); with ``write_integrated`` the colour alone, ``integrated`` (vec3 [W/m²]); with ``write_variance`` the
     temporal variance, ``variance_out`` (float32; 0 without a surface); the guide again in the sub-lattice-major
     order of step ``lattice_a`` into ``guide_lattice_a`` and of ``lattice_b`` into ``guide_lattice_b`` (each where
-    != 0; :func:`lattice_index`), which those à-trous levels read.
+    != 0; :func:`lattice_index`), which those à-trous levels read. With ``guides_written`` the guide (row
+    ``1 - parity[0]``), its lattice copies and ``slope_out`` are :func:`reproject_guides`' already (launched earlier
+    in the frame, from the G-buffer alone): not written again, the rest the same.
 
     A previous-frame tap is consistent when it lies on screen, has a surface, its depth is within
     ``depth_tolerance`` (relative) of this pixel's and its normal's cosine to this one's is at least
@@ -259,13 +309,14 @@ def reproject(
     t_id = tri_id[p]
     surface = z > 0.0 and t_id >= 0
     if warp_any(surface) == 0:  # a warp without a surface (uniform: the loads below are not issued for it)
-        if lattice_a != 0:
-            store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), wp.vec4(0.0))
-        if lattice_b != 0:
-            store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), wp.vec4(0.0))
+        if guides_written == 0:
+            if lattice_a != 0:
+                store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), wp.vec4(0.0))
+            if lattice_b != 0:
+                store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), wp.vec4(0.0))
+            slope_out[p] = 0.0
+            store_vec4(hist_guide, cur * pixels + p, wp.vec4(0.0))
         store_vec4(color_variance_out, p, wp.vec4(0.0, 0.0, 0.0, -1.0))
-        slope_out[p] = 0.0
-        store_vec4(hist_guide, cur * pixels + p, wp.vec4(0.0))
         hist_moments[cur, p] = wp.vec2(0.0)
         hist_length[cur, p] = 0
         if write_integrated != 0:
@@ -278,14 +329,9 @@ def reproject(
     n = load_vec3_now(normal, p)
     m = load_vec2_now(motion, p)
     c = load_vec3_now(irradiance, p)
-    slope = wp.where(surface, depth_gradient_length(depth, tri_id, z, x, y, width, height), 0.0)
-    g = wp.where(surface, wp.vec4(n[0], n[1], n[2], z), wp.vec4(0.0))
-    if lattice_a != 0:
-        store_vec4(guide_lattice_a, lattice_index(y, x, width, height, lattice_a), g)
-    if lattice_b != 0:
-        store_vec4(guide_lattice_b, lattice_index(y, x, width, height, lattice_b), g)
-    store_vec4(hist_guide, cur * pixels + p, g)
-    slope_out[p] = slope
+    if guides_written == 0:
+        write_guides(depth, tri_id, n, z, surface, x, y, width, height, hist_guide, cur * pixels + p, lattice_a,
+                     lattice_b, slope_out, guide_lattice_a, guide_lattice_b)
 
     # previous position in pixel units with pixel centres on integers
     px = float(x) + m[0]

@@ -122,8 +122,17 @@ class SVGF:
         for a in (self.hist_guide, self.hist_color, self.hist_moments, self.hist_length):
             a.zero_()
 
+    def guides(self, depth: wp.array, normal: wp.array, tri_id: wp.array) -> None:
+        """The frame's guides from the G-buffer alone (``kernels_svgf.reproject_guides``: the guide row, its lattice
+        copies, the depth slope), before the photons are known; then :meth:`denoise` with ``guides_written``."""
+        w, h = self.width, self.height
+        lg = list(self.lattice_guides.items()) + [(0, spare_outputs(self.device)["vec4"])] * 2
+        wp.launch(K.reproject_guides, dim=(h, w), device=self.device,
+                  inputs=[depth, normal, tri_id, self.parity, w, h, lg[0][0], lg[1][0]],
+                  outputs=[self.hist_guide, self.depth_slope, lg[0][1], lg[1][1]])
+
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
-                tri_id: wp.array, out: wp.array) -> None:
+                tri_id: wp.array, out: wp.array, guides_written: bool = False) -> None:
         """Denoise one frame.
 
         Reads ``irradiance_in`` (H*W vec3 [W/m²], the noisy photon map) and the camera G-buffer:
@@ -131,6 +140,7 @@ class SVGF:
         previous position minus pixel centre), ``tri_id`` (H*W int32, -1 = none). Writes ``out``
         (H*W vec3 [W/m²]; 0 where there is no surface). Nothing is allocated, read back or swapped on
         the host: the same launches with the same arguments every frame (CUDA-graph capturable).
+        ``guides_written``: :meth:`guides` ran for this frame's G-buffer (``reproject`` does not write them again).
         """
         s = self.settings
         w, h = self.width, self.height
@@ -143,7 +153,7 @@ class SVGF:
                           self.hist_guide, self.hist_color, self.hist_moments, self.hist_length,
                           self.parity, w, h, s.alpha_color, s.alpha_moments, s.max_history, s.depth_tolerance,
                           s.normal_tolerance, int(temporal_only or s.feedback_level == -1), int(temporal_only),
-                          lg[0][0], lg[1][0]],
+                          lg[0][0], lg[1][0], int(guides_written)],
                   outputs=[self.color_variance[0], self.depth_slope, self.integrated,
                            self.filtered_variance, lg[0][1], lg[1][1]])
         if s.feedback_level == -1:
