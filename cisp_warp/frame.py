@@ -117,6 +117,8 @@ class FrameLanes:
             self.streams = [wp.Stream(self.device) for _ in range(self.count)]
             self._events = [wp.Event(self.device) for _ in range(self.events)]
         self._next = 0
+        #: lanes branched in this frame, in order (tracked on the CPU too): only they hold work to join
+        self.used: list[int] = []
         self.main = None  #: the stream the frame was issued on (the capturing one), set by :meth:`begin`
         #: whether a concurrent program is being issued (between :meth:`begin` and :meth:`end`): passes that hold the
         #: lanes use them only then (a frame issued in turn, e.g. timed by stages, leaves them alone)
@@ -132,6 +134,7 @@ class FrameLanes:
     def begin(self) -> None:
         """Start a frame: the device's current stream is main."""
         self._next = 0
+        self.used = []
         self.main = self.device.stream if self.enabled else None
         self.active = True
 
@@ -151,6 +154,8 @@ class FrameLanes:
     def branch(self, lane: int, after=()):
         """Issue the body's work on ``lane``, after everything issued on main so far (an edge main -> lane) and after
         the marks ``after`` (:meth:`mark`)."""
+        if lane not in self.used:
+            self.used.append(lane)
         if not self.enabled:
             yield
             return
@@ -179,10 +184,18 @@ class FrameLanes:
             if m is not None:
                 self.device.stream.wait_event(m)
 
+    def joinable(self, lanes=None) -> list[int]:
+        """Of ``lanes`` (default: all), those branched in this frame so far: a lane not branched yet holds no work of
+        this frame, and during a capture an event recorded on it would be outside the capture (CUDA error 905, a
+        dependency on uncaptured work: a join in mid-frame, e.g. the caustic flow's after the traces, came before the
+        shade lane's branch)."""
+        return [i for i in (range(self.count) if lanes is None else lanes) if i in self.used]
+
     def join(self, lanes=None) -> None:
-        """Main waits for everything issued on ``lanes`` (default: all): every lane must be joined before the capture
-        ends."""
+        """Main waits for everything issued so far on ``lanes`` (default: all) that were branched in this frame
+        (:meth:`joinable`); :meth:`end` joins every lane used, before the capture ends."""
+        targets = self.joinable(lanes)
         if not self.enabled:
             return
-        for i in range(self.count) if lanes is None else lanes:
+        for i in targets:
             self.main.wait_event(self.streams[i].record_event(self._event()))

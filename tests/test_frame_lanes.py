@@ -65,16 +65,49 @@ def test_cpu_concurrent_program_equals_sequential_bitwise(method):
     assert out[True][1].max() > 0 and out[True][2][0].sum() > 0
 
 
+def test_cpu_joins_reach_only_lanes_branched_in_the_frame():
+    """A join reaches only the lanes branched so far in the frame (on CUDA an event recorded on a lane not yet forked
+    in a capture is a dependency on uncaptured work: the caustic flow joins the lights in mid-frame, before the shade
+    lane's branch, and the default denoiser's graph failed to capture); the frame with the caustic flow records its
+    mid-frame join before the shade lane and the end's join after it."""
+    r = _pool("cpu", "cisp", denoiser="caustic")
+    r.set_concurrent(True)
+    lanes = r.lanes
+    assert r.photons.flow is not None
+    seen = []
+    join = lanes.join
+
+    def spy(which=None):
+        seen.append((list(lanes.joinable(which)), list(lanes.used)))
+        join(which)
+
+    lanes.join = spy
+    try:
+        r.render_frame()
+    finally:
+        lanes.join = join
+    assert len(seen) == 2, seen  # the flow's join, then the end's
+    (mid, used_mid), (end, used_end) = seen
+    assert lanes.shade not in used_mid and lanes.shade not in mid and sorted(mid) == sorted(used_mid)
+    assert lanes.shade in end and sorted(end) == sorted(used_end)
+    assert set(range(lanes.lights + 1)) <= set(end)  # lights, shade; views without photons stay unforked
+    lanes.begin()
+    with lanes.branch(lanes.shade):
+        pass
+    assert lanes.joinable() == [lanes.shade] and lanes.joinable([0, 1]) == []
+    lanes.end()
+
+
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="CUDA streams need a GPU")
-@pytest.mark.parametrize("method", ["cisp", "sspm"])
-def test_cuda_concurrent_graph_matches_sequential(method):
+@pytest.mark.parametrize("method,denoiser", [("cisp", "svgf"), ("sspm", "svgf"), ("cisp", "caustic")])
+def test_cuda_concurrent_graph_matches_sequential(method, denoiser):
     """The pool's frames replayed from the concurrent graph (two lights and the sky on their own streams) match the
     sequential graph's: the ledger to 1e-9 relative, the photon map to 1e-6 of its maximum, the final image to 1e-5
     of its mean on average and 1e-3 of its maximum anywhere (the float atomics add in another order, and SVGF's
     variance-driven weights pass that on)."""
     out = {}
     for on in (False, True):
-        r = _pool("cuda:0", method, photons=200_000, rsm=256, width=96, height=64)
+        r = _pool("cuda:0", method, denoiser=denoiser, photons=200_000, rsm=256, width=96, height=64)
         r.set_concurrent(on)
         assert (r.lanes is not None) == on and (not on or r.lanes.enabled)
         timer = StageTimer("cuda:0")
