@@ -147,6 +147,7 @@ def test_hits_are_recorded_only_when_asked(device):
     off.render_frame()
     assert not off.photons.hits.numpy().any()
     on = Renderer(flat_water(30.0)[0], settings, device=device)
+    on.set_concurrent(False)  # the records of one program's views: CUDA's concurrent one keeps them per lane
     on.photons.record_hits = True
     on.render_frame()
     hits, outcome = on.photons.hits.numpy(), on.photons.outcome.numpy()
@@ -221,6 +222,7 @@ def test_landings_lie_on_the_receiver(device):
     scene, _ = flat_water(30.0)
     r = Renderer(scene, RenderSettings(rsm_size=64, photons=PhotonSettings(photons=20_000, seed=3, sort_photons=False)),
                  device=device)
+    r.set_concurrent(False)  # the records of one program's views: CUDA's concurrent one keeps them per lane
     r.photons.record_hits = True
     r.render_frame()
     hits, outcome = r.photons.hits.numpy(), r.photons.outcome.numpy()
