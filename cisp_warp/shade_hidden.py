@@ -168,6 +168,47 @@ def seen_by_camera(camera: ViewParams, depth: wp.array(dtype=wp.float32), positi
     return pix
 
 
+def _hidden_ray_func(naive: bool):
+    @wp.func
+    def hidden_ray(layer: OpaqueLayer, camera: ViewParams, depth: wp.array(dtype=wp.float32),
+                   position: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sky: SkyMap,
+                   occlusion: SkyOcclusion, t_max: float, x: wp.vec3, d: wp.vec3, w: float):
+        """One ray of :func:`trace_hidden` from ``x`` along ``d`` with throughput ``w``, on the BVH (every triangle:
+        ``naive``): (camera pixel that sees its hit, or -1; its radiance term where no pixel sees it: the sky's along
+        ``d``, or a hidden hit's albedo/π · sky irradiance, times ``w``; ±(triangle + 1) of a hidden hit, or 0 (the sign:
+        the shading normal flipped to face the ray); the hit's barycentrics u, v)."""
+        tri = int(-1)
+        u = float(0.0)
+        v = float(0.0)
+        t = float(0.0)
+        if layer.has_mesh != 0:
+            if wp.static(naive):
+                tri, u, v, t = opaque_hit_naive(layer, x, d, t_max)
+            else:
+                tri, u, v, t = opaque_hit(layer, x, d, t_max)
+        if tri < 0:
+            return int(-1), sky_radiance(sky, d) * w, int(0), u, v
+        y, n, ng = hidden_point(layer, tri, u, v)
+        pix = seen_by_camera(camera, depth, position, normal, y)
+        if pix >= 0:
+            return pix, wp.vec3(0.0), int(0), u, v
+        sign = int(1)  # the shading normal on the geometric one's side, then facing the ray
+        if wp.dot(n, ng) < 0.0:
+            sign = -sign
+        if wp.dot(n, d) * float(sign) > 0.0:
+            sign = -sign
+        n = n * float(sign)
+        rho = layer.albedo[layer.triangle_material[tri]]
+        e_sky = sky_irradiance_at(y, n, occlusion.sh, occlusion.views, occlusion.directions,
+                                  occlusion.luminance, occlusion.map_depth, occlusion.map_texels)
+        return int(-1), wp.cw_mul(rho, e_sky) * (INV_PI * w), (tri + 1) * sign, u, v
+
+    return hidden_ray
+
+
+_HIDDEN_RAY = {naive: _hidden_ray_func(naive) for naive in (False, True)}
+
+
 def _trace_hidden_kernel(naive: bool):
     @wp.kernel(module="unique")
     def trace_hidden(
@@ -207,34 +248,14 @@ def _trace_hidden_kernel(naive: bool):
                 if k == 0:
                     d = dt
                     w = (1.0 - f) / (eta * eta)
-                tri = int(-1)
-                u = float(0.0)
-                v = float(0.0)
-                t = float(0.0)
-                if layer.has_mesh != 0:
-                    if wp.static(naive):
-                        tri, u, v, t = opaque_hit_naive(layer, x, d, t_max)
-                    else:
-                        tri, u, v, t = opaque_hit(layer, x, d, t_max)
-                if tri < 0:
-                    l = l + sky_radiance(sky, d) * w
+                pix, term, code, u, v = wp.static(_HIDDEN_RAY[naive])(layer, camera, depth, position, normal, sky,
+                                                                      occlusion, t_max, x, d, w)
+                if pix >= 0:
+                    l = l + radiance[pix] * w
                 else:
-                    y, n, ng = hidden_point(layer, tri, u, v)
-                    pix = seen_by_camera(camera, depth, position, normal, y)
-                    if pix >= 0:
-                        l = l + radiance[pix] * w
-                    else:
-                        sign = int(1)  # the shading normal on the geometric one's side, then facing the ray
-                        if wp.dot(n, ng) < 0.0:
-                            sign = -sign
-                        if wp.dot(n, d) * float(sign) > 0.0:
-                            sign = -sign
-                        n = n * float(sign)
-                        rho = layer.albedo[layer.triangle_material[tri]]
-                        e_sky = sky_irradiance_at(y, n, occlusion.sh, occlusion.views, occlusion.directions,
-                                                  occlusion.luminance, occlusion.map_depth, occlusion.map_texels)
-                        l = l + wp.cw_mul(rho, e_sky) * (INV_PI * w)
-                        hidden_tri[2 * p + k] = (tri + 1) * sign
+                    l = l + term
+                    if code != 0:
+                        hidden_tri[2 * p + k] = code
                         hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
                         bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
         missed[p] = bits
@@ -288,39 +309,19 @@ def _trace_hidden_rays_kernel(naive: bool):
                 if k == 0:
                     d = dt
                     w = (1.0 - f) / (eta * eta)
-                tri = int(-1)
-                u = float(0.0)
-                v = float(0.0)
-                t = float(0.0)
-                if layer.has_mesh != 0:
-                    if wp.static(naive):
-                        tri, u, v, t = opaque_hit_naive(layer, x, d, t_max)
+                pix, term, code, u, v = wp.static(_HIDDEN_RAY[naive])(layer, camera, depth, position, normal, sky,
+                                                                      occlusion, t_max, x, d, w)
+                if pix >= 0:
+                    h = hits[p]
+                    if k == 0:
+                        h = wp.vec2i(h[0], pix)
                     else:
-                        tri, u, v, t = opaque_hit(layer, x, d, t_max)
-                if tri < 0:
-                    l = l + sky_radiance(sky, d) * w
+                        h = wp.vec2i(pix, h[1])
+                    hits[p] = h
                 else:
-                    y, n, ng = hidden_point(layer, tri, u, v)
-                    pix = seen_by_camera(camera, depth, position, normal, y)
-                    if pix >= 0:
-                        h = hits[p]
-                        if k == 0:
-                            h = wp.vec2i(h[0], pix)
-                        else:
-                            h = wp.vec2i(pix, h[1])
-                        hits[p] = h
-                    else:
-                        sign = int(1)  # the shading normal on the geometric one's side, then facing the ray
-                        if wp.dot(n, ng) < 0.0:
-                            sign = -sign
-                        if wp.dot(n, d) * float(sign) > 0.0:
-                            sign = -sign
-                        n = n * float(sign)
-                        rho = layer.albedo[layer.triangle_material[tri]]
-                        e_sky = sky_irradiance_at(y, n, occlusion.sh, occlusion.views, occlusion.directions,
-                                                  occlusion.luminance, occlusion.map_depth, occlusion.map_texels)
-                        l = l + wp.cw_mul(rho, e_sky) * (INV_PI * w)
-                        hidden_tri[2 * p + k] = (tri + 1) * sign
+                    l = l + term
+                    if code != 0:
+                        hidden_tri[2 * p + k] = code
                         hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
                         bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
         missed[p] = bits
