@@ -174,9 +174,9 @@ def _hidden_ray_func(naive: bool):
                    position: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sky: SkyMap,
                    occlusion: SkyOcclusion, t_max: float, x: wp.vec3, d: wp.vec3, w: float):
         """One ray of :func:`trace_hidden` from ``x`` along ``d`` with throughput ``w``, on the BVH (every triangle:
-        ``naive``): (camera pixel that sees its hit, or -1; its radiance term where no pixel sees it: the sky's along
-        ``d``, or a hidden hit's albedo/π · sky irradiance, times ``w``; ±(triangle + 1) of a hidden hit, or 0 (the sign:
-        the shading normal flipped to face the ray); the hit's barycentrics u, v)."""
+        ``naive``): (camera pixel that sees its hit, or -1; its radiance term where no pixel sees it: the sky's
+        along ``d``, or a hidden hit's albedo/π · sky irradiance, times ``w``; ±(triangle + 1) of a hidden hit, or 0
+        (the sign: the shading normal flipped to face the ray); the hit's barycentrics u, v)."""
         tri = int(-1)
         u = float(0.0)
         v = float(0.0)
