@@ -176,8 +176,8 @@ def direct_light_pair(
 def surface_radiance_at(depth: wp.array(dtype=wp.float32), albedo: wp.array(dtype=wp.vec3),
                         direct_irradiance: wp.array(dtype=wp.vec3), caustic_irradiance: wp.array(dtype=wp.vec3),
                         sky_irradiance: wp.array(dtype=wp.vec3), p: int) -> wp.vec3:
-    """Pixel ``p``'s Lambertian radiance [W/(m² sr)] (zero without an opaque surface): :func:`surface_radiance`'s
-    value, computed where it is read by :func:`composite_gather`."""
+    """Pixel ``p``'s Lambertian radiance [W/(m² sr)] (zero without an opaque surface): what :func:`surface_radiance`
+    writes, and :func:`composite_gather` computes where it reads it."""
     l_surface = wp.vec3(0.0)
     if depth[p] > 0.0:
         l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
@@ -194,10 +194,7 @@ def surface_radiance(
     radiance: wp.array(dtype=wp.vec3),  # (H*W,) Lambertian radiance of the opaque surface [W/(m² sr)] (write)
 ):
     p = wp.tid()
-    l_surface = wp.vec3(0.0)
-    if depth[p] > 0.0:
-        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
-    radiance[p] = l_surface
+    radiance[p] = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
 
 
 @wp.func

@@ -275,13 +275,17 @@ class PhotonPass:
         if lanes is None:
             return
         if not self._banks:
-            own = {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
-            self._banks = [dict(own, _group_views=self._group_views)]
+            self._banks = [dict(self._own_scratch(), _group_views=self._group_views)]
         while len(self._banks) < sum(len(lm.rsm) for lm in self.lights):
             bank = {name: wp.zeros(a.shape, dtype=a.dtype, device=self.device)
                     for name, a in self._banks[0].items() if name != "_group_views"}
             bank["_group_views"] = {}
             self._banks.append(bank)
+
+    def _own_scratch(self) -> dict:
+        """The pass's own ``LANE_SCRATCH`` arrays (those this method has), by name: bank 0, and every view's without
+        lanes."""
+        return {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
 
     def _bank_index(self, light_index: int, view_index: int) -> int:
         return sum(len(lm.rsm) for lm in self.lights[:light_index]) + view_index
@@ -292,7 +296,7 @@ class PhotonPass:
         if self.lanes is not None and self._banks:  # what a concurrent frame hands the view
             bank = self._banks[self._bank_index(light_index, view_index)]
         else:
-            bank = {name: getattr(self, name) for name in self.LANE_SCRATCH if hasattr(self, name)}
+            bank = self._own_scratch()
         return [a for name, a in bank.items() if name != "_group_views"]
 
     def _active_lanes(self):
