@@ -7,7 +7,8 @@
 Renders a few frames of ``cisp`` (the one-stream program), records the draws of the next frame (view, size, layers),
 then replays each draw's set-up and times the tile-raster variants on it with CUDA events (``--reps`` launches each,
 into scratch buffers: ``atomic_min`` does the same work whatever the buffers hold): ``raster_tiles`` (the naive twin),
-``raster_tiles_lockstep`` without and with the tile reject. Counts per draw: sub-triangles drawn, (sub-triangle, tile)
+``raster_tiles_reject`` (tiles, and rows, outside an edge skipped), ``raster_tiles_lockstep``; ablations: a thread per
+(item, row), the item walk and search alone, a float32 key. Counts per draw: sub-triangles drawn, (sub-triangle, tile)
 items, items with no covered pixel centre, pixel tests and fragments (covered, in depth range). The variants' buffers
 are compared with the naive twin's (on CUDA they may differ by FMA contraction: the count of differing keys).
 """
@@ -127,7 +128,55 @@ def _make_counter():
                 if covered:
                     write_f32(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, p, visibility, visibility_b)
 
-    return count_items, search_only, lockstep_f32key
+    @wp.kernel
+    def tile_rows(views: wp.array(dtype=K.ViewParams), view_index: int, sub_v: wp.array(dtype=wp.vec3),
+                  sub_bbox: wp.array(dtype=wp.vec4i), tile_end: wp.array(dtype=wp.int32), n_sub: int, stride: int,
+                  layers: wp.array(dtype=wp.int32), mask: int, visibility: wp.array(dtype=wp.uint64), mask_b: int,
+                  visibility_b: wp.array(dtype=wp.uint64)):
+        """Ablation: a thread per (item, tile row), its own search, the row skipped when outside an edge."""
+        view = views[view_index]
+        t = wp.tid()
+        total = tile_end[n_sub - 1]
+        width = view.width
+        while t < 8 * total:
+            item = t / 8
+            r = t - item * 8
+            t += stride
+            s, i_lo, i_hi, j_lo, j_hi = K._tile_of_item(tile_end, n_sub, sub_bbox, item)
+            j = (j_hi / 8) * 8 + r
+            if j < j_lo or j > j_hi:
+                continue
+            a = sub_v[3 * s + 0]
+            b = sub_v[3 * s + 1]
+            c = sub_v[3 * s + 2]
+            e0 = K._edge_terms(b, c)
+            e1 = K._edge_terms(c, a)
+            e2 = K._edge_terms(a, b)
+            box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+            slack0 = K._edge_slack(e0, box)
+            slack1 = K._edge_slack(e1, box)
+            slack2 = K._edge_slack(e2, box)
+            x0 = float(i_lo) + 0.5
+            x1 = float(i_hi) + 0.5
+            y = float(j) + 0.5
+            if (K._row_outside(e0, slack0, y, x0, x1) or K._row_outside(e1, slack1, y, x0, x1)
+                    or K._row_outside(e2, slack2, y, x0, x1)):
+                continue
+            inv_area = 1.0 / K._edge(a, b, c[0], c[1])
+            tri = wp.uint64(s / 2)
+            tri_layers = layers[s / 2]
+            to_a = (tri_layers & mask) != 0
+            to_b = (tri_layers & mask_b) != 0
+            for i in range(i_lo, i_hi + 1):
+                x = float(i) + 0.5
+                w0 = K._edge_at(e0, x, y)
+                w1 = K._edge_at(e1, x, y)
+                w2 = K._edge_at(e2, x, y)
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    K.write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * width + i, visibility,
+                                     visibility_b)
+
+    return count_items, search_only, lockstep_f32key, tile_rows
 
 
 def probe_scene(scene_path, args, device):
@@ -158,7 +207,7 @@ def probe_scene(scene_path, args, device):
     finally:
         Rasterizer.draw = orig_draw
     wp.synchronize_device(device)
-    counter, search_only, f32key = _make_counter()
+    counter, search_only, f32key, tile_rows = _make_counter()
     rows = []
     for (raster, views, vi, w, h, layer, layer_b) in calls:
         far = float(views.list()[vi].far)
@@ -175,9 +224,9 @@ def probe_scene(scene_path, args, device):
                        empty_items=int((c[:, 1] == 0).sum()))
         bufs = [wp.full(w * h, K.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device) for _ in range(2)]
         s = raster.scene
-        variants = {"raster_tiles": (K.raster_tiles, []), "lockstep": (K.raster_tiles_lockstep, [0]),
-                    "lockstep_reject": (K.raster_tiles_lockstep, [1]), "search_only": (search_only, []),
-                    "f32key_reject": (f32key, [1])}
+        variants = {"raster_tiles": (K.raster_tiles, []), "reject": (K.raster_tiles_reject, [0]),
+                    "reject_rows": (K.raster_tiles_reject, [1]), "lockstep_reject": (K.raster_tiles_lockstep, [1]),
+                    "tile_rows": (tile_rows, []), "search_only": (search_only, []), "f32key_reject": (f32key, [1])}
         ref = None
         for name, (kern, extra) in variants.items():
             for b in bufs:
@@ -190,14 +239,22 @@ def probe_scene(scene_path, args, device):
                 ref = out
             else:
                 row[f"{name}_diff_keys"] = int(sum((x != y).sum() for x, y in zip(ref, out)))
-            if device.is_cuda:
+                low = np.uint64(0xFFFFFFFF)
+                row[f"{name}_diff_tri"] = int(sum(((x & low) != (y & low)).sum() for x, y in zip(ref, out)))
+            if device.is_cuda:  # a graph of `reps` launches, replayed: no host launch overhead in the time
+                wp.capture_begin(device, force_module_load=False)
+                try:
+                    for _ in range(args.reps):
+                        wp.launch(kern, dim=raster.stride, device=device, inputs=inputs)
+                finally:
+                    graph = wp.capture_end(device)
+                wp.capture_launch(graph)
                 e0, e1 = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
                 wp.record_event(e0)
-                for _ in range(args.reps):
-                    wp.launch(kern, dim=raster.stride, device=device, inputs=inputs)
+                wp.capture_launch(graph)
                 wp.record_event(e1)
                 wp.synchronize_device(device)
-                row[f"{name}_ms"] = wp.get_event_elapsed_time(e0, e1) / args.reps
+                row[f"{name}_ms"] = round(wp.get_event_elapsed_time(e0, e1) / args.reps, 5)
         rows.append(row)
         print(json.dumps(row), flush=True)
     return rows

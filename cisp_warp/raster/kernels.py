@@ -330,6 +330,74 @@ def _box_outside(e: wp.vec4, slack: float, box: wp.vec4i) -> bool:
     return m < -2.0 * slack
 
 
+@wp.func
+def _row_outside(e: wp.vec4, slack: float, y: float, x0: float, x1: float) -> bool:
+    """:func:`_column_outside` along a row: no pixel centre (x, y), x in [x0, x1], passes the edge test."""
+    return wp.max(_edge_at(e, x0, y), _edge_at(e, x1, y)) < -2.0 * slack
+
+
+@wp.kernel
+def raster_tiles_reject(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    stride: int,
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
+    rows: int,  # 1: also skip each row of a drawn tile proven outside an edge (:func:`_row_outside`)
+):
+    """:func:`raster_tiles` (its naive twin: the same items, threads, pixel order and fragments) with the tiles, and
+    with ``rows`` the rows of a tile, that no pixel centre of which can pass one edge test skipped (proven from their
+    corners or ends, :func:`_box_outside`); the edge terms set up once per item. The buffers are raster_tiles' bit for
+    bit on the CPU."""
+    view = views[view_index]
+    item = wp.tid()
+    total = tile_end[n_sub - 1]
+    width = view.width
+    while item < total:
+        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
+        item += stride
+        a = sub_v[3 * s + 0]
+        b = sub_v[3 * s + 1]
+        c = sub_v[3 * s + 2]
+        e0 = _edge_terms(b, c)
+        e1 = _edge_terms(c, a)
+        e2 = _edge_terms(a, b)
+        box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+        slack0 = _edge_slack(e0, box)
+        slack1 = _edge_slack(e1, box)
+        slack2 = _edge_slack(e2, box)
+        if _box_outside(e0, slack0, box) or _box_outside(e1, slack1, box) or _box_outside(e2, slack2, box):
+            continue
+        inv_area = 1.0 / _edge(a, b, c[0], c[1])
+        tri = wp.uint64(s / 2)
+        tri_layers = layers[s / 2]
+        to_a = (tri_layers & mask) != 0
+        to_b = (tri_layers & mask_b) != 0
+        x0 = float(i_lo) + 0.5
+        x1 = float(i_hi) + 0.5
+        for j in range(j_lo, j_hi + 1):
+            y = float(j) + 0.5
+            if rows != 0:
+                if (_row_outside(e0, slack0, y, x0, x1) or _row_outside(e1, slack1, y, x0, x1)
+                        or _row_outside(e2, slack2, y, x0, x1)):
+                    continue
+            for i in range(i_lo, i_hi + 1):
+                x = float(i) + 0.5
+                w0 = _edge_at(e0, x, y)
+                w1 = _edge_at(e1, x, y)
+                w2 = _edge_at(e2, x, y)
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * width + i, visibility,
+                                   visibility_b)
+
+
 @wp.kernel
 def raster_tiles_lockstep(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
