@@ -431,7 +431,7 @@ def test_column_raster_is_the_tile_raster(device, stride):
     ds = DeviceScene(make_scene([big, sliver] + box_room(), cam), device)  # the room hides the big one: drawn all the same
     raster = Rasterizer(ds)
     raster.stride, raster.column_threads = stride, None  # both kernels launch `stride` threads, on every device
-    raster.lockstep = False  # columns off: the naive twin raster_tiles
+    raster.reject = False  # columns off: the naive twin raster_tiles
     views = [camera_view(cam).params()] + [camera_view(Camera(look_at_matrix(v["eye"], v["target"]), fov_y=math.radians(70),
                                                               ortho_height=1.2, near=0.02, far=10.0, width=72, height=40,
                                                               orthographic=v["ortho"])).params() for v in VIEWS.values()]
@@ -491,7 +491,7 @@ def _box_probe(sub_v: wp.array(dtype=wp.vec3), sub_bbox: wp.array(dtype=wp.vec4i
 
 
 def test_tiles_rejected_only_where_nothing_is_covered(device, rng):
-    """``_box_outside`` (the lockstep raster's tile reject) rejects no tile with a covered pixel centre (slivers, edges
+    """``_box_outside`` (``raster_tiles_reject``'s tile reject) rejects no tile with a covered pixel centre (slivers, edges
     through pixel centres, vertices far off screen), and most tiles with none."""
     n = 300
     v = rng.uniform(-20, 84, (n, 3, 3)).astype(np.float32)
@@ -517,11 +517,11 @@ def test_tiles_rejected_only_where_nothing_is_covered(device, rng):
 
 
 @pytest.mark.parametrize("stride", [64, 1 << 14])
-def test_lockstep_raster_is_the_tile_raster(device, stride):
-    """``raster_tiles_lockstep`` (fragments written in rounds of the warp's lanes, tiles outside an edge rejected or
-    not) fills both layers' buffers exactly as its naive twin ``raster_tiles``: perspective and orthographic views,
-    near-clipped and full-screen triangles, a one-pixel sliver; threads that take many items (stride 64) or at most
-    one (1 << 14)."""
+def test_reject_and_row_rasters_are_the_tile_raster(device, stride):
+    """``raster_tiles_reject`` (tiles proven outside an edge skipped) and ``raster_tile_rows`` (a thread per tile row,
+    rows outside an edge skipped) fill both layers' buffers exactly as their naive twin ``raster_tiles``: perspective
+    and orthographic views, near-clipped and full-screen triangles, a one-pixel sliver; threads that take many items
+    (stride 64) or at most one (1 << 14)."""
     cam = Camera(look_at_matrix((0, 0, 0), (0, 0, -1)), fov_y=math.radians(60), near=0.05, far=50.0, width=80, height=60)
     big = (np.array([[-50.0, -40.0, -6.0], [60.0, -30.0, -7.0], [0.0, 50.0, 2.0]]), np.array([[0, 1, 2]]), 0)
     sliver = (np.array([[-1.0, 0.1, -2.0], [1.0, 0.13, -2.0], [1.0, 0.1, -2.0]]), np.array([[0, 1, 2]]), 1)
@@ -536,8 +536,8 @@ def test_lockstep_raster_is_the_tile_raster(device, stride):
         n = vp.width * vp.height
         arr = wp.array([vp], dtype=ViewParams, device=device)
         out = []
-        for lockstep, reject in ((False, False), (True, False), (True, True)):
-            raster.lockstep, raster.reject = lockstep, reject
+        for reject, rows_max in ((False, 0), (True, 0), (True, 1 << 30)):  # raster_tiles, _reject, raster_tile_rows
+            raster.reject, raster.rows_max_pixels = reject, rows_max
             bufs = [wp.full(n, RK.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device) for _ in range(2)]
             raster.draw(arr, 0, vp.width, vp.height, LAYER_OPAQUE, bufs[0], clear=False, layer_b=LAYER_SPECULAR,
                         visibility_b=bufs[1])

@@ -350,12 +350,11 @@ def raster_tiles_reject(
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
     mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
     visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
-    rows: int,  # 1: also skip each row of a drawn tile proven outside an edge (:func:`_row_outside`)
 ):
-    """:func:`raster_tiles` (its naive twin: the same items, threads, pixel order and fragments) with the tiles, and
-    with ``rows`` the rows of a tile, that no pixel centre of which can pass one edge test skipped (proven from their
-    corners or ends, :func:`_box_outside`); the edge terms set up once per item. The buffers are raster_tiles' bit for
-    bit on the CPU."""
+    """:func:`raster_tiles` (its naive twin: the same items, threads, pixel order and fragments) with the tiles that no
+    pixel centre of which can pass one edge test skipped (proven from their corners, :func:`_box_outside`; two thirds
+    of the items on the pool, the boxes of long thin triangles); the edge terms set up once per item. The buffers are
+    raster_tiles' bit for bit on the CPU. (Rows proven outside an edge skipped too measured slower on the H100.)"""
     view = views[view_index]
     item = wp.tid()
     total = tile_end[n_sub - 1]
@@ -370,24 +369,16 @@ def raster_tiles_reject(
         e1 = _edge_terms(c, a)
         e2 = _edge_terms(a, b)
         box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
-        slack0 = _edge_slack(e0, box)
-        slack1 = _edge_slack(e1, box)
-        slack2 = _edge_slack(e2, box)
-        if _box_outside(e0, slack0, box) or _box_outside(e1, slack1, box) or _box_outside(e2, slack2, box):
+        if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
+                or _box_outside(e2, _edge_slack(e2, box), box)):
             continue
         inv_area = 1.0 / _edge(a, b, c[0], c[1])
         tri = wp.uint64(s / 2)
         tri_layers = layers[s / 2]
         to_a = (tri_layers & mask) != 0
         to_b = (tri_layers & mask_b) != 0
-        x0 = float(i_lo) + 0.5
-        x1 = float(i_hi) + 0.5
         for j in range(j_lo, j_hi + 1):
             y = float(j) + 0.5
-            if rows != 0:
-                if (_row_outside(e0, slack0, y, x0, x1) or _row_outside(e1, slack1, y, x0, x1)
-                        or _row_outside(e2, slack2, y, x0, x1)):
-                    continue
             for i in range(i_lo, i_hi + 1):
                 x = float(i) + 0.5
                 w0 = _edge_at(e0, x, y)
@@ -399,7 +390,7 @@ def raster_tiles_reject(
 
 
 @wp.kernel
-def raster_tiles_lockstep(
+def raster_tile_rows(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
     view_index: int,
     sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
@@ -412,61 +403,50 @@ def raster_tiles_lockstep(
     visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
     mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
     visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
-    reject: int,  # 1: an item whose box is proven outside an edge (:func:`_box_outside`) is skipped
 ):
-    """:func:`raster_tiles` (its naive twin: the same items, threads and fragments) with each thread's fragments in
-    lockstep: a thread scans its item's pixels to its next covered one (the cheap edge tests), then writes that
-    fragment (depth, the float64 key, the atomics: ~5x the cost of a test) in a round of the warp's lanes that each
-    found one, so a warp writes its fragments in as many rounds as its busiest lane has fragments, not in one round
-    per pixel position where any lane has one (the water's small triangles cover few and different pixels of their
-    boxes). With ``reject``, an item whose box no pixel centre of which can pass one edge test is skipped before its
-    scan (two thirds of the items of long thin triangles). The same coverage, depths and keys from the same
-    operations: the buffers are raster_tiles' bit for bit on the CPU."""
+    """:func:`raster_tiles` (its naive twin) with a thread per (item, pixel row of its tile), each with its own search
+    (the 8 threads of an item read the same entries), a row proven outside an edge (:func:`_row_outside`) skipped: 8x
+    the threads for the same items, for views with too few items to fill the GPU with a thread each (the pilots:
+    ~20k items, a 64-pixel serial walk per thread). The same fragments: the buffers are raster_tiles' bit for bit on
+    the CPU."""
     view = views[view_index]
-    item = wp.tid()
+    t = wp.tid()
     total = tile_end[n_sub - 1]
     width = view.width
-    while item < total:
+    while t < TILE * total:
+        item = t / TILE
+        r = t - item * TILE
+        t += stride
         s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
-        item += stride
+        j = (j_hi / TILE) * TILE + r
+        if j < j_lo or j > j_hi:
+            continue
         a = sub_v[3 * s + 0]
         b = sub_v[3 * s + 1]
         c = sub_v[3 * s + 2]
         e0 = _edge_terms(b, c)
         e1 = _edge_terms(c, a)
         e2 = _edge_terms(a, b)
-        if reject != 0:
-            box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
-            if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
-                    or _box_outside(e2, _edge_slack(e2, box), box)):
-                continue
+        box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+        x0 = float(i_lo) + 0.5
+        x1 = float(i_hi) + 0.5
+        y = float(j) + 0.5
+        if (_row_outside(e0, _edge_slack(e0, box), y, x0, x1) or _row_outside(e1, _edge_slack(e1, box), y, x0, x1)
+                or _row_outside(e2, _edge_slack(e2, box), y, x0, x1)):
+            continue
         inv_area = 1.0 / _edge(a, b, c[0], c[1])
         tri = wp.uint64(s / 2)
         tri_layers = layers[s / 2]
         to_a = (tri_layers & mask) != 0
         to_b = (tri_layers & mask_b) != 0
-        i = i_lo
-        j = j_lo
-        while j <= j_hi:
-            covered = bool(False)
-            w0 = float(0.0)
-            w1 = float(0.0)
-            w2 = float(0.0)
-            p = int(0)
-            while j <= j_hi and not covered:  # scan to the next covered pixel centre
-                x = float(i) + 0.5
-                y = float(j) + 0.5
-                w0 = _edge_at(e0, x, y)
-                w1 = _edge_at(e1, x, y)
-                w2 = _edge_at(e2, x, y)
-                covered = w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0
-                p = j * width + i
-                i += 1
-                if i > i_hi:
-                    i = i_lo
-                    j += 1
-            if covered:  # its fragment, in a round with the other lanes' next ones
-                write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, p, visibility, visibility_b)
+        for i in range(i_lo, i_hi + 1):
+            x = float(i) + 0.5
+            w0 = _edge_at(e0, x, y)
+            w1 = _edge_at(e1, x, y)
+            w2 = _edge_at(e2, x, y)
+            if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * width + i, visibility,
+                               visibility_b)
 
 
 @wp.kernel

@@ -42,12 +42,13 @@ class Rasterizer:
         #: twin ``raster_tiles`` (a thread per tile; the same buffers bit for bit on the CPU). The column raster lost on
         #: the H100 (perf_notes section 24: pool 1.09 -> 1.81 ms, Cornell 0.40 -> 0.62 ms per frame), so it is opt-in
         self.columns = False
-        #: True (default): draw with ``kernels.raster_tiles_lockstep`` (a thread per tile as ``raster_tiles``, its
-        #: fragments written in rounds of the warp's lanes; perf_notes section 52); False: its naive twin
-        #: ``raster_tiles``. The same buffers bit for bit on the CPU. ``columns`` takes precedence
-        self.lockstep = True
-        #: with ``lockstep``: skip the items whose tile is proven outside an edge of their triangle (``_box_outside``)
+        #: True (default): draw with ``kernels.raster_tiles_reject`` (a thread per tile as ``raster_tiles``, the tiles
+        #: proven outside an edge skipped; perf_notes section 52); False: its naive twin ``raster_tiles``. The same
+        #: buffers bit for bit on the CPU. ``columns`` takes precedence
         self.reject = True
+        #: with ``reject``: views of at most this many pixels (the pilots) are drawn with ``kernels.raster_tile_rows`` (a
+        #: thread per tile row: their few items fill the GPU 8x better); 0: never
+        self.rows_max_pixels = 512 * 512
         #: threads of the column raster on CUDA: one resident wave (``COLUMN_BLOCKS_PER_SM`` blocks of 256 an SM), so
         #: that its equal chunks of work end together (2^18 threads were 2.6 waves); None: ``stride``
         self.column_threads = d.sm_count * COLUMN_BLOCKS_PER_SM * 256 if d.is_cuda and d.sm_count > 0 else None
@@ -77,11 +78,14 @@ class Rasterizer:
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
                               threads // K.WARP, s.triangle_layers, int(layer), visibility, int(layer_b),
                               visibility_b])
-        elif self.lockstep:
-            wp.launch(K.raster_tiles_lockstep, dim=self.stride, device=d,
+        elif self.reject and width * height <= self.rows_max_pixels:
+            wp.launch(K.raster_tile_rows, dim=self.stride, device=d,
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b,
-                              int(self.reject)])
+                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
+        elif self.reject:
+            wp.launch(K.raster_tiles_reject, dim=self.stride, device=d,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
         else:
             wp.launch(K.raster_tiles, dim=self.stride, device=d,
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
