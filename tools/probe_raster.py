@@ -97,15 +97,16 @@ def probe_scene(scene_path, args, device):
                        empty_items=int((c[:, 1] == 0).sum()))
         bufs = [wp.full(w * h, K.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device) for _ in range(2)]
         s = raster.scene
-        variants = {"raster_tiles": (K.raster_tiles, []), "reject": (K.raster_tiles_reject, []),
-                    "reject_b4": (reject_b4, []), "tile_rows": (K.raster_tile_rows, [])}
+        variants = {"raster_tiles": (K.raster_tiles, 256), "reject": (K.raster_tiles_reject, 256),
+                    "reject_b4": (reject_b4, 256), "reject_bd128": (K.raster_tiles_reject, 128),
+                    "tile_rows": (K.raster_tile_rows, 256)}
         ref = None
-        for name, (kern, extra) in variants.items():
+        for name, (kern, block) in variants.items():
             for b in bufs:
                 b.fill_(K.EMPTY_KEY_VALUE)
             inputs = [views, int(vi), raster.sub_v, raster.sub_bbox, raster.tile_end, n_sub, raster.stride,
-                      s.triangle_layers, int(layer), bufs[0], int(layer_b), bufs[1]] + extra
-            wp.launch(kern, dim=raster.stride, device=device, inputs=inputs)
+                      s.triangle_layers, int(layer), bufs[0], int(layer_b), bufs[1]]
+            wp.launch(kern, dim=raster.stride, device=device, inputs=inputs, block_dim=block)
             out = [b.numpy().copy() for b in bufs]
             if ref is None:
                 ref = out
@@ -117,7 +118,7 @@ def probe_scene(scene_path, args, device):
                 wp.capture_begin(device, force_module_load=False)
                 try:
                     for _ in range(args.reps):
-                        wp.launch(kern, dim=raster.stride, device=device, inputs=inputs)
+                        wp.launch(kern, dim=raster.stride, device=device, inputs=inputs, block_dim=block)
                 finally:
                     graph = wp.capture_end(device)
                 wp.capture_launch(graph)
