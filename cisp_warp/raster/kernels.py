@@ -9,7 +9,9 @@ Large triangles do not serialise onto one thread: setup counts the 8x8-pixel til
 triangle's bounding box touches, an inclusive scan turns counts into offsets, and the tile kernel hands
 out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run of consecutive items, 4
 adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
-``raster_tiles``, its naive twin, a thread per item found by binary search.
+``raster_tiles``, its naive twin, a thread per item found by binary search. The default draws with
+``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
+pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
 
 An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, the flux, and the depth bounds of its
 opaque depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise
@@ -334,6 +336,12 @@ def _box_outside(e: wp.vec4, slack: float, box: wp.vec4i) -> bool:
 def _row_outside(e: wp.vec4, slack: float, y: float, x0: float, x1: float) -> bool:
     """:func:`_column_outside` along a row: no pixel centre (x, y), x in [x0, x1], passes the edge test."""
     return wp.max(_edge_at(e, x0, y), _edge_at(e, x1, y)) < -2.0 * slack
+
+
+#: threads per block of :func:`raster_tiles_reject`: at its 66 registers (sm_90 cubin, ``tools/regcount.py --modules
+#: cisp_warp.raster.kernels``) an SM holds 7 blocks of 128 (28 warps) against 3 of 256 (24 warps); measured 0-10% faster
+#: per draw on the H100 than 256 (docs/perf_notes.md section 52)
+RASTER_BLOCK = 128
 
 
 @wp.kernel
