@@ -61,7 +61,7 @@ def main(argv=None) -> int:
                 lm.render(raster)
     print(f"device: {device.alias} ({device.name}); scene {os.path.basename(args.scene)}: "
           f"{scene.triangle_count} triangles; median of {args.frames} frames; "
-          f"{'raster_tile_columns' if args.columns else 'raster_tiles (naive twin)' if args.naive else 'raster_tiles_reject'}")
+          f"{'raster_tile_columns' if args.columns else 'raster_tiles (naive twin)' if args.naive else 'raster_tiles_reject (raster_tile_rows for views of <= 512² pixels)'}")
     print(f"{'view':<48}{'ms':>10}")
     for name, ms in timer.medians().items():
         print(f"{name:<48}{ms:10.3f}")
