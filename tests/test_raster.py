@@ -431,6 +431,7 @@ def test_column_raster_is_the_tile_raster(device, stride):
     ds = DeviceScene(make_scene([big, sliver] + box_room(), cam), device)  # the room hides the big one: drawn all the same
     raster = Rasterizer(ds)
     raster.stride, raster.column_threads = stride, None  # both kernels launch `stride` threads, on every device
+    raster.reject = False  # columns off: the naive twin raster_tiles
     views = [camera_view(cam).params()] + [camera_view(Camera(look_at_matrix(v["eye"], v["target"]), fov_y=math.radians(70),
                                                               ortho_height=1.2, near=0.02, far=10.0, width=72, height=40,
                                                               orthographic=v["ortho"])).params() for v in VIEWS.values()]
@@ -456,6 +457,101 @@ def test_column_raster_is_the_tile_raster(device, stride):
             assert ((fast != empty) != (naive != empty)).mean() <= 0.01, f"view {k}"
             qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
             np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}")
+        assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
+
+
+@wp.kernel
+def _box_probe(sub_v: wp.array(dtype=wp.vec3), sub_bbox: wp.array(dtype=wp.vec4i), out: wp.array(dtype=wp.int32)):
+    """Per (triangle, 8x8 tile of its box): 1 covered, 2 rejected as outside an edge, 4 no pixel covered."""
+    s, tx, ty = wp.tid()
+    box = sub_bbox[s]
+    i_lo = wp.max(tx * RK.TILE, box[0])
+    i_hi = wp.min(tx * RK.TILE + RK.TILE - 1, box[2])
+    j_lo = wp.max(ty * RK.TILE, box[1])
+    j_hi = wp.min(ty * RK.TILE + RK.TILE - 1, box[3])
+    if i_lo > i_hi or j_lo > j_hi:
+        return
+    a, b, c = sub_v[3 * s], sub_v[3 * s + 1], sub_v[3 * s + 2]
+    e0, e1, e2 = RK._edge_terms(b, c), RK._edge_terms(c, a), RK._edge_terms(a, b)
+    tile = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+    flags = int(0)
+    if (RK._box_outside(e0, RK._edge_slack(e0, tile), tile) or RK._box_outside(e1, RK._edge_slack(e1, tile), tile)
+            or RK._box_outside(e2, RK._edge_slack(e2, tile), tile)):
+        flags = flags | 2
+    hit = int(0)
+    for j in range(j_lo, j_hi + 1):
+        for i in range(i_lo, i_hi + 1):
+            x = float(i) + 0.5
+            y = float(j) + 0.5
+            if RK._shared_edge(b, c, x, y) >= 0.0 and RK._shared_edge(c, a, x, y) >= 0.0 and RK._shared_edge(a, b, x, y) >= 0.0:
+                hit = 1
+    if hit == 0:
+        flags = flags | 4
+    out[(s * 8 + tx) * 8 + ty] = flags | hit
+
+
+def test_tiles_rejected_only_where_nothing_is_covered(device, rng):
+    """``_box_outside`` (``raster_tiles_reject``'s tile reject) rejects no tile with a covered pixel centre (slivers, edges
+    through pixel centres, vertices far off screen), and most tiles with none."""
+    n = 300
+    v = rng.uniform(-20, 84, (n, 3, 3)).astype(np.float32)
+    v[: n // 3, 1] = v[: n // 3, 0] + rng.uniform(-3, 3, (n // 3, 3)).astype(np.float32)  # slivers
+    v[n // 3: n // 2, :, :2] = np.round(v[n // 3: n // 2, :, :2] * 2) / 2  # vertices on pixel centres and edges
+    v[n // 2: n // 2 + 20, 2, :2] = rng.uniform(-3e4, 3e4, (20, 2)).astype(np.float32)  # far off screen
+    area = (v[:, 1, 0] - v[:, 0, 0]) * (v[:, 2, 1] - v[:, 0, 1]) - (v[:, 2, 0] - v[:, 0, 0]) * (v[:, 1, 1] - v[:, 0, 1])
+    v[area < 0] = v[area < 0][:, [0, 2, 1]]  # counter-clockwise, as setup_triangles leaves them
+    lo = np.clip(np.ceil(v[..., :2].min(1) - 0.5), 0, 63).astype(np.int32)
+    hi = np.clip(np.floor(v[..., :2].max(1) - 0.5), 0, 63).astype(np.int32)
+    box = np.concatenate([lo, hi], 1)
+    keep = (box[:, 0] <= box[:, 2]) & (box[:, 1] <= box[:, 3]) & (np.abs(area) > 1e-3)
+    v, box = v[keep], box[keep]
+    m = len(v)
+    out = wp.zeros(m * 64, dtype=wp.int32, device=device)
+    wp.launch(_box_probe, dim=(m, 8, 8), device=device,
+              inputs=[wp.array(v.reshape(-1, 3), dtype=wp.vec3, device=device), wp.array(box, dtype=wp.vec4i, device=device), out])
+    f = out.numpy()
+    covered, rejected, empty = (f & 1) > 0, (f & 2) > 0, (f & 4) > 0
+    assert covered.sum() > 500 and empty.sum() > 500
+    assert not (covered & rejected).any(), "a tile with a covered pixel was rejected"
+    assert (rejected & empty).sum() >= 0.7 * empty.sum()
+
+
+@pytest.mark.parametrize("stride", [64, 1 << 14])
+def test_reject_and_row_rasters_are_the_tile_raster(device, stride):
+    """``raster_tiles_reject`` (tiles proven outside an edge skipped) and ``raster_tile_rows`` (a thread per tile row,
+    rows outside an edge skipped) fill both layers' buffers exactly as their naive twin ``raster_tiles``: perspective
+    and orthographic views, near-clipped and full-screen triangles, a one-pixel sliver; threads that take many items
+    (stride 64) or at most one (1 << 14)."""
+    cam = Camera(look_at_matrix((0, 0, 0), (0, 0, -1)), fov_y=math.radians(60), near=0.05, far=50.0, width=80, height=60)
+    big = (np.array([[-50.0, -40.0, -6.0], [60.0, -30.0, -7.0], [0.0, 50.0, 2.0]]), np.array([[0, 1, 2]]), 0)
+    sliver = (np.array([[-1.0, 0.1, -2.0], [1.0, 0.13, -2.0], [1.0, 0.1, -2.0]]), np.array([[0, 1, 2]]), 1)
+    ds = DeviceScene(make_scene([big, sliver] + box_room(), cam), device)
+    raster = Rasterizer(ds)
+    raster.stride = stride
+    views = [camera_view(cam).params()] + [camera_view(Camera(look_at_matrix(v["eye"], v["target"]), fov_y=math.radians(70),
+                                                              ortho_height=1.2, near=0.02, far=10.0, width=72, height=40,
+                                                              orthographic=v["ortho"])).params() for v in VIEWS.values()]
+    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
+    for k, vp in enumerate(views):
+        n = vp.width * vp.height
+        arr = wp.array([vp], dtype=ViewParams, device=device)
+        out = []
+        for reject, rows_max in ((False, 0), (True, 0), (True, 1 << 30)):  # raster_tiles, _reject, raster_tile_rows
+            raster.reject, raster.rows_max_pixels = reject, rows_max
+            bufs = [wp.full(n, RK.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device) for _ in range(2)]
+            raster.draw(arr, 0, vp.width, vp.height, LAYER_OPAQUE, bufs[0], clear=False, layer_b=LAYER_SPECULAR,
+                        visibility_b=bufs[1])
+            out.append([b.numpy().copy() for b in bufs])
+        for fast_run in out[1:]:
+            for naive, fast in zip(out[0], fast_run):
+                if not wp.get_device(device).is_cuda:
+                    np.testing.assert_array_equal(fast, naive, err_msg=f"view {k}")
+                    continue
+                # CUDA may contract the edge and depth products into FMAs differently in the two kernels (section 24)
+                both = (fast != empty) & (naive != empty)
+                assert ((fast != empty) != (naive != empty)).mean() <= 0.01, f"view {k}"
+                qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
+                np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}")
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 

@@ -4,6 +4,7 @@
     python tools/bench_raster.py                       # flooded Cornell box, 1920x1080, RSM 2048², default device
     python tools/bench_raster.py --device cpu --smoke  # seconds, tiny sizes
     python tools/bench_raster.py --scene scenes_usd/pool.usda --naive   # the tile walk's naive twin (raster_tiles)
+    python tools/bench_raster.py --columns             # the opt-in column raster (raster_tile_columns)
 """
 
 from __future__ import annotations
@@ -26,8 +27,9 @@ def main(argv=None) -> int:
     p.add_argument("--rsm-size", type=int, default=2048)
     p.add_argument("--frames", type=int, default=20, help="timed frames (after 3 warm-up frames)")
     p.add_argument("--smoke", action="store_true", help="tiny sizes and 2 frames: a quick check that it runs")
-    p.add_argument("--naive", action="store_true", help="draw with raster_tiles (a thread per tile), the twin of "
-                   "raster_tile_columns")
+    p.add_argument("--naive", action="store_true", help="draw with raster_tiles (a thread per tile), the naive twin "
+                   "of the default raster_tiles_reject / raster_tile_rows")
+    p.add_argument("--columns", action="store_true", help="draw with the opt-in column raster raster_tile_columns")
     args = p.parse_args(argv)
     if args.smoke:
         args.width, args.height, args.rsm_size, args.frames = 64, 36, 64, 2
@@ -42,7 +44,8 @@ def main(argv=None) -> int:
     scene = load_usd(args.scene, width=args.width, height=args.height, device=device)
     gpu = DeviceScene(scene, device)
     raster = Rasterizer(gpu)
-    raster.columns = not args.naive
+    raster.columns = args.columns
+    raster.reject = not args.naive
     view = camera_view(scene.camera)
     cams = view_array([view, view], device)  # the camera, this frame and the last
     gbuf = GBuffer.allocate(view.width, view.height, device)
@@ -58,7 +61,7 @@ def main(argv=None) -> int:
                 lm.render(raster)
     print(f"device: {device.alias} ({device.name}); scene {os.path.basename(args.scene)}: "
           f"{scene.triangle_count} triangles; median of {args.frames} frames; "
-          f"{'raster_tiles (naive twin)' if args.naive else 'raster_tile_columns'}")
+          f"{'raster_tile_columns' if args.columns else 'raster_tiles (naive twin)' if args.naive else 'raster_tiles_reject (raster_tile_rows for views of <= 512² pixels)'}")
     print(f"{'view':<48}{'ms':>10}")
     for name, ms in timer.medians().items():
         print(f"{name:<48}{ms:10.3f}")

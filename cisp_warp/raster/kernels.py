@@ -9,7 +9,9 @@ Large triangles do not serialise onto one thread: setup counts the 8x8-pixel til
 triangle's bounding box touches, an inclusive scan turns counts into offsets, and the tile kernel hands
 out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run of consecutive items, 4
 adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
-``raster_tiles``, its naive twin, a thread per item found by binary search.
+``raster_tiles``, its naive twin, a thread per item found by binary search. The default draws with
+``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
+pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
 
 An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, the flux, and the depth bounds of its
 opaque depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise
@@ -315,6 +317,144 @@ def raster_tiles(
                     write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * view.width + i, visibility,
                                    visibility_b)
         item += stride
+
+
+@wp.func
+def _box_outside(e: wp.vec4, slack: float, box: wp.vec4i) -> bool:
+    """Whether no pixel centre of ``box`` (i0, j0, i1, j1) passes the edge test ``_edge_at(e, x, y) >= 0``, proven from
+    its four corners (:func:`_edge_slack`: the exact affine G is at most the corners' max over the box, and every
+    computed value lies within E of G); False when it cannot be proven."""
+    x0 = float(box[0]) + 0.5
+    x1 = float(box[2]) + 0.5
+    y0 = float(box[1]) + 0.5
+    y1 = float(box[3]) + 0.5
+    m = wp.max(wp.max(_edge_at(e, x0, y0), _edge_at(e, x1, y0)), wp.max(_edge_at(e, x0, y1), _edge_at(e, x1, y1)))
+    return m < -2.0 * slack
+
+
+@wp.func
+def _row_outside(e: wp.vec4, slack: float, y: float, x0: float, x1: float) -> bool:
+    """:func:`_column_outside` along a row: no pixel centre (x, y), x in [x0, x1], passes the edge test."""
+    return wp.max(_edge_at(e, x0, y), _edge_at(e, x1, y)) < -2.0 * slack
+
+
+#: threads per block of :func:`raster_tiles_reject`: at its 66 registers (sm_90 cubin, ``tools/regcount.py --modules
+#: cisp_warp.raster.kernels``) an SM holds 7 blocks of 128 (28 warps) against 3 of 256 (24 warps); measured 0-10% faster
+#: per draw on the H100 than 256 (docs/perf_notes.md section 52)
+RASTER_BLOCK = 128
+
+
+@wp.kernel
+def raster_tiles_reject(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    stride: int,
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
+):
+    """:func:`raster_tiles` (its naive twin: the same items, threads, pixel order and fragments) with the tiles that no
+    pixel centre of which can pass one edge test skipped (proven from their corners, :func:`_box_outside`; two thirds
+    of the items on the pool, the boxes of long thin triangles); the edge terms set up once per item. The buffers are
+    raster_tiles' bit for bit on the CPU. (Rows proven outside an edge skipped too measured slower on the H100.)"""
+    view = views[view_index]
+    item = wp.tid()
+    total = tile_end[n_sub - 1]
+    width = view.width
+    while item < total:
+        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
+        item += stride
+        a = sub_v[3 * s + 0]
+        b = sub_v[3 * s + 1]
+        c = sub_v[3 * s + 2]
+        e0 = _edge_terms(b, c)
+        e1 = _edge_terms(c, a)
+        e2 = _edge_terms(a, b)
+        box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+        if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
+                or _box_outside(e2, _edge_slack(e2, box), box)):
+            continue
+        inv_area = 1.0 / _edge(a, b, c[0], c[1])
+        tri = wp.uint64(s / 2)
+        tri_layers = layers[s / 2]
+        to_a = (tri_layers & mask) != 0
+        to_b = (tri_layers & mask_b) != 0
+        for j in range(j_lo, j_hi + 1):
+            y = float(j) + 0.5
+            for i in range(i_lo, i_hi + 1):
+                x = float(i) + 0.5
+                w0 = _edge_at(e0, x, y)
+                w1 = _edge_at(e1, x, y)
+                w2 = _edge_at(e2, x, y)
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * width + i, visibility,
+                                   visibility_b)
+
+
+@wp.kernel
+def raster_tile_rows(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    stride: int,
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (atomic min; unused when mask_b = 0)
+):
+    """:func:`raster_tiles` (its naive twin) with a thread per (item, pixel row of its tile), each with its own search
+    (the 8 threads of an item read the same entries), a row proven outside an edge (:func:`_row_outside`) skipped: 8x
+    the threads for the same items, for views with too few items to fill the GPU with a thread each (the pilots:
+    ~20k items, a 64-pixel serial walk per thread). The same fragments: the buffers are raster_tiles' bit for bit on
+    the CPU."""
+    view = views[view_index]
+    t = wp.tid()
+    total = tile_end[n_sub - 1]
+    width = view.width
+    while t < TILE * total:
+        item = t / TILE
+        r = t - item * TILE
+        t += stride
+        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
+        j = (j_hi / TILE) * TILE + r
+        if j < j_lo or j > j_hi:
+            continue
+        a = sub_v[3 * s + 0]
+        b = sub_v[3 * s + 1]
+        c = sub_v[3 * s + 2]
+        e0 = _edge_terms(b, c)
+        e1 = _edge_terms(c, a)
+        e2 = _edge_terms(a, b)
+        box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+        x0 = float(i_lo) + 0.5
+        x1 = float(i_hi) + 0.5
+        y = float(j) + 0.5
+        if (_row_outside(e0, _edge_slack(e0, box), y, x0, x1) or _row_outside(e1, _edge_slack(e1, box), y, x0, x1)
+                or _row_outside(e2, _edge_slack(e2, box), y, x0, x1)):
+            continue
+        inv_area = 1.0 / _edge(a, b, c[0], c[1])
+        tri = wp.uint64(s / 2)
+        tri_layers = layers[s / 2]
+        to_a = (tri_layers & mask) != 0
+        to_b = (tri_layers & mask_b) != 0
+        for i in range(i_lo, i_hi + 1):
+            x = float(i) + 0.5
+            w0 = _edge_at(e0, x, y)
+            w1 = _edge_at(e1, x, y)
+            w2 = _edge_at(e2, x, y)
+            if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * width + i, visibility,
+                               visibility_b)
 
 
 @wp.kernel

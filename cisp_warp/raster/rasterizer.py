@@ -38,10 +38,18 @@ class Rasterizer:
         # grid-stride width of the tile kernel: enough threads to fill a GPU; the CPU runs them serially (a multiple
         # of kernels.WARP: the column raster hands work out by warps)
         self.stride = (1 << 18) if d.is_cuda else (1 << 10)
-        #: True: draw with ``kernels.raster_tile_columns`` (a thread per pixel column of a tile); False (default): its
-        #: twin ``raster_tiles`` (a thread per tile; the same buffers bit for bit on the CPU). The column raster lost on
-        #: the H100 (perf_notes section 24: pool 1.09 -> 1.81 ms, Cornell 0.40 -> 0.62 ms per frame), so it is opt-in
+        #: True: draw with ``kernels.raster_tile_columns`` (a thread per pixel column of a tile); False (default): a
+        #: thread per tile (``reject`` below, or the naive twin ``raster_tiles``; the same buffers bit for bit on the
+        #: CPU). The column raster lost on the H100 (perf_notes section 24: pool 1.09 -> 1.81 ms, Cornell 0.40 -> 0.62
+        #: ms per frame), so it is opt-in
         self.columns = False
+        #: True (default): draw with ``kernels.raster_tiles_reject`` (a thread per tile as ``raster_tiles``, the tiles
+        #: proven outside an edge skipped, blocks of ``kernels.RASTER_BLOCK``; perf_notes section 52); False: its naive
+        #: twin ``raster_tiles``. The same buffers bit for bit on the CPU
+        self.reject = True
+        #: with ``reject``: views of at most this many pixels (the pilots) are drawn with ``kernels.raster_tile_rows`` (a
+        #: thread per tile row: their few items fill the GPU 8x better); 0: never
+        self.rows_max_pixels = 512 * 512
         #: threads of the column raster on CUDA: one resident wave (``COLUMN_BLOCKS_PER_SM`` blocks of 256 an SM), so
         #: that its equal chunks of work end together (2^18 threads were 2.6 waves); None: ``stride``
         self.column_threads = d.sm_count * COLUMN_BLOCKS_PER_SM * 256 if d.is_cuda and d.sm_count > 0 else None
@@ -71,6 +79,14 @@ class Rasterizer:
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
                               threads // K.WARP, s.triangle_layers, int(layer), visibility, int(layer_b),
                               visibility_b])
+        elif self.reject and width * height <= self.rows_max_pixels:
+            wp.launch(K.raster_tile_rows, dim=self.stride, device=d,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
+        elif self.reject:
+            wp.launch(K.raster_tiles_reject, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
         else:
             wp.launch(K.raster_tiles, dim=self.stride, device=d,
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
