@@ -243,6 +243,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sass", default="", help="folder: write each module's SASS there (MODULE.sass)")
     ap.add_argument("--local", action="store_true",
                     help="also where each kernel's local loads and stores are (line info; nvdisasm, if installed)")
+    ap.add_argument("--top", type=int, default=12, help="with --local: how many (loop, source) rows a kernel prints")
     args = ap.parse_args(argv)
 
     import warp as wp
@@ -272,7 +273,7 @@ def main(argv=None) -> int:
                 print(f"{name.rsplit('.', 1)[-1]:>18} {kernel:<32} {u.get('registers', 0):4d} regs "
                       f"{u.get('frame_bytes', 0):5d} B frame  (block {block})")
                 if local is not None and kernel in local:
-                    print_local(kernel, local[kernel])
+                    print_local(kernel, local[kernel], args.top)
     return 0
 
 
