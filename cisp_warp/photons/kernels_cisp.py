@@ -26,29 +26,15 @@ wp.set_module_options({"enable_backward": False})  # forward only (the ledger's 
 #: record by trace_photons, added to the ledger by ledger_add_outcomes
 CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED)
 
-#: two of the emission's six entries (EMISSION_ENTRIES: sampled, culled by roughness, by luminance, absorbed,
-#: reflected, refracted) side by side, RGB each: a block reduction of six doubles (emission_add does three)
-vec6d = wp.types.vector(length=6, dtype=wp.float64)
+#: the emission's six entries (EMISSION_ENTRIES: sampled, culled by roughness, by luminance, absorbed, reflected,
+#: refracted) side by side, RGB each: one block reduction for all of them (emission_add)
+vec18d = wp.types.vector(length=18, dtype=wp.float64)
 
 
 @wp.func
-def _pair(a: wp.vec3, b: wp.vec3) -> vec6d:
-    """``a`` and ``b`` side by side, in float64."""
-    return vec6d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
-                 wp.float64(b[2]))
-
-
-@wp.func
-def _add_pair(ledger: wp.array(dtype=wp.vec3d), block: int, entry_a: int, entry_b: int, s: vec6d):
-    """Add the block's sums ``s`` of a :func:`_pair`: values 0..2 to entry ``entry_a``, 3..5 to ``entry_b``."""
-    wp.atomic_add(ledger, ledger_slot(ledger, block, entry_a), wp.vec3d(s[0], s[1], s[2]))
-    wp.atomic_add(ledger, ledger_slot(ledger, block, entry_b), wp.vec3d(s[3], s[4], s[5]))
-
-
-@wp.func
-def _block_sum(v: vec6d) -> vec6d:
-    """The sum of ``v`` over the block (valid in its first thread)."""
-    return wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
+def _add_entry(ledger: wp.array(dtype=wp.vec3d), block: int, entry: int, s: vec18d, i: int):
+    """Add entry ``entry``, values ``3i``..``3i+2`` of the block's sums ``s``, to the block's ledger stripe."""
+    wp.atomic_add(ledger, ledger_slot(ledger, block, entry), wp.vec3d(s[3 * i], s[3 * i + 1], s[3 * i + 2]))
 
 
 @wp.func
@@ -57,25 +43,31 @@ def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry:
     """The emission's ledger entries (``EMISSION_ENTRIES``) of the block's photons from what each thread kept of
     its emission and bounce (:func:`emit_and_scatter`: ``entry`` -1 none sampled, ``L_CULLED_*`` culled,
     ``L_SAMPLED`` emitted; the power as sampled, absorbed at a metal, and after the bounce): all six summed in
-    float64 over the block in three tile reductions of two entries each (six doubles: a reduction of all 18 at once
-    held 36 registers of sums and 36 of shuffled values, spilled at the trace's 64; each component is summed in the
-    same order either way), added by the block's first thread in entry order.
+    float64 over the block in one tile reduction (18 values), added by the block's first thread in entry order.
     These are the values ``emit_and_bounce`` books into a tally and ``ledger_add(..., EMISSION_ENTRIES)`` adds, each
     at most once a photon, so a float32 value converted equals the float64 tally's sum (on the CPU, a block of one
-    thread: the same adds bit for bit); no tally is held through the emission (docs/perf_notes.md sections 39 and
-    48). Every thread of the block calls it (no early return before it)."""
+    thread: the same adds bit for bit); no tally is held through the emission, and one reduction replaces six
+    (docs/perf_notes.md section 39). Every thread of the block calls it (no early return before it)."""
     zero = wp.vec3(0.0)
-    s = _block_sum(_pair(sampled, wp.where(entry == L_CULLED_ROUGH, sampled, zero)))
-    if lane == 0:
-        _add_pair(ledger, block, L_SAMPLED, L_CULLED_ROUGH, s)
-    s = _block_sum(_pair(wp.where(entry == L_CULLED_LUM, sampled, zero), absorbed))
-    if lane == 0:
-        _add_pair(ledger, block, L_CULLED_LUM, L_ABSORBED, s)
+    a = sampled
+    b = wp.where(entry == L_CULLED_ROUGH, sampled, zero)
+    c = wp.where(entry == L_CULLED_LUM, sampled, zero)
+    d = absorbed
     emitted = entry == L_SAMPLED
-    s = _block_sum(_pair(wp.where(emitted and refracted == 0, power, zero),
-                         wp.where(emitted and refracted != 0, power, zero)))
+    f = wp.where(emitted and refracted == 0, power, zero)
+    g = wp.where(emitted and refracted != 0, power, zero)
+    v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
+               wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
+               wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
+               wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
+    s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
     if lane == 0:
-        _add_pair(ledger, block, L_REFLECTED, L_REFRACTED, s)
+        _add_entry(ledger, block, L_SAMPLED, s, 0)
+        _add_entry(ledger, block, L_CULLED_ROUGH, s, 1)
+        _add_entry(ledger, block, L_CULLED_LUM, s, 2)
+        _add_entry(ledger, block, L_ABSORBED, s, 3)
+        _add_entry(ledger, block, L_REFLECTED, s, 4)
+        _add_entry(ledger, block, L_REFRACTED, s, 5)
 
 
 @wp.func
