@@ -114,6 +114,8 @@ def test_trace_without_the_flow_code_equals_the_flow_kernel():
     r = E.Renderer(c.scene_at(0, W, H), s, device="cpu")
     p = r.photons
     assert p.trace_kernel() is K.trace_photons_flow
+    assert p.trace_kernel(True) is K.projected_trace(True, 1, 0)  # the sun's, compiled for its projection
+    p.PROJECTED = False  # the kernels that read the projections at run time (test_cisp checks the projected ones)
     p.record_hits = True
     at = {a.label: i for i, a in enumerate(K.trace_photons.adj.args)}
     assert [a.label for a in K.trace_photons_flow.adj.args] == list(at)

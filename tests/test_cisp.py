@@ -253,3 +253,57 @@ def test_camera_bounds_cover_the_back_face_layer(device):
         built[name] = b.numpy()
     assert not np.array_equal(built["layers"], built["front"])
     np.testing.assert_array_equal(p.cam_bounds.numpy(), built["layers"])
+
+
+
+def _pool(width, height):
+    from pathlib import Path
+
+    from cisp_warp.usd import load_usd
+
+    return load_usd(str(Path(__file__).resolve().parents[1] / "scenes_usd" / "pool.usda"), width=width, height=height,
+                    device="cpu")
+
+
+@pytest.mark.parametrize("name, make, projections", [
+    ("pool", _pool, {(0, 0), (1, 0)}),  # an orthographic sun, a perspective spot and camera
+    ("sinusoid", lambda w, h: analytic.sinusoidal_water(w, h), {(1, 1)}),  # a sun and an orthographic camera
+])
+def test_the_trace_compiled_per_projection_equals_the_run_time_one(name, make, projections):
+    """The pass launches the trace compiled for each RSM view's projection and the camera's
+    (``kernels_cisp.projected_trace``); each launch replayed with ``trace_photons``, which reads the projections at
+    run time, on the same inputs: photon map, its second moment, the ledger's block rows, landings, outcome records
+    and the hidden map bit for bit the same, over two frames, with photons stored under every projection seen."""
+    from cisp_warp.photons import kernels_cisp as K
+
+    r = Renderer(make(48, 36), RenderSettings(rsm_size=64, method="cisp", denoiser="svgf",
+                                              photons=PhotonSettings(photons=20_000, seed=3)), device="cpu")
+    p = r.photons
+    p.record_hits = True
+    at = {a.label: i for i, a in enumerate(K.trace_photons.adj.args)}
+    outputs = ("photon_map", "photon_m2", "ledger", "hits", "outcome", "hidden_flux")
+    launch = p.launch_photons
+    seen = []
+
+    def both(kernel, n, inputs):
+        if kernel in (K.trace_photons, K.trace_photons_flow) or kernel not in K.trace_kernels():
+            return launch(kernel, n, inputs)
+        proj = (int(inputs[at["light_views"]].numpy()[inputs[at["view_index"]]]["orthographic"]),
+                int(inputs[at["cameras"]].numpy()[0]["orthographic"]))
+        assert kernel is K.projected_trace(False, *proj)
+        before = {o: inputs[at[o]].numpy().copy() for o in outputs}
+        launch(kernel, n, inputs)
+        fast = {o: inputs[at[o]].numpy().copy() for o in outputs}
+        for o in outputs:
+            inputs[at[o]].assign(before[o])
+        launch(K.trace_photons, n, inputs)
+        for o in outputs:
+            assert np.array_equal(inputs[at[o]].numpy(), fast[o]), o
+        seen.append((proj, int((fast["outcome"][:, 3] == L_STORED).sum())))
+
+    p.launch_photons = both
+    for _ in range(2):
+        r.render_frame()
+    assert {proj for proj, _ in seen} == projections
+    for proj in projections:
+        assert sum(stored for q, stored in seen if q == proj) > 0, proj

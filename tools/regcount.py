@@ -108,11 +108,16 @@ def kernel_usage(cubin: Path) -> dict[str, dict[str, int]]:
     return out
 
 
-def compile_module(module_name: str, block_dim: int, arch: int, out_dir: Path, lineinfo: bool = False) -> Path:
+def compile_module(module_name, block_dim: int, arch: int, out_dir: Path, lineinfo: bool = False) -> Path:
+    """``module_name``: a module's name, or a Warp module (a kernel's own, ``module="unique"``)."""
     import warp as wp
 
-    module = importlib.import_module(module_name)
-    options = wp.get_module(module.__name__).options
+    if isinstance(module_name, str):
+        module = importlib.import_module(module_name)
+        options = wp.get_module(module.__name__).options
+    else:
+        module = module_name
+        options = module.options
     options["block_dim"] = block_dim
     kept = options["lineinfo"]
     options["lineinfo"] = lineinfo  # a compile option of the module (a cubin of its own), restored after
@@ -243,6 +248,10 @@ def main(argv=None) -> int:
     ap.add_argument("--sass", default="", help="folder: write each module's SASS there (MODULE.sass)")
     ap.add_argument("--local", action="store_true",
                     help="also where each kernel's local loads and stores are (line info; nvdisasm, if installed)")
+    ap.add_argument("--top", type=int, default=12, help="with --local: how many (loop, source) rows a kernel prints")
+    ap.add_argument("--projected", action="store_true",
+                    help="also the trace compiled per projection (kernels_cisp.projected_trace: perspective and "
+                         "orthographic light views, perspective camera, no flow), each a module of its own")
     args = ap.parse_args(argv)
 
     import warp as wp
@@ -254,11 +263,17 @@ def main(argv=None) -> int:
     names = []
     for m in [m for m in args.modules.split(",") if m]:
         names += [d for d, _ in DENOISE_MODULES] if m == "denoise" else [m]
+    units = [(name, name, block_of.get(name, 128)) for name in names]
+    if args.projected:
+        from cisp_warp.photons import kernels_cisp as K
+
+        for lo in (0, 1):
+            kernel = K.projected_trace(False, lo, 0)
+            units.append((("light_ortho" if lo else "light_persp"), kernel.module, 128))
     print(f"sm_{args.arch}, Warp {wp.__version__}: registers per thread / stack frame bytes")
     with tempfile.TemporaryDirectory() as tmp:
-        for name in names:
-            block = block_of.get(name, 128)
-            cubin = compile_module(name, block, args.arch, Path(tmp) / name, lineinfo=args.local)
+        for name, module, block in units:
+            cubin = compile_module(module, block, args.arch, Path(tmp) / name, lineinfo=args.local)
             local = local_memory(cubin) if args.local else None
             if args.local and local is None:
                 print("no nvdisasm: local memory not attributed")
@@ -272,7 +287,7 @@ def main(argv=None) -> int:
                 print(f"{name.rsplit('.', 1)[-1]:>18} {kernel:<32} {u.get('registers', 0):4d} regs "
                       f"{u.get('frame_bytes', 0):5d} B frame  (block {block})")
                 if local is not None and kernel in local:
-                    print_local(kernel, local[kernel])
+                    print_local(kernel, local[kernel], args.top)
     return 0
 
 

@@ -77,10 +77,10 @@ def run_scene(name: str, args, device) -> None:
 
     def keep(kernel, n, inputs):
         launch(kernel, n, inputs)
-        if kernel is K.trace_photons:  # every view's order is written into one array: keep a copy of this view's
+        if kernel in K.trace_kernels():  # every view's order is written into one array: keep a copy of this view's
             inputs = list(inputs)
             inputs[at_order] = wp.clone(inputs[at_order])
-            kept.append((n, inputs))
+            kept.append((n, inputs, kernel))  # the kernel the frame launched (compiled for the view's projection)
 
     r.photons.launch_photons = keep
     r.render_frame()
@@ -88,21 +88,21 @@ def run_scene(name: str, args, device) -> None:
     wp.synchronize_device(device)
     table = {}
     for vname in variants(K.trace_photons, kept[0][1], device):
-        per = [(n, variants(K.trace_photons, inputs, device)[vname]) for n, inputs in kept]
+        per = [(n, variants(K.trace_photons, inputs, device)[vname], kernel) for n, inputs, kernel in kept]
         times = []
         for rep in range(args.reps + 1):
             if device.is_cuda:
                 e0, e1 = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
                 wp.record_event(e0)
-                for n, inputs in per:
-                    launch(K.trace_photons, n, inputs)
+                for n, inputs, kernel in per:
+                    launch(kernel, n, inputs)
                 wp.record_event(e1)
                 wp.synchronize_event(e1)
                 ms = wp.get_event_elapsed_time(e0, e1)
             else:
                 t0 = time.perf_counter()
-                for n, inputs in per:
-                    launch(K.trace_photons, n, inputs)
+                for n, inputs, kernel in per:
+                    launch(kernel, n, inputs)
                 ms = 1e3 * (time.perf_counter() - t0)
             if rep > 0:  # the first is a warm-up
                 times.append(ms)

@@ -166,7 +166,7 @@ def run_scene(name: str, args) -> dict:
     checks: list[str] = []
 
     def counted_launch(kernel, n, inputs):
-        if kernel not in (K.trace_photons, K.trace_photons_flow):
+        if kernel not in K.trace_kernels():  # the frame's trace, whichever projection it was compiled for
             return launch(kernel, n, inputs)
         inputs = list(inputs)
         if inputs[i_use] == 0:

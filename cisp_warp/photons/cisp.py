@@ -37,6 +37,7 @@ class CISP(PhotonPass):
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
         super().__init__(scene, gbuffer, camera_view, lights, settings, device, t_max)
+        self.camera_orthographic = int(bool(camera_view.orthographic))  #: the projection the trace is compiled for
         n_hits = self.max_photons_per_view() if settings.splat == "point" else 1  # the grid keeps its own records
         #: (N,) each photon's landing point [m] and camera pixel (-1: not stored) of the last view traced, written only
         #: while ``record_hits`` is set (tests, statistics): the frame loop does not pay 16 B a photon for them
@@ -86,10 +87,20 @@ class CISP(PhotonPass):
             return self.flow.trace_args(b.light_index, b.view_index)
         return [b.lights.views] + self._no_flow
 
-    def trace_kernel(self):
+    #: launch the trace compiled for each RSM view's projection and the camera's (``K.projected_trace``: only that
+    #: projection's code in the marches, perf_notes section 51); False: the kernels that read it at run time (twin)
+    PROJECTED = True
+
+    def trace_kernel(self, light_orthographic: bool | None = None):
         """The trace kernel for this pass: with the caustic flow's code only while a flow is kept
-        (``K.trace_photons_flow``), else ``K.trace_photons``, compiled without it (perf_notes section 39)."""
-        return K.trace_photons_flow if self.flow is not None else K.trace_photons
+        (``K.trace_photons_flow``), else ``K.trace_photons``, compiled without it (perf_notes section 39); given the
+        RSM view's projection (``light_orthographic``) and with ``PROJECTED``, that kernel compiled for it and the
+        camera's (``K.projected_trace``). The camera's projection is the one the pass was made for (its pixels'
+        solid angles are too)."""
+        flow = self.flow is not None
+        if light_orthographic is None or not self.PROJECTED:
+            return K.trace_photons_flow if flow else K.trace_photons
+        return K.projected_trace(flow, int(bool(light_orthographic)), self.camera_orthographic)
 
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
@@ -128,7 +139,7 @@ class CISP(PhotonPass):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
             rsm_bounds = self.build_rsm_bounds(b.lights, b.light_index, b.view_index)
-            self.launch_photons(self.trace_kernel(), b.slots, inputs=[
+            self.launch_photons(self.trace_kernel(r.view.orthographic), b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
                 r.opaque_depth, rsm_bounds, sp.depth, r.flux, sp.roughness, sp.ior, sp.tri_id,
                 sc.geometry, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],

@@ -327,14 +327,21 @@ def write_counts(hits: wp.array(dtype=wp.vec4), k: int, work_l: int, work_0: int
     hits[n + 2 * k + 1] = wp.vec4(float(work_1 / WORK_TESTS), float(work_1 % WORK_TESTS), float(phases), 1.0)
 
 
-def _make_trace(counted: bool, flows: tuple = (False, True)):
+def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = -1, camera_ortho: int = -1):
     """:func:`trace_photon` and the kernels :func:`trace_photons` (one per entry of ``flows``: with ``flow`` False
     the caustic flow's code is left out at compile time, ``trace_photons``; True: ``trace_photons_flow``, which adds
     each stored photon's landing to its flow cell where ``flow_records`` is not empty), or with ``counted`` (probes
     only, ``tools/trace_steps.py``; :func:`counted_trace`) the same trace on the ``counted`` marches
     (:func:`~.march.counted_marches`), which writes each photon's work per phase into ``hits`` (:func:`write_counts`;
     ``hits`` then holds 3 records a slot) and is a module of its own; everything else, outputs included, the same.
-    Every variant takes the same inputs (a kernel without the flow ignores its eight flow inputs)."""
+    Every variant takes the same inputs (a kernel without the flow ignores its eight flow inputs).
+
+    ``light_ortho``, ``camera_ortho``: -1 reads each view's projection (``ViewParams.orthographic``) at run time;
+    0 or 1 compiles the trace for that projection of the light's RSM views or of the camera (:func:`projected_trace`):
+    the views are read with their ``orthographic`` field replaced by the constant, which the compiler folds, so
+    the marches, reprojections and the emission carry only that projection's code (the same values wherever the
+    constant equals the views' field: the same bits). Such kernels are modules of their own, compiled when first
+    launched."""
     camera_march = screen_march_bounded
     light_march = screen_march_bounded_plain
     kernel_module = None
@@ -342,6 +349,27 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
         camera_march = counted_marches(True)[2]
         light_march = counted_marches(False)[2]
         kernel_module = "unique"
+    LIGHT_ORTHO = int(light_ortho)
+    CAMERA_ORTHO = int(camera_ortho)
+    if LIGHT_ORTHO >= 0 or CAMERA_ORTHO >= 0:
+        kernel_module = "unique"
+
+    @wp.func
+    def light_view(light_views: wp.array(dtype=ViewParams), view_index: int) -> ViewParams:
+        """``light_views[view_index]``, its projection the compiled one where the trace has one (``light_ortho``)."""
+        v = light_views[view_index]
+        if wp.static(LIGHT_ORTHO >= 0):
+            v.orthographic = LIGHT_ORTHO
+        return v
+
+    @wp.func
+    def camera_view(cameras: wp.array(dtype=ViewParams), anchor: int) -> ViewParams:
+        """``read_again(cameras, 0, anchor)``, its projection the compiled one where the trace has one
+        (``camera_ortho``)."""
+        v = read_again(cameras, 0, anchor)
+        if wp.static(CAMERA_ORTHO >= 0):
+            v.orthographic = CAMERA_ORTHO
+        return v
 
     @wp.func
     def trace_photon(
@@ -387,13 +415,13 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
         (``MARCH_HIT``) where the camera does not see (``L_OCCLUDED``, or ``L_LOST_CAMERA`` outside the image) and no
         camera march stored. Returns (1 if stored, else 0; the landing point [m]; its camera pixel)."""
         o_l = origin + d * (1.0e-4 * t_max)  # march_light's march, its work kept where counted
-        status, t_l, work_l = light_march(light_views[view_index], rsm_opaque_depth, rsm_depth_bounds, o_l, d, t_max,
+        status, t_l, work_l = light_march(light_view(light_views, view_index), rsm_opaque_depth, rsm_depth_bounds, o_l, d, t_max,
                                           max_steps, thickness, thickness_rel)
         x_end = o_l + d * t_l
         work_0 = int(0)  # ``counted``: the camera passes' work (counted_marches), and the phases run (COUNT_*)
         work_1 = int(0)
         phases = COUNT_TRACED
-        entry, pix = reproject_to_camera(cameras[0], cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
+        entry, pix = reproject_to_camera(camera_view(cameras, 0), cam_depth, status, x_end, thickness, thickness_rel, use_cascade)
         landed = status == MARCH_HIT  # x_end is a light-view surface crossing (kept unless a camera march stores it)
         # :func:`camera_marches`' two passes, reading the camera where needed (it is not held through the march)
         camera_pass = int(0)
@@ -403,7 +431,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
             o_m = x_end
             if camera_pass == 1:
                 o_m = origin + d * (1.0e-4 * t_max)
-            status, t_m, steps = camera_march(read_again(cameras, 0, pix + 1), cam_depth, cam_depth_bounds, o_m, d,
+            status, t_m, steps = camera_march(camera_view(cameras, pix + 1), cam_depth, cam_depth_bounds, o_m, d,
                                               t_max, max_steps, thickness, thickness_rel)
             if wp.static(counted):
                 if camera_pass == 0:
@@ -416,12 +444,12 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
                 entry = _camera_entry(status)
                 if entry == L_STORED:
                     x_end = x_end + d * t_m
-                    pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+                    pix = camera_pixel(camera_view(cameras, steps), x_end)
                 camera_pass = _rescue_pass(entry, use_cascade)
             else:
                 if status == MARCH_HIT:
                     x_end = origin + d * (1.0e-4 * t_max + t_m)
-                    pix = camera_pixel(read_again(cameras, 0, steps), x_end)
+                    pix = camera_pixel(camera_view(cameras, steps), x_end)
                     entry = L_STORED
                 camera_pass = 2
         if entry != L_STORED:
@@ -435,11 +463,11 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
             return int(0), x_end, pix
         # the landing cut with the tangent plane of the surface its pixel shows (a light-view crossing lies within an
         # RSM texel's depth of the surface; the G-buffer holds it to the camera's pixel)
-        x_end, pix = refine_landing(read_again(cameras, 0, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
+        x_end, pix = refine_landing(camera_view(cameras, pix), cam_depth, cam_position, cam_normal, origin, d, x_end, pix,
                                     thickness, thickness_rel)
         store_hidden(hidden_views, x_end, power, hidden_flux, hidden_w, hidden_h)
         # 6.-7. validate against the camera's surface normal, store irradiance over the pixel's footprint
-        stored = deposit(read_again(cameras, 0, pix), pix, d, power, cam_depth, cam_position, cam_normal,
+        stored = deposit(camera_view(cameras, pix), pix, d, power, cam_depth, cam_position, cam_normal,
                          cam_solid_angle, footprint_mode, photon_map, photon_m2, tally)
         if stored != 0:
             if hits.shape[0] > 0:
@@ -518,7 +546,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
             the march)."""
             block, lane = wp.tid()
             t = block * wp.block_dim() + lane
-            light = light_views[view_index]
+            light = light_view(light_views, view_index)
             cascade = states[view_index]
             n_photons = cascade_photons(cascade, light_photons)
             if block * wp.block_dim() >= n_photons:  # slots past this view's photons: the whole block (fixed dims)
@@ -561,7 +589,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
                 if wp.static(flow):  # compiled only into the flow's kernel (perf_notes section 39)
                     # the caustic flow (caustic_flow.py): its cell's landings
                     if stored != 0 and flow_records.shape[0] > 0:
-                        camera = read_again(cameras, 0, pix)
+                        camera = camera_view(cameras, pix)
                         cell = flow_cell(flow_views, flow_w, flow_h, origin)
                         add_landing(flow_cells, flow_parity, flow_records, flow_offset + t,
                                     wp.where(cell >= 0, cell + flow_base, -1), pix, world_project(camera, x_end),
@@ -569,8 +597,10 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
             if t < n_slots:
                 record_outcome(outcome, t, tally)
 
-        # named as a kernel at module level (the per-kernel tables, tools/regcount.py), the counted one apart
-        trace_photons.__qualname__ = "trace_photons" + ("_flow" if flow else "") + ("_counted" if counted else "")
+        # named as a kernel at module level (the per-kernel tables, tools/regcount.py), the counted one apart, and
+        # an orthographic light's or camera's apart (the pool's sun: its launches timed apart from its spot's)
+        trace_photons.__qualname__ = ("trace_photons" + ("_flow" if flow else "") + ("_counted" if counted else "")
+                                      + ("_ortho" if LIGHT_ORTHO == 1 else "") + ("_orthocam" if CAMERA_ORTHO == 1 else ""))
         return wp.kernel(trace_photons, launch_bounds=PHOTON_LAUNCH_BOUNDS, enable_backward=False,
                          module=kernel_module)
 
@@ -580,6 +610,26 @@ def _make_trace(counted: bool, flows: tuple = (False, True)):
 #: the trace (one photon: :func:`trace_photon`; the kernels: :func:`trace_photons` without the caustic flow's code,
 #: :func:`trace_photons_flow` with it, launched when the pass keeps a flow: ``CISP.trace_kernel``)
 trace_photon, trace_photons, trace_photons_flow = _make_trace(False)
+
+_PROJECTED_TRACES: dict = {}
+
+
+def projected_trace(flow: bool, light_ortho: int, camera_ortho: int):
+    """:func:`trace_photons` (``flow`` False) or :func:`trace_photons_flow` compiled for one projection of the light's
+    RSM views and one of the camera (0 perspective, 1 orthographic; :func:`_make_trace`), made on first use, each a
+    module of its own: the kernel ``CISP.trace_kernel`` launches (the pool's sun is orthographic, its spot and every
+    camera perspective). Named as the kernel it specialises; the same inputs, the same outputs bit for bit where
+    the views have those projections (``tests/test_cisp.py``)."""
+    key = (bool(flow), int(light_ortho), int(camera_ortho))
+    if key not in _PROJECTED_TRACES:
+        _PROJECTED_TRACES[key] = _make_trace(False, (key[0],), key[1], key[2])[1]
+    return _PROJECTED_TRACES[key]
+
+
+def trace_kernels() -> tuple:
+    """Every trace kernel made so far: :func:`trace_photons`, :func:`trace_photons_flow` and the projected ones."""
+    return (trace_photons, trace_photons_flow, *_PROJECTED_TRACES.values())
+
 
 _COUNTED_TRACE = []
 

@@ -121,9 +121,9 @@ MARCH_BATCH = 4  #: depth samples :func:`screen_march` reads before testing them
 @wp.func
 def _ray_depth(orthographic: int, z0: float, z1: float, k0: float, k1: float, s: float) -> float:
     """Linear depth of the ray at screen-segment parameter ``s`` (1/depth is linear for a perspective view)."""
-    if orthographic != 0:
-        return z0 + (z1 - z0) * s
-    return 1.0 / (k0 + (k1 - k0) * s)
+    # both computed and one selected (the same values as a return in each branch; the division in a branch merged
+    # through local memory in the marches' cell loops at the trace's register bound: perf_notes section 48)
+    return wp.where(orthographic != 0, z0 + (z1 - z0) * s, 1.0 / (k0 + (k1 - k0) * s))
 
 
 @wp.func
@@ -322,18 +322,17 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
         t1 = wp.min(t1, 1.0e6)
     p1 = p0 + dv * t1
     z1 = -p1[2]
-    s0 = wp.vec2(0.0)
-    s1 = wp.vec2(0.0)
-    k0 = float(1.0)
-    k1 = float(1.0)
-    if view.orthographic != 0:
-        s0 = wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1])
-        s1 = wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1])
-    else:
-        k0 = 1.0 / z0
-        k1 = 1.0 / z1
-        s0 = wp.vec2(view.cx + view.fx * p0[0] * k0, view.cy - view.fy * p0[1] * k0)
-        s1 = wp.vec2(view.cx + view.fx * p1[0] * k1, view.cy - view.fy * p1[1] * k1)
+    # the perspective reciprocals and both projections computed, the view's selected (the same values as the
+    # branches; no division merged through local memory: perf_notes section 48)
+    ortho = view.orthographic != 0
+    r0 = 1.0 / z0
+    r1 = 1.0 / z1
+    k0 = wp.where(ortho, 1.0, r0)
+    k1 = wp.where(ortho, 1.0, r1)
+    s0 = wp.where(ortho, wp.vec2(view.cx + view.fx * p0[0], view.cy - view.fy * p0[1]),
+                  wp.vec2(view.cx + view.fx * p0[0] * r0, view.cy - view.fy * p0[1] * r0))
+    s1 = wp.where(ortho, wp.vec2(view.cx + view.fx * p1[0], view.cy - view.fy * p1[1]),
+                  wp.vec2(view.cx + view.fx * p1[0] * r1, view.cy - view.fy * p1[1] * r1))
     # clip the screen segment to the image (Liang-Barsky); the origin must lie inside
     w = float(view.width)
     h = float(view.height)

@@ -53,10 +53,12 @@ def view_point(view: ViewParams, p_world: wp.vec3) -> wp.vec3:
 def view_project(view: ViewParams, p_view: wp.vec3) -> wp.vec3:
     """View-space point -> (px, py, depth): continuous pixel coordinates and linear depth [m]."""
     depth = -p_view[2]
-    if view.orthographic != 0:
-        return wp.vec3(view.cx + view.fx * p_view[0], view.cy - view.fy * p_view[1], depth)
+    # the division outside any branch and both projections' values selected: the same bits as a return in each
+    # branch, with no division's slow path merged through local memory where a kernel is at its register bound
     inv = 1.0 / wp.max(depth, 1.0e-20)
-    return wp.vec3(view.cx + view.fx * p_view[0] * inv, view.cy - view.fy * p_view[1] * inv, depth)
+    ortho = view.orthographic != 0
+    return wp.vec3(wp.where(ortho, view.cx + view.fx * p_view[0], view.cx + view.fx * p_view[0] * inv),
+                   wp.where(ortho, view.cy - view.fy * p_view[1], view.cy - view.fy * p_view[1] * inv), depth)
 
 
 @wp.func
