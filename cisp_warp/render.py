@@ -327,8 +327,12 @@ class Renderer:
         if (camera.width, camera.height) != (self.gbuffer.width, self.gbuffer.height):
             camera = replace(camera, width=self.gbuffer.width, height=self.gbuffer.height)
         self.scene.camera = camera
-        self.view = camera_view(camera)
+        old, self.view = self.view, camera_view(camera)
         self.view_params = self.view.params()
+        v = self.view
+        if self.photons is not None and (old.fx, old.fy, old.principal, old.orthographic) != (v.fx, v.fy, v.principal,
+                                                                                              v.orthographic):
+            self.photons.set_camera_view(v)  # a zoom: the pixels' solid angles; another projection: the trace's
 
     def update_scene(self, scene: Scene) -> None:
         """Take the camera and the moved points of ``scene`` (same topology) for the next frame.
@@ -357,9 +361,11 @@ class Renderer:
 
     def _steady_key(self) -> tuple:
         """What a captured frame bakes in besides ``inputs``: the lights (a moved light re-fits its whole views on
-        the host), whether their shadow maps are kept while still, and whether the sky's maps are drawn."""
+        the host), whether their shadow maps are kept while still, whether the sky's maps are drawn, and the camera's
+        projection (the trace is compiled for it)."""
         sky = None if self.sky is None else (self.sky.dynamic, self.sky._drawn)
-        return tuple((id(lm.light), lm.cache_shadows) for lm in self.lights) + (sky, self.lanes is not None)
+        return tuple((id(lm.light), lm.cache_shadows) for lm in self.lights) + (sky, self.lanes is not None,
+                                                                                bool(self.view.orthographic))
 
     def render_frame(self, timer=None, graph: bool | None = None) -> None:
         """Raster, light, trace photons, denoise and composite one frame; everything stays on the device.

@@ -215,6 +215,8 @@ class PhotonPass:
         for alias in (self.ledger_rows, self.ledger, self._ledger_entries, self.max_lum):
             alias._owner = self._accumulators  # views of it (host copies via numpy() too) keep the memory alive
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
+        #: (H*W,) float32: the camera pixels' exact solid angles [sr] (:meth:`set_camera_view` when the camera's
+        #: intrinsics change)
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
         self.t_max = float(t_max)
         self.footprint_mode = C.FOOTPRINT_EXACT if settings.footprint == "exact" else C.FOOTPRINT_PAPER
@@ -362,6 +364,12 @@ class PhotonPass:
         they are fitted to the camera: then the active cascades, read back from the device: not for the frame
         loop, which launches ``view_slots`` threads and lets the kernels count)."""
         return max(1, self.settings.photons // max(1, sum(lm.active)))
+
+    def set_camera_view(self, camera_view: View) -> None:
+        """The camera's intrinsics changed (``Renderer.set_camera``: a zoom, another projection): its pixels' solid
+        angles, which the photons' deposit divides by, written anew in place (one host->device copy when they change,
+        not every frame; a captured frame reads the same array)."""
+        self.solid_angle.assign(camera_pixel_solid_angle(camera_view))
 
     def max_photons_per_view(self) -> int:
         """The most photon slots one view can get (all of its light's, rounded up to whole blocks on CUDA, when

@@ -95,12 +95,16 @@ class CISP(PhotonPass):
         """The trace kernel for this pass: with the caustic flow's code only while a flow is kept
         (``K.trace_photons_flow``), else ``K.trace_photons``, compiled without it (perf_notes section 39); given the
         RSM view's projection (``light_orthographic``) and with ``PROJECTED``, that kernel compiled for it and the
-        camera's (``K.projected_trace``). The camera's projection is the one the pass was made for (its pixels'
-        solid angles are too)."""
+        camera's (``K.projected_trace``; the camera's as :meth:`set_camera_view` last saw it: ``Renderer``'s captured
+        frame is captured again when it changes)."""
         flow = self.flow is not None
         if light_orthographic is None or not self.PROJECTED:
             return K.trace_photons_flow if flow else K.trace_photons
         return K.projected_trace(flow, int(bool(light_orthographic)), self.camera_orthographic)
+
+    def set_camera_view(self, camera_view) -> None:
+        super().set_camera_view(camera_view)
+        self.camera_orthographic = int(bool(camera_view.orthographic))
 
     def _bounds_for(self, width: int, height: int) -> wp.array:
         return wp.zeros(M.bounds_size(width, height), dtype=wp.vec2, device=self.device)
