@@ -344,6 +344,32 @@ def _row_outside(e: wp.vec4, slack: float, y: float, x0: float, x1: float) -> bo
 RASTER_BLOCK = 128
 
 
+@wp.func
+def _item_setup(a: wp.vec3, b: wp.vec3, c: wp.vec3, s: int, layers: wp.array(dtype=wp.int32), mask: int, mask_b: int):
+    """Set-up triangle ``s``'s (vertices ``a``, ``b``, ``c``) terms for :func:`_row_fragments`: 1 / its doubled area,
+    its triangle id and whether it is drawn into each of the two layers (``mask``, ``mask_b``)."""
+    tri_layers = layers[s / 2]
+    return 1.0 / _edge(a, b, c[0], c[1]), wp.uint64(s / 2), (tri_layers & mask) != 0, (tri_layers & mask_b) != 0
+
+
+@wp.func
+def _row_fragments(view: ViewParams, a: wp.vec3, b: wp.vec3, c: wp.vec3, e0: wp.vec4, e1: wp.vec4, e2: wp.vec4,
+                   inv_area: float, tri: wp.uint64, to_a: bool, to_b: bool, j: int, i_lo: int, i_hi: int,
+                   visibility: wp.array(dtype=wp.uint64), visibility_b: wp.array(dtype=wp.uint64)):
+    """The fragments of a set-up triangle (vertices ``a``, ``b``, ``c``, edge terms ``e0``-``e2``, :func:`_item_setup`'s
+    terms) on pixel row ``j`` from column ``i_lo`` to ``i_hi``: each pixel centre inside all three edges written by
+    :func:`write_fragment` (:func:`raster_tiles_reject`'s and :func:`raster_tile_rows`' loop)."""
+    y = float(j) + 0.5
+    for i in range(i_lo, i_hi + 1):
+        x = float(i) + 0.5
+        w0 = _edge_at(e0, x, y)
+        w1 = _edge_at(e1, x, y)
+        w2 = _edge_at(e2, x, y)
+        if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+            write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * view.width + i, visibility,
+                           visibility_b)
+
+
 @wp.kernel
 def raster_tiles_reject(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -366,7 +392,6 @@ def raster_tiles_reject(
     view = views[view_index]
     item = wp.tid()
     total = tile_end[n_sub - 1]
-    width = view.width
     while item < total:
         s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
         item += stride
@@ -380,21 +405,10 @@ def raster_tiles_reject(
         if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
                 or _box_outside(e2, _edge_slack(e2, box), box)):
             continue
-        inv_area = 1.0 / _edge(a, b, c[0], c[1])
-        tri = wp.uint64(s / 2)
-        tri_layers = layers[s / 2]
-        to_a = (tri_layers & mask) != 0
-        to_b = (tri_layers & mask_b) != 0
+        inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
         for j in range(j_lo, j_hi + 1):
-            y = float(j) + 0.5
-            for i in range(i_lo, i_hi + 1):
-                x = float(i) + 0.5
-                w0 = _edge_at(e0, x, y)
-                w1 = _edge_at(e1, x, y)
-                w2 = _edge_at(e2, x, y)
-                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                    write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * width + i, visibility,
-                                   visibility_b)
+            _row_fragments(view, a, b, c, e0, e1, e2, inv_area, tri, to_a, to_b, j, i_lo, i_hi, visibility,
+                           visibility_b)
 
 
 @wp.kernel
@@ -420,7 +434,6 @@ def raster_tile_rows(
     view = views[view_index]
     t = wp.tid()
     total = tile_end[n_sub - 1]
-    width = view.width
     while t < TILE * total:
         item = t / TILE
         r = t - item * TILE
@@ -442,19 +455,8 @@ def raster_tile_rows(
         if (_row_outside(e0, _edge_slack(e0, box), y, x0, x1) or _row_outside(e1, _edge_slack(e1, box), y, x0, x1)
                 or _row_outside(e2, _edge_slack(e2, box), y, x0, x1)):
             continue
-        inv_area = 1.0 / _edge(a, b, c[0], c[1])
-        tri = wp.uint64(s / 2)
-        tri_layers = layers[s / 2]
-        to_a = (tri_layers & mask) != 0
-        to_b = (tri_layers & mask_b) != 0
-        for i in range(i_lo, i_hi + 1):
-            x = float(i) + 0.5
-            w0 = _edge_at(e0, x, y)
-            w1 = _edge_at(e1, x, y)
-            w2 = _edge_at(e2, x, y)
-            if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                write_fragment(view, a, b, c, w0, w1, w2, inv_area, tri, to_a, to_b, j * width + i, visibility,
-                               visibility_b)
+        inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
+        _row_fragments(view, a, b, c, e0, e1, e2, inv_area, tri, to_a, to_b, j, i_lo, i_hi, visibility, visibility_b)
 
 
 @wp.kernel
