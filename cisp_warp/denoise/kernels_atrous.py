@@ -19,11 +19,17 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
 :func:`atrous_level` then gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one
 sub-lattice, in shared memory (Warp shared tiles):
 
+0. given the previous level's block flags (``signal_in``; every level but the first of a chain), whether any of the
+   <= 4 x 4 previous tiles that hold this tile and its apron of 2 had a signal: if none, the level's input is 0
+   there and the block writes its pixels' own input (zeros) without the steps below;
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
    ``(n, z)``, the guide pass's terms and the input (colour, Var), three loads a point (16, 16 and, ungated
    (SVGF), 8 bytes: the guide pass writes only σ_z ‖∇z‖ and g3x3(Var) there, the luminance comes from the colour;
    gated, 16), two points a thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
-   tile has any pixel to filter;
+   tile has any pixel to filter, and a second one whether the tile or its apron of 2 (the taps) has any signal
+   (colour != 0 or Var > 0): without both, 2-4 are skipped and each pixel keeps its input, which is then exactly
+   the filter's output (0, or the unfiltered pixel where every gate is closed); the block writes that flag
+   (``signal_out``) for the next level's step 0;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
    their taps once for both; offsets, kernel weights and distances known to the compiler) and kept in shared
@@ -56,7 +62,9 @@ they filter (a dense kernel that reads three vec4 a pixel and writes one runs 0.
 ~0.50 the pair weights and weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two,
 which is why the pool (96% of its blocks) costs more than the Cornell box (41%). Per pixel a level evaluates 20.6
 pair weights (~37 instructions each on the common path, ~43 before section 46), 24 filter taps (~10) and reads 1.9
-guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
+guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more). Section 50: blocks
+whose tile and apron hold no signal (a still pool's walls and deck, 28-64% of its blocks by level) skip the pair
+weights and taps, and from the second level on their guide loads too: SVGF's pool levels 1.075 → 0.771 ms.
 """
 
 from __future__ import annotations
