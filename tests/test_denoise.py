@@ -969,7 +969,7 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True)
     test_atrous_level_signal_in_the_apron_only_is_filtered("cpu", None)  # the two barriers' flags across lanes
     test_atrous_level_signal_free_block_skips_its_weights("cpu")
-    test_atrous_levels_signal_flags_match_naive_twin("cpu", 1, None)  # the flags' lookup spread over lanes
+    test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin("cpu", 0, None)
 
 
 @pytest.mark.parametrize("radius", [0, 1])
@@ -1206,13 +1206,9 @@ def test_atrous_level_signal_free_block_skips_its_weights(device):
     np.testing.assert_allclose(v[:, 32:], v_ref[:, 32:], rtol=1e-5, atol=1e-7)
 
 
-def _two_levels(device, g, color, variance, gate, nan_guide=None):
-    """Levels of steps 1 and 2 chained as SVGF and the caustics denoiser chain them (packed, the first's block
-    signal flags read by the second); returns the second's packed output (H, W, 4), its public colour and Var, the
-    first's flags and the twins' colour and Var. ``nan_guide``: (H, W) bool, where the packed guide the second level
-    reads is made NaN."""
-    from cisp_warp.denoise.kernels_atrous import atrous_blocks
-
+def _two_levels(device, g, color, variance, gate):
+    """Levels of steps 1 and 2 chained as SVGF and the caustics denoiser chain them (packed); returns the second's
+    packed output (H, W, 4), its public colour and Var and the twins' colour and Var."""
     h, w = g["depth"].shape
     s = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0)
     dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
@@ -1222,42 +1218,33 @@ def _two_levels(device, g, color, variance, gate, nan_guide=None):
     out = wp.full(w * h, wp.vec4(-7.0), dtype=wp.vec4, device=device)
     c_out = wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device)
     v_out = wp.full(w * h, -7.0, dtype=wp.float32, device=device)
-    flags = wp.full(atrous_blocks(w, h, 1)[0], 7, dtype=wp.int32, device=device)
     launch_atrous(None, None, slope, w, h, 1, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True, aux,
                   noise_target=gate, color_variance_out=mid, unpacked=(dev["irradiance"], var_in, dev["depth"],
                                                                        dev["normal"]),
-                  pack_into=(packed, guide), signal_out=flags)
-    if nan_guide is not None:
-        gd = guide.numpy().reshape(h, w, 4)
-        gd[nan_guide] = np.nan
-        guide = wp.array(gd.reshape(-1, 4), dtype=wp.vec4, device=device)
-    flags2 = wp.full(atrous_blocks(w, h, 2)[0], 7, dtype=wp.int32, device=device)
+                  pack_into=(packed, guide))
     launch_atrous(mid, guide, slope, w, h, 2, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True, aux,
-                  noise_target=gate, color_variance_out=out, signal_in=flags, signal_out=flags2)
+                  noise_target=gate, color_variance_out=out)
     launch_atrous(mid, guide, slope, w, h, 2, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True, aux,
-                  noise_target=gate, color_out=c_out, variance_out=v_out, signal_in=flags)
+                  noise_target=gate, color_out=c_out, variance_out=v_out)
     c1, v1 = atrous_level_naive(color, variance, g["depth"], g["normal"], 1, s.sigma_depth, s.sigma_normal,
                                 s.sigma_luminance, True, noise_target=gate)
     c2, v2 = atrous_level_naive(c1, v1, g["depth"], g["normal"], 2, s.sigma_depth, s.sigma_normal,
                                 s.sigma_luminance, True, noise_target=gate)
-    assert set(np.unique(flags2.numpy())) <= {0, 1}  # every block wrote its flag
-    return (out.numpy().reshape(h, w, 4), c_out.numpy().reshape(h, w, 3), v_out.numpy().reshape(h, w),
-            flags.numpy(), c2, v2)
+    return out.numpy().reshape(h, w, 4), c_out.numpy().reshape(h, w, 3), v_out.numpy().reshape(h, w), c2, v2
 
 
 @pytest.mark.parametrize("axis,gate", [(1, None), (0, None), (1, 0.1)])
-def test_atrous_levels_signal_flags_match_naive_twin(device, axis, gate):
-    """The second level's blocks read the first's block flags: a step-2 tile (pixels up to 63 along ``axis`` 1, 31
-    along 0, apron 2 up to 67 / 35) whose only signal comes from the first level's third tile (from 64 / 32; the
-    input has signal from 66 / 34, so that the first level's second tile, apron up to 65 / 33, had none) is
-    filtered: its last pixels take that signal (a wrong tile range in the flags' lookup would leave them 0), and
-    the whole output equals the twin. The first tiles along ``axis`` had no signal and flag 0."""
+def test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin(device, axis, gate):
+    """Two chained levels over signal-free blocks: the first level's second tile along ``axis`` (pixels 32-63 along
+    1, 16-31 along 0) has no signal in its tile or apron (the input's starts at 66 / 34) and writes its zeros, its
+    third tile spreads the signal to 64 / 32; a step-2 tile (pixels up to 63 / 31, apron up to 67 / 35) whose only
+    signal is that spread is filtered: its last pixels take it, and the whole output equals the twin."""
     rng = np.random.default_rng(13 + axis)
     w, h = (100, 20) if axis == 1 else (40, 50)
     coord = np.indices((h, w))[axis]
     edge = 66 if axis == 1 else 34
     g, color, variance = _signal_region_frame(rng, w, h, coord >= edge)
-    packed, c, v, flags, c_ref, v_ref = _two_levels(device, g, color, variance, gate)
+    packed, c, v, c_ref, v_ref = _two_levels(device, g, color, variance, gate)
     np.testing.assert_allclose(c, c_ref, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(v, v_ref, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(packed[..., :3], c_ref, rtol=1e-5, atol=1e-6)
@@ -1265,25 +1252,3 @@ def test_atrous_levels_signal_flags_match_naive_twin(device, axis, gate):
     if gate is None:  # gated, those pixels' own gates are closed (their 3x3 neighbourhoods hold little signal)
         live = c_ref[last][(g["depth"][last] > 0)]
         assert live.max() > 0.0 and c[last][(g["depth"][last] > 0)].max() > 0.0
-    tiles = flags.reshape(-1)  # step 1: one block a tile, row-major over (2 x 4) or (4 x 2) tiles
-    grid = tiles.reshape((2, 4) if axis == 1 else (4, 2))
-    first = grid[:, :2] if axis == 1 else grid[:2, :]
-    assert np.all(first == 0) and np.all(np.take(grid, [2], axis=axis) == 1)
-
-
-def test_atrous_level_quiet_blocks_load_no_guide(device):
-    """A step-2 block whose tile and apron lie in the first level's signal-free tiles writes its zeros from its input
-    alone (no guide loads): a NaN guide there changes nothing (a block that loaded it would take its pixels for
-    pixels without a surface), the rest equals the twin."""
-    rng = np.random.default_rng(17)
-    w, h = 140, 20
-    x = np.arange(w)[None, :].repeat(h, 0)
-    g, color, variance = _signal_region_frame(rng, w, h, x >= 100)
-    nan = np.zeros((h, w), bool)
-    # step-2 tile 0 (pixels 0 .. 67 with its apron) reads the flags of step-1 tiles 0 .. 2 (pixels 0 .. 95, their
-    # aprons up to 97), which had no signal
-    nan[6:, 10:20] = True
-    packed, c, v, flags, c_ref, v_ref = _two_levels(device, g, color, variance, None, nan_guide=nan)
-    assert np.all(packed[nan] == np.array([0.0, 0.0, 0.0, 0.0], np.float32))  # with a surface, no signal
-    np.testing.assert_allclose(c, c_ref, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(v, v_ref, rtol=1e-5, atol=1e-7)

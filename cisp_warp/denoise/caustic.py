@@ -38,8 +38,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_caustic as K
-from .kernels_atrous import (LATTICE_STEP, atrous_blocks, lattice_size, launch_atrous, launch_atrous_level,
-                             spare_outputs)
+from .kernels_atrous import LATTICE_STEP, lattice_size, launch_atrous, launch_atrous_level, spare_outputs
 from .kernels_svgf import flip_parity
 
 
@@ -178,10 +177,6 @@ class CausticDenoiser:
             self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d),
                             wp.zeros(lattice, dtype=wp.vec4, device=d)) if lattice else None
             self.filtered_variance = one(wp.float32)
-            # per level but the last, one int32 a block: whether its tile or apron had a signal (the next level's
-            # blocks without one in theirs skip their guide loads)
-            self.block_signal = [wp.zeros(atrous_blocks(width, height, 1 << k)[0], dtype=wp.int32, device=d)
-                                 for k in range(settings.atrous_levels - 1)]
             spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
         else:
             self.guide_a = one(wp.vec4)
@@ -270,9 +265,7 @@ class CausticDenoiser:
                           self.level_guides, noise_target=tau,
                           color_variance_out=None if last else self.packed[(level + 1) % 2],
                           color_out=out if last else None, variance_out=self.filtered_variance if last else None,
-                          lattice=self.lattice, unpack_from=self.packed[(level + 1) % 2] if last else None,
-                          signal_in=self.block_signal[level - 1] if level > 0 else None,
-                          signal_out=None if last else self.block_signal[level], **source)
+                          lattice=self.lattice, unpack_from=self.packed[(level + 1) % 2] if last else None, **source)
 
     def _pixel_levels(self, out: wp.array, tau: float) -> None:
         """The gated levels as per-pixel launches (:func:`.kernels_atrous_pixel.launch_atrous_level`)."""

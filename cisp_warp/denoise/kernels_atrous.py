@@ -19,17 +19,13 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
 :func:`atrous_level` then gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one
 sub-lattice, in shared memory (Warp shared tiles):
 
-0. given the previous level's block flags (``signal_in``; every level but the first of a chain), whether any of the
-   <= 4 x 4 previous tiles that hold this tile and its apron of 2 had a signal: if none, the level's input is 0
-   there and the block writes its pixels' own input (zeros) without the steps below;
 1. guides of the tile plus an apron of 4 sub-lattice points (``GUIDE_Y`` x ``GUIDE_X``): the packed G-buffer
    ``(n, z)``, the guide pass's terms and the input (colour, Var), three loads a point (16, 16 and, ungated
    (SVGF), 8 bytes: the guide pass writes only σ_z ‖∇z‖ and g3x3(Var) there, the luminance comes from the colour;
    gated, 16), two points a thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
    tile has any pixel to filter, and a second one whether the tile or its apron of 2 (the taps) has any signal
    (colour != 0 or Var > 0): without both, 2-4 are skipped and each pixel keeps its input, which is then exactly
-   the filter's output (0, or the unfiltered pixel where every gate is closed); the block writes that flag
-   (``signal_out``) for the next level's step 0;
+   the filter's output (0, or the unfiltered pixel where every gate is closed);
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
    their taps once for both; offsets, kernel weights and distances known to the compiler) and kept in shared
@@ -64,7 +60,8 @@ which is why the pool (96% of its blocks) costs more than the Cornell box (41%).
 pair weights (~37 instructions each on the common path, ~43 before section 46), 24 filter taps (~10) and reads 1.9
 guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more). Section 50: blocks
 whose tile and apron hold no signal (a still pool's walls and deck, 28-64% of its blocks by level) skip the pair
-weights and taps, and from the second level on their guide loads too: SVGF's pool levels 1.075 → 0.771 ms.
+weights, sums and taps: SVGF's pool levels 1.075 → 0.76 ms. (Sparing them their guide loads too, through per-block
+flags of the previous level, measured slower: section 50.)
 """
 
 from __future__ import annotations
@@ -636,22 +633,6 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
     return bits
 
 
-@wp.func
-def store_output(p: int, c_new: wp.vec3, v_new: float, surface: bool, write_packed: int,
-                 color_variance_out: wp.array(dtype=wp.vec4), write_public: int, color_out: wp.array(dtype=wp.vec3),
-                 variance_out: wp.array(dtype=wp.float32), write_history: int, parity: wp.array(dtype=wp.int32),
-                 hist_color: wp.array2d(dtype=wp.vec3)):
-    """The level's outputs of pixel ``p`` (colour ``c_new``, Var ``v_new``; 0 without a ``surface``), each where its
-    flag is set (:func:`atrous_level`)."""
-    if write_packed != 0:
-        store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
-    if write_public != 0:
-        color_out[p] = c_new
-        variance_out[p] = v_new
-    if write_history != 0:
-        hist_color[1 - parity[0], p] = c_new
-
-
 def make_atrous_level(gated: int):
     """:func:`atrous_level` compiled for one value of ``gated`` (a closure constant, folded by the compiler): the
     ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one (the caustics
@@ -684,13 +665,6 @@ def make_atrous_level(gated: int):
         lattice: int,
         guide_parity: wp.array(dtype=wp.int32),
         guide_row: int,
-        read_signal: int,
-        signal_in: wp.array(dtype=wp.int32),
-        prev_tiles_x: int,
-        prev_sub_h: int,
-        prev_sub_w: int,
-        write_signal: int,
-        signal_out: wp.array(dtype=wp.int32),
     ):
         """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
         ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -708,11 +682,6 @@ def make_atrous_level(gated: int):
         inputs are in the step's sub-lattice-major order (:func:`atrous_guide`'s ``lattice``), the outputs not.
         ``guide_row`` != 0: ``guide`` holds rows of that many entries and the level reads row ``1 -
         guide_parity[0]`` (SVGF's guide history, whose row this frame's :func:`.kernels_svgf.reproject` wrote).
-        ``write_signal``: ``signal_out[block]`` (int32, one a block) = 1 if the block's tile or its apron of 2 holds a
-        signal (a colour or a Var != 0 at a point with a surface), else 0: its output tile is then 0. ``read_signal``
-        (the previous level's, of step ``step`` / 2, ``prev_tiles_x`` tiles a row, a sub-lattice of ``prev_sub_h`` x
-        ``prev_sub_w`` points): a block none of whose tile's or apron's pixels lies in a previous tile with a signal
-        copies its pixels' input (zeros) without loading guides.
         """
         block, lane = wp.tid()
         threads = wp.block_dim()
@@ -728,150 +697,109 @@ def make_atrous_level(gated: int):
         lattice_row = sub * ((height + step - 1) // step)  # sub-lattice-major: point (sy, sx) at (lattice_row + sy) sub_w + sx
         guide_offset = (1 - guide_parity[0]) * guide_row  # the guide's row (SVGF: its history's, this frame's)
 
-        # the shared tables (declared before the branch below: the same allocations on every path)
+        # 1. guides of the tile and an apron of 4, read once
         guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
         guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
         signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
+        # TO_FILTER: this thread read a pixel of the output tile with a surface and some gate open; HAS_SIGNAL: a
+        # point of the tile or its apron of 2 with a surface and a signal (a colour or a variance != 0)
+        found = int(0)
+        # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
+        # latency), their six loads issued before any is used; the empty columns are written without loads
+        for r0 in range(lane, _GUIDE_HALF, threads):
+            r1 = r0 + _GUIDE_HALF
+            i0 = r0 // _GUIDE_X
+            j0 = r0 - i0 * _GUIDE_X
+            i1 = r1 // _GUIDE_X
+            j1 = r1 - i1 * _GUIDE_X
+            y0 = row0 + step * (sy0 + i0)
+            x0 = col0 + step * (sx0 + j0)
+            y1 = row0 + step * (sy0 + i1)
+            x1 = col0 + step * (sx0 + j1)
+            in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
+            in1 = r1 < _GUIDE_REAL and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
+            p0 = wp.where(in0, wp.where(lattice != 0, (lattice_row + sy0 + i0) * sub_w + sx0 + j0, y0 * width + x0), 0)
+            p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
+            cv0 = load_vec4(color_variance, p0)
+            cv1 = load_vec4(color_variance, p1)
+            gs0 = load_vec4(guide, guide_offset + p0)
+            gs1 = load_vec4(guide, guide_offset + p1)
+            ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
+            ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
+            found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
+            if r1 < _GUIDE_REAL:
+                found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
+        # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
+        for m in range(threads - 1 - lane, _EMPTY_N, threads):
+            c = m % 4
+            store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
+                        wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED)
+
         pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
         inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
+        # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
+        # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
+        # half the step (converged) skips 2 and 3: step 4 reads neither table then. So does a block whose tile and
+        # apron of 2 hold no signal (colour 0 and Var <= 0 at every point with a surface: the walls no photon
+        # reaches): every tap it would filter with is 0, c'_p = A_pp c_p + Σ A_pq c_q = 0 and Var'_p = Σ A_pq² Var_q
+        # = 0 (the A_pq finite), which are its own c_p and Var_p, kept as a pixel with every gate 0 keeps them
+        to_filter = block_sync_or(flag, found & TO_FILTER)
+        any_signal = block_sync_or(flag, found & HAS_SIGNAL)
+        run = to_filter != 0 and any_signal != 0
+        if run:
+            fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
+                         normal_scale, GATED)
 
-        # 0. a level whose previous level's blocks told where their output may have a signal (``signal_in``): if
-        # none of the previous blocks whose tiles hold this tile or its apron of 2 had a signal in theirs (each wrote
-        # its own 0), this level's input is 0 there (c' = 0, Var' = 0: step 4's skip), and the block only copies its
-        # pixels' zeros, without the guide loads (<= 4 x 4 previous tiles, one flag each)
-        quiet = int(0)
-        if read_signal != 0:
-            half = step // 2
-            ra = row0 // half  # this sub-lattice's rows are rows ra, ra + 2, ... of the previous level's row0 % half
-            ca = col0 // half
-            lo_r = wp.max(ra + 2 * (sy0 + 2), 0) // _TILE_Y
-            hi_r = wp.min(ra + 2 * (sy0 + _TILE_Y + 5), prev_sub_h - 1) // _TILE_Y
-            lo_c = wp.max(ca + 2 * (sx0 + 2), 0) // _TILE_X
-            hi_c = wp.min(ca + 2 * (sx0 + _TILE_X + 5), prev_sub_w - 1) // _TILE_X
-            seen = int(0)
-            for m in range(lane, 16, threads):
-                pr = lo_r + m // 4
-                pc = lo_c + m % 4
-                if pr <= hi_r and pc <= hi_c:
-                    seen = seen | signal_in[((pr * prev_tiles_x + pc) * half + row0 - ra * half) * half + col0 - ca * half]
-            quiet = wp.where(block_sync_or(flag, seen) == 0, 1, 0)
-        if quiet != 0:
-            if write_signal != 0 and lane == 0:
-                signal_out[block] = 0
-            k = lane
-            while k < _TILE_Y * _TILE_X:
-                sy = sy0 + 4 + k // _TILE_X
-                sx = sx0 + 4 + k % _TILE_X
-                y = row0 + step * sy
-                x = col0 + step * sx
-                if y < height and x < width:
-                    p = y * width + x
-                    cv_p = load_vec4(color_variance, wp.where(lattice != 0, (lattice_row + sy) * sub_w + sx, p))
-                    surface = cv_p[3] >= 0.0  # the packed input's Var is NO_SURFACE exactly where its guide is 0
-                    c_new = wp.vec3(0.0)
-                    v_new = float(0.0)
-                    if surface:
-                        c_new = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
-                        v_new = cv_p[3]
-                    store_output(p, c_new, v_new, surface, write_packed, color_variance_out, write_public, color_out,
-                                 variance_out, write_history, parity, hist_color)
-                k += threads
-        else:
-            # 1. guides of the tile and an apron of 4, read once
-            # TO_FILTER: this thread read a pixel of the output tile with a surface and some gate open; HAS_SIGNAL: a
-            # point of the tile or its apron of 2 with a surface and a signal (a colour or a variance != 0)
-            found = int(0)
-            # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
-            # latency), their six loads issued before any is used; the empty columns are written without loads
-            for r0 in range(lane, _GUIDE_HALF, threads):
-                r1 = r0 + _GUIDE_HALF
-                i0 = r0 // _GUIDE_X
-                j0 = r0 - i0 * _GUIDE_X
-                i1 = r1 // _GUIDE_X
-                j1 = r1 - i1 * _GUIDE_X
-                y0 = row0 + step * (sy0 + i0)
-                x0 = col0 + step * (sx0 + j0)
-                y1 = row0 + step * (sy0 + i1)
-                x1 = col0 + step * (sx0 + j1)
-                in0 = y0 >= 0 and y0 < height and x0 >= 0 and x0 < width
-                in1 = r1 < _GUIDE_REAL and y1 >= 0 and y1 < height and x1 >= 0 and x1 < width
-                p0 = wp.where(in0, wp.where(lattice != 0, (lattice_row + sy0 + i0) * sub_w + sx0 + j0, y0 * width + x0), 0)
-                p1 = wp.where(in1, wp.where(lattice != 0, (lattice_row + sy0 + i1) * sub_w + sx0 + j1, y1 * width + x1), 0)
-                cv0 = load_vec4(color_variance, p0)
-                cv1 = load_vec4(color_variance, p1)
-                gs0 = load_vec4(guide, guide_offset + p0)
-                gs1 = load_vec4(guide, guide_offset + p1)
-                ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
-                ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
-                found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
-                if r1 < _GUIDE_REAL:
-                    found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
-            # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
-            for m in range(threads - 1 - lane, _EMPTY_N, threads):
-                c = m % 4
-                store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
-                            wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED)
-
-            # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
-            # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
-            # half the step (converged) skips 2 and 3: step 4 reads neither table then. So does a block whose tile and
-            # apron of 2 hold no signal (colour 0 and Var <= 0 at every point with a surface: the walls no photon
-            # reaches): every tap it would filter with is 0, c'_p = A_pp c_p + Σ A_pq c_q = 0 and Var'_p = Σ A_pq² Var_q
-            # = 0 (the A_pq finite), which are its own c_p and Var_p, kept as a pixel with every gate 0 keeps them
-            to_filter = block_sync_or(flag, found & TO_FILTER)
-            any_signal = block_sync_or(flag, found & HAS_SIGNAL)
-            run = to_filter != 0 and any_signal != 0
-            if write_signal != 0 and lane == 0:
-                signal_out[block] = any_signal
-            if run:
-                fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
-                             normal_scale, GATED)
-
-            # 4. the filter of the tile's pixels
-            k = lane
-            while k < _TILE_Y * _TILE_X:
-                y = row0 + step * (sy0 + 4 + k // _TILE_X)
-                x = col0 + step * (sx0 + 4 + k % _TILE_X)
-                if y < height and x < width:
-                    p = y * width + x
-                    u = (4 + k // _TILE_X) * _PITCH + 6 + k % _TILE_X
-                    cv_p = read_guide(signal, u)
-                    c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
-                    v_p = cv_p[3]
-                    surface = read_guide(guide_s, u)[3] > 0.0
-                    c_new = wp.vec3(0.0)
-                    v_new = float(0.0)
-                    if surface:
-                        c_new = c_p
-                        v_new = v_p
-                    # ungated, or else unless every gate of p is 0 (then A_pp = 1); not in a block without signal (then
-                    # c'_p = c_p = 0 and Var'_p = Var_p = 0, above)
-                    if surface and run and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
-                        iw_p = read_guide_scalar(inv_weight_sum, u)
-                        sum_a = float(0.0)  # Σ_{q≠p} A_pq
-                        sum_ac = wp.vec3(0.0)  # Σ_{q≠p} A_pq c_q
-                        sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q (w_pq = 0 where q has no surface: no branch)
-                        for f in range(FORWARD_TAPS):
-                            off = forward_offset(f)
-                            q = u + off
-                            a = read_pair(pair, f * _PAIR_PIXELS + u) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
-                            cv_q = read_guide(signal, q)
-                            sum_a += a
-                            sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
-                            sum_av += a * a * cv_q[3]
-                            q = u - off
-                            a = read_pair(pair, f * _PAIR_PIXELS + q) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
-                            cv_q = read_guide(signal, q)
-                            sum_a += a
-                            sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
-                            sum_av += a * a * cv_q[3]
-                        a_centre = 1.0 - sum_a  # A_pp, in (0, 1]: Σ_{q≠p} A_pq <= (W_p − w_pp) / W_p
-                        c_new = a_centre * c_p + sum_ac
-                        v_new = sum_av + a_centre * a_centre * v_p
-                    store_output(p, c_new, v_new, surface, write_packed, color_variance_out, write_public, color_out,
-                                 variance_out, write_history, parity, hist_color)
-                k += threads
+        # 4. the filter of the tile's pixels
+        k = lane
+        while k < _TILE_Y * _TILE_X:
+            y = row0 + step * (sy0 + 4 + k // _TILE_X)
+            x = col0 + step * (sx0 + 4 + k % _TILE_X)
+            if y < height and x < width:
+                p = y * width + x
+                u = (4 + k // _TILE_X) * _PITCH + 6 + k % _TILE_X
+                cv_p = read_guide(signal, u)
+                c_p = wp.vec3(cv_p[0], cv_p[1], cv_p[2])
+                v_p = cv_p[3]
+                surface = read_guide(guide_s, u)[3] > 0.0
+                c_new = wp.vec3(0.0)
+                v_new = float(0.0)
+                if surface:
+                    c_new = c_p
+                    v_new = v_p
+                # ungated, or else unless every gate of p is 0 (then A_pp = 1); not in a block without signal (then
+                # c'_p = c_p = 0 and Var'_p = Var_p = 0, above)
+                if surface and run and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
+                    iw_p = read_guide_scalar(inv_weight_sum, u)
+                    sum_a = float(0.0)  # Σ_{q≠p} A_pq
+                    sum_ac = wp.vec3(0.0)  # Σ_{q≠p} A_pq c_q
+                    sum_av = float(0.0)  # Σ_{q≠p} A_pq² Var_q (w_pq = 0 where q has no surface: no branch)
+                    for f in range(FORWARD_TAPS):
+                        off = forward_offset(f)
+                        q = u + off
+                        a = read_pair(pair, f * _PAIR_PIXELS + u) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
+                        cv_q = read_guide(signal, q)
+                        sum_a += a
+                        sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
+                        sum_av += a * a * cv_q[3]
+                        q = u - off
+                        a = read_pair(pair, f * _PAIR_PIXELS + q) * wp.where(conserve_energy != 0, wp.min(iw_p, read_guide_scalar(inv_weight_sum, q)), iw_p)
+                        cv_q = read_guide(signal, q)
+                        sum_a += a
+                        sum_ac += a * wp.vec3(cv_q[0], cv_q[1], cv_q[2])
+                        sum_av += a * a * cv_q[3]
+                    a_centre = 1.0 - sum_a  # A_pp, in (0, 1]: Σ_{q≠p} A_pq <= (W_p − w_pp) / W_p
+                    c_new = a_centre * c_p + sum_ac
+                    v_new = sum_av + a_centre * a_centre * v_p
+                if write_packed != 0:
+                    store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
+                if write_public != 0:
+                    color_out[p] = c_new
+                    variance_out[p] = v_new
+                if write_history != 0:
+                    hist_color[1 - parity[0], p] = c_new
+            k += threads
 
     return atrous_level
 
@@ -906,8 +834,7 @@ def spare_outputs(device) -> dict:
                        "vec4": wp.zeros(1, dtype=wp.vec4, device=device),
                        "float": wp.zeros(1, dtype=wp.float32, device=device),
                        "hist": wp.zeros((2, 1), dtype=wp.vec3, device=device),
-                       "parity": wp.zeros(1, dtype=wp.int32, device=device),
-                       "int": wp.zeros(1, dtype=wp.int32, device=device)}
+                       "parity": wp.zeros(1, dtype=wp.int32, device=device)}
     return _SPARE[key]
 
 
@@ -928,8 +855,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
                   lattice: tuple | None = None, unpack_from: wp.array | None = None,
                   lattice_guide_ready: bool = False, flip: wp.array | None = None,
-                  guide_parity: wp.array | None = None, signal_in: wp.array | None = None,
-                  signal_out: wp.array | None = None) -> bool:
+                  guide_parity: wp.array | None = None) -> bool:
     """One level: :func:`atrous_guide`, then :func:`atrous_level`.
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
@@ -956,12 +882,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
 
     ``flip``: the frame's parity (1 int32) to flip at the end, where :func:`unpack_level` runs (it flips it then,
     one launch fewer than :func:`.kernels_svgf.flip_parity`). Returns whether it was flipped (else the caller
-    flips it).
-
-    ``signal_out`` (int32, :func:`atrous_blocks` entries): each block writes whether its tile or its apron of 2 holds a
-    signal (else its output tile is 0). ``signal_in``: the ``signal_out`` of the level of step ``step`` / 2 that wrote
-    this level's input: blocks whose tile and apron lie in that level's signal-free tiles write their zeros without
-    loading their guides."""
+    flips it)."""
     d = slope.device
     spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
@@ -1008,17 +929,6 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
-    prev = (0, 1, 1, 1)  # (step, tiles_x, sub_h, sub_w) of the level signal_in comes from
-    if signal_in is not None:
-        if step < 2 or (unpacked is not None):
-            raise ValueError("signal_in needs a packed input of a level of step >= 2 (the previous level's output)")
-        half = step // 2
-        prev_blocks, prev_tiles_x = atrous_blocks(width, height, half)
-        if signal_in.shape[0] < prev_blocks:
-            raise ValueError(f"signal_in needs {prev_blocks} entries (the blocks of the step-{half} level)")
-        prev = (half, prev_tiles_x, (height + half - 1) // half, (width + half - 1) // half)
-    if signal_out is not None and signal_out.shape[0] < blocks:
-        raise ValueError(f"signal_out needs {blocks} entries (the level's blocks)")
     wp.launch_tiled(ATROUS_LEVEL[int(gated)], dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, depth_scale,
                             normal_scale, luminance_scale, int(conserve_energy),
@@ -1028,9 +938,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
-                            guide_row, int(signal_in is not None), signal_in if signal_in is not None else spare["int"],
-                            prev[1], prev[2], prev[3], int(signal_out is not None),
-                            signal_out if signal_out is not None else spare["int"]])
+                            guide_row])
     if unpack:
         wp.launch(unpack_level, dim=height * width, device=d,
                   inputs=[color_variance_out, *unpack_out, int(flip is not None),

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_svgf as K
-from .kernels_atrous import LATTICE_STEP, atrous_blocks, lattice_size, launch_atrous, spare_outputs
+from .kernels_atrous import LATTICE_STEP, lattice_size, launch_atrous, spare_outputs
 
 
 @dataclass(frozen=True)
@@ -65,8 +65,7 @@ class SVGF:
     vec4: colour, Var; the à-trous levels' packed input and output, ping-ponged; a last level of step >=
     ``UNPACK_STEP`` writes its output there packed, unpacked into ``out`` densely), ``level_guides`` (vec4: a
     level's ‖∇z‖, g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a
-    little more than H*W), ``block_signal`` (per level but the last, int32 a block of it: whether the block's tile or
-    its apron of 2 held a signal; the next level reads it), ``lattice_guides`` ({step: vec4}: the guide in the sub-lattice-major order of the first
+    little more than H*W), ``lattice_guides`` ({step: vec4}: the guide in the sub-lattice-major order of the first
     two such steps, written by ``reproject``), ``lattice`` (2 x vec4: those levels' input, and the guide of any
     further step, copied in that order by their guide pass; None with fewer levels), ``filtered_variance``
     (float32: luminance variance of the last level, or of the temporal accumulation without levels).
@@ -105,10 +104,6 @@ class SVGF:
         self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d)
                                for st in steps[:2]}
         self.filtered_variance = one(wp.float32)
-        # per level but the last, one int32 a block: whether its tile or apron had a signal (the next level's blocks
-        # without one in theirs skip their guide loads)
-        self.block_signal = [wp.zeros(atrous_blocks(width, height, 1 << k)[0], dtype=wp.int32, device=d)
-                             for k in range(settings.atrous_levels - 1)]
         spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
     @property
@@ -183,8 +178,6 @@ class SVGF:
                 hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
                 lattice=(self.lattice[0], self.lattice_guides[1 << level]) if ready else self.lattice,
                 unpack_from=self.color_variance[(level + 1) % 2] if last else None, lattice_guide_ready=ready,
-                flip=self.parity if last else None, guide_parity=self.parity,
-                signal_in=self.block_signal[level - 1] if level > 0 else None,
-                signal_out=None if last else self.block_signal[level])
+                flip=self.parity if last else None, guide_parity=self.parity)
         if not flipped:  # the last level's unpack flips it where it runs
             wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
