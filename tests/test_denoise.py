@@ -967,6 +967,9 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False)
     test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True)
+    test_atrous_level_signal_in_the_apron_only_is_filtered("cpu", None)  # the two barriers' flags across lanes
+    test_atrous_level_signal_free_block_skips_its_weights("cpu")
+    test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin("cpu", 0, None)
 
 
 @pytest.mark.parametrize("radius", [0, 1])
@@ -1115,3 +1118,137 @@ def test_caustic_with_flow_matches_naive_twin(device):
         np.testing.assert_allclose(history(den), hist["frames"], rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(res, ref, rtol=1e-5, atol=1e-5 * truth.max())
     assert np.any(hist["frames"] > 2.5)
+
+
+def _tiled_level(device, g, color, variance, step, gate, conserve=True):
+    """One tiled level (:func:`launch_atrous`, unpacked input) and its float64 twin: (colour, Var) of each."""
+    h, w = g["depth"].shape
+    s = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0, conserve_energy=conserve)
+    dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
+    slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    var_in = wp.array(variance.astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    c_out = wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device)  # every pixel must be written
+    v_out = wp.full(w * h, -7.0, dtype=wp.float32, device=device)
+    scratch = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(3)]
+    launch_atrous(None, None, slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
+                  scratch[0], noise_target=gate, color_out=c_out, variance_out=v_out,
+                  unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=scratch[1:])
+    c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step, s.sigma_depth, s.sigma_normal,
+                                      s.sigma_luminance, conserve, noise_target=gate)
+    return c_out.numpy().reshape(h, w, 3), v_out.numpy().reshape(h, w), c_ref, v_ref
+
+
+def _signal_region_frame(rng, w, h, signal):
+    """A plane with a depth edge and a hole, a noisy photon-map-like colour and variance where ``signal`` (H, W
+    bool), exactly 0 elsewhere (the walls no photon reaches)."""
+    g = plane(w, h)
+    g["depth"][4:14, 40:60] = 1.3  # a depth edge across the tile border at x = 32 .. 63 / 64
+    color = rng.exponential(2.0, (h, w, 3)).astype(np.float32) * signal[..., None]
+    variance = (rng.exponential(1.0, (h, w)) * signal).astype(np.float32)
+    color[g["depth"] <= 0] = 0.0
+    variance[g["depth"] <= 0] = 0.0
+    return g, color, variance
+
+
+@pytest.mark.parametrize("step,gate,conserve", [(1, None, True), (1, 0.1, True), (2, None, False), (4, None, True),
+                                                (2, 0.1, True)])
+def test_atrous_level_signal_free_blocks_match_naive_twin(device, step, gate, conserve):
+    """Blocks whose tile and apron of 2 hold no signal (colour 0, Var 0) skip the pair weights and write their
+    zeros: next to blocks with signal, across tile borders and sub-lattices, the output equals the twin; at step 1
+    the first tile column (x < 32) has none, the second signal from x = 52 (its own pixels), the third all."""
+    rng = np.random.default_rng(71 + step)
+    w, h = 72, 20
+    x = np.arange(w)[None, :].repeat(h, 0)
+    signal = (x >= 52) | ((x >= 36) & (x < 40) & (np.arange(h)[:, None] > 9))
+    g, color, variance = _signal_region_frame(rng, w, h, signal)
+    c, v, c_ref, v_ref = _tiled_level(device, g, color, variance, step, gate, conserve)
+    np.testing.assert_allclose(c, c_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v, v_ref, rtol=1e-5, atol=1e-7)
+    far = 36 - 2 * step  # no tap of x < far reaches the signal
+    assert np.all(c[:, :far] == 0.0) and np.all(v[:, :far] == 0.0)
+    assert c[:, 32:].max() > 0.0
+
+
+@pytest.mark.parametrize("gate", [None, 0.1])
+def test_atrous_level_signal_in_the_apron_only_is_filtered(device, gate):
+    """A tile (x < 32, step 1) whose only signal lies in its apron of 2 (x = 32, 33) is filtered: its pixels
+    x = 30, 31 take that signal through their taps (a block skipped for a signal-free tile would leave them 0).
+    (gated, x = 31: x = 30's gate is closed). Signal two pixels further (x = 34, 35: in the apron of 4 the weight
+    sums read, not the taps') leaves the tile 0."""
+    rng = np.random.default_rng(5)
+    w, h = 72, 20
+    x = np.arange(w)[None, :].repeat(h, 0)
+    g, color, variance = _signal_region_frame(rng, w, h, (x == 32) | (x == 33))
+    c, v, c_ref, v_ref = _tiled_level(device, g, color, variance, 1, gate)
+    np.testing.assert_allclose(c, c_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v, v_ref, rtol=1e-5, atol=1e-7)
+    first = 31 if gate else 30  # gated, x = 30's own 3x3 neighbourhood has no signal: R = 0, it keeps its 0
+    assert c_ref[4:, first:32].min() > 0.0 and c[4:, first:32].min() > 0.0  # below the hole
+    assert np.all(c[:, :30] == 0.0)
+    g, color, variance = _signal_region_frame(rng, w, h, (x == 34) | (x == 35))
+    c, v, c_ref, v_ref = _tiled_level(device, g, color, variance, 1, gate)
+    np.testing.assert_allclose(c, c_ref, rtol=1e-5, atol=1e-6)
+    assert np.all(c[:, :32] == 0.0) and np.all(c_ref[:, :32] == 0.0) and np.all(v[:, :32] == 0.0)
+
+
+def test_atrous_level_signal_free_block_skips_its_weights(device):
+    """The skip runs (on the CPU's one-lane blocks too): a NaN normal inside a signal-free tile (x < 32, step 1),
+    more than 4 pixels from any other tile, would make that block's pair weights NaN and its zeros NaN
+    (0 · NaN) if they were evaluated; skipped, the tile writes exact zeros, and the other tiles equal the twin."""
+    rng = np.random.default_rng(9)
+    w, h = 72, 20
+    x = np.arange(w)[None, :].repeat(h, 0)
+    g, color, variance = _signal_region_frame(rng, w, h, x >= 40)
+    g["normal"][8, 12] = np.nan
+    c, v, c_ref, v_ref = _tiled_level(device, g, color, variance, 1, None)
+    assert np.all(c[:, :32] == 0.0) and np.all(v[:, :32] == 0.0)
+    np.testing.assert_allclose(c[:, 32:], c_ref[:, 32:], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v[:, 32:], v_ref[:, 32:], rtol=1e-5, atol=1e-7)
+
+
+def _two_levels(device, g, color, variance, gate):
+    """Levels of steps 1 and 2 chained as SVGF and the caustics denoiser chain them (packed); returns the second's
+    packed output (H, W, 4), its public colour and Var and the twins' colour and Var."""
+    h, w = g["depth"].shape
+    s = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0)
+    dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
+    slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    var_in = wp.array(variance.astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    aux, packed, guide, mid = (wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(4))
+    out = wp.full(w * h, wp.vec4(-7.0), dtype=wp.vec4, device=device)
+    c_out = wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device)
+    v_out = wp.full(w * h, -7.0, dtype=wp.float32, device=device)
+    launch_atrous(None, None, slope, w, h, 1, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True, aux,
+                  noise_target=gate, color_variance_out=mid, unpacked=(dev["irradiance"], var_in, dev["depth"],
+                                                                       dev["normal"]),
+                  pack_into=(packed, guide))
+    launch_atrous(mid, guide, slope, w, h, 2, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True, aux,
+                  noise_target=gate, color_variance_out=out)
+    launch_atrous(mid, guide, slope, w, h, 2, s.sigma_depth, s.sigma_normal, s.sigma_luminance, True, aux,
+                  noise_target=gate, color_out=c_out, variance_out=v_out)
+    c1, v1 = atrous_level_naive(color, variance, g["depth"], g["normal"], 1, s.sigma_depth, s.sigma_normal,
+                                s.sigma_luminance, True, noise_target=gate)
+    c2, v2 = atrous_level_naive(c1, v1, g["depth"], g["normal"], 2, s.sigma_depth, s.sigma_normal,
+                                s.sigma_luminance, True, noise_target=gate)
+    return out.numpy().reshape(h, w, 4), c_out.numpy().reshape(h, w, 3), v_out.numpy().reshape(h, w), c2, v2
+
+
+@pytest.mark.parametrize("axis,gate", [(1, None), (0, None), (1, 0.1)])
+def test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin(device, axis, gate):
+    """Two chained levels over signal-free blocks: the first level's second tile along ``axis`` (pixels 32-63 along
+    1, 16-31 along 0) has no signal in its tile or apron (the input's starts at 66 / 34) and writes its zeros, its
+    third tile spreads the signal to 64 / 32; a step-2 tile (pixels up to 63 / 31, apron up to 67 / 35) whose only
+    signal is that spread is filtered: its last pixels take it, and the whole output equals the twin."""
+    rng = np.random.default_rng(13 + axis)
+    w, h = (100, 20) if axis == 1 else (40, 50)
+    coord = np.indices((h, w))[axis]
+    edge = 66 if axis == 1 else 34
+    g, color, variance = _signal_region_frame(rng, w, h, coord >= edge)
+    packed, c, v, c_ref, v_ref = _two_levels(device, g, color, variance, gate)
+    np.testing.assert_allclose(c, c_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v, v_ref, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(packed[..., :3], c_ref, rtol=1e-5, atol=1e-6)
+    last = (slice(None), slice(62, 64)) if axis == 1 else (slice(30, 32), slice(None))
+    if gate is None:  # gated, those pixels' own gates are closed (their 3x3 neighbourhoods hold little signal)
+        live = c_ref[last][(g["depth"][last] > 0)]
+        assert live.max() > 0.0 and c[last][(g["depth"][last] > 0)].max() > 0.0

@@ -23,7 +23,9 @@ sub-lattice, in shared memory (Warp shared tiles):
    ``(n, z)``, the guide pass's terms and the input (colour, Var), three loads a point (16, 16 and, ungated
    (SVGF), 8 bytes: the guide pass writes only σ_z ‖∇z‖ and g3x3(Var) there, the luminance comes from the colour;
    gated, 16), two points a thread issued together in one round; the barrier after it (``__syncthreads_or``) also tells whether the
-   tile has any pixel to filter;
+   tile has any pixel to filter, and a second one whether the tile or its apron of 2 (the taps) has any signal
+   (colour != 0 or Var > 0): without both, 2-4 are skipped and each pixel keeps its input, which is then exactly
+   the filter's output (0, or the unfiltered pixel where every gate is closed);
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
    their taps once for both; offsets, kernel weights and distances known to the compiler) and kept in shared
@@ -56,7 +58,10 @@ they filter (a dense kernel that reads three vec4 a pixel and writes one runs 0.
 ~0.50 the pair weights and weight sums, ~0.16 the filter taps. Only blocks with a pixel to filter run the last two,
 which is why the pool (96% of its blocks) costs more than the Cornell box (41%). Per pixel a level evaluates 20.6
 pair weights (~37 instructions each on the common path, ~43 before section 46), 24 filter taps (~10) and reads 1.9
-guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more).
+guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more). Section 50: blocks
+whose tile and apron hold no signal (a still pool's walls and deck, 28-64% of its blocks by level) skip the pair
+weights, sums and taps: SVGF's pool levels 1.075 → 0.76 ms. (Sparing them their guide loads too, through per-block
+flags of the previous level, measured slower: section 50.)
 """
 
 from __future__ import annotations
@@ -95,6 +100,10 @@ RUN = 2
 #: region whose weight sums are needed: the tile and an apron of 2
 SUM_Y = TILE_Y + 4
 SUM_X = TILE_X + 4
+
+#: bits of what a thread found among its guide points (:func:`store_guide`): a pixel to filter, a signal to filter
+TO_FILTER = wp.constant(1)
+HAS_SIGNAL = wp.constant(2)
 
 #: levels of this step and above read their input, guides and guide-pass terms in sub-lattice-major order
 #: (:func:`lattice_index`), written so by their guide pass when the caller gives the buffers: a row of a tile is
@@ -600,8 +609,10 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
                 signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
                 s: float, gated: int) -> int:
     """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
-    guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns 1 if the
-    point is a pixel of the output tile that some gate lets be filtered (``gated`` == 0: any with a surface)."""
+    guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns the bits
+    ``TO_FILTER`` if the point is a pixel of the output tile that some gate lets be filtered (``gated`` == 0: any
+    with a surface) and ``HAS_SIGNAL`` if it is a point of the tile or its apron of 2 (the filter's taps) with a
+    surface and a signal: a colour channel != 0 or Var > 0 (NaN counts as signal)."""
     surface = inside and cv[3] >= 0.0
     if not surface:
         write_guide(guide_s, k, wp.vec4(0.0))
@@ -613,9 +624,13 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
     write_guide(signal, k, cv)
     i = k // _PITCH
     j = k - i * _PITCH - 2
+    bits = int(0)
     if i >= 4 and i < 4 + _TILE_Y and j >= 4 and j < 4 + _TILE_X and (gated == 0 or 2.0 * ax[3] > s):
-        return 1
-    return 0
+        bits = TO_FILTER
+    if (i >= 2 and i < 6 + _TILE_Y and j >= 2 and j < 6 + _TILE_X
+            and (cv[0] != 0.0 or cv[1] != 0.0 or cv[2] != 0.0 or not (cv[3] <= 0.0))):
+        bits = bits | HAS_SIGNAL
+    return bits
 
 
 def make_atrous_level(gated: int):
@@ -686,7 +701,9 @@ def make_atrous_level(gated: int):
         guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
         guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
         signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
-        filtered = int(0)  # pixels of the output tile with a surface and some gate open that this thread read
+        # TO_FILTER: this thread read a pixel of the output tile with a surface and some gate open; HAS_SIGNAL: a
+        # point of the tile or its apron of 2 with a surface and a signal (a colour or a variance != 0)
+        found = int(0)
         # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
         # latency), their six loads issued before any is used; the empty columns are written without loads
         for r0 in range(lane, _GUIDE_HALF, threads):
@@ -709,9 +726,9 @@ def make_atrous_level(gated: int):
             gs1 = load_vec4(guide, guide_offset + p1)
             ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
             ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
-            filtered += store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
+            found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
             if r1 < _GUIDE_REAL:
-                filtered += store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
+                found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
         # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
         for m in range(threads - 1 - lane, _EMPTY_N, threads):
             c = m % 4
@@ -723,8 +740,14 @@ def make_atrous_level(gated: int):
         flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
         # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
         # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
-        # half the step (converged) skips 2 and 3: step 4 reads neither table then
-        if block_sync_or(flag, filtered) != 0:
+        # half the step (converged) skips 2 and 3: step 4 reads neither table then. So does a block whose tile and
+        # apron of 2 hold no signal (colour 0 and Var <= 0 at every point with a surface: the walls no photon
+        # reaches): every tap it would filter with is 0, c'_p = A_pp c_p + Σ A_pq c_q = 0 and Var'_p = Σ A_pq² Var_q
+        # = 0 (the A_pq finite), which are its own c_p and Var_p, kept as a pixel with every gate 0 keeps them
+        to_filter = block_sync_or(flag, found & TO_FILTER)
+        any_signal = block_sync_or(flag, found & HAS_SIGNAL)
+        run = to_filter != 0 and any_signal != 0
+        if run:
             fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
                          normal_scale, GATED)
 
@@ -745,8 +768,9 @@ def make_atrous_level(gated: int):
                 if surface:
                     c_new = c_p
                     v_new = v_p
-                # ungated, or else unless every gate of p is 0 (then A_pp = 1)
-                if surface and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
+                # ungated, or else unless every gate of p is 0 (then A_pp = 1); not in a block without signal (then
+                # c'_p = c_p = 0 and Var'_p = Var_p = 0, above)
+                if surface and run and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
                     iw_p = read_guide_scalar(inv_weight_sum, u)
                     sum_a = float(0.0)  # Σ_{q≠p} A_pq
                     sum_ac = wp.vec3(0.0)  # Σ_{q≠p} A_pq c_q
