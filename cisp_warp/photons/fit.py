@@ -532,28 +532,25 @@ def _same_view(a: ViewParams, b: ViewParams) -> int:
     return same
 
 
-@wp.kernel
-def fit_solve(
-    pilot_views: wp.array(dtype=ViewParams),  # (V,) the light's pilot views (read)
-    width: int,  # P
+@wp.func
+def _solve_views(
+    pilot_views: wp.array(dtype=ViewParams),
+    width: int,
     height: int,
-    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
-    n_views: int,  # V
+    aspects: wp.array(dtype=wp.float64),
+    n_views: int,
     cascades: int,
-    margin: float,  # pilot texels around each window (plus 2% of its size)
+    margin: float,
     rsm_size: int,
-    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) from fit_reduce_cascades (read)
-    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (read)
-    angles: wp.array(dtype=wp.float64),  # (V,) (read)
-    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read the last, write)
-    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
-    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside: the coarsest window (write)
-    outside_angle: wp.array(dtype=wp.float32),  # (V,) its turn [rad] (write)
+    cascade_boxes: wp.array(dtype=wp.vec4d),
+    cascade_counts: wp.array(dtype=wp.float64),
+    angles: wp.array(dtype=wp.float64),
+    views: wp.array(dtype=ViewParams),
+    states: wp.array(dtype=CascadeState),
+    outside: wp.array(dtype=wp.vec4),
+    outside_angle: wp.array(dtype=wp.float32),
 ):
-    """One thread per light: every pilot view's windows (``views.fit_windows``: grown by the margin and the turned
-    texel's half extent, clipped to the turned pilot image, merged when a finer one covers more than
-    ``MERGE_AREA`` of the next, repeats dropped), then each cascade's view and state as
-    ``LightMaps.set_windows`` writes them."""
+    """:func:`fit_solve`'s work for one light, in one thread (arguments as :func:`fit_solve`'s)."""
     n_active = int(0)
     for b in range(n_views):
         angle = angles[b]
@@ -652,6 +649,225 @@ def fit_solve(
         states[k] = st
 
 
+
+@wp.kernel
+def fit_solve(
+    pilot_views: wp.array(dtype=ViewParams),  # (V,) the light's pilot views (read)
+    width: int,  # P
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
+    n_views: int,  # V
+    cascades: int,
+    margin: float,  # pilot texels around each window (plus 2% of its size)
+    rsm_size: int,
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) from fit_reduce_cascades (read)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (read)
+    angles: wp.array(dtype=wp.float64),  # (V,) (read)
+    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read the last, write)
+    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
+    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside: the coarsest window (write)
+    outside_angle: wp.array(dtype=wp.float32),  # (V,) its turn [rad] (write)
+):
+    """One thread per light: every pilot view's windows (``views.fit_windows``: grown by the margin and the turned
+    texel's half extent, clipped to the turned pilot image, merged when a finer one covers more than
+    ``MERGE_AREA`` of the next, repeats dropped), then each cascade's view and state as
+    ``LightMaps.set_windows`` writes them."""
+    _solve_views(pilot_views, width, height, aspects, n_views, cascades, margin, rsm_size, cascade_boxes,
+                 cascade_counts, angles, views, states, outside, outside_angle)
+
+
+#: threads of :func:`fit_light_views`' one block on CUDA (a 128² pilot: a column and 32 of its rows a thread)
+FIT_LIGHT_BLOCK = 512
+vec_steps = wp.types.vector(length=FIT_STEPS, dtype=wp.float64)  #: one float64 per turn of the fit
+vec_cascades = wp.types.vector(length=MAX_CASCADES, dtype=wp.float64)  #: one float64 per cascade
+vec_cascades_i = wp.types.vector(length=MAX_CASCADES, dtype=wp.int32)
+
+
+@wp.func
+def _nearest_branch(d0: float, d1: float) -> float:
+    """:func:`pilot_nearest`'s rule: the reflected branch's depth, then the refracted one's where there was none or it
+    is nearer; 0 where neither lands."""
+    nearest = float(0.0)
+    if d0 != PILOT_NONE:
+        nearest = d0
+    if d1 != PILOT_NONE and (nearest == 0.0 or d1 < nearest):
+        nearest = d1
+    return nearest
+
+
+@wp.func
+def _min_sum(a: wp.vec3d, b: wp.vec3d) -> wp.vec3d:
+    """(min, min, sum): a block's nearest depth, minus its farthest, and its count of useful texels."""
+    return wp.vec3d(wp.min(a[0], b[0]), wp.min(a[1], b[1]), a[2] + b[2])
+
+
+@wp.func
+def _box_of(lo: vec_steps, neg_hi: vec_steps, k: int) -> wp.vec2d:
+    return wp.vec2d(lo[k], -neg_hi[k])
+
+
+@wp.kernel
+def fit_light_views(
+    branch_depth: wp.array(dtype=wp.float32),  # (V*2*P*P,) pilot_branches' scratch of each pilot view (read when
+    # from_branches)
+    from_branches: int,  # 1: each texel's receiver depth from its two branches (pilot_nearest, written to
+    # receiver_depth); 0: read from receiver_depth
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) receiver depths [m], 0 = none (write or read)
+    width: int,  # P
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
+    pilot_views: wp.array(dtype=ViewParams),  # (V,) (read)
+    n_views: int,  # V
+    cascades: int,
+    margin: float,  # pilot texels around each window (plus 2% of its size)
+    rsm_size: int,
+    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) as fit_reduce_angles writes them (write)
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) as fit_reduce_cascades writes them (write)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (write)
+    angles: wp.array(dtype=wp.float64),  # (V,) the fitted turns [rad] (write)
+    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read the last, write)
+    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
+    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside (write)
+    outside_angle: wp.array(dtype=wp.float32),  # (V,) (write)
+):
+    """A light's whole fit in one block: :func:`pilot_nearest`, :func:`fit_reduce_angles`,
+    :func:`fit_reduce_cascades` and :func:`fit_solve` (those four launches are its twin, bit for bit).
+
+    Per pilot view, two passes over its texels, each thread over the same columns and rows as :func:`_column_box`
+    (so it reads back only what it wrote): the first keeps each column's first and last useful rows, turns those two
+    texels by every one of the ``FIT_STEPS`` turns at once (vectors of a float64 per turn) and reduces the turns'
+    boxes, the depth range and the count in five block reductions; the second takes every cascade's split at once and
+    reduces the cascades' boxes and counts in two. Thread 0 then solves the windows (:func:`_solve_views`).
+    Every value is a min, a max or a sum of whole counts in float64: exact in any order, so equal to the twin's."""
+    _blk, lane = wp.tid()
+    bd = wp.block_dim()
+    n = width * height
+    groups = wp.max(1, bd / width)
+    big = wp.float64(1.0e300)
+    half = wp.float64(0.5)
+    hw = half * wp.float64(width)
+    hh = half * wp.float64(height)
+    cs = vec_steps()
+    sn = vec_steps()
+    for k in range(FIT_STEPS):
+        cs[k] = wp.cos(_step_angle(k))
+        sn[k] = wp.sin(_step_angle(k))
+    for b in range(n_views):
+        base = b * n
+        aspect = aspects[b]
+        sa = sn * aspect  # _turn's s·aspect, per turn
+        umin = vec_steps(big)
+        numax = vec_steps(big)  # −max u
+        vmin = vec_steps(big)
+        nvmax = vec_steps(big)
+        zmin = big
+        nzmax = big
+        count = wp.float64(0.0)
+        if lane < groups * width:
+            i = lane % width
+            while i < width:
+                first = int(-1)
+                last = int(-1)
+                j = lane / width
+                while j < height:
+                    p = j * width + i
+                    z = float(0.0)
+                    if from_branches != 0:
+                        z = _nearest_branch(branch_depth[2 * base + p], branch_depth[2 * base + n + p])
+                        receiver_depth[base + p] = z
+                    else:
+                        z = receiver_depth[base + p]
+                    if z > 0.0:
+                        if first < 0:
+                            first = j
+                        last = j
+                        count += wp.float64(1.0)
+                        zmin = wp.min(zmin, wp.float64(z))
+                        nzmax = wp.min(nzmax, -wp.float64(z))
+                    j += groups
+                if first >= 0:  # _turn of (i, first) and (i, last), every turn at once
+                    dx = wp.float64(i) + half - hw
+                    dy0 = wp.float64(first) + half - hh
+                    dy1 = wp.float64(last) + half - hh
+                    u0 = vec_steps(hw) + cs * dx - sa * dy0
+                    u1 = vec_steps(hw) + cs * dx - sa * dy1
+                    v0 = vec_steps(hh) + (sn * dx) / aspect + cs * dy0
+                    v1 = vec_steps(hh) + (sn * dx) / aspect + cs * dy1
+                    umin = wp.min(umin, wp.min(u0, u1))
+                    numax = wp.min(numax, -wp.max(u0, u1))
+                    vmin = wp.min(vmin, wp.min(v0, v1))
+                    nvmax = wp.min(nvmax, -wp.max(v0, v1))
+                i += bd
+        zs = wp.tile_reduce(_min_sum, wp.tile(wp.vec3d(zmin, nzmax, count), preserve_type=True))[0]
+        umin = wp.tile_reduce(wp.min, wp.tile(umin, preserve_type=True))[0]
+        numax = wp.tile_reduce(wp.min, wp.tile(numax, preserve_type=True))[0]
+        vmin = wp.tile_reduce(wp.min, wp.tile(vmin, preserve_type=True))[0]
+        nvmax = wp.tile_reduce(wp.min, wp.tile(nvmax, preserve_type=True))[0]
+        z_near = zs[0]
+        z_far = -zs[1]
+        # _fitted_angle
+        angle = wp.float64(0.0)
+        if zs[2] != wp.float64(0.0):
+            best_area = wp.float64(1.0e300)
+            for k in range(FIT_STEPS):
+                area = (-numax[k] - umin[k] + wp.float64(1.0)) * (-nvmax[k] - vmin[k] + wp.float64(1.0))
+                if area < best_area * wp.float64(0.98):
+                    angle = _step_angle(k)
+                    best_area = area
+        if lane == 0:
+            for k in range(FIT_STEPS):
+                boxes[b * (FIT_STEPS + 1) + k] = wp.vec4d(umin[k], -numax[k], vmin[k], -nvmax[k])
+            boxes[b * (FIT_STEPS + 1) + FIT_STEPS] = wp.vec4d(z_near, z_far, zs[2], wp.float64(0.0))
+            angles[b] = angle
+        # the cascades: every split at once
+        split = vec_cascades()
+        for ci in range(cascades):
+            split[ci] = _split(z_near, z_far, ci, cascades)
+        c = wp.cos(angle)
+        s = wp.sin(angle)
+        cu_min = vec_cascades(big)
+        cu_nmax = vec_cascades(big)
+        cv_min = vec_cascades(big)
+        cv_nmax = vec_cascades(big)
+        ccount = vec_cascades()
+        if lane < groups * width:
+            i = lane % width
+            while i < width:
+                cfirst = vec_cascades_i(-1)
+                clast = vec_cascades_i(-1)
+                j = lane / width
+                while j < height:
+                    z = receiver_depth[base + j * width + i]
+                    if z > 0.0:
+                        for ci in range(cascades):
+                            if wp.float64(z) <= split[ci]:
+                                if cfirst[ci] < 0:
+                                    cfirst[ci] = j
+                                clast[ci] = j
+                                ccount[ci] = ccount[ci] + wp.float64(1.0)
+                    j += groups
+                for ci in range(cascades):
+                    if cfirst[ci] >= 0:
+                        ua, va = _turn(i, cfirst[ci], width, height, c, s, aspect)
+                        ub, vb = _turn(i, clast[ci], width, height, c, s, aspect)
+                        cu_min[ci] = wp.min(cu_min[ci], wp.min(ua, ub))
+                        cu_nmax[ci] = wp.min(cu_nmax[ci], -wp.max(ua, ub))
+                        cv_min[ci] = wp.min(cv_min[ci], wp.min(va, vb))
+                        cv_nmax[ci] = wp.min(cv_nmax[ci], -wp.max(va, vb))
+                i += bd
+        cu_min = wp.tile_reduce(wp.min, wp.tile(cu_min, preserve_type=True))[0]
+        cu_nmax = wp.tile_reduce(wp.min, wp.tile(cu_nmax, preserve_type=True))[0]
+        cv_min = wp.tile_reduce(wp.min, wp.tile(cv_min, preserve_type=True))[0]
+        cv_nmax = wp.tile_reduce(wp.min, wp.tile(cv_nmax, preserve_type=True))[0]
+        ccount = wp.tile_reduce(wp.add, wp.tile(ccount, preserve_type=True))[0]
+        if lane == 0:
+            for ci in range(cascades):
+                cascade_boxes[b * cascades + ci] = wp.vec4d(cu_min[ci], -cu_nmax[ci], cv_min[ci], -cv_nmax[ci])
+                cascade_counts[b * cascades + ci] = ccount[ci]
+    if lane == 0:
+        _solve_views(pilot_views, width, height, aspects, n_views, cascades, margin, rsm_size, cascade_boxes,
+                     cascade_counts, angles, views, states, outside, outside_angle)
+
 class LightViewFitter:
     """Fits every light's cascades to the camera each frame; its pilot and fit buffers are allocated once.
 
@@ -687,6 +903,12 @@ class LightViewFitter:
             self.branch_depth.append([whole[i * n : (i + 1) * n] for i in range(len(lm.pilot))])
         #: pilot_receivers (one thread per texel, both branches) instead of pilot_branches + pilot_nearest: the twin
         self.one_thread_per_texel = False
+        #: True (default): a light's fit is one launch, :func:`fit_light_views`, which also keeps each texel's nearer
+        #: branch; False: its twin, pilot_nearest then fit_reduce_angles, fit_reduce_cascades and fit_solve
+        self.fused = True
+        #: per fitted light: its pilot traced into pilot_branches' scratch and not yet reduced to receiver depths
+        #: (the fused fit reads the branches then)
+        self._branches_pending = [False] * len(self.lights)
         self.pilot_block = PILOT_BLOCK if self.device.is_cuda else 256
         self.receiver_depth = []
         for lm, whole in zip(self.lights, self.receiver_depth_all):
@@ -703,8 +925,9 @@ class LightViewFitter:
         self.max_bounces, self.t_max, self.seed = max_bounces, t_max, seed
         self.last_depth: list[list[np.ndarray]] = []  #: the pilots' receiver depths of the last host fit (host)
         #: threads per block of the fit's reductions (Warp runs CPU tiles one thread per block unless
-        #: ``wp.config.enable_cpu_blocks`` is set; a test does, with blocks of 32)
-        self.fit_block = FIT_BLOCK if self.device.is_cuda else 1
+        #: ``wp.config.enable_cpu_blocks`` is set; a test does, with blocks of 32); None: FIT_LIGHT_BLOCK for the
+        #: fused fit, FIT_BLOCK for its twin
+        self.fit_block = None if self.device.is_cuda else 1
 
     def fit(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
         """Draw the pilots, trace them and fit every light's cascades (on the device, or :meth:`fit_host`)."""
@@ -751,23 +974,39 @@ class LightViewFitter:
             else:
                 wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
                           inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
-        if not self.one_thread_per_texel:
+        # the fused fit keeps the nearer branch itself; the host fit and the twin need the receiver depths now
+        self._branches_pending[i] = not self.one_thread_per_texel and self.fused and self.on_device
+        if not self.one_thread_per_texel and not self._branches_pending[i]:
             p = lm.pilot[0]
             wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
                       inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
 
     def fit_device(self) -> None:
-        """Fit every light's cascades to its pilots' receiver depths in three launches per light."""
+        """Fit every light's cascades to its pilots' receiver depths (one launch per light; the twin: three)."""
         for i in range(len(self.lights)):
             self.fit_light(i)
 
     def fit_light(self, i: int) -> None:
-        """Fit fitted light ``i``'s cascades to its pilots' receiver depths on the device (three launches)."""
-        block = self.fit_block
+        """Fit fitted light ``i``'s cascades to its pilots' receiver depths on the device: one launch
+        (:func:`fit_light_views`, from the pilot's branches when :meth:`trace_light_pilots` left them), or with
+        ``fused`` False its twin's three (after pilot_nearest)."""
         lm = self.lights[i]
         vs = lm.view_settings
         p = lm.pilot[0]
         nv = len(lm.pilot)
+        pending, self._branches_pending[i] = self._branches_pending[i], False
+        if self.fused:
+            wp.launch_tiled(fit_light_views, dim=(1,), block_dim=self.fit_block or FIT_LIGHT_BLOCK, device=self.device,
+                            inputs=[self.branch_depth_all[i], int(pending), self.receiver_depth_all[i], p.width,
+                                    p.height, self._aspects[i], lm.pilot_views, nv, lm.cascades, float(vs.margin),
+                                    lm.rsm_size, self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i],
+                                    self._angles[i], lm.views, lm.states, lm.outside, lm.outside_angle])
+            lm.refresh_cascade_solid_angles()
+            return
+        if pending:
+            wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
+                      inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
+        block = self.fit_block or FIT_BLOCK
         wp.launch_tiled(fit_reduce_angles, dim=(nv, FIT_STEPS + 1), block_dim=block, device=self.device,
                         inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], self._boxes[i]])
         wp.launch_tiled(fit_reduce_cascades, dim=(nv, lm.cascades), block_dim=block, device=self.device,
