@@ -676,9 +676,14 @@ def fit_solve(
                  cascade_counts, angles, views, states, outside, outside_angle)
 
 
-#: threads of :func:`fit_light_views`' one block on CUDA (a 128² pilot: a column and 32 of its rows a thread)
+#: threads of :func:`fit_light_views`' one block on CUDA, and the most it may have (its launch bounds: 128 registers a
+#: thread; its column scratch holds max(P, this) a pilot view). A 128² pilot: a column and 32 of its rows a thread
 FIT_LIGHT_BLOCK = 512
-vec_steps = wp.types.vector(length=FIT_STEPS, dtype=wp.float64)  #: one float64 per turn of the fit
+#: turns of :func:`fit_light_views` reduced together (one block reduction of this many boxes)
+FIT_TURN_BATCH = 6
+assert FIT_STEPS % FIT_TURN_BATCH == 0
+vec_batch = wp.types.vector(length=FIT_TURN_BATCH, dtype=wp.float64)  #: one float64 per turn of a batch
+mat_batch = wp.types.matrix(shape=(FIT_TURN_BATCH, 4), dtype=wp.float64)  #: a batch's boxes, one row a turn
 vec_cascades = wp.types.vector(length=MAX_CASCADES, dtype=wp.float64)  #: one float64 per cascade
 vec_cascades_i = wp.types.vector(length=MAX_CASCADES, dtype=wp.int32)
 
@@ -696,23 +701,79 @@ def _nearest_branch(d0: float, d1: float) -> float:
 
 
 @wp.func
-def _min_sum(a: wp.vec3d, b: wp.vec3d) -> wp.vec3d:
+def _receiver_at(branch_depth: wp.array(dtype=wp.float32), receiver_depth: wp.array(dtype=wp.float32),
+                 from_branches: int, base: int, n: int, p: int) -> float:
+    """Texel p's receiver depth [m] of the pilot view at ``base`` (its nearer branch, or as stored)."""
+    if from_branches != 0:
+        return _nearest_branch(branch_depth[2 * base + p], branch_depth[2 * base + n + p])
+    return receiver_depth[base + p]
+
+
+@wp.func
+def _take(z: float, j: int, first: int, last: int, count: wp.float64, zmin: wp.float64, nzmax: wp.float64):
+    """A column's first and last useful rows, count and depth range (minus the farthest) grown by row j's depth z."""
+    if z > 0.0:
+        if first < 0:
+            first = j
+        last = j
+        count += wp.float64(1.0)
+        zmin = wp.min(zmin, wp.float64(z))
+        nzmax = wp.min(nzmax, -wp.float64(z))
+    return first, last, count, zmin, nzmax
+
+
+@wp.func
+def _take_cascades(z: float, j: int, split: vec_cascades, cascades: int, first: vec_cascades_i, last: vec_cascades_i,
+                   count: vec_cascades):
+    """:func:`_take` for every cascade at once: row j counts for those whose split it is not beyond."""
+    if z > 0.0:
+        for ci in range(cascades):
+            if wp.float64(z) <= split[ci]:
+                if first[ci] < 0:
+                    first[ci] = j
+                last[ci] = j
+                count[ci] = count[ci] + wp.float64(1.0)
+    return first, last, count
+
+
+@wp.func
+def _min_min_sum(a: wp.vec3d, b: wp.vec3d) -> wp.vec3d:
     """(min, min, sum): a block's nearest depth, minus its farthest, and its count of useful texels."""
     return wp.vec3d(wp.min(a[0], b[0]), wp.min(a[1], b[1]), a[2] + b[2])
 
 
 @wp.func
-def _box_of(lo: vec_steps, neg_hi: vec_steps, k: int) -> wp.vec2d:
-    return wp.vec2d(lo[k], -neg_hi[k])
+def _grow(acc: wp.vec4d, u0: wp.float64, v0: wp.float64, u1: wp.float64, v1: wp.float64) -> wp.vec4d:
+    """(min u, −max u, min v, −max v) grown by two turned texels (maxima negated: one min reduction for all four)."""
+    return wp.vec4d(wp.min(acc[0], wp.min(u0, u1)), wp.min(acc[1], -wp.max(u0, u1)), wp.min(acc[2], wp.min(v0, v1)),
+                    wp.min(acc[3], -wp.max(v0, v1)))
 
 
-@wp.kernel
+@wp.func
+def _min_rows(a: wp.mat44d, b: wp.mat44d) -> wp.mat44d:
+    """Element-wise min of two cascades' (min u, −max u, min v, −max v) rows."""
+    m = a
+    for r in range(MAX_CASCADES):
+        m[r] = wp.min(a[r], b[r])
+    return m
+
+
+@wp.func
+def _min_batch(a: mat_batch, b: mat_batch) -> mat_batch:
+    """Element-wise min of two batches' (min u, −max u, min v, −max v) rows."""
+    m = a
+    for r in range(FIT_TURN_BATCH):
+        m[r] = wp.min(a[r], b[r])
+    return m
+
+
+@wp.kernel(launch_bounds=(FIT_LIGHT_BLOCK, 1))
 def fit_light_views(
     branch_depth: wp.array(dtype=wp.float32),  # (V*2*P*P,) pilot_branches' scratch of each pilot view (read when
     # from_branches)
-    from_branches: int,  # 1: each texel's receiver depth from its two branches (pilot_nearest, written to
+    from_branches: int,  # 1: each texel's receiver depth from its two branches (pilot_nearest's rule, written to
     # receiver_depth); 0: read from receiver_depth
-    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) receiver depths [m], 0 = none (write or read)
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) receiver depths [m], 0 = none (write, or read)
     width: int,  # P
     height: int,
     aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
@@ -721,6 +782,8 @@ def fit_light_views(
     cascades: int,
     margin: float,  # pilot texels around each window (plus 2% of its size)
     rsm_size: int,
+    column_rows: wp.array(dtype=wp.vec2i),  # (V*max(P, FIT_LIGHT_BLOCK),) a thread's columns' first and last
+    # useful rows, -1 = none (scratch: each thread reads back only its own)
     boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) as fit_reduce_angles writes them (write)
     cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) as fit_reduce_cascades writes them (write)
     cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (write)
@@ -731,138 +794,123 @@ def fit_light_views(
     outside_angle: wp.array(dtype=wp.float32),  # (V,) (write)
 ):
     """A light's whole fit in one block: :func:`pilot_nearest`, :func:`fit_reduce_angles`,
-    :func:`fit_reduce_cascades` and :func:`fit_solve` (those four launches are its twin, bit for bit).
+    :func:`fit_reduce_cascades` and :func:`fit_solve` (those four launches are its twin, bit for bit on the CPU).
 
-    Per pilot view, two passes over its texels, each thread over the same columns and rows as :func:`_column_box`
-    (so it reads back only what it wrote): the first keeps each column's first and last useful rows, turns those two
-    texels by every one of the ``FIT_STEPS`` turns at once (vectors of a float64 per turn) and reduces the turns'
-    boxes, the depth range and the count in five block reductions; the second takes every cascade's split at once and
-    reduces the cascades' boxes and counts in two. Thread 0 then solves the windows (:func:`_solve_views`).
-    Every value is a min, a max or a sum of whole counts in float64: exact in any order, so equal to the twin's."""
+    Per pilot view, each thread over the columns and rows :func:`_column_box` gives it (so it reads back only what it
+    wrote): one pass over the texels keeps each of its columns' first and last useful rows (``column_rows``) and the
+    depth range and count (one block reduction); each turn then turns only those two texels a column and reduces the
+    turned box (one block reduction a turn, the turns kept in ``views.fit_angle``'s order); a second pass over the
+    texels takes every cascade's split at once (two reductions). Thread 0 then solves the windows
+    (:func:`_solve_views`). Every value is a min, a max or a sum of whole counts in float64: exact in any order."""
     _blk, lane = wp.tid()
     bd = wp.block_dim()
     n = width * height
     groups = wp.max(1, bd / width)
+    stride = wp.max(width, FIT_LIGHT_BLOCK)
     big = wp.float64(1.0e300)
-    half = wp.float64(0.5)
-    hw = half * wp.float64(width)
-    hh = half * wp.float64(height)
-    cs = vec_steps()
-    sn = vec_steps()
-    for k in range(FIT_STEPS):
-        cs[k] = wp.cos(_step_angle(k))
-        sn[k] = wp.sin(_step_angle(k))
+    mine = lane < groups * width  # this thread has columns
     for b in range(n_views):
         base = b * n
         aspect = aspects[b]
-        sa = sn * aspect  # _turn's s·aspect, per turn
-        umin = vec_steps(big)
-        numax = vec_steps(big)  # −max u
-        vmin = vec_steps(big)
-        nvmax = vec_steps(big)
         zmin = big
         nzmax = big
         count = wp.float64(0.0)
-        if lane < groups * width:
+        if mine:
             i = lane % width
             while i < width:
                 first = int(-1)
                 last = int(-1)
                 j = lane / width
-                while j < height:
-                    p = j * width + i
-                    z = float(0.0)
+                while j < height:  # two rows a round: their loads issued together
+                    j1 = j + groups
+                    z0 = _receiver_at(branch_depth, receiver_depth, from_branches, base, n, j * width + i)
+                    z1 = float(0.0)
+                    if j1 < height:
+                        z1 = _receiver_at(branch_depth, receiver_depth, from_branches, base, n, j1 * width + i)
                     if from_branches != 0:
-                        z = _nearest_branch(branch_depth[2 * base + p], branch_depth[2 * base + n + p])
-                        receiver_depth[base + p] = z
-                    else:
-                        z = receiver_depth[base + p]
-                    if z > 0.0:
-                        if first < 0:
-                            first = j
-                        last = j
-                        count += wp.float64(1.0)
-                        zmin = wp.min(zmin, wp.float64(z))
-                        nzmax = wp.min(nzmax, -wp.float64(z))
-                    j += groups
-                if first >= 0:  # _turn of (i, first) and (i, last), every turn at once
-                    dx = wp.float64(i) + half - hw
-                    dy0 = wp.float64(first) + half - hh
-                    dy1 = wp.float64(last) + half - hh
-                    u0 = vec_steps(hw) + cs * dx - sa * dy0
-                    u1 = vec_steps(hw) + cs * dx - sa * dy1
-                    v0 = vec_steps(hh) + (sn * dx) / aspect + cs * dy0
-                    v1 = vec_steps(hh) + (sn * dx) / aspect + cs * dy1
-                    umin = wp.min(umin, wp.min(u0, u1))
-                    numax = wp.min(numax, -wp.max(u0, u1))
-                    vmin = wp.min(vmin, wp.min(v0, v1))
-                    nvmax = wp.min(nvmax, -wp.max(v0, v1))
+                        receiver_depth[base + j * width + i] = z0
+                        if j1 < height:
+                            receiver_depth[base + j1 * width + i] = z1
+                    first, last, count, zmin, nzmax = _take(z0, j, first, last, count, zmin, nzmax)
+                    first, last, count, zmin, nzmax = _take(z1, j1, first, last, count, zmin, nzmax)
+                    j += 2 * groups
+                column_rows[b * stride + (lane / width) * width + i] = wp.vec2i(first, last)
                 i += bd
-        zs = wp.tile_reduce(_min_sum, wp.tile(wp.vec3d(zmin, nzmax, count), preserve_type=True))[0]
-        umin = wp.tile_reduce(wp.min, wp.tile(umin, preserve_type=True))[0]
-        numax = wp.tile_reduce(wp.min, wp.tile(numax, preserve_type=True))[0]
-        vmin = wp.tile_reduce(wp.min, wp.tile(vmin, preserve_type=True))[0]
-        nvmax = wp.tile_reduce(wp.min, wp.tile(nvmax, preserve_type=True))[0]
+        zs = wp.tile_reduce(_min_min_sum, wp.tile(wp.vec3d(zmin, nzmax, count), preserve_type=True))[0]
         z_near = zs[0]
         z_far = -zs[1]
-        # _fitted_angle
+        # each turn's box (fit_reduce_angles) and the tightest turn (_fitted_angle), the turns in order,
+        # FIT_TURN_BATCH turns a block reduction
         angle = wp.float64(0.0)
-        if zs[2] != wp.float64(0.0):
-            best_area = wp.float64(1.0e300)
-            for k in range(FIT_STEPS):
-                area = (-numax[k] - umin[k] + wp.float64(1.0)) * (-nvmax[k] - vmin[k] + wp.float64(1.0))
+        best_area = wp.float64(1.0e300)
+        for k0 in range(0, FIT_STEPS, FIT_TURN_BATCH):
+            cs = vec_batch()
+            sn = vec_batch()
+            for r in range(FIT_TURN_BATCH):
+                cs[r] = wp.cos(_step_angle(k0 + r))
+                sn[r] = wp.sin(_step_angle(k0 + r))
+            acc = mat_batch()
+            for r in range(FIT_TURN_BATCH):
+                acc[r] = wp.vec4d(big, big, big, big)
+            if mine:
+                i = lane % width
+                while i < width:
+                    rows = column_rows[b * stride + (lane / width) * width + i]
+                    if rows[0] >= 0:
+                        for r in range(FIT_TURN_BATCH):
+                            u0, v0 = _turn(i, rows[0], width, height, cs[r], sn[r], aspect)
+                            u1, v1 = _turn(i, rows[1], width, height, cs[r], sn[r], aspect)
+                            acc[r] = _grow(acc[r], u0, v0, u1, v1)
+                    i += bd
+            acc = wp.tile_reduce(_min_batch, wp.tile(acc, preserve_type=True))[0]
+            for r in range(FIT_TURN_BATCH):
+                q = acc[r]
+                area = (-q[1] - q[0] + wp.float64(1.0)) * (-q[3] - q[2] + wp.float64(1.0))
                 if area < best_area * wp.float64(0.98):
-                    angle = _step_angle(k)
+                    angle = _step_angle(k0 + r)
                     best_area = area
+                if lane == 0:
+                    boxes[b * (FIT_STEPS + 1) + k0 + r] = wp.vec4d(q[0], -q[1], q[2], -q[3])
+        if zs[2] == wp.float64(0.0):
+            angle = wp.float64(0.0)
         if lane == 0:
-            for k in range(FIT_STEPS):
-                boxes[b * (FIT_STEPS + 1) + k] = wp.vec4d(umin[k], -numax[k], vmin[k], -nvmax[k])
             boxes[b * (FIT_STEPS + 1) + FIT_STEPS] = wp.vec4d(z_near, z_far, zs[2], wp.float64(0.0))
             angles[b] = angle
-        # the cascades: every split at once
+        # the cascades (fit_reduce_cascades), every split at once
         split = vec_cascades()
         for ci in range(cascades):
             split[ci] = _split(z_near, z_far, ci, cascades)
         c = wp.cos(angle)
         s = wp.sin(angle)
-        cu_min = vec_cascades(big)
-        cu_nmax = vec_cascades(big)
-        cv_min = vec_cascades(big)
-        cv_nmax = vec_cascades(big)
+        cbox = wp.mat44d(big, big, big, big, big, big, big, big, big, big, big, big, big, big, big, big)  # row ci
         ccount = vec_cascades()
-        if lane < groups * width:
+        if mine:
             i = lane % width
             while i < width:
                 cfirst = vec_cascades_i(-1)
                 clast = vec_cascades_i(-1)
                 j = lane / width
-                while j < height:
-                    z = receiver_depth[base + j * width + i]
-                    if z > 0.0:
-                        for ci in range(cascades):
-                            if wp.float64(z) <= split[ci]:
-                                if cfirst[ci] < 0:
-                                    cfirst[ci] = j
-                                clast[ci] = j
-                                ccount[ci] = ccount[ci] + wp.float64(1.0)
-                    j += groups
+                while j < height:  # two rows a round
+                    j1 = j + groups
+                    z0 = receiver_depth[base + j * width + i]
+                    z1 = float(0.0)
+                    if j1 < height:
+                        z1 = receiver_depth[base + j1 * width + i]
+                    cfirst, clast, ccount = _take_cascades(z0, j, split, cascades, cfirst, clast, ccount)
+                    cfirst, clast, ccount = _take_cascades(z1, j1, split, cascades, cfirst, clast, ccount)
+                    j += 2 * groups
                 for ci in range(cascades):
                     if cfirst[ci] >= 0:
-                        ua, va = _turn(i, cfirst[ci], width, height, c, s, aspect)
-                        ub, vb = _turn(i, clast[ci], width, height, c, s, aspect)
-                        cu_min[ci] = wp.min(cu_min[ci], wp.min(ua, ub))
-                        cu_nmax[ci] = wp.min(cu_nmax[ci], -wp.max(ua, ub))
-                        cv_min[ci] = wp.min(cv_min[ci], wp.min(va, vb))
-                        cv_nmax[ci] = wp.min(cv_nmax[ci], -wp.max(va, vb))
+                        u0, v0 = _turn(i, cfirst[ci], width, height, c, s, aspect)
+                        u1, v1 = _turn(i, clast[ci], width, height, c, s, aspect)
+                        cbox[ci] = _grow(cbox[ci], u0, v0, u1, v1)
                 i += bd
-        cu_min = wp.tile_reduce(wp.min, wp.tile(cu_min, preserve_type=True))[0]
-        cu_nmax = wp.tile_reduce(wp.min, wp.tile(cu_nmax, preserve_type=True))[0]
-        cv_min = wp.tile_reduce(wp.min, wp.tile(cv_min, preserve_type=True))[0]
-        cv_nmax = wp.tile_reduce(wp.min, wp.tile(cv_nmax, preserve_type=True))[0]
+        cbox = wp.tile_reduce(_min_rows, wp.tile(cbox, preserve_type=True))[0]
         ccount = wp.tile_reduce(wp.add, wp.tile(ccount, preserve_type=True))[0]
         if lane == 0:
             for ci in range(cascades):
-                cascade_boxes[b * cascades + ci] = wp.vec4d(cu_min[ci], -cu_nmax[ci], cv_min[ci], -cv_nmax[ci])
+                q = cbox[ci]
+                cascade_boxes[b * cascades + ci] = wp.vec4d(q[0], -q[1], q[2], -q[3])
                 cascade_counts[b * cascades + ci] = ccount[ci]
     if lane == 0:
         _solve_views(pilot_views, width, height, aspects, n_views, cascades, margin, rsm_size, cascade_boxes,
@@ -921,6 +969,8 @@ class LightViewFitter:
         self._cascade_boxes = [wp.zeros(len(lm.pilot) * lm.cascades, dtype=wp.vec4d, device=d) for lm in self.lights]
         self._cascade_counts = [wp.zeros(len(lm.pilot) * lm.cascades, dtype=wp.float64, device=d) for lm in self.lights]
         self._angles = [wp.zeros(len(lm.pilot), dtype=wp.float64, device=d) for lm in self.lights]
+        self._column_rows = [wp.zeros(len(lm.pilot) * max(lm.pilot[0].width, FIT_LIGHT_BLOCK), dtype=wp.vec2i,
+                                      device=d) for lm in self.lights]
         self.roughness_cutoff, self.thickness, self.thickness_rel = roughness_cutoff, thickness, thickness_rel
         self.max_bounces, self.t_max, self.seed = max_bounces, t_max, seed
         self.last_depth: list[list[np.ndarray]] = []  #: the pilots' receiver depths of the last host fit (host)
@@ -996,10 +1046,12 @@ class LightViewFitter:
         nv = len(lm.pilot)
         pending, self._branches_pending[i] = self._branches_pending[i], False
         if self.fused:
+            if (self.fit_block or FIT_LIGHT_BLOCK) > FIT_LIGHT_BLOCK:
+                raise ValueError(f"fit_block must be at most {FIT_LIGHT_BLOCK} for the fused fit, got {self.fit_block}")
             wp.launch_tiled(fit_light_views, dim=(1,), block_dim=self.fit_block or FIT_LIGHT_BLOCK, device=self.device,
                             inputs=[self.branch_depth_all[i], int(pending), self.receiver_depth_all[i], p.width,
                                     p.height, self._aspects[i], lm.pilot_views, nv, lm.cascades, float(vs.margin),
-                                    lm.rsm_size, self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i],
+                                    lm.rsm_size, self._column_rows[i], self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i],
                                     self._angles[i], lm.views, lm.states, lm.outside, lm.outside_angle])
             lm.refresh_cascade_solid_angles()
             return
@@ -1021,7 +1073,7 @@ class LightViewFitter:
     def light_scratch(self, i: int) -> list[wp.array]:
         """The arrays fitted light ``i``'s pilot trace and fit write besides its own ``LightMaps``."""
         return [self.receiver_depth_all[i], self.branch_depth_all[i], self._boxes[i], self._cascade_boxes[i],
-                self._cascade_counts[i], self._angles[i]]
+                self._cascade_counts[i], self._angles[i], self._column_rows[i]]
 
     def fit_host(self) -> None:
         """The naive twin: read the receiver depths back (a host sync), fit in numpy, ``LightMaps.set_windows``."""
