@@ -179,14 +179,16 @@ def test_fit_reductions_by_columns_equal_the_naive_ones(device, monkeypatch, blo
     d = wp.array(depth.reshape(-1), dtype=wp.float32, device=device)
     aspects = wp.array([1.0, 0.7, 1.3, 1.0], dtype=wp.float64, device=device)
     out = []
+    unused = wp.zeros(1, dtype=wp.float32, device=device)
     for angles_kernel, cascades_kernel in ((F.fit_reduce_angles_naive, F.fit_reduce_cascades_naive),
                                            (F.fit_reduce_angles, F.fit_reduce_cascades)):
         boxes = wp.zeros(nv * (F.FIT_STEPS + 1), dtype=wp.vec4d, device=device)
         cboxes = wp.zeros(nv * cascades, dtype=wp.vec4d, device=device)
         counts = wp.zeros(nv * cascades, dtype=wp.float64, device=device)
         angles = wp.zeros(nv, dtype=wp.float64, device=device)
+        head = [] if angles_kernel is F.fit_reduce_angles_naive else [unused, 0]  # from the receiver depths
         wp.launch_tiled(angles_kernel, dim=(nv, F.FIT_STEPS + 1), block_dim=block, device=device,
-                        inputs=[d, p, p, aspects, boxes])
+                        inputs=head + [d, p, p, aspects, boxes])
         wp.launch_tiled(cascades_kernel, dim=(nv, cascades), block_dim=block, device=device,
                         inputs=[d, p, p, aspects, cascades, boxes, cboxes, counts, angles])
         out.append([a.numpy() for a in (boxes, cboxes, counts, angles)])
@@ -216,74 +218,32 @@ def test_fit_reductions_do_not_depend_on_the_block_size(device, monkeypatch):
         np.testing.assert_array_equal(v0, v1)
 
 
-def _fit_scratch(f, i):
-    """Fitted light i's fit scratch (receiver depths, turned boxes, cascade boxes and counts, angles) on the host."""
-    return [a.numpy().copy() for a in (f.receiver_depth_all[i], f._boxes[i], f._cascade_boxes[i], f._cascade_counts[i],
-                                       f._angles[i])]
+@pytest.mark.parametrize("block", [1, 32, 128])
+def test_fit_reduce_angles_from_branches_equals_pilot_nearest_first(device, monkeypatch, block):
+    """fit_reduce_angles reading pilot_branches' scratch (each texel's nearer branch taken in every block, written by
+    the depth-range block) gives pilot_nearest's receiver depths and the boxes fit_reduce_angles finds in them, bit for
+    bit: two 40² views (rows not a multiple of the four a round), branches landing alone, both, or neither."""
+    from cisp_warp.photons import fit as F
 
-
-@pytest.mark.parametrize("scene,cascades,block", [("pool", 2, 1), ("cornell", 3, 1), ("point_closeup", 4, 1),
-                                                  ("pool", 2, 32), ("cornell", 2, 128)])
-def test_fused_fit_equals_its_four_launches(device, monkeypatch, scene, cascades, block):
-    """fit_light_views (one launch a light: the nearer branch, the turned boxes, the cascades and the solve) writes
-    what pilot_nearest, fit_reduce_angles, fit_reduce_cascades and fit_solve write: receiver depths, boxes, counts,
-    angles, views, states and outside windows bit for bit on the CPU (blocks of 1, 32 and 128 threads, narrower and
-    wider than a 40-texel row), to float rounding on CUDA (FMA contraction may differ between the kernels)."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    r = Renderer(SCENES[scene](device), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000,
-                                                       light_views=LightViewSettings(cascades=cascades,
-                                                                                     pilot_size=40)),
-                 device=device)
-    r.render_frame()  # the camera's G-buffer the pilot lands on
-    f = r.fitter
-    if wp.get_device(device).is_cpu:
-        f.fit_block = block
-    out = []
-    for fused in (False, True):
-        f.fused = fused
-        for lm in r.lights:  # the last frame's views: the solve compares with them (a cascade's ``changed``)
-            lm.views.fill_(0)
-        f.trace_pilots(r.raster, r.view_params, 0)
-        assert all(f._branches_pending) == fused
-        if fused:
-            for d in f.receiver_depth_all:
-                d.fill_(-1.0)  # the fused fit must write every receiver depth
-        f.fit_device()
-        out.append(([_fit_scratch(f, i) for i in range(len(f.lights))], _fitted(r)))
-    (twin_scratch, twin_fit), (fused_scratch, fused_fit) = out
-    assert any((s[0] > 0).any() for s in twin_scratch)
-    if wp.get_device(device).is_cpu:
-        for a, b in zip(twin_scratch, fused_scratch):
-            for x, y in zip(a, b):
-                np.testing.assert_array_equal(y, x)
-        for a, b in zip(twin_fit, fused_fit):
-            for x, y in zip(a, b):
-                np.testing.assert_array_equal(y, x)
-    else:
-        for a, b in zip(twin_scratch, fused_scratch):
-            np.testing.assert_array_equal(b[0], a[0])  # the nearer branch: no arithmetic
-            np.testing.assert_array_equal(b[3], a[3])  # counts
-            for x, y in zip(a[1:3] + a[4:], b[1:3] + b[4:]):
-                np.testing.assert_allclose(y, x, rtol=1e-12, atol=1e-9)
-        _assert_same_fit(fused_fit, twin_fit, f"{scene}: fused against four launches")
-
-
-def test_fused_fit_reads_the_receiver_depths_it_is_given(device):
-    """After a frame, the fused fit run again reads the receiver depths as they stand (hand-made here), not the pilot's
-    branches: the windows fitted to a made-up patch equal the numpy fit's."""
-    r = Renderer(_closeup(), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=10_000,
-                                            light_views=LightViewSettings(cascades=2)), device=device)
-    r.render_frame()
-    f = r.fitter
-    assert f.fused and not any(f._branches_pending)
-    p = r.lights[0].pilot[0]
-    depth = np.zeros((p.height, p.width), np.float32)
-    depth[20:40, 70:90] = 2.0
-    depth[60:62, 10:100] = 6.0
-    f.receiver_depth_all[0].assign(depth.reshape(-1))
-    f.fit_device()
-    dev = _fitted(r)
-    np.testing.assert_array_equal(f.receiver_depth_all[0].numpy(), depth.reshape(-1))
-    f.fit_host()
-    _assert_same_fit(dev, _fitted(r), "hand-made depths, fused")
-    assert all(r.lights[0].active)
+    rng = np.random.default_rng(11)
+    p, nv = 40, 2
+    inf = np.float32(np.inf)
+    branches = np.where(rng.random((nv, 2, p, p)) < 0.3, rng.uniform(0.5, 9.0, (nv, 2, p, p)), inf).astype(np.float32)
+    branches[0, :, :10] = inf  # rows seen by neither branch
+    branches[1, 0, 5:20, 5:20] = 2.0  # a patch both branches reach, the refracted one nearer
+    branches[1, 1, 5:20, 5:20] = 1.5
+    b = wp.array(branches.reshape(-1), dtype=wp.float32, device=device)
+    aspects = wp.array([1.0, 0.8], dtype=wp.float64, device=device)
+    depth = wp.zeros(nv * p * p, dtype=wp.float32, device=device)
+    wp.launch(F.pilot_nearest, dim=nv * p * p, device=device, inputs=[b, p * p, depth])
+    boxes = wp.zeros(nv * (F.FIT_STEPS + 1), dtype=wp.vec4d, device=device)
+    wp.launch_tiled(F.fit_reduce_angles, dim=(nv, F.FIT_STEPS + 1), block_dim=block, device=device,
+                    inputs=[b, 0, depth, p, p, aspects, boxes])
+    folded = wp.full(nv * p * p, -1.0, dtype=wp.float32, device=device)
+    folded_boxes = wp.zeros_like(boxes)
+    wp.launch_tiled(F.fit_reduce_angles, dim=(nv, F.FIT_STEPS + 1), block_dim=block, device=device,
+                    inputs=[b, 1, folded, p, p, aspects, folded_boxes])
+    np.testing.assert_array_equal(folded.numpy(), depth.numpy())
+    np.testing.assert_array_equal(folded_boxes.numpy(), boxes.numpy())
+    assert (depth.numpy() > 0).sum() > 100 and (depth.numpy() == 1.5).sum() == 225

@@ -39,7 +39,7 @@ def test_cpu_default_is_sequential_and_lanes_hand_out_disjoint_scratch():
     assert not r.lanes.enabled  # no streams on the CPU
     writes = r.lane_writes()
     names = list(writes)
-    assert len(writes["light 0"]) == len(writes["light 1"]) == 4 + 7  # rasterizer scratch, LightViewFitter.light_scratch
+    assert len(writes["light 0"]) == len(writes["light 1"]) == 4 + 6
     assert all(len(writes[f"light {li} view {vi}"]) == 6 for li, n in enumerate(views) for vi in range(n))
     for i, p in enumerate(names):
         for q in names[i + 1 :]:

@@ -365,12 +365,51 @@ def fit_reduce_cascades_naive(
             angles[b] = angle
 
 
+#: rows of a column :func:`_column_box` reads a round (a thread's loads were one after another: 64 dependent
+#: round trips to L2 for a 128² pilot in blocks of 256)
+COLUMN_ROUND = wp.constant(4)
+
+
 @wp.func
-def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: int, height: int, lane: int, bd: int,
-                c: wp.float64, s: wp.float64, aspect: wp.float64, split: wp.float64, turn: int):
+def _receiver_at(receiver_depth: wp.array(dtype=wp.float32), branch_depth: wp.array(dtype=wp.float32), pair: int,
+                 base: int, n: int, p: int) -> float:
+    """Texel p's receiver depth [m] of the pilot view whose texels start at ``base`` (``n`` of them): from its two
+    branches in :func:`pilot_branches`' scratch by :func:`pilot_nearest`'s rule (``pair`` != 0), or as stored."""
+    if pair != 0:
+        d0 = branch_depth[2 * base + p]
+        d1 = branch_depth[2 * base + n + p]
+        nearest = float(0.0)
+        if d0 != PILOT_NONE:
+            nearest = d0
+        if d1 != PILOT_NONE and (nearest == 0.0 or d1 < nearest):
+            nearest = d1
+        return nearest
+    return receiver_depth[base + p]
+
+
+@wp.func
+def _take_row(z: float, j: int, split: wp.float64, first: int, last: int, count: wp.float64, zmin: wp.float64,
+              zmax: wp.float64):
+    """A column's first and last useful rows, count and depth range grown by row j's receiver depth z (useful:
+    0 < z <= ``split``; a row past the pilot reads z = 0)."""
+    if z > 0.0 and wp.float64(z) <= split:
+        if first < 0:
+            first = j
+        last = j
+        count += wp.float64(1.0)
+        zmin = wp.min(zmin, wp.float64(z))
+        zmax = wp.max(zmax, wp.float64(z))
+    return first, last, count, zmin, zmax
+
+
+@wp.func
+def _column_box(receiver_depth: wp.array(dtype=wp.float32), branch_depth: wp.array(dtype=wp.float32), pair: int,
+                write: int, base: int, width: int, height: int, lane: int, bd: int, c: wp.float64, s: wp.float64,
+                aspect: wp.float64, split: wp.float64, turn: int):
     """This thread's share of a turned box by columns: (min u, max u, min v, max v, count, min z, max z) over the
     useful texels (0 < z <= ``split``; an infinite ``split`` takes every z > 0) of its columns (``i = lane % width``, then every ``bd``-th) and rows
-    (``j = lane / width``, then every ``max(1, bd / width)``-th: a warp reads one row's texels side by side).
+    (``j = lane / width``, then every ``max(1, bd / width)``-th: a warp reads one row's texels side by side), four
+    rows a round (``COLUMN_ROUND``: their loads issued together).
 
     Only a column's first and last useful rows are turned (``turn`` != 0): for a turn in [0°, 90°) (c > 0, s >= 0)
     ``_turn``'s u = (hw + c·dx) − (s·aspect)·dy falls and v = (hh + s·dx/aspect) + c·dy rises with the row,
@@ -385,22 +424,39 @@ def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: in
     zmax = -big
     count = wp.float64(0.0)
     groups = wp.max(1, bd / width)
+    n = width * height
     if lane < groups * width:
         i = lane % width
         while i < width:
             first = int(-1)
             last = int(-1)
             j = lane / width
-            while j < height:
-                z = receiver_depth[base + j * width + i]
-                if z > 0.0 and wp.float64(z) <= split:
-                    if first < 0:
-                        first = j
-                    last = j
-                    count += wp.float64(1.0)
-                    zmin = wp.min(zmin, wp.float64(z))
-                    zmax = wp.max(zmax, wp.float64(z))
-                j += groups
+            while j < height:  # COLUMN_ROUND rows a round: their loads in flight together, then taken in row order
+                p = j * width + i
+                dp = groups * width
+                z0 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p)
+                z1 = float(0.0)
+                z2 = float(0.0)
+                z3 = float(0.0)
+                if j + groups < height:
+                    z1 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p + dp)
+                if j + 2 * groups < height:
+                    z2 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p + 2 * dp)
+                if j + 3 * groups < height:
+                    z3 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p + 3 * dp)
+                if write != 0:
+                    receiver_depth[base + p] = z0
+                    if j + groups < height:
+                        receiver_depth[base + p + dp] = z1
+                    if j + 2 * groups < height:
+                        receiver_depth[base + p + 2 * dp] = z2
+                    if j + 3 * groups < height:
+                        receiver_depth[base + p + 3 * dp] = z3
+                first, last, count, zmin, zmax = _take_row(z0, j, split, first, last, count, zmin, zmax)
+                first, last, count, zmin, zmax = _take_row(z1, j + groups, split, first, last, count, zmin, zmax)
+                first, last, count, zmin, zmax = _take_row(z2, j + 2 * groups, split, first, last, count, zmin, zmax)
+                first, last, count, zmin, zmax = _take_row(z3, j + 3 * groups, split, first, last, count, zmin, zmax)
+                j += COLUMN_ROUND * groups
             if first >= 0 and turn != 0:
                 u0, v0 = _turn(i, first, width, height, c, s, aspect)
                 u1, v1 = _turn(i, last, width, height, c, s, aspect)
@@ -414,7 +470,12 @@ def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: in
 
 @wp.kernel
 def fit_reduce_angles(
-    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read)
+    branch_depth: wp.array(dtype=wp.float32),  # (V*2*P*P,) each pilot view's pilot_branches scratch (read when
+    # from_branches)
+    from_branches: int,  # 1: each texel's receiver depth from its two branches (pilot_nearest folded in: the
+    # depth-range block writes them to receiver_depth); 0: read from receiver_depth
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read,
+    # or write)
     width: int,  # P
     height: int,
     aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
@@ -424,13 +485,17 @@ def fit_reduce_angles(
     """One block per (pilot view, turn): the box of the useful texels (receiver depth > 0) turned by that angle
     (``views.fit_angle``), reduced with Warp tiles; each thread reads its columns' texels and turns only each column's
     first and last useful texel (:func:`_column_box`). Equal, bit for bit, to :func:`fit_reduce_angles_naive`, which
-    turns every texel (a float64 division each)."""
+    turns every texel (a float64 division each). With ``from_branches`` every block takes each texel's nearer branch
+    itself (:func:`pilot_nearest`'s rule) and the depth-range block (k = FIT_STEPS) writes the receiver depths that
+    :func:`fit_reduce_cascades` reads: :func:`pilot_nearest`'s launch folded in."""
     b, k, lane = wp.tid()
     c = wp.cos(_step_angle(k))
     s = wp.sin(_step_angle(k))
-    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
-                                                            wp.block_dim(), c, s, aspects[b], wp.float64(PILOT_NONE),
-                                                            wp.where(k == FIT_STEPS, 0, 1))
+    last_block = wp.where(k == FIT_STEPS, 1, 0)
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, branch_depth, from_branches,
+                                                            from_branches * last_block, b * width * height, width,
+                                                            height, lane, wp.block_dim(), c, s, aspects[b],
+                                                            wp.float64(PILOT_NONE), 1 - last_block)
     if k == FIT_STEPS:
         umin = zmin
         umax = zmax
@@ -461,9 +526,9 @@ def fit_reduce_cascades(
     angle = _fitted_angle(boxes, b)
     zs = boxes[b * (FIT_STEPS + 1) + FIT_STEPS]
     split = _split(zs[0], zs[1], ci, cascades)
-    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
-                                                            wp.block_dim(), wp.cos(angle), wp.sin(angle), aspects[b],
-                                                            split, 1)
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, receiver_depth, 0, 0, b * width * height,
+                                                            width, height, lane, wp.block_dim(), wp.cos(angle),
+                                                            wp.sin(angle), aspects[b], split, 1)
     box = _box_reduce(umin, umax, vmin, vmax)
     total = wp.tile_sum(wp.tile(count))
     if lane == 0:
@@ -532,25 +597,28 @@ def _same_view(a: ViewParams, b: ViewParams) -> int:
     return same
 
 
-@wp.func
-def _solve_views(
-    pilot_views: wp.array(dtype=ViewParams),
-    width: int,
+@wp.kernel
+def fit_solve(
+    pilot_views: wp.array(dtype=ViewParams),  # (V,) the light's pilot views (read)
+    width: int,  # P
     height: int,
-    aspects: wp.array(dtype=wp.float64),
-    n_views: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
+    n_views: int,  # V
     cascades: int,
-    margin: float,
+    margin: float,  # pilot texels around each window (plus 2% of its size)
     rsm_size: int,
-    cascade_boxes: wp.array(dtype=wp.vec4d),
-    cascade_counts: wp.array(dtype=wp.float64),
-    angles: wp.array(dtype=wp.float64),
-    views: wp.array(dtype=ViewParams),
-    states: wp.array(dtype=CascadeState),
-    outside: wp.array(dtype=wp.vec4),
-    outside_angle: wp.array(dtype=wp.float32),
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) from fit_reduce_cascades (read)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (read)
+    angles: wp.array(dtype=wp.float64),  # (V,) (read)
+    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read the last, write)
+    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
+    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside: the coarsest window (write)
+    outside_angle: wp.array(dtype=wp.float32),  # (V,) its turn [rad] (write)
 ):
-    """:func:`fit_solve`'s work for one light, in one thread (arguments as :func:`fit_solve`'s)."""
+    """One thread per light: every pilot view's windows (``views.fit_windows``: grown by the margin and the turned
+    texel's half extent, clipped to the turned pilot image, merged when a finer one covers more than
+    ``MERGE_AREA`` of the next, repeats dropped), then each cascade's view and state as
+    ``LightMaps.set_windows`` writes them."""
     n_active = int(0)
     for b in range(n_views):
         angle = angles[b]
@@ -649,273 +717,6 @@ def _solve_views(
         states[k] = st
 
 
-
-@wp.kernel
-def fit_solve(
-    pilot_views: wp.array(dtype=ViewParams),  # (V,) the light's pilot views (read)
-    width: int,  # P
-    height: int,
-    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
-    n_views: int,  # V
-    cascades: int,
-    margin: float,  # pilot texels around each window (plus 2% of its size)
-    rsm_size: int,
-    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) from fit_reduce_cascades (read)
-    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (read)
-    angles: wp.array(dtype=wp.float64),  # (V,) (read)
-    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read the last, write)
-    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
-    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside: the coarsest window (write)
-    outside_angle: wp.array(dtype=wp.float32),  # (V,) its turn [rad] (write)
-):
-    """One thread per light: every pilot view's windows (``views.fit_windows``: grown by the margin and the turned
-    texel's half extent, clipped to the turned pilot image, merged when a finer one covers more than
-    ``MERGE_AREA`` of the next, repeats dropped), then each cascade's view and state as
-    ``LightMaps.set_windows`` writes them."""
-    _solve_views(pilot_views, width, height, aspects, n_views, cascades, margin, rsm_size, cascade_boxes,
-                 cascade_counts, angles, views, states, outside, outside_angle)
-
-
-#: threads of :func:`fit_light_views`' one block on CUDA, and the most it may have (its launch bounds: 128 registers a
-#: thread; its column scratch holds max(P, this) a pilot view). A 128² pilot: a column and 32 of its rows a thread
-FIT_LIGHT_BLOCK = 512
-#: turns of :func:`fit_light_views` reduced together (one block reduction of this many boxes)
-FIT_TURN_BATCH = 6
-assert FIT_STEPS % FIT_TURN_BATCH == 0
-vec_batch = wp.types.vector(length=FIT_TURN_BATCH, dtype=wp.float64)  #: one float64 per turn of a batch
-mat_batch = wp.types.matrix(shape=(FIT_TURN_BATCH, 4), dtype=wp.float64)  #: a batch's boxes, one row a turn
-vec_cascades = wp.types.vector(length=MAX_CASCADES, dtype=wp.float64)  #: one float64 per cascade
-vec_cascades_i = wp.types.vector(length=MAX_CASCADES, dtype=wp.int32)
-
-
-@wp.func
-def _nearest_branch(d0: float, d1: float) -> float:
-    """:func:`pilot_nearest`'s rule: the reflected branch's depth, then the refracted one's where there was none or it
-    is nearer; 0 where neither lands."""
-    nearest = float(0.0)
-    if d0 != PILOT_NONE:
-        nearest = d0
-    if d1 != PILOT_NONE and (nearest == 0.0 or d1 < nearest):
-        nearest = d1
-    return nearest
-
-
-@wp.func
-def _receiver_at(branch_depth: wp.array(dtype=wp.float32), receiver_depth: wp.array(dtype=wp.float32),
-                 from_branches: int, base: int, n: int, p: int) -> float:
-    """Texel p's receiver depth [m] of the pilot view at ``base`` (its nearer branch, or as stored)."""
-    if from_branches != 0:
-        return _nearest_branch(branch_depth[2 * base + p], branch_depth[2 * base + n + p])
-    return receiver_depth[base + p]
-
-
-@wp.func
-def _take(z: float, j: int, first: int, last: int, count: wp.float64, zmin: wp.float64, nzmax: wp.float64):
-    """A column's first and last useful rows, count and depth range (minus the farthest) grown by row j's depth z."""
-    if z > 0.0:
-        if first < 0:
-            first = j
-        last = j
-        count += wp.float64(1.0)
-        zmin = wp.min(zmin, wp.float64(z))
-        nzmax = wp.min(nzmax, -wp.float64(z))
-    return first, last, count, zmin, nzmax
-
-
-@wp.func
-def _take_cascades(z: float, j: int, split: vec_cascades, cascades: int, first: vec_cascades_i, last: vec_cascades_i,
-                   count: vec_cascades):
-    """:func:`_take` for every cascade at once: row j counts for those whose split it is not beyond."""
-    if z > 0.0:
-        for ci in range(cascades):
-            if wp.float64(z) <= split[ci]:
-                if first[ci] < 0:
-                    first[ci] = j
-                last[ci] = j
-                count[ci] = count[ci] + wp.float64(1.0)
-    return first, last, count
-
-
-@wp.func
-def _min_min_sum(a: wp.vec3d, b: wp.vec3d) -> wp.vec3d:
-    """(min, min, sum): a block's nearest depth, minus its farthest, and its count of useful texels."""
-    return wp.vec3d(wp.min(a[0], b[0]), wp.min(a[1], b[1]), a[2] + b[2])
-
-
-@wp.func
-def _grow(acc: wp.vec4d, u0: wp.float64, v0: wp.float64, u1: wp.float64, v1: wp.float64) -> wp.vec4d:
-    """(min u, −max u, min v, −max v) grown by two turned texels (maxima negated: one min reduction for all four)."""
-    return wp.vec4d(wp.min(acc[0], wp.min(u0, u1)), wp.min(acc[1], -wp.max(u0, u1)), wp.min(acc[2], wp.min(v0, v1)),
-                    wp.min(acc[3], -wp.max(v0, v1)))
-
-
-@wp.func
-def _min_rows(a: wp.mat44d, b: wp.mat44d) -> wp.mat44d:
-    """Element-wise min of two cascades' (min u, −max u, min v, −max v) rows."""
-    m = a
-    for r in range(MAX_CASCADES):
-        m[r] = wp.min(a[r], b[r])
-    return m
-
-
-@wp.func
-def _min_batch(a: mat_batch, b: mat_batch) -> mat_batch:
-    """Element-wise min of two batches' (min u, −max u, min v, −max v) rows."""
-    m = a
-    for r in range(FIT_TURN_BATCH):
-        m[r] = wp.min(a[r], b[r])
-    return m
-
-
-@wp.kernel(launch_bounds=(FIT_LIGHT_BLOCK, 1))
-def fit_light_views(
-    branch_depth: wp.array(dtype=wp.float32),  # (V*2*P*P,) pilot_branches' scratch of each pilot view (read when
-    # from_branches)
-    from_branches: int,  # 1: each texel's receiver depth from its two branches (pilot_nearest's rule, written to
-    # receiver_depth); 0: read from receiver_depth
-    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) receiver depths [m], 0 = none (write, or read)
-    width: int,  # P
-    height: int,
-    aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
-    pilot_views: wp.array(dtype=ViewParams),  # (V,) (read)
-    n_views: int,  # V
-    cascades: int,
-    margin: float,  # pilot texels around each window (plus 2% of its size)
-    rsm_size: int,
-    column_rows: wp.array(dtype=wp.vec2i),  # (V*max(P, FIT_LIGHT_BLOCK),) a thread's columns' first and last
-    # useful rows, -1 = none (scratch: each thread reads back only its own)
-    boxes: wp.array(dtype=wp.vec4d),  # (V*(FIT_STEPS+1),) as fit_reduce_angles writes them (write)
-    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) as fit_reduce_cascades writes them (write)
-    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (write)
-    angles: wp.array(dtype=wp.float64),  # (V,) the fitted turns [rad] (write)
-    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read the last, write)
-    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
-    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside (write)
-    outside_angle: wp.array(dtype=wp.float32),  # (V,) (write)
-):
-    """A light's whole fit in one block: :func:`pilot_nearest`, :func:`fit_reduce_angles`,
-    :func:`fit_reduce_cascades` and :func:`fit_solve` (those four launches are its twin, bit for bit on the CPU).
-
-    Per pilot view, each thread over the columns and rows :func:`_column_box` gives it (so it reads back only what it
-    wrote): one pass over the texels keeps each of its columns' first and last useful rows (``column_rows``) and the
-    depth range and count (one block reduction); each turn then turns only those two texels a column and reduces the
-    turned box (one block reduction a turn, the turns kept in ``views.fit_angle``'s order); a second pass over the
-    texels takes every cascade's split at once (two reductions). Thread 0 then solves the windows
-    (:func:`_solve_views`). Every value is a min, a max or a sum of whole counts in float64: exact in any order."""
-    _blk, lane = wp.tid()
-    bd = wp.block_dim()
-    n = width * height
-    groups = wp.max(1, bd / width)
-    stride = wp.max(width, FIT_LIGHT_BLOCK)
-    big = wp.float64(1.0e300)
-    mine = lane < groups * width  # this thread has columns
-    for b in range(n_views):
-        base = b * n
-        aspect = aspects[b]
-        zmin = big
-        nzmax = big
-        count = wp.float64(0.0)
-        if mine:
-            i = lane % width
-            while i < width:
-                first = int(-1)
-                last = int(-1)
-                j = lane / width
-                while j < height:  # two rows a round: their loads issued together
-                    j1 = j + groups
-                    z0 = _receiver_at(branch_depth, receiver_depth, from_branches, base, n, j * width + i)
-                    z1 = float(0.0)
-                    if j1 < height:
-                        z1 = _receiver_at(branch_depth, receiver_depth, from_branches, base, n, j1 * width + i)
-                    if from_branches != 0:
-                        receiver_depth[base + j * width + i] = z0
-                        if j1 < height:
-                            receiver_depth[base + j1 * width + i] = z1
-                    first, last, count, zmin, nzmax = _take(z0, j, first, last, count, zmin, nzmax)
-                    first, last, count, zmin, nzmax = _take(z1, j1, first, last, count, zmin, nzmax)
-                    j += 2 * groups
-                column_rows[b * stride + (lane / width) * width + i] = wp.vec2i(first, last)
-                i += bd
-        zs = wp.tile_reduce(_min_min_sum, wp.tile(wp.vec3d(zmin, nzmax, count), preserve_type=True))[0]
-        z_near = zs[0]
-        z_far = -zs[1]
-        # each turn's box (fit_reduce_angles) and the tightest turn (_fitted_angle), the turns in order,
-        # FIT_TURN_BATCH turns a block reduction
-        angle = wp.float64(0.0)
-        best_area = wp.float64(1.0e300)
-        for k0 in range(0, FIT_STEPS, FIT_TURN_BATCH):
-            cs = vec_batch()
-            sn = vec_batch()
-            for r in range(FIT_TURN_BATCH):
-                cs[r] = wp.cos(_step_angle(k0 + r))
-                sn[r] = wp.sin(_step_angle(k0 + r))
-            acc = mat_batch()
-            for r in range(FIT_TURN_BATCH):
-                acc[r] = wp.vec4d(big, big, big, big)
-            if mine:
-                i = lane % width
-                while i < width:
-                    rows = column_rows[b * stride + (lane / width) * width + i]
-                    if rows[0] >= 0:
-                        for r in range(FIT_TURN_BATCH):
-                            u0, v0 = _turn(i, rows[0], width, height, cs[r], sn[r], aspect)
-                            u1, v1 = _turn(i, rows[1], width, height, cs[r], sn[r], aspect)
-                            acc[r] = _grow(acc[r], u0, v0, u1, v1)
-                    i += bd
-            acc = wp.tile_reduce(_min_batch, wp.tile(acc, preserve_type=True))[0]
-            for r in range(FIT_TURN_BATCH):
-                q = acc[r]
-                area = (-q[1] - q[0] + wp.float64(1.0)) * (-q[3] - q[2] + wp.float64(1.0))
-                if area < best_area * wp.float64(0.98):
-                    angle = _step_angle(k0 + r)
-                    best_area = area
-                if lane == 0:
-                    boxes[b * (FIT_STEPS + 1) + k0 + r] = wp.vec4d(q[0], -q[1], q[2], -q[3])
-        if zs[2] == wp.float64(0.0):
-            angle = wp.float64(0.0)
-        if lane == 0:
-            boxes[b * (FIT_STEPS + 1) + FIT_STEPS] = wp.vec4d(z_near, z_far, zs[2], wp.float64(0.0))
-            angles[b] = angle
-        # the cascades (fit_reduce_cascades), every split at once
-        split = vec_cascades()
-        for ci in range(cascades):
-            split[ci] = _split(z_near, z_far, ci, cascades)
-        c = wp.cos(angle)
-        s = wp.sin(angle)
-        cbox = wp.mat44d(big, big, big, big, big, big, big, big, big, big, big, big, big, big, big, big)  # row ci
-        ccount = vec_cascades()
-        if mine:
-            i = lane % width
-            while i < width:
-                cfirst = vec_cascades_i(-1)
-                clast = vec_cascades_i(-1)
-                j = lane / width
-                while j < height:  # two rows a round
-                    j1 = j + groups
-                    z0 = receiver_depth[base + j * width + i]
-                    z1 = float(0.0)
-                    if j1 < height:
-                        z1 = receiver_depth[base + j1 * width + i]
-                    cfirst, clast, ccount = _take_cascades(z0, j, split, cascades, cfirst, clast, ccount)
-                    cfirst, clast, ccount = _take_cascades(z1, j1, split, cascades, cfirst, clast, ccount)
-                    j += 2 * groups
-                for ci in range(cascades):
-                    if cfirst[ci] >= 0:
-                        u0, v0 = _turn(i, cfirst[ci], width, height, c, s, aspect)
-                        u1, v1 = _turn(i, clast[ci], width, height, c, s, aspect)
-                        cbox[ci] = _grow(cbox[ci], u0, v0, u1, v1)
-                i += bd
-        cbox = wp.tile_reduce(_min_rows, wp.tile(cbox, preserve_type=True))[0]
-        ccount = wp.tile_reduce(wp.add, wp.tile(ccount, preserve_type=True))[0]
-        if lane == 0:
-            for ci in range(cascades):
-                q = cbox[ci]
-                cascade_boxes[b * cascades + ci] = wp.vec4d(q[0], -q[1], q[2], -q[3])
-                cascade_counts[b * cascades + ci] = ccount[ci]
-    if lane == 0:
-        _solve_views(pilot_views, width, height, aspects, n_views, cascades, margin, rsm_size, cascade_boxes,
-                     cascade_counts, angles, views, states, outside, outside_angle)
-
 class LightViewFitter:
     """Fits every light's cascades to the camera each frame; its pilot and fit buffers are allocated once.
 
@@ -951,11 +752,8 @@ class LightViewFitter:
             self.branch_depth.append([whole[i * n : (i + 1) * n] for i in range(len(lm.pilot))])
         #: pilot_receivers (one thread per texel, both branches) instead of pilot_branches + pilot_nearest: the twin
         self.one_thread_per_texel = False
-        #: True (default): a light's fit is one launch, :func:`fit_light_views`, which also keeps each texel's nearer
-        #: branch; False: its twin, pilot_nearest then fit_reduce_angles, fit_reduce_cascades and fit_solve
-        self.fused = True
-        #: per fitted light: its pilot traced into pilot_branches' scratch and not yet reduced to receiver depths
-        #: (the fused fit reads the branches then)
+        #: per fitted light: its pilot traced into pilot_branches' scratch, not yet reduced to receiver depths (the
+        #: device fit's fit_reduce_angles then takes the nearer branches itself: pilot_nearest folded in)
         self._branches_pending = [False] * len(self.lights)
         self.pilot_block = PILOT_BLOCK if self.device.is_cuda else 256
         self.receiver_depth = []
@@ -969,15 +767,12 @@ class LightViewFitter:
         self._cascade_boxes = [wp.zeros(len(lm.pilot) * lm.cascades, dtype=wp.vec4d, device=d) for lm in self.lights]
         self._cascade_counts = [wp.zeros(len(lm.pilot) * lm.cascades, dtype=wp.float64, device=d) for lm in self.lights]
         self._angles = [wp.zeros(len(lm.pilot), dtype=wp.float64, device=d) for lm in self.lights]
-        self._column_rows = [wp.zeros(len(lm.pilot) * max(lm.pilot[0].width, FIT_LIGHT_BLOCK), dtype=wp.vec2i,
-                                      device=d) for lm in self.lights]
         self.roughness_cutoff, self.thickness, self.thickness_rel = roughness_cutoff, thickness, thickness_rel
         self.max_bounces, self.t_max, self.seed = max_bounces, t_max, seed
         self.last_depth: list[list[np.ndarray]] = []  #: the pilots' receiver depths of the last host fit (host)
         #: threads per block of the fit's reductions (Warp runs CPU tiles one thread per block unless
-        #: ``wp.config.enable_cpu_blocks`` is set; a test does, with blocks of 32); None: FIT_LIGHT_BLOCK for the
-        #: fused fit, FIT_BLOCK for its twin
-        self.fit_block = None if self.device.is_cuda else 1
+        #: ``wp.config.enable_cpu_blocks`` is set; a test does, with blocks of 32)
+        self.fit_block = FIT_BLOCK if self.device.is_cuda else 1
 
     def fit(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
         """Draw the pilots, trace them and fit every light's cascades (on the device, or :meth:`fit_host`)."""
@@ -1024,43 +819,30 @@ class LightViewFitter:
             else:
                 wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
                           inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
-        # the fused fit keeps the nearer branch itself; the host fit and the twin need the receiver depths now
-        self._branches_pending[i] = not self.one_thread_per_texel and self.fused and self.on_device
+        # the device fit keeps the nearer branches itself; the host fit needs the receiver depths now
+        self._branches_pending[i] = not self.one_thread_per_texel and self.on_device
         if not self.one_thread_per_texel and not self._branches_pending[i]:
             p = lm.pilot[0]
             wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
                       inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
 
     def fit_device(self) -> None:
-        """Fit every light's cascades to its pilots' receiver depths (one launch per light; the twin: three)."""
+        """Fit every light's cascades to its pilots' receiver depths in three launches per light."""
         for i in range(len(self.lights)):
             self.fit_light(i)
 
     def fit_light(self, i: int) -> None:
-        """Fit fitted light ``i``'s cascades to its pilots' receiver depths on the device: one launch
-        (:func:`fit_light_views`, from the pilot's branches when :meth:`trace_light_pilots` left them), or with
-        ``fused`` False its twin's three (after pilot_nearest)."""
+        """Fit fitted light ``i``'s cascades to its pilots' receiver depths on the device (three launches; the first
+        takes the nearer branches itself where :meth:`trace_light_pilots` left them in pilot_branches' scratch)."""
+        block = self.fit_block
         lm = self.lights[i]
         vs = lm.view_settings
         p = lm.pilot[0]
         nv = len(lm.pilot)
         pending, self._branches_pending[i] = self._branches_pending[i], False
-        if self.fused:
-            if (self.fit_block or FIT_LIGHT_BLOCK) > FIT_LIGHT_BLOCK:
-                raise ValueError(f"fit_block must be at most {FIT_LIGHT_BLOCK} for the fused fit, got {self.fit_block}")
-            wp.launch_tiled(fit_light_views, dim=(1,), block_dim=self.fit_block or FIT_LIGHT_BLOCK, device=self.device,
-                            inputs=[self.branch_depth_all[i], int(pending), self.receiver_depth_all[i], p.width,
-                                    p.height, self._aspects[i], lm.pilot_views, nv, lm.cascades, float(vs.margin),
-                                    lm.rsm_size, self._column_rows[i], self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i],
-                                    self._angles[i], lm.views, lm.states, lm.outside, lm.outside_angle])
-            lm.refresh_cascade_solid_angles()
-            return
-        if pending:
-            wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
-                      inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
-        block = self.fit_block or FIT_BLOCK
         wp.launch_tiled(fit_reduce_angles, dim=(nv, FIT_STEPS + 1), block_dim=block, device=self.device,
-                        inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], self._boxes[i]])
+                        inputs=[self.branch_depth_all[i], int(pending), self.receiver_depth_all[i], p.width, p.height,
+                                self._aspects[i], self._boxes[i]])
         wp.launch_tiled(fit_reduce_cascades, dim=(nv, lm.cascades), block_dim=block, device=self.device,
                         inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], lm.cascades,
                                 self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i], self._angles[i]])
@@ -1073,7 +855,7 @@ class LightViewFitter:
     def light_scratch(self, i: int) -> list[wp.array]:
         """The arrays fitted light ``i``'s pilot trace and fit write besides its own ``LightMaps``."""
         return [self.receiver_depth_all[i], self.branch_depth_all[i], self._boxes[i], self._cascade_boxes[i],
-                self._cascade_counts[i], self._angles[i], self._column_rows[i]]
+                self._cascade_counts[i], self._angles[i]]
 
     def fit_host(self) -> None:
         """The naive twin: read the receiver depths back (a host sync), fit in numpy, ``LightMaps.set_windows``."""
