@@ -6,8 +6,9 @@ Per frame, after the camera's G-buffer and before the lights' RSM views are draw
 2. :func:`pilot_branches` sends one photon per pilot texel and branch (reflected; refracted where the
    surface transmits; a thread each) from the surface under the texel's centre, traces it through the scene's BVH
    (further specular bounces by Fresnel probability) and keeps the camera depth [m] where it lands on
-   a surface the camera sees (the depth-visibility test of the photon stores); :func:`pilot_nearest` keeps the
-   nearer branch per texel, 0 where neither lands (:func:`pilot_receivers`, one thread per texel, is the twin);
+   a surface the camera sees (the depth-visibility test of the photon stores); the nearer branch per texel, 0 where
+   neither lands, is the texel's receiver depth, taken by :func:`fit_reduce_angles` on the device fit (its own launch,
+   :func:`pilot_nearest`, before the host fit; :func:`pilot_receivers`, one thread per texel, is the twin);
 3. three small kernels fit the cascades to those depths (``views.fit_angle`` and ``views.fit_windows`` on the
    device): :func:`fit_reduce_angles` reduces, per pilot view and each of ``FIT_STEPS`` turns about its axis, the
    box of the turned useful texels (and their depth range) with Warp tiles, one block each, turning only each
@@ -785,8 +786,9 @@ class LightViewFitter:
             self.fit_host()
 
     def trace_pilots(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
-        """Draw the pilot views and trace their receiver depths (``receiver_depth``). The camera and the seeds are
-        read from ``inputs`` (written here when they do not hold ``frame`` yet and no graph is being captured)."""
+        """Draw the pilot views and trace their receiver depths (``receiver_depth``; on the device fit they are
+        written by its first launch, :meth:`fit_light`). The camera and the seeds are read from ``inputs`` (written
+        here when they do not hold ``frame`` yet and no graph is being captured)."""
         self.frame_inputs(camera, frame)
         for i in range(len(self.lights)):
             self.render_pilots(i, raster)
@@ -804,7 +806,8 @@ class LightViewFitter:
         self.lights[i].render_pilot(raster)
 
     def trace_light_pilots(self, i: int) -> None:
-        """Trace fitted light ``i``'s pilot texels to their receivers (reads the camera's G-buffer)."""
+        """Trace fitted light ``i``'s pilot texels to their receivers (reads the camera's G-buffer); with the fit on
+        the device the branches are left for :meth:`fit_light` to take the nearer of (``_branches_pending``)."""
         li, lm, depths = self.light_index[i], self.lights[i], self.receiver_depth[i]
         light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
         for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
