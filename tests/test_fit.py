@@ -179,14 +179,16 @@ def test_fit_reductions_by_columns_equal_the_naive_ones(device, monkeypatch, blo
     d = wp.array(depth.reshape(-1), dtype=wp.float32, device=device)
     aspects = wp.array([1.0, 0.7, 1.3, 1.0], dtype=wp.float64, device=device)
     out = []
+    unused = wp.zeros(1, dtype=wp.float32, device=device)
     for angles_kernel, cascades_kernel in ((F.fit_reduce_angles_naive, F.fit_reduce_cascades_naive),
                                            (F.fit_reduce_angles, F.fit_reduce_cascades)):
         boxes = wp.zeros(nv * (F.FIT_STEPS + 1), dtype=wp.vec4d, device=device)
         cboxes = wp.zeros(nv * cascades, dtype=wp.vec4d, device=device)
         counts = wp.zeros(nv * cascades, dtype=wp.float64, device=device)
         angles = wp.zeros(nv, dtype=wp.float64, device=device)
+        head = [] if angles_kernel is F.fit_reduce_angles_naive else [unused, 0]  # from the receiver depths
         wp.launch_tiled(angles_kernel, dim=(nv, F.FIT_STEPS + 1), block_dim=block, device=device,
-                        inputs=[d, p, p, aspects, boxes])
+                        inputs=head + [d, p, p, aspects, boxes])
         wp.launch_tiled(cascades_kernel, dim=(nv, cascades), block_dim=block, device=device,
                         inputs=[d, p, p, aspects, cascades, boxes, cboxes, counts, angles])
         out.append([a.numpy() for a in (boxes, cboxes, counts, angles)])
@@ -214,3 +216,34 @@ def test_fit_reductions_do_not_depend_on_the_block_size(device, monkeypatch):
         np.testing.assert_array_equal(o0, o1)
         np.testing.assert_array_equal(a0, a1)
         np.testing.assert_array_equal(v0, v1)
+
+
+@pytest.mark.parametrize("block", [1, 32, 128])
+def test_fit_reduce_angles_from_branches_equals_pilot_nearest_first(device, monkeypatch, block):
+    """fit_reduce_angles reading pilot_branches' scratch (each texel's nearer branch taken in every block, written by
+    the depth-range block) gives pilot_nearest's receiver depths and the boxes fit_reduce_angles finds in them, bit for
+    bit: two 40² views (rows not a multiple of the four a round), branches landing alone, both, or neither."""
+    from cisp_warp.photons import fit as F
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    rng = np.random.default_rng(11)
+    p, nv = 40, 2
+    inf = np.float32(np.inf)
+    branches = np.where(rng.random((nv, 2, p, p)) < 0.3, rng.uniform(0.5, 9.0, (nv, 2, p, p)), inf).astype(np.float32)
+    branches[0, :, :10] = inf  # rows seen by neither branch
+    branches[1, 0, 5:20, 5:20] = 2.0  # a patch both branches reach, the refracted one nearer
+    branches[1, 1, 5:20, 5:20] = 1.5
+    b = wp.array(branches.reshape(-1), dtype=wp.float32, device=device)
+    aspects = wp.array([1.0, 0.8], dtype=wp.float64, device=device)
+    depth = wp.zeros(nv * p * p, dtype=wp.float32, device=device)
+    wp.launch(F.pilot_nearest, dim=nv * p * p, device=device, inputs=[b, p * p, depth])
+    boxes = wp.zeros(nv * (F.FIT_STEPS + 1), dtype=wp.vec4d, device=device)
+    wp.launch_tiled(F.fit_reduce_angles, dim=(nv, F.FIT_STEPS + 1), block_dim=block, device=device,
+                    inputs=[b, 0, depth, p, p, aspects, boxes])
+    folded = wp.full(nv * p * p, -1.0, dtype=wp.float32, device=device)
+    folded_boxes = wp.zeros_like(boxes)
+    wp.launch_tiled(F.fit_reduce_angles, dim=(nv, F.FIT_STEPS + 1), block_dim=block, device=device,
+                    inputs=[b, 1, folded, p, p, aspects, folded_boxes])
+    np.testing.assert_array_equal(folded.numpy(), depth.numpy())
+    np.testing.assert_array_equal(folded_boxes.numpy(), boxes.numpy())
+    assert (depth.numpy() > 0).sum() > 100 and (depth.numpy() == 1.5).sum() == 225

@@ -6,8 +6,9 @@ Per frame, after the camera's G-buffer and before the lights' RSM views are draw
 2. :func:`pilot_branches` sends one photon per pilot texel and branch (reflected; refracted where the
    surface transmits; a thread each) from the surface under the texel's centre, traces it through the scene's BVH
    (further specular bounces by Fresnel probability) and keeps the camera depth [m] where it lands on
-   a surface the camera sees (the depth-visibility test of the photon stores); :func:`pilot_nearest` keeps the
-   nearer branch per texel, 0 where neither lands (:func:`pilot_receivers`, one thread per texel, is the twin);
+   a surface the camera sees (the depth-visibility test of the photon stores); the nearer branch per texel, 0 where
+   neither lands, is the texel's receiver depth, taken by :func:`fit_reduce_angles` on the device fit (its own launch,
+   :func:`pilot_nearest`, before the host fit; :func:`pilot_receivers`, one thread per texel, is the twin);
 3. three small kernels fit the cascades to those depths (``views.fit_angle`` and ``views.fit_windows`` on the
    device): :func:`fit_reduce_angles` reduces, per pilot view and each of ``FIT_STEPS`` turns about its axis, the
    box of the turned useful texels (and their depth range) with Warp tiles, one block each, turning only each
@@ -365,12 +366,51 @@ def fit_reduce_cascades_naive(
             angles[b] = angle
 
 
+#: rows of a column :func:`_column_box` reads a round (a thread's loads were one after another: 64 dependent
+#: round trips to L2 for a 128² pilot in blocks of 256)
+COLUMN_ROUND = wp.constant(4)
+
+
 @wp.func
-def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: int, height: int, lane: int, bd: int,
-                c: wp.float64, s: wp.float64, aspect: wp.float64, split: wp.float64, turn: int):
+def _receiver_at(receiver_depth: wp.array(dtype=wp.float32), branch_depth: wp.array(dtype=wp.float32), pair: int,
+                 base: int, n: int, p: int) -> float:
+    """Texel p's receiver depth [m] of the pilot view whose texels start at ``base`` (``n`` of them): from its two
+    branches in :func:`pilot_branches`' scratch by :func:`pilot_nearest`'s rule (``pair`` != 0), or as stored."""
+    if pair != 0:
+        d0 = branch_depth[2 * base + p]
+        d1 = branch_depth[2 * base + n + p]
+        nearest = float(0.0)
+        if d0 != PILOT_NONE:
+            nearest = d0
+        if d1 != PILOT_NONE and (nearest == 0.0 or d1 < nearest):
+            nearest = d1
+        return nearest
+    return receiver_depth[base + p]
+
+
+@wp.func
+def _take_row(z: float, j: int, split: wp.float64, first: int, last: int, count: wp.float64, zmin: wp.float64,
+              zmax: wp.float64):
+    """A column's first and last useful rows, count and depth range grown by row j's receiver depth z (useful:
+    0 < z <= ``split``; a row past the pilot reads z = 0)."""
+    if z > 0.0 and wp.float64(z) <= split:
+        if first < 0:
+            first = j
+        last = j
+        count += wp.float64(1.0)
+        zmin = wp.min(zmin, wp.float64(z))
+        zmax = wp.max(zmax, wp.float64(z))
+    return first, last, count, zmin, zmax
+
+
+@wp.func
+def _column_box(receiver_depth: wp.array(dtype=wp.float32), branch_depth: wp.array(dtype=wp.float32), pair: int,
+                write: int, base: int, width: int, height: int, lane: int, bd: int, c: wp.float64, s: wp.float64,
+                aspect: wp.float64, split: wp.float64, turn: int):
     """This thread's share of a turned box by columns: (min u, max u, min v, max v, count, min z, max z) over the
     useful texels (0 < z <= ``split``; an infinite ``split`` takes every z > 0) of its columns (``i = lane % width``, then every ``bd``-th) and rows
-    (``j = lane / width``, then every ``max(1, bd / width)``-th: a warp reads one row's texels side by side).
+    (``j = lane / width``, then every ``max(1, bd / width)``-th: a warp reads one row's texels side by side), four
+    rows a round (``COLUMN_ROUND``: their loads issued together).
 
     Only a column's first and last useful rows are turned (``turn`` != 0): for a turn in [0°, 90°) (c > 0, s >= 0)
     ``_turn``'s u = (hw + c·dx) − (s·aspect)·dy falls and v = (hh + s·dx/aspect) + c·dy rises with the row,
@@ -385,22 +425,39 @@ def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: in
     zmax = -big
     count = wp.float64(0.0)
     groups = wp.max(1, bd / width)
+    n = width * height
     if lane < groups * width:
         i = lane % width
         while i < width:
             first = int(-1)
             last = int(-1)
             j = lane / width
-            while j < height:
-                z = receiver_depth[base + j * width + i]
-                if z > 0.0 and wp.float64(z) <= split:
-                    if first < 0:
-                        first = j
-                    last = j
-                    count += wp.float64(1.0)
-                    zmin = wp.min(zmin, wp.float64(z))
-                    zmax = wp.max(zmax, wp.float64(z))
-                j += groups
+            while j < height:  # COLUMN_ROUND rows a round: their loads in flight together, then taken in row order
+                p = j * width + i
+                dp = groups * width
+                z0 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p)
+                z1 = float(0.0)
+                z2 = float(0.0)
+                z3 = float(0.0)
+                if j + groups < height:
+                    z1 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p + dp)
+                if j + 2 * groups < height:
+                    z2 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p + 2 * dp)
+                if j + 3 * groups < height:
+                    z3 = _receiver_at(receiver_depth, branch_depth, pair, base, n, p + 3 * dp)
+                if write != 0:
+                    receiver_depth[base + p] = z0
+                    if j + groups < height:
+                        receiver_depth[base + p + dp] = z1
+                    if j + 2 * groups < height:
+                        receiver_depth[base + p + 2 * dp] = z2
+                    if j + 3 * groups < height:
+                        receiver_depth[base + p + 3 * dp] = z3
+                first, last, count, zmin, zmax = _take_row(z0, j, split, first, last, count, zmin, zmax)
+                first, last, count, zmin, zmax = _take_row(z1, j + groups, split, first, last, count, zmin, zmax)
+                first, last, count, zmin, zmax = _take_row(z2, j + 2 * groups, split, first, last, count, zmin, zmax)
+                first, last, count, zmin, zmax = _take_row(z3, j + 3 * groups, split, first, last, count, zmin, zmax)
+                j += COLUMN_ROUND * groups
             if first >= 0 and turn != 0:
                 u0, v0 = _turn(i, first, width, height, c, s, aspect)
                 u1, v1 = _turn(i, last, width, height, c, s, aspect)
@@ -414,7 +471,12 @@ def _column_box(receiver_depth: wp.array(dtype=wp.float32), base: int, width: in
 
 @wp.kernel
 def fit_reduce_angles(
-    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read)
+    branch_depth: wp.array(dtype=wp.float32),  # (V*2*P*P,) each pilot view's pilot_branches scratch (read when
+    # from_branches)
+    from_branches: int,  # 1: each texel's receiver depth from its two branches (pilot_nearest folded in: the
+    # depth-range block writes them to receiver_depth); 0: read from receiver_depth
+    receiver_depth: wp.array(dtype=wp.float32),  # (V*P*P,) the light's pilots' receiver depths [m], 0 = none (read,
+    # or write)
     width: int,  # P
     height: int,
     aspects: wp.array(dtype=wp.float64),  # (V,) each pilot view's fx / fy (read)
@@ -424,13 +486,17 @@ def fit_reduce_angles(
     """One block per (pilot view, turn): the box of the useful texels (receiver depth > 0) turned by that angle
     (``views.fit_angle``), reduced with Warp tiles; each thread reads its columns' texels and turns only each column's
     first and last useful texel (:func:`_column_box`). Equal, bit for bit, to :func:`fit_reduce_angles_naive`, which
-    turns every texel (a float64 division each)."""
+    turns every texel (a float64 division each). With ``from_branches`` every block takes each texel's nearer branch
+    itself (:func:`pilot_nearest`'s rule) and the depth-range block (k = FIT_STEPS) writes the receiver depths that
+    :func:`fit_reduce_cascades` reads: :func:`pilot_nearest`'s launch folded in."""
     b, k, lane = wp.tid()
     c = wp.cos(_step_angle(k))
     s = wp.sin(_step_angle(k))
-    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
-                                                            wp.block_dim(), c, s, aspects[b], wp.float64(PILOT_NONE),
-                                                            wp.where(k == FIT_STEPS, 0, 1))
+    last_block = wp.where(k == FIT_STEPS, 1, 0)
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, branch_depth, from_branches,
+                                                            from_branches * last_block, b * width * height, width,
+                                                            height, lane, wp.block_dim(), c, s, aspects[b],
+                                                            wp.float64(PILOT_NONE), 1 - last_block)
     if k == FIT_STEPS:
         umin = zmin
         umax = zmax
@@ -461,9 +527,9 @@ def fit_reduce_cascades(
     angle = _fitted_angle(boxes, b)
     zs = boxes[b * (FIT_STEPS + 1) + FIT_STEPS]
     split = _split(zs[0], zs[1], ci, cascades)
-    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, b * width * height, width, height, lane,
-                                                            wp.block_dim(), wp.cos(angle), wp.sin(angle), aspects[b],
-                                                            split, 1)
+    umin, umax, vmin, vmax, count, zmin, zmax = _column_box(receiver_depth, receiver_depth, 0, 0, b * width * height,
+                                                            width, height, lane, wp.block_dim(), wp.cos(angle),
+                                                            wp.sin(angle), aspects[b], split, 1)
     box = _box_reduce(umin, umax, vmin, vmax)
     total = wp.tile_sum(wp.tile(count))
     if lane == 0:
@@ -687,6 +753,9 @@ class LightViewFitter:
             self.branch_depth.append([whole[i * n : (i + 1) * n] for i in range(len(lm.pilot))])
         #: pilot_receivers (one thread per texel, both branches) instead of pilot_branches + pilot_nearest: the twin
         self.one_thread_per_texel = False
+        #: per fitted light: its pilot traced into pilot_branches' scratch, not yet reduced to receiver depths (the
+        #: device fit's fit_reduce_angles then takes the nearer branches itself: pilot_nearest folded in)
+        self._branches_pending = [False] * len(self.lights)
         self.pilot_block = PILOT_BLOCK if self.device.is_cuda else 256
         self.receiver_depth = []
         for lm, whole in zip(self.lights, self.receiver_depth_all):
@@ -717,8 +786,9 @@ class LightViewFitter:
             self.fit_host()
 
     def trace_pilots(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
-        """Draw the pilot views and trace their receiver depths (``receiver_depth``). The camera and the seeds are
-        read from ``inputs`` (written here when they do not hold ``frame`` yet and no graph is being captured)."""
+        """Draw the pilot views and trace their receiver depths (``receiver_depth``; on the device fit they are
+        written by its first launch, :meth:`fit_light`). The camera and the seeds are read from ``inputs`` (written
+        here when they do not hold ``frame`` yet and no graph is being captured)."""
         self.frame_inputs(camera, frame)
         for i in range(len(self.lights)):
             self.render_pilots(i, raster)
@@ -736,7 +806,8 @@ class LightViewFitter:
         self.lights[i].render_pilot(raster)
 
     def trace_light_pilots(self, i: int) -> None:
-        """Trace fitted light ``i``'s pilot texels to their receivers (reads the camera's G-buffer)."""
+        """Trace fitted light ``i``'s pilot texels to their receivers (reads the camera's G-buffer); with the fit on
+        the device the branches are left for :meth:`fit_light` to take the nearer of (``_branches_pending``)."""
         li, lm, depths = self.light_index[i], self.lights[i], self.receiver_depth[i]
         light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
         for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
@@ -751,7 +822,9 @@ class LightViewFitter:
             else:
                 wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
                           inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
-        if not self.one_thread_per_texel:
+        # the device fit keeps the nearer branches itself; the host fit needs the receiver depths now
+        self._branches_pending[i] = not self.one_thread_per_texel and self.on_device
+        if not self.one_thread_per_texel and not self._branches_pending[i]:
             p = lm.pilot[0]
             wp.launch(pilot_nearest, dim=self.receiver_depth_all[i].shape[0], device=self.device,
                       inputs=[self.branch_depth_all[i], p.width * p.height, self.receiver_depth_all[i]])
@@ -762,14 +835,17 @@ class LightViewFitter:
             self.fit_light(i)
 
     def fit_light(self, i: int) -> None:
-        """Fit fitted light ``i``'s cascades to its pilots' receiver depths on the device (three launches)."""
+        """Fit fitted light ``i``'s cascades to its pilots' receiver depths on the device (three launches; the first
+        takes the nearer branches itself where :meth:`trace_light_pilots` left them in pilot_branches' scratch)."""
         block = self.fit_block
         lm = self.lights[i]
         vs = lm.view_settings
         p = lm.pilot[0]
         nv = len(lm.pilot)
+        pending, self._branches_pending[i] = self._branches_pending[i], False
         wp.launch_tiled(fit_reduce_angles, dim=(nv, FIT_STEPS + 1), block_dim=block, device=self.device,
-                        inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], self._boxes[i]])
+                        inputs=[self.branch_depth_all[i], int(pending), self.receiver_depth_all[i], p.width, p.height,
+                                self._aspects[i], self._boxes[i]])
         wp.launch_tiled(fit_reduce_cascades, dim=(nv, lm.cascades), block_dim=block, device=self.device,
                         inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], lm.cascades,
                                 self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i], self._angles[i]])
