@@ -416,7 +416,9 @@ def _make_composite(camera_ortho: int = -1):
 
     def kernel(f):
         f.__qualname__ = f.__name__ + ("_orthocam" if CAMERA_ORTHO == 1 else "")
-        return wp.kernel(f, launch_bounds=COMPOSITE_LAUNCH_BOUNDS, module=kernel_module)
+        if CAMERA_ORTHO < 0:
+            return wp.kernel(f, launch_bounds=COMPOSITE_LAUNCH_BOUNDS, module=kernel_module)
+        return wp.kernel(f, launch_bounds=COMPOSITE_LAUNCH_BOUNDS, module=kernel_module, enable_backward=False)
 
     return screen_space_hit, screen_space_lookup, kernel(composite), kernel(composite_march)
 

@@ -279,7 +279,9 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
         final[p] = final[p] + l
 
     trace_hidden.__qualname__ = "trace_hidden" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
-    return wp.kernel(trace_hidden, module="unique")
+    if CAMERA_ORTHO < 0:
+        return wp.kernel(trace_hidden, module="unique")
+    return wp.kernel(trace_hidden, module="unique", enable_backward=False)  # no adjoint to compile
 
 
 trace_hidden = _trace_hidden_kernel(False)
@@ -348,7 +350,9 @@ def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1):
         hidden_sum[p] = l
 
     trace_hidden_rays.__qualname__ = "trace_hidden_rays" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
-    return wp.kernel(trace_hidden_rays, module="unique")
+    if CAMERA_ORTHO < 0:
+        return wp.kernel(trace_hidden_rays, module="unique")
+    return wp.kernel(trace_hidden_rays, module="unique", enable_backward=False)  # no adjoint to compile
 
 
 trace_hidden_rays = _trace_hidden_rays_kernel(False)
