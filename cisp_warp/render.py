@@ -27,7 +27,7 @@ from .photons.fit import LightViewFitter
 from .photons.march import bounds_size
 from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
-from .shade import (MISSED_REFLECTED, MISSED_REFRACTED, DirectLighting, composite, composite_gather, composite_march,
+from .shade import (MISSED_REFLECTED, MISSED_REFRACTED, DirectLighting, composite_gather, composite_kernels,
                     surface_radiance)
 from .shade_hidden import HiddenSurfaces
 from .sky import SkyLighting, sky_map
@@ -490,12 +490,13 @@ class Renderer:
         ``_denoise_and_shade(marched=True)``'s gather; the depth bounds built already."""
         g, ps, cs = self.gbuffer, self.settings.photons, self.composite_split
         w = g.water
-        wp.launch(composite_march, dim=g.width * g.height, device=self.device,
+        wp.launch(composite_kernels(self.view.orthographic)[1], dim=g.width * g.height, device=self.device,
                   inputs=[self.inputs.cameras, g.depth, self._composite_bounds(), w.depth, w.position, w.normal,
                           w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final, cs.hits,
                           cs.weights, self.hidden.missed, self._hidden_bits])
         if self._traces_hidden():
-            self.hidden.trace_rays(g, self.inputs.cameras, self.sky_map, self.t_max, cs.hits, cs.hidden_sum)
+            self.hidden.trace_rays(g, self.inputs.cameras, self.sky_map, self.t_max, cs.hits, cs.hidden_sum,
+                                   self.view.orthographic)
 
     def _build_composite_bounds(self) -> None:
         """Build ``depth_bounds`` from this frame's depth where the composite marches on them
@@ -541,7 +542,7 @@ class Renderer:
                                   self.sky_irradiance, self.surface_radiance])
                 bounds = self._composite_bounds()
                 self._build_composite_bounds()
-                wp.launch(composite, dim=n, device=self.device,
+                wp.launch(composite_kernels(self.view.orthographic)[0], dim=n, device=self.device,
                           inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
                                   w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
                                   self.hidden.missed, self._hidden_bits])
@@ -553,7 +554,7 @@ class Renderer:
                     self.hidden.shade_hits(g, self.lights, self.final, hidden_flux)
                 else:
                     self.hidden.render(g, self.lights, self.inputs.cameras, self.surface_radiance, self.sky_map,
-                                       self.t_max, self.final, hidden_flux)
+                                       self.t_max, self.final, hidden_flux, self.view.orthographic)
 
     def _composite_bounds(self) -> wp.array:
         """The camera depth bounds the composite marches on: the photon pass's own (CISP builds them from this frame's

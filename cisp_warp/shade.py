@@ -197,37 +197,6 @@ def surface_radiance(
     radiance[p] = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
 
 
-@wp.func
-def screen_space_hit(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
-                     depth_bounds: wp.array(dtype=wp.vec2), o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int,
-                     thickness: float) -> int:
-    """The camera pixel (``j·W + i``) whose opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth
-    buffer, or -1 when the ray leaves the image or runs out of steps (the camera ``cameras[0]``, read where the march
-    needs it and again after it, ``anchor`` >= 0: see ``views.read_again``). Reads the G-buffer's depth only."""
-    status, t, steps = screen_march_bounded_plain(read_again(cameras, 0, anchor), depth, depth_bounds, o, d, t_max,
-                                                  max_steps, thickness, 0.02)  # the front depths only (H*W)
-    if status != MARCH_HIT:
-        return int(-1)
-    camera = read_again(cameras, 0, steps)
-    q = world_project(camera, o + d * t)
-    i = wp.clamp(int(q[0]), 0, camera.width - 1)
-    j = wp.clamp(int(q[1]), 0, camera.height - 1)
-    return j * camera.width + i
-
-
-@wp.func
-def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
-                        depth_bounds: wp.array(dtype=wp.vec2), radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3,
-                        t_max: float, max_steps: int, thickness: float):
-    """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer
-    (:func:`screen_space_hit`'s pixel). Returns (found, radiance); not found when the ray leaves the image or runs
-    out of steps."""
-    h = screen_space_hit(cameras, anchor, depth, depth_bounds, o, d, t_max, max_steps, thickness)
-    if h < 0:
-        return int(0), wp.vec3(0.0)
-    return int(1), radiance[h]
-
-
 #: CUDA launch bounds of :func:`composite` (threads a block, blocks an SM): its two marches are latency-bound (one
 #: dependent depth or bounds read a step), so warps in flight matter more than registers. nvcc gives it 110
 #: registers unbounded (2 blocks of 256 an SM); measured on an H100, pool 1080p: 0.617 ms unbounded, 0.463 at
@@ -259,143 +228,226 @@ def water_rays(camera: ViewParams, x: wp.vec3, n_surface: wp.vec3, ior: float):
     return f, dr, dt, eta
 
 
-@wp.kernel(launch_bounds=COMPOSITE_LAUNCH_BOUNDS)
-def composite(
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
-    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
-    depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
-    radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
-    water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
-    water_position: wp.array(dtype=wp.vec3),
-    water_normal: wp.array(dtype=wp.vec3),
-    water_ior: wp.array(dtype=wp.float32),
-    t_max: float,
-    max_steps: int,
-    thickness: float,
-    sky: SkyMap,  # radiance of the dome light, seen where a ray finds no surface (black without one)
-    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
-    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits of the rays left to shade_hidden (write)
-    hidden_rays: int,  # MISSED_* bits of the rays handed to shade_hidden when their march finds nothing
-):
-    """Opaque pixels show their surface; water pixels Fresnel-blend screen-space refraction and reflection.
-
-    The refracted camera ray is marched through the opaque G-buffer (how caustics under water are
-    seen, the ESDSL paths of seed 000 Fig. 3); radiance crossing the boundary is scaled by
-    (n_t/n_i)² (L/n² is invariant along a ray). A camera ray that meets no surface sees the sky (``sky``; black
-    when the scene has none). A reflected or refracted ray whose march finds nothing (it leaves the image, or passes
-    behind a surface) and whose bit is set in ``hidden_rays`` adds nothing here: its bit in ``missed`` hands it to
-    :mod:`cisp_warp.shade_hidden`, which traces it against the opaque layer and adds what it reaches. Without its
-    bit, the screen-space fallbacks: a reflected ray sees the sky, a refracted one the opaque surface behind the
-    water pixel itself (the undistorted background).
-    """
-    p = wp.tid()
-    camera = cameras[0]
-    l = radiance[p]
-    bits = int(0)
-    if depth[p] <= 0.0 and water_depth[p] <= 0.0:
-        px = float(p % camera.width) + 0.5
-        py = float(p // camera.width) + 0.5
-        o, d = pixel_ray_world(camera, px, py)
-        l = sky_radiance(sky, d)
-    if water_depth[p] > 0.0:
-        x = water_position[p]
-        f, dr, dt, eta = water_rays(camera, x, water_normal[p], water_ior[p])
-        l = wp.vec3(0.0)
-        if f > 0.0:
-            found, lr = screen_space_lookup(cameras, p, depth, depth_bounds, radiance, x, dr, t_max, max_steps,
-                                            thickness)
-            if found == 0:
-                if (hidden_rays & MISSED_REFLECTED) != 0:
-                    bits = bits | MISSED_REFLECTED
-                else:
-                    lr = sky_radiance(sky, dr)
-            l = l + lr * f
-        if f < 1.0:
-            found, lt = screen_space_lookup(cameras, p + 1, depth, depth_bounds, radiance, x, dt, t_max, max_steps,
-                                            thickness)
-            if found == 0:
-                if (hidden_rays & MISSED_REFRACTED) != 0:
-                    bits = bits | MISSED_REFRACTED
-                else:
-                    lt = radiance[p]
-            l = l + lt * ((1.0 - f) / (eta * eta))
-    final[p] = l
-    missed[p] = bits
-
-
 HIT_NONE = wp.constant(-1)  #: :func:`composite_march`'s ``hits``: the ray adds no surface's radiance
 PIXEL_OPAQUE = wp.constant(-2)  #: ``hits[p][0]`` of a pixel without water that sees an opaque surface
 PIXEL_SKY = wp.constant(-3)  #: ``hits[p][0]`` of a pixel that sees nothing (its sky radiance is in ``final``)
 
 
-@wp.kernel(launch_bounds=COMPOSITE_LAUNCH_BOUNDS)
-def composite_march(
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
-    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
-    depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
-    water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
-    water_position: wp.array(dtype=wp.vec3),
-    water_normal: wp.array(dtype=wp.vec3),
-    water_ior: wp.array(dtype=wp.float32),
-    t_max: float,
-    max_steps: int,
-    thickness: float,
-    sky: SkyMap,
-    final: wp.array(dtype=wp.vec3),  # (H*W,) what the composite adds before any surface's radiance (write; see below)
-    hits: wp.array(dtype=wp.vec2i),  # (H*W,) per pixel (reflected, refracted) hit pixel, HIT_NONE, or a PIXEL_* code
-    weights: wp.array(dtype=wp.vec2),  # (H*W,) water pixels: (F, (1 − F)/η²), the rays' throughputs (write)
-    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits of the rays left to shade_hidden (write)
-    hidden_rays: int,  # MISSED_* bits of the rays handed to shade_hidden when their march finds nothing
-):
-    """:func:`composite`'s G-buffer half: everything it computes but the opaque radiance read at the marches' hits,
-    which :func:`composite_gather` adds once the caustics are known. Reads the camera, depth, bounds and water layer
-    only, so it runs beside the photon trace.
+def _make_composite(camera_ortho: int = -1):
+    """:func:`screen_space_hit`, :func:`screen_space_lookup` and the kernels :func:`composite` and
+    :func:`composite_march`. ``camera_ortho``: -1 reads the camera's projection (``ViewParams.orthographic``) at run
+    time (the module's kernels, the twins); 0 or 1 compiles them for a perspective or an orthographic camera
+    (:func:`projected_composite`): the camera is read with its ``orthographic`` field replaced by the constant,
+    which the compiler folds through ``water_rays`` (``view_eye_world``), ``pixel_ray_world``, the marches and
+    ``world_project``, so a launch carries only its projection's code (docs/perf_notes.md sections 51, 56); the same
+    values wherever the constant equals the camera's field: the same bits. Such kernels are modules of their own,
+    compiled when first launched; an orthographic camera's are named ``*_orthocam``."""
+    CAMERA_ORTHO = int(camera_ortho)
+    kernel_module = None if CAMERA_ORTHO < 0 else "unique"
 
-    Per pixel: a sky pixel's radiance goes to ``final`` (``hits`` = (PIXEL_SKY, 0)); an opaque pixel writes
-    (PIXEL_OPAQUE, 0); a water pixel writes the hit pixels of its reflected and refracted rays (HIT_NONE where the
-    ray adds no surface's radiance: F = 0, F = 1, or handed to shade_hidden; the refracted ray's screen-space
-    fallback is the pixel itself), their throughputs, and to ``final`` the composite's sum before its reflected
-    ray's radiance (zero, or the sky's radiance along a missed reflected ray times F), with the same float32
-    operations in the same order as :func:`composite`."""
-    p = wp.tid()
-    camera = cameras[0]
-    bits = int(0)
-    if water_depth[p] > 0.0:
-        x = water_position[p]
-        f, dr, dt, eta = water_rays(camera, x, water_normal[p], water_ior[p])
-        l = wp.vec3(0.0)
-        hr = int(HIT_NONE)
-        ht = int(HIT_NONE)
-        wt = float(0.0)
-        if f > 0.0:
-            hr = screen_space_hit(cameras, p, depth, depth_bounds, x, dr, t_max, max_steps, thickness)
-            if hr < 0:
-                lr = wp.vec3(0.0)
-                if (hidden_rays & MISSED_REFLECTED) != 0:
-                    bits = bits | MISSED_REFLECTED
-                else:
-                    lr = sky_radiance(sky, dr)
+    @wp.func
+    def camera_view(cameras: wp.array(dtype=ViewParams), anchor: int) -> ViewParams:
+        """``read_again(cameras, 0, anchor)``, its projection the compiled one where the composite has one."""
+        v = read_again(cameras, 0, anchor)
+        if wp.static(CAMERA_ORTHO >= 0):
+            v.orthographic = CAMERA_ORTHO
+        return v
+
+    @wp.func
+    def screen_space_hit(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
+                         depth_bounds: wp.array(dtype=wp.vec2), o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int,
+                         thickness: float) -> int:
+        """The camera pixel (``j·W + i``) whose opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth
+        buffer, or -1 when the ray leaves the image or runs out of steps (the camera ``cameras[0]``, read where the march
+        needs it and again after it, ``anchor`` >= 0: see ``views.read_again``; its projection the compiled one where
+        the composite has one). Reads the G-buffer's depth only."""
+        status, t, steps = screen_march_bounded_plain(camera_view(cameras, anchor), depth, depth_bounds, o, d, t_max,
+                                                      max_steps, thickness, 0.02)  # the front depths only (H*W)
+        if status != MARCH_HIT:
+            return int(-1)
+        camera = camera_view(cameras, steps)
+        q = world_project(camera, o + d * t)
+        i = wp.clamp(int(q[0]), 0, camera.width - 1)
+        j = wp.clamp(int(q[1]), 0, camera.height - 1)
+        return j * camera.width + i
+
+
+    @wp.func
+    def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
+                            depth_bounds: wp.array(dtype=wp.vec2), radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3,
+                            t_max: float, max_steps: int, thickness: float):
+        """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer
+        (:func:`screen_space_hit`'s pixel). Returns (found, radiance); not found when the ray leaves the image or runs
+        out of steps."""
+        h = screen_space_hit(cameras, anchor, depth, depth_bounds, o, d, t_max, max_steps, thickness)
+        if h < 0:
+            return int(0), wp.vec3(0.0)
+        return int(1), radiance[h]
+
+    def composite(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+        depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+        depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
+        radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),
+        water_normal: wp.array(dtype=wp.vec3),
+        water_ior: wp.array(dtype=wp.float32),
+        t_max: float,
+        max_steps: int,
+        thickness: float,
+        sky: SkyMap,  # radiance of the dome light, seen where a ray finds no surface (black without one)
+        final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance reaching the camera [W/(m² sr)] (write)
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits of the rays left to shade_hidden (write)
+        hidden_rays: int,  # MISSED_* bits of the rays handed to shade_hidden when their march finds nothing
+    ):
+        """Opaque pixels show their surface; water pixels Fresnel-blend screen-space refraction and reflection.
+
+        The refracted camera ray is marched through the opaque G-buffer (how caustics under water are
+        seen, the ESDSL paths of seed 000 Fig. 3); radiance crossing the boundary is scaled by
+        (n_t/n_i)² (L/n² is invariant along a ray). A camera ray that meets no surface sees the sky (``sky``; black
+        when the scene has none). A reflected or refracted ray whose march finds nothing (it leaves the image, or passes
+        behind a surface) and whose bit is set in ``hidden_rays`` adds nothing here: its bit in ``missed`` hands it to
+        :mod:`cisp_warp.shade_hidden`, which traces it against the opaque layer and adds what it reaches. Without its
+        bit, the screen-space fallbacks: a reflected ray sees the sky, a refracted one the opaque surface behind the
+        water pixel itself (the undistorted background).
+        """
+        p = wp.tid()
+        camera = camera_view(cameras, 0)
+        l = radiance[p]
+        bits = int(0)
+        if depth[p] <= 0.0 and water_depth[p] <= 0.0:
+            px = float(p % camera.width) + 0.5
+            py = float(p // camera.width) + 0.5
+            o, d = pixel_ray_world(camera, px, py)
+            l = sky_radiance(sky, d)
+        if water_depth[p] > 0.0:
+            x = water_position[p]
+            f, dr, dt, eta = water_rays(camera, x, water_normal[p], water_ior[p])
+            l = wp.vec3(0.0)
+            if f > 0.0:
+                found, lr = screen_space_lookup(cameras, p, depth, depth_bounds, radiance, x, dr, t_max, max_steps,
+                                                thickness)
+                if found == 0:
+                    if (hidden_rays & MISSED_REFLECTED) != 0:
+                        bits = bits | MISSED_REFLECTED
+                    else:
+                        lr = sky_radiance(sky, dr)
                 l = l + lr * f
-        if f < 1.0:
-            wt = (1.0 - f) / (eta * eta)
-            ht = screen_space_hit(cameras, p + 1, depth, depth_bounds, x, dt, t_max, max_steps, thickness)
-            if ht < 0:
-                if (hidden_rays & MISSED_REFRACTED) != 0:
-                    bits = bits | MISSED_REFRACTED  # composite adds zero · wt: l unchanged (l is never -0)
-                else:
-                    ht = p  # the undistorted background
+            if f < 1.0:
+                found, lt = screen_space_lookup(cameras, p + 1, depth, depth_bounds, radiance, x, dt, t_max, max_steps,
+                                                thickness)
+                if found == 0:
+                    if (hidden_rays & MISSED_REFRACTED) != 0:
+                        bits = bits | MISSED_REFRACTED
+                    else:
+                        lt = radiance[p]
+                l = l + lt * ((1.0 - f) / (eta * eta))
         final[p] = l
-        hits[p] = wp.vec2i(hr, ht)
-        weights[p] = wp.vec2(f, wt)
-    elif depth[p] <= 0.0:
-        px = float(p % camera.width) + 0.5
-        py = float(p // camera.width) + 0.5
-        o, d = pixel_ray_world(camera, px, py)
-        final[p] = sky_radiance(sky, d)
-        hits[p] = wp.vec2i(PIXEL_SKY, 0)
-    else:
-        hits[p] = wp.vec2i(PIXEL_OPAQUE, 0)
-    missed[p] = bits
+        missed[p] = bits
+
+    def composite_march(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+        depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+        depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),
+        water_normal: wp.array(dtype=wp.vec3),
+        water_ior: wp.array(dtype=wp.float32),
+        t_max: float,
+        max_steps: int,
+        thickness: float,
+        sky: SkyMap,
+        final: wp.array(dtype=wp.vec3),  # (H*W,) what the composite adds before any surface's radiance (write; see below)
+        hits: wp.array(dtype=wp.vec2i),  # (H*W,) per pixel (reflected, refracted) hit pixel, HIT_NONE, or a PIXEL_* code
+        weights: wp.array(dtype=wp.vec2),  # (H*W,) water pixels: (F, (1 − F)/η²), the rays' throughputs (write)
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits of the rays left to shade_hidden (write)
+        hidden_rays: int,  # MISSED_* bits of the rays handed to shade_hidden when their march finds nothing
+    ):
+        """:func:`composite`'s G-buffer half: everything it computes but the opaque radiance read at the marches' hits,
+        which :func:`composite_gather` adds once the caustics are known. Reads the camera, depth, bounds and water layer
+        only, so it runs beside the photon trace.
+
+        Per pixel: a sky pixel's radiance goes to ``final`` (``hits`` = (PIXEL_SKY, 0)); an opaque pixel writes
+        (PIXEL_OPAQUE, 0); a water pixel writes the hit pixels of its reflected and refracted rays (HIT_NONE where the
+        ray adds no surface's radiance: F = 0, F = 1, or handed to shade_hidden; the refracted ray's screen-space
+        fallback is the pixel itself), their throughputs, and to ``final`` the composite's sum before its reflected
+        ray's radiance (zero, or the sky's radiance along a missed reflected ray times F), with the same float32
+        operations in the same order as :func:`composite`."""
+        p = wp.tid()
+        camera = camera_view(cameras, 0)
+        bits = int(0)
+        if water_depth[p] > 0.0:
+            x = water_position[p]
+            f, dr, dt, eta = water_rays(camera, x, water_normal[p], water_ior[p])
+            l = wp.vec3(0.0)
+            hr = int(HIT_NONE)
+            ht = int(HIT_NONE)
+            wt = float(0.0)
+            if f > 0.0:
+                hr = screen_space_hit(cameras, p, depth, depth_bounds, x, dr, t_max, max_steps, thickness)
+                if hr < 0:
+                    lr = wp.vec3(0.0)
+                    if (hidden_rays & MISSED_REFLECTED) != 0:
+                        bits = bits | MISSED_REFLECTED
+                    else:
+                        lr = sky_radiance(sky, dr)
+                    l = l + lr * f
+            if f < 1.0:
+                wt = (1.0 - f) / (eta * eta)
+                ht = screen_space_hit(cameras, p + 1, depth, depth_bounds, x, dt, t_max, max_steps, thickness)
+                if ht < 0:
+                    if (hidden_rays & MISSED_REFRACTED) != 0:
+                        bits = bits | MISSED_REFRACTED  # composite adds zero · wt: l unchanged (l is never -0)
+                    else:
+                        ht = p  # the undistorted background
+            final[p] = l
+            hits[p] = wp.vec2i(hr, ht)
+            weights[p] = wp.vec2(f, wt)
+        elif depth[p] <= 0.0:
+            px = float(p % camera.width) + 0.5
+            py = float(p // camera.width) + 0.5
+            o, d = pixel_ray_world(camera, px, py)
+            final[p] = sky_radiance(sky, d)
+            hits[p] = wp.vec2i(PIXEL_SKY, 0)
+        else:
+            hits[p] = wp.vec2i(PIXEL_OPAQUE, 0)
+        missed[p] = bits
+
+    def kernel(f):
+        f.__qualname__ = f.__name__ + ("_orthocam" if CAMERA_ORTHO == 1 else "")
+        if CAMERA_ORTHO < 0:
+            return wp.kernel(f, launch_bounds=COMPOSITE_LAUNCH_BOUNDS, module=kernel_module)
+        return wp.kernel(f, launch_bounds=COMPOSITE_LAUNCH_BOUNDS, module=kernel_module, enable_backward=False)
+
+    return screen_space_hit, screen_space_lookup, kernel(composite), kernel(composite_march)
+
+
+#: the run-time kernels (the camera's projection read per launch): the twins of the projected ones
+screen_space_hit, screen_space_lookup, composite, composite_march = _make_composite()
+
+#: ``projected_composite`` gives the kernels compiled for the camera's projection (False: the run-time ones, the twins)
+PROJECTED = True
+
+_PROJECTED_COMPOSITES: dict = {}
+
+
+def projected_composite(camera_ortho: int) -> tuple:
+    """(:func:`composite`, :func:`composite_march`) compiled for a perspective (0) or orthographic (1) camera
+    (:func:`_make_composite`), made on first use, each a module of its own. The same inputs, the same outputs bit for
+    bit where ``cameras[0]`` has that projection (``tests/test_shade_projected.py``)."""
+    key = int(camera_ortho)
+    if key not in _PROJECTED_COMPOSITES:
+        _PROJECTED_COMPOSITES[key] = _make_composite(key)[2:]
+    return _PROJECTED_COMPOSITES[key]
+
+
+def composite_kernels(orthographic: bool | None) -> tuple:
+    """The (composite, composite_march) to launch for a camera of that projection (the host's ``View.orthographic``):
+    the projected ones with :data:`PROJECTED`, else (or ``orthographic`` None) the run-time ones."""
+    if orthographic is None or not PROJECTED:
+        return composite, composite_march
+    return projected_composite(int(bool(orthographic)))
 
 
 @wp.kernel
@@ -498,5 +550,5 @@ class DirectLighting:
 
 
 __all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY",
-           "composite", "composite_gather", "composite_march", "direct_at", "direct_light",
-           "direct_light_pair", "LightKind", "shadow_map_args", "surface_radiance_at", "water_rays"]
+           "composite", "composite_gather", "composite_kernels", "composite_march", "direct_at", "direct_light",
+           "direct_light_pair", "LightKind", "projected_composite", "shadow_map_args", "surface_radiance_at", "water_rays"]

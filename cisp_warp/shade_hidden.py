@@ -209,8 +209,25 @@ def _hidden_ray_func(naive: bool):
 _HIDDEN_RAY = {naive: _hidden_ray_func(naive) for naive in (False, True)}
 
 
-def _trace_hidden_kernel(naive: bool):
-    @wp.kernel(module="unique")
+def _camera_view_func(camera_ortho: int):
+    """``cameras[0]`` as the trace reads it: with ``camera_ortho`` 0 or 1 its ``orthographic`` field replaced by that
+    constant, which the compiler folds through ``water_rays`` and :func:`seen_by_camera` (the kernel compiled for
+    the camera's projection, :func:`projected_hidden`; docs/perf_notes.md section 56); -1 reads it at run time."""
+
+    @wp.func
+    def camera_view(cameras: wp.array(dtype=ViewParams)) -> ViewParams:
+        v = cameras[0]
+        if wp.static(camera_ortho >= 0):
+            v.orthographic = camera_ortho
+        return v
+
+    return camera_view
+
+
+def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
+    CAMERA_ORTHO = int(camera_ortho)
+    camera_view = _camera_view_func(CAMERA_ORTHO)
+
     def trace_hidden(
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
         water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
@@ -236,7 +253,7 @@ def _trace_hidden_kernel(naive: bool):
         bits = missed[p]
         if bits == 0:
             return
-        camera = cameras[0]
+        camera = camera_view(cameras)
         f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
         x = water_position[p]
         l = wp.vec3(0.0)
@@ -261,15 +278,20 @@ def _trace_hidden_kernel(naive: bool):
         missed[p] = bits
         final[p] = final[p] + l
 
-    return trace_hidden
+    trace_hidden.__qualname__ = "trace_hidden" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
+    if CAMERA_ORTHO < 0:
+        return wp.kernel(trace_hidden, module="unique")
+    return wp.kernel(trace_hidden, module="unique", enable_backward=False)  # no adjoint to compile
 
 
 trace_hidden = _trace_hidden_kernel(False)
 trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
 
 
-def _trace_hidden_rays_kernel(naive: bool):
-    @wp.kernel(module="unique")
+def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1):
+    CAMERA_ORTHO = int(camera_ortho)
+    camera_view = _camera_view_func(CAMERA_ORTHO)
+
     def trace_hidden_rays(
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
         water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
@@ -297,7 +319,7 @@ def _trace_hidden_rays_kernel(naive: bool):
         bits = missed[p]
         if bits == 0:
             return
-        camera = cameras[0]
+        camera = camera_view(cameras)
         f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
         x = water_position[p]
         l = wp.vec3(0.0)
@@ -327,11 +349,27 @@ def _trace_hidden_rays_kernel(naive: bool):
         missed[p] = bits
         hidden_sum[p] = l
 
-    return trace_hidden_rays
+    trace_hidden_rays.__qualname__ = "trace_hidden_rays" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
+    if CAMERA_ORTHO < 0:
+        return wp.kernel(trace_hidden_rays, module="unique")
+    return wp.kernel(trace_hidden_rays, module="unique", enable_backward=False)  # no adjoint to compile
 
 
 trace_hidden_rays = _trace_hidden_rays_kernel(False)
 trace_hidden_rays_naive = _trace_hidden_rays_kernel(True)
+
+_PROJECTED_HIDDEN: dict = {}
+
+
+def projected_hidden(camera_ortho: int) -> tuple:
+    """(:func:`trace_hidden`, :func:`trace_hidden_rays`) compiled for a perspective (0) or orthographic (1) camera
+    (its projection a compile-time constant), made on first use, each a module of its own (the orthographic camera's
+    named ``*_orthocam``). The same inputs, the same outputs bit for bit where ``cameras[0]`` has that projection
+    (``tests/test_shade_projected.py``)."""
+    key = int(camera_ortho)
+    if key not in _PROJECTED_HIDDEN:
+        _PROJECTED_HIDDEN[key] = (_trace_hidden_kernel(False, key), _trace_hidden_rays_kernel(False, key))
+    return _PROJECTED_HIDDEN[key]
 
 
 @wp.func
@@ -457,27 +495,41 @@ class HiddenSurfaces:
         self.hidden_uvw = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
         self.naive = False  #: trace with :data:`trace_hidden_naive` (every triangle, no BVH): the twin, for tests
 
+    #: trace with the kernels compiled for the camera's projection (:func:`projected_hidden`) where the caller gives
+    #: it; False: the run-time kernels :data:`trace_hidden`, :data:`trace_hidden_rays` (the twins)
+    PROJECTED = True
+
+    def _kernels(self, orthographic: bool | None) -> tuple:
+        """(trace_hidden, trace_hidden_rays) to launch for a camera of that projection (None: read at run time)."""
+        if self.naive:
+            return trace_hidden_naive, trace_hidden_rays_naive
+        if orthographic is None or not self.PROJECTED:
+            return trace_hidden, trace_hidden_rays
+        return projected_hidden(int(bool(orthographic)))
+
     def render(self, gbuffer, lights, cameras: wp.array, radiance: wp.array, sky_map: SkyMap, t_max: float,
-               final: wp.array, hidden_flux=None) -> None:
+               final: wp.array, hidden_flux=None, orthographic: bool | None = None) -> None:
         """Add to ``final`` what the rays flagged in ``missed`` (by ``shade.composite``, just before) reach:
         :func:`trace_hidden`, then :func:`hidden_direct` once per shadow map of every light, and
         :func:`hidden_caustic` once per light view of ``hidden_flux`` (a ``photons.hidden_flux.HiddenFlux``; None:
-        no caustic at hidden hits)."""
+        no caustic at hidden hits). ``orthographic``: the camera's projection (``cameras[0]``'s, known on the host),
+        for the trace compiled for it (:attr:`PROJECTED`); None: read at run time."""
         w = gbuffer.water
         n = gbuffer.width * gbuffer.height
-        kernel = trace_hidden_naive if self.naive else trace_hidden
+        kernel = self._kernels(orthographic)[0]
         wp.launch(kernel, dim=n, device=self.device, inputs=[
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             radiance, sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, final])
         self.shade_hits(gbuffer, lights, final, hidden_flux)
 
     def trace_rays(self, gbuffer, cameras: wp.array, sky_map: SkyMap, t_max: float, hits: wp.array,
-                   hidden_sum: wp.array) -> None:
+                   hidden_sum: wp.array, orthographic: bool | None = None) -> None:
         """:meth:`render`'s trace without the photons (:func:`trace_hidden_rays`, after ``shade.composite_march``):
         the rays' hits the camera sees go to ``hits``, the other rays' terms to ``hidden_sum``, for
-        ``shade.composite_gather``; then :meth:`shade_hits` adds the direct light and caustic at the hidden hits."""
+        ``shade.composite_gather``; then :meth:`shade_hits` adds the direct light and caustic at the hidden hits.
+        ``orthographic``: as :meth:`render`'s."""
         w = gbuffer.water
-        kernel = trace_hidden_rays_naive if self.naive else trace_hidden_rays
+        kernel = self._kernels(orthographic)[1]
         wp.launch(kernel, dim=gbuffer.width * gbuffer.height, device=self.device, inputs=[
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, hits, hidden_sum])
@@ -500,5 +552,5 @@ class HiddenSurfaces:
 
 __all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",
            "hidden_direct",
-           "opaque_hit", "opaque_hit_naive", "opaque_layer", "sky_occlusion", "trace_hidden", "trace_hidden_naive",
+           "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "trace_hidden", "trace_hidden_naive",
            "trace_hidden_rays", "trace_hidden_rays_naive"]
