@@ -100,6 +100,50 @@ def test_pilot_branches_equal_one_thread_per_texel(device, scene):
         assert both > 0  # the refracted branch competes with a reflected one somewhere
 
 
+@pytest.mark.parametrize("scene", ["pool", "sinusoid"])
+def test_pilot_trace_compiled_per_projection_equals_the_run_time_one(device, scene):
+    """The pilot trace compiled for its pilot view's and the camera's projections (``LightViewFitter.pilot_kernel``,
+    ``fit.projected_pilot_branches``) writes the run-time kernel's (``fit.pilot_branches``, the twin) branch depths bit
+    for bit on the CPU (to an ulp on CUDA): the pool (an orthographic sun's and a perspective spot's pilots, a
+    perspective camera) and the sinusoidal water (an orthographic sun and camera). The kernels compiled for the other
+    projection of the pilot, or of the camera, write other depths: a wrong pick would fail here."""
+    from cisp_warp.photons import fit as F
+
+    make = SCENES[scene] if scene in SCENES else (lambda d: analytic.sinusoidal_water(48, 36))
+    r = Renderer(make(device), RenderSettings(rsm_size=64, method="cisp", denoiser="none", photons=2_000),
+                 device=device)
+    f = r.fitter
+    assert f.PROJECTED
+    r.render_frame()
+    projected = [b.numpy().copy() for b in f.branch_depth_all]
+    cam_ortho = int(r.view.orthographic)
+    seen = set()
+    for i, lm in enumerate(f.lights):
+        for r_pilot in lm.pilot:
+            light_ortho = int(r_pilot.view.orthographic)
+            seen.add((light_ortho, cam_ortho))
+            assert f.pilot_kernel(r_pilot.view.orthographic) is F.projected_pilot_branches(light_ortho, cam_ortho)
+    assert seen == ({(1, 0), (0, 0)} if scene == "pool" else {(1, 1)})
+    f.PROJECTED = False  # the twin, on the same pilots, camera and streams
+    f.trace_pilots(r.raster, r.view_params, 0)
+    assert f.pilot_kernel(True) is F.pilot_branches
+    for a, b in zip(projected, f.branch_depth_all):
+        assert (a < np.inf).sum() > 50  # branches landing where the camera sees them
+        if wp.get_device(device).is_cuda:  # FMA contraction may differ between the kernels: an ulp here and there
+            np.testing.assert_allclose(a, b.numpy(), rtol=1e-6, atol=0)
+        else:
+            np.testing.assert_array_equal(a, b.numpy())
+    for i, lm in enumerate(f.lights):  # the other projection compiled: other depths
+        for vi, r_pilot in enumerate(lm.pilot):
+            light_ortho = int(r_pilot.view.orthographic)
+            run_time = f.branch_depth[i][vi].numpy()
+            for wrong in ((1 - light_ortho, cam_ortho), (light_ortho, 1 - cam_ortho)):
+                out = wp.zeros_like(f.branch_depth[i][vi])
+                wp.launch(F.projected_pilot_branches(*wrong), dim=out.shape[0], device=device,
+                          inputs=f.pilot_inputs(i, vi) + [out])
+                assert not np.array_equal(out.numpy(), run_time), f"light {i} view {vi} compiled as {wrong}"
+
+
 def test_device_fit_forced_cascades_and_empty_pilot(device):
     """Hand-made receiver depths (a near patch inside a far band, then nothing): the device fit nests two
     cascades as the numpy fit does, and leaves every cascade inactive (far = 0, no photons) when nothing is seen."""

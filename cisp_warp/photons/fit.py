@@ -8,7 +8,9 @@ Per frame, after the camera's G-buffer and before the lights' RSM views are draw
    (further specular bounces by Fresnel probability) and keeps the camera depth [m] where it lands on
    a surface the camera sees (the depth-visibility test of the photon stores); the nearer branch per texel, 0 where
    neither lands, is the texel's receiver depth, taken by :func:`fit_reduce_angles` on the device fit (its own launch,
-   :func:`pilot_nearest`, before the host fit; :func:`pilot_receivers`, one thread per texel, is the twin);
+   :func:`pilot_nearest`, before the host fit; :func:`pilot_receivers`, one thread per texel, is the twin); the
+   kernel launched is compiled for the pilot view's and the camera's projections (:func:`projected_pilot_branches`;
+   :func:`pilot_branches`, which reads them at run time, is its twin);
 3. three small kernels fit the cascades to those depths (``views.fit_angle`` and ``views.fit_windows`` on the
    device): :func:`fit_reduce_angles` reduces, per pilot view and each of ``FIT_STEPS`` turns about its axis, the
    box of the turned useful texels (and their depth range) with Warp tiles, one block each, turning only each
@@ -150,44 +152,95 @@ PILOT_NONE = wp.constant(float("inf"))
 PILOT_BLOCK = 64
 
 
-@wp.kernel
-def pilot_branches(
-    light: ViewParams,  # a pilot (whole) view of the light
-    light_kind: int,  # 0 distant, 1 point, 2 spot
-    light_pos: wp.vec3,  # [m]
-    rsm_depth: wp.array(dtype=wp.float32),  # (P*P,) specular layer's depth [m] (read)
-    rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
-    rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
-    rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
-    rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) -1 = none (read)
-    geometry: SurfaceGeometry,
-    ws: WorldScene,
-    cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
-    cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
-    roughness_cutoff: float,
-    thickness: float,  # [m] depth-visibility tolerance, absolute
-    thickness_rel: float,  # relative (× depth)
-    t_max: float,  # [m]
-    max_bounces: int,
-    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream, the seed third (frame.FrameInputs.randoms, read)
-    stream: int,  # this pilot view's stream
-    branch_depth: wp.array(dtype=wp.float32),  # (2*P*P,) camera depth [m] where branch b of texel p lands, at
-    # b*P*P + p; PILOT_NONE where it lands nowhere the camera sees (write)
-):
-    """:func:`pilot_receivers` with one thread per texel and branch (threads 0..P²-1 reflect, P²..2P²-1 refract,
-    so a warp traces alike): twice the threads for a launch of 16k texels that filled half the GPU, and a warp
-    waits for its own branch's longest trace, not for both. :func:`pilot_nearest` takes the nearer branch."""
-    tid = wp.tid()
-    n = light.width * light.height
-    branch = tid / n
-    p = tid - branch * n
-    branch_depth[tid] = PILOT_NONE
-    cam.view = cameras[0]
-    z = pilot_branch(light, light_kind, light_pos, rsm_depth, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
-                     geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces,
-                     randoms[stream][2], p, branch)
-    if z > 0.0:
-        branch_depth[tid] = z
+def _make_pilot_branches(light_ortho: int = -1, camera_ortho: int = -1):
+    """The kernel :func:`pilot_branches`. ``light_ortho``, ``camera_ortho``: -1 reads the pilot view's and the camera's
+    projection (``ViewParams.orthographic``) at run time (the module's ``pilot_branches``, the twin); 0 or 1 compiles
+    it for that projection of the pilot view or of the camera (:func:`projected_pilot_branches`): both views are read
+    with their ``orthographic`` field replaced by the constant, which the compiler folds through ``pixel_ray_world``
+    (the texel's ray, ``texel_surface``) and ``camera_pixel``'s ``view_project``, so a launch carries only its
+    projections' code (the same values wherever the constants equal the views' fields: the same bits). Such kernels
+    are modules of their own, compiled when first launched (as ``kernels_cisp.projected_trace``)."""
+    LIGHT_ORTHO = int(light_ortho)
+    CAMERA_ORTHO = int(camera_ortho)
+
+    @wp.func
+    def light_projected(light: ViewParams) -> ViewParams:
+        """``light``, its projection the compiled one where the kernel has one (``light_ortho``)."""
+        v = light
+        if wp.static(LIGHT_ORTHO >= 0):
+            v.orthographic = LIGHT_ORTHO
+        return v
+
+    @wp.func
+    def camera_projected(camera: ViewParams) -> ViewParams:
+        """``camera``, its projection the compiled one where the kernel has one (``camera_ortho``)."""
+        v = camera
+        if wp.static(CAMERA_ORTHO >= 0):
+            v.orthographic = CAMERA_ORTHO
+        return v
+
+    def pilot_branches(
+        light: ViewParams,  # a pilot (whole) view of the light
+        light_kind: int,  # 0 distant, 1 point, 2 spot
+        light_pos: wp.vec3,  # [m]
+        rsm_depth: wp.array(dtype=wp.float32),  # (P*P,) specular layer's depth [m] (read)
+        rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
+        rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
+        rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
+        rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) -1 = none (read)
+        geometry: SurfaceGeometry,
+        ws: WorldScene,
+        cam: CameraBuffers,  # its ``view`` is replaced by cameras[0]
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
+        roughness_cutoff: float,
+        thickness: float,  # [m] depth-visibility tolerance, absolute
+        thickness_rel: float,  # relative (× depth)
+        t_max: float,  # [m]
+        max_bounces: int,
+        randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream, the seed third (frame.FrameInputs.randoms, read)
+        stream: int,  # this pilot view's stream
+        branch_depth: wp.array(dtype=wp.float32),  # (2*P*P,) camera depth [m] where branch b of texel p lands, at
+        # b*P*P + p; PILOT_NONE where it lands nowhere the camera sees (write)
+    ):
+        """:func:`pilot_receivers` with one thread per texel and branch (threads 0..P²-1 reflect, P²..2P²-1 refract,
+        so a warp traces alike): twice the threads for a launch of 16k texels that filled half the GPU, and a warp
+        waits for its own branch's longest trace, not for both. :func:`pilot_nearest` takes the nearer branch."""
+        tid = wp.tid()
+        n = light.width * light.height
+        branch = tid / n
+        p = tid - branch * n
+        branch_depth[tid] = PILOT_NONE
+        cam.view = camera_projected(cameras[0])
+        z = pilot_branch(light_projected(light), light_kind, light_pos, rsm_depth, rsm_flux, rsm_roughness, rsm_ior,
+                         rsm_tri, geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces,
+                         randoms[stream][2], p, branch)
+        if z > 0.0:
+            branch_depth[tid] = z
+
+    # an orthographic pilot's or camera's kernel named apart (the per-kernel tables: the pool's sun apart from its spot)
+    pilot_branches.__qualname__ = ("pilot_branches" + ("_ortho" if LIGHT_ORTHO == 1 else "")
+                                   + ("_orthocam" if CAMERA_ORTHO == 1 else ""))
+    projected = LIGHT_ORTHO >= 0 or CAMERA_ORTHO >= 0
+    return wp.kernel(pilot_branches, enable_backward=False, module="unique" if projected else None)
+
+
+#: the pilot trace, one thread per texel and branch, reading the views' projections at run time (the twin of the
+#: projected kernels ``LightViewFitter`` launches: :func:`projected_pilot_branches`)
+pilot_branches = _make_pilot_branches()
+
+_PROJECTED_PILOTS: dict = {}
+
+
+def projected_pilot_branches(light_ortho: int, camera_ortho: int):
+    """:func:`pilot_branches` compiled for one projection of the pilot view and one of the camera (0 perspective,
+    1 orthographic; :func:`_make_pilot_branches`), made on first use, each a module of its own: the kernel
+    ``LightViewFitter.pilot_kernel`` picks (the pool's sun is orthographic, its spot, the Cornell box's light and every
+    shipped camera perspective). The same inputs, the same outputs bit for bit where the views have those
+    projections (``tests/test_fit.py``)."""
+    key = (int(light_ortho), int(camera_ortho))
+    if key not in _PROJECTED_PILOTS:
+        _PROJECTED_PILOTS[key] = _make_pilot_branches(*key)
+    return _PROJECTED_PILOTS[key]
 
 
 @wp.kernel
@@ -725,6 +778,10 @@ class LightViewFitter:
     arrays, no host copy. ``on_device=False``: the naive twin (:meth:`fit_host`), which reads the receiver
     depths back and fits them in numpy."""
 
+    #: True: trace the pilots with the kernel compiled for their view's and the camera's projections
+    #: (:meth:`pilot_kernel`); False: the run-time one, :func:`pilot_branches` (the twin; the same bits)
+    PROJECTED = True
+
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, lights: list[LightMaps], roughness_cutoff: float,
                  thickness: float, thickness_rel: float, max_bounces: int, t_max: float, seed: int = 0,
                  on_device: bool | None = None, inputs: FrameInputs | None = None):
@@ -805,22 +862,37 @@ class LightViewFitter:
         """Draw fitted light ``i``'s pilot views (they read no camera: a renderer may draw them beside the G-buffer)."""
         self.lights[i].render_pilot(raster)
 
+    def pilot_kernel(self, pilot_orthographic: bool):
+        """The pilot trace for a pilot view of that projection: with ``PROJECTED``, :func:`pilot_branches` compiled for
+        it and the camera's as :meth:`frame_inputs` last saw it (:func:`projected_pilot_branches`; a light keeps its
+        kind, so its pilots their projection, and ``Renderer``'s captured frame is captured again when the camera's
+        changes), else the run-time kernel."""
+        if not self.PROJECTED:
+            return pilot_branches
+        return projected_pilot_branches(int(bool(pilot_orthographic)), int(bool(self.cam.view.orthographic)))
+
+    def pilot_inputs(self, i: int, vi: int) -> list:
+        """The pilot trace's inputs for fitted light ``i``'s pilot view ``vi``: :func:`pilot_branches`' arguments before
+        its output ``branch_depth`` (:func:`pilot_receivers` takes the same before ``receiver_depth``)."""
+        lm = self.lights[i]
+        r = lm.pilot[vi]
+        sp = r.specular
+        return [r.view.params(), int(lm.light.kind), wp.vec3(*np.asarray(lm.light.position, np.float32)), sp.depth,
+                r.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
+                float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel), float(self.t_max),
+                int(self.max_bounces), self.inputs.randoms, self.inputs.pilot_stream(self.light_index[i], vi)]
+
     def trace_light_pilots(self, i: int) -> None:
-        """Trace fitted light ``i``'s pilot texels to their receivers (reads the camera's G-buffer); with the fit on
-        the device the branches are left for :meth:`fit_light` to take the nearer of (``_branches_pending``)."""
-        li, lm, depths = self.light_index[i], self.lights[i], self.receiver_depth[i]
-        light_pos = wp.vec3(*np.asarray(lm.light.position, np.float32))
+        """Trace fitted light ``i``'s pilot texels to their receivers (reads the camera's G-buffer; the camera's
+        projection as :meth:`frame_inputs` last saw it); with the fit on the device the branches are left for
+        :meth:`fit_light` to take the nearer of (``_branches_pending``)."""
+        lm, depths = self.lights[i], self.receiver_depth[i]
         for vi, (r, depth) in enumerate(zip(lm.pilot, depths)):
-            sp = r.specular
-            inputs = [r.view.params(), int(lm.light.kind), light_pos, sp.depth, r.flux, sp.roughness,
-                      sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
-                      float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel),
-                      float(self.t_max), int(self.max_bounces), self.inputs.randoms,
-                      self.inputs.pilot_stream(li, vi)]
+            inputs = self.pilot_inputs(i, vi)
             if self.one_thread_per_texel:
                 wp.launch(pilot_receivers, dim=r.width * r.height, device=self.device, inputs=inputs + [depth])
             else:
-                wp.launch(pilot_branches, dim=2 * r.width * r.height, device=self.device,
+                wp.launch(self.pilot_kernel(r.view.orthographic), dim=2 * r.width * r.height, device=self.device,
                           inputs=inputs + [self.branch_depth[i][vi]], block_dim=self.pilot_block)
         # the device fit keeps the nearer branches itself; the host fit needs the receiver depths now
         self._branches_pending[i] = not self.one_thread_per_texel and self.on_device
