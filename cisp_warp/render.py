@@ -264,6 +264,9 @@ class Renderer:
         self.use_graph: bool | None = None
         self._graph = None
         self._graph_key = None
+        #: launch the next frame from Python, not captured: it loads the kernels compiled for a camera projection
+        #: seen for the first time (``set_camera``) before a capture needs them, as frame 0 does for the first
+        self._launch_next = False
         self.graph_captures = 0  #: frames captured as a graph so far (a new capture when the lights change)
         #: ``frame.FrameLanes`` while the frame runs its lights, and the sky and direct light, concurrently on CUDA
         #: streams (:meth:`set_concurrent`); None: every launch in turn on one stream (the sequential twin)
@@ -333,6 +336,7 @@ class Renderer:
         if self.photons is not None and (old.fx, old.fy, old.principal, old.orthographic) != (v.fx, v.fy, v.principal,
                                                                                               v.orthographic):
             self.photons.set_camera_view(v)  # a zoom: the pixels' solid angles; another projection: the trace's
+        self._launch_next = self._launch_next or bool(old.orthographic) != bool(v.orthographic)
 
     def update_scene(self, scene: Scene) -> None:
         """Take the camera and the moved points of ``scene`` (same topology) for the next frame.
@@ -373,14 +377,16 @@ class Renderer:
         ``timer``: a :class:`cisp_warp.timing.StageTimer` to time the stages (benchmarks only; launches every
         kernel). ``graph``: replay one captured CUDA graph of the frame (default ``use_graph``, else
         ``graph_capable``): the frame's cameras and random streams are written by one host->device copy, then the
-        graph captured at the second frame (and again when the lights change) is launched; the CPU never uses one.
+        graph captured at the second frame (and again when the lights or the camera's projection change; the first
+        frame with a new projection is launched from Python, loading its kernels) is launched; the CPU never uses one.
         """
         self.inputs.write(self.frame, self.view_params, self.prev_view_params)
         use = self.use_graph if graph is None else graph
         if use is None:
             use = True
-        if not (use and timer is None and self.graph_capable and self.frame >= 1):
+        if not (use and timer is None and self.graph_capable and self.frame >= 1) or self._launch_next:
             self._launch_frame(timer)
+            self._launch_next = False
         else:
             key = self._steady_key()
             if self._graph is None or key != self._graph_key:

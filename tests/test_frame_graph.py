@@ -81,3 +81,29 @@ def test_graph_replay_matches_launches(method, denoiser):
         assert lb.closure() < 1e-5
         np.testing.assert_allclose(la.values, lb.values, rtol=1e-6, atol=1e-9 * np.abs(la.values).max())
         assert np.abs(a - b).mean() <= 1e-4 * np.abs(a).mean() + 1e-12
+
+
+@pytest.mark.parametrize("device", ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else []))
+def test_camera_projection_change_launches_then_recaptures(device):
+    """A camera that turns orthographic mid-sequence (the trace, composite and pilots are compiled per camera
+    projection): that frame is launched from Python (loading the new projection's kernels outside any capture), the
+    next one captured again, and the frames match a renderer that never replays a graph."""
+    from dataclasses import replace
+
+    finals = {}
+    for graph in (False, True):
+        r = _renderer(device, "cisp", "svgf")
+        out = []
+        for f in range(5):
+            _orbit(r, f)
+            if f >= 3:
+                r.set_camera(replace(r.scene.camera, orthographic=True, ortho_height=2.5))
+                assert r._launch_next == (f == 3)
+            r.render_frame(graph=graph)
+            assert not r._launch_next
+            out.append(r.final.numpy().astype(np.float64))
+        assert r.graph_captures == (2 if graph and r.graph_capable else 0)
+        finals[graph] = out
+    for a, b in zip(finals[False], finals[True]):
+        assert np.abs(a).max() > 0
+        assert np.abs(a - b).mean() <= 1e-4 * np.abs(a).mean() + 1e-12
