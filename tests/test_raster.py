@@ -555,60 +555,6 @@ def test_reject_and_row_rasters_are_the_tile_raster(device, stride):
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 
-@pytest.mark.parametrize("stride", [64, 1 << 14])
-def test_back_reject_raster_is_the_back_tile_raster(device, stride):
-    """``raster_back_tiles_reject`` (tiles proven outside an edge skipped, the front depth read at covered centres
-    only) fills the back-face layer exactly as its naive twin ``raster_back_tiles``: the scene and views of
-    :func:`test_reject_and_row_rasters_are_the_tile_raster`, behind the G-buffer's front depth and behind a nearer
-    made-up one with a band of pixels without a front surface (0, skipped); strides 64 and 1 << 14."""
-    cam = Camera(look_at_matrix((0, 0, 0), (0, 0, -1)), fov_y=math.radians(60), near=0.05, far=50.0, width=80, height=60)
-    big = (np.array([[-50.0, -40.0, -6.0], [60.0, -30.0, -7.0], [0.0, 50.0, 2.0]]), np.array([[0, 1, 2]]), 0)
-    sliver = (np.array([[-1.0, 0.1, -2.0], [1.0, 0.13, -2.0], [1.0, 0.1, -2.0]]), np.array([[0, 1, 2]]), 1)
-    ds = DeviceScene(make_scene([big, sliver] + box_room(), cam), device)
-    raster = Rasterizer(ds)
-    raster.stride = stride
-    views = [camera_view(cam).params()] + [camera_view(Camera(look_at_matrix(v["eye"], v["target"]), fov_y=math.radians(70),
-                                                              ortho_height=1.2, near=0.02, far=10.0, width=72, height=40,
-                                                              orthographic=v["ortho"])).params() for v in VIEWS.values()]
-    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
-    drawn = np.zeros((len(views), 2), int)  # back-layer pixels per view and front depth
-    in_band = 0  # of them, behind the G-buffer's front where the made-up one has none
-    for k, vp in enumerate(views):
-        n = vp.width * vp.height
-        band = slice(n // 3, n // 2)
-        arr = wp.array([vp], dtype=ViewParams, device=device)
-        g = GBuffer.allocate(vp.width, vp.height, device)
-        g.back_faces = False
-        g.render(raster, vp, vp)
-        front = g.depth.numpy().reshape(-1)
-        made_up = 0.5 * front
-        made_up[band] = 0.0
-        for f, front_depth in enumerate((front, made_up)):
-            fd = wp.array(front_depth.astype(np.float32), dtype=wp.float32, device=device)
-            out = []
-            for reject in (False, True):  # raster_back_tiles, raster_back_tiles_reject
-                raster.reject = reject
-                buf = wp.full(n, RK.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device)
-                raster.draw_back(arr, 0, vp.width, vp.height, LAYER_OPAQUE, fd, buf)
-                out.append(buf.numpy().copy())
-            naive, fast = out
-            drawn[k, f] = (naive != empty).sum()
-            if f == 0:
-                in_band += (naive[band] != empty).sum()
-            else:
-                assert (fast[band] == empty).all() and (naive[band] == empty).all()  # no front surface: no back face
-            if not wp.get_device(device).is_cuda:
-                np.testing.assert_array_equal(fast, naive, err_msg=f"view {k}, front {f}")
-                continue
-            # CUDA may contract the edge and depth products into FMAs differently in the two kernels (section 24)
-            both = (fast != empty) & (naive != empty)
-            assert ((fast != empty) != (naive != empty)).mean() <= 0.01, f"view {k}, front {f}"
-            qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
-            np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}, front {f}")
-    assert (drawn > 10).all() and drawn.sum() > 1000, drawn  # back faces behind the front in every case
-    assert in_band > 20
-
-
 def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False):
     """Every buffer of a light's RSM views after ``frames`` (light poses) drawn with the fused resolve or its twins,
     and the depth bounds of each view's opaque depth (written by the fused resolve; built by ``photons.cisp``'s

@@ -11,8 +11,7 @@ out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run o
 adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
 ``raster_tiles``, its naive twin, a thread per item found by binary search. The default draws with
 ``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
-pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU. The
-camera's back-face layer likewise: ``raster_back_tiles_reject``, its naive twin ``raster_back_tiles``.
+pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
 
 An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, the flux, and the depth bounds of its
 opaque depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise
@@ -476,8 +475,7 @@ def raster_back_tiles(
     only the triangles that face away), but a fragment counts only at or behind the pixel's front surface
     (depth >= front depth), so the atomic min keeps the nearest back face behind it. Pixels with no front surface
     are skipped. One pass over the back-facing triangles of one layer; its own naive twin is
-    ``raycast.raycast_back_depth`` (every triangle against every pixel's ray). The naive twin of
-    :func:`raster_back_tiles_reject` (``Rasterizer.reject = False``)."""
+    ``raycast.raycast_back_depth`` (every triangle against every pixel's ray)."""
     view = views[view_index]
     item = wp.tid()
     total = tile_end[n_sub - 1]
@@ -503,68 +501,6 @@ def raster_back_tiles(
                         if depth >= zf and depth <= view.far:
                             wp.atomic_min(visibility, p, depth_key(view, depth, tri))
         item += stride
-
-
-@wp.func
-def _back_row_fragments(view: ViewParams, a: wp.vec3, b: wp.vec3, c: wp.vec3, e0: wp.vec4, e1: wp.vec4, e2: wp.vec4,
-                        inv_area: float, tri: wp.uint64, j: int, i_lo: int, i_hi: int,
-                        front_depth: wp.array(dtype=wp.float32), visibility: wp.array(dtype=wp.uint64)):
-    """The back-face fragments of a set-up triangle (vertices ``a``, ``b``, ``c``, edge terms ``e0``-``e2``) on pixel row
-    ``j`` from column ``i_lo`` to ``i_hi``: :func:`raster_back_tiles`' tests on each pixel centre, the edges first, so
-    that the front depth is read only where the triangle covers the centre (the same fragments: the tests have no
-    side effects, only their order changes)."""
-    y = float(j) + 0.5
-    for i in range(i_lo, i_hi + 1):
-        x = float(i) + 0.5
-        w0 = _edge_at(e0, x, y)
-        w1 = _edge_at(e1, x, y)
-        w2 = _edge_at(e2, x, y)
-        if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-            p = j * view.width + i
-            zf = front_depth[p]
-            if zf > 0.0:
-                depth = fragment_depth(view, a, b, c, w0, w1, w2, inv_area)
-                if depth >= zf and depth <= view.far:
-                    wp.atomic_min(visibility, p, depth_key(view, depth, tri))
-
-
-@wp.kernel
-def raster_back_tiles_reject(
-    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
-    view_index: int,
-    sub_v: wp.array(dtype=wp.vec3),  # (6T,) of a set-up with back_only = 1 (read)
-    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
-    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
-    n_sub: int,
-    stride: int,
-    front_depth: wp.array(dtype=wp.float32),  # (H*W,) the resolved front layer's depth [m], 0 = none (read)
-    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id of the back layer (atomic min)
-):
-    """:func:`raster_back_tiles` (its naive twin: the same items, threads, pixel order and fragments) as
-    :func:`raster_tiles_reject` is :func:`raster_tiles`: the tiles no pixel centre of which can pass one edge test
-    skipped (:func:`_box_outside`), the edge terms set up once per item, and the front depth read only at covered
-    pixel centres (:func:`_back_row_fragments`). Launched in blocks of ``RASTER_BLOCK``. The buffer is
-    raster_back_tiles' bit for bit on the CPU."""
-    view = views[view_index]
-    item = wp.tid()
-    total = tile_end[n_sub - 1]
-    while item < total:
-        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
-        item += stride
-        a = sub_v[3 * s + 0]
-        b = sub_v[3 * s + 1]
-        c = sub_v[3 * s + 2]
-        e0 = _edge_terms(b, c)
-        e1 = _edge_terms(c, a)
-        e2 = _edge_terms(a, b)
-        box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
-        if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
-                or _box_outside(e2, _edge_slack(e2, box), box)):
-            continue
-        inv_area = 1.0 / _edge(a, b, c[0], c[1])
-        tri = wp.uint64(s / 2)
-        for j in range(j_lo, j_hi + 1):
-            _back_row_fragments(view, a, b, c, e0, e1, e2, inv_area, tri, j, i_lo, i_hi, front_depth, visibility)
 
 
 @wp.func

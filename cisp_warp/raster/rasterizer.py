@@ -44,9 +44,8 @@ class Rasterizer:
         #: ms per frame), so it is opt-in
         self.columns = False
         #: True (default): draw with ``kernels.raster_tiles_reject`` (a thread per tile as ``raster_tiles``, the tiles
-        #: proven outside an edge skipped, blocks of ``kernels.RASTER_BLOCK``; perf_notes section 52) and the back-face
-        #: layer with ``kernels.raster_back_tiles_reject`` (section 57); False: their naive twins ``raster_tiles`` and
-        #: ``raster_back_tiles``. The same buffers bit for bit on the CPU
+        #: proven outside an edge skipped, blocks of ``kernels.RASTER_BLOCK``; perf_notes section 52); False: its naive
+        #: twin ``raster_tiles``. The same buffers bit for bit on the CPU
         self.reject = True
         #: with ``reject``: views of at most this many pixels (the pilots) are drawn with ``kernels.raster_tile_rows`` (a
         #: thread per tile row: their few items fill the GPU 8x better); 0: never
@@ -111,17 +110,13 @@ class Rasterizer:
         into ``visibility`` (clear, as :func:`visibility_buffer` makes it and ``kernels.resolve_back`` leaves it):
         per pixel the nearest fragment of a triangle that faces away from the view (``kernels.faces_away``) at or
         behind the front surface. The same set-up and scan as :meth:`draw`, culled to back faces, then
-        ``kernels.raster_back_tiles_reject`` in blocks of ``kernels.RASTER_BLOCK`` (with ``reject``; else its naive
-        twin ``kernels.raster_back_tiles``: the same buffer bit for bit on the CPU)."""
+        ``kernels.raster_back_tiles``."""
         d = self.scene.device
         s = self.scene
         self._setup(views, view_index, width, height, layer, back_only=True)
-        inputs = [views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count, self.stride,
-                  front_depth, visibility]
-        if self.reject:
-            wp.launch(K.raster_back_tiles_reject, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK, inputs=inputs)
-        else:
-            wp.launch(K.raster_back_tiles, dim=self.stride, device=d, inputs=inputs)
+        wp.launch(K.raster_back_tiles, dim=self.stride, device=d,
+                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                          self.stride, front_depth, visibility])
 
 
 def view_array(views, device) -> wp.array:
