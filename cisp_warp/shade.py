@@ -14,7 +14,7 @@ import warp as wp
 
 from .optics import fresnel_dielectric, reflect, refract
 from .photons.march import MARCH_HIT, screen_march_bounded_plain
-from .raster.views import ViewParams, pixel_ray_world, read_again, view_eye_world, world_project
+from .raster.views import ViewParams, fixed_projection, pixel_ray_world, read_again, view_eye_world, world_project
 from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
 from .scene.model import LightKind
@@ -245,13 +245,12 @@ def _make_composite(camera_ortho: int = -1):
     CAMERA_ORTHO = int(camera_ortho)
     kernel_module = None if CAMERA_ORTHO < 0 else "unique"
 
+    camera_projected = fixed_projection(CAMERA_ORTHO)
+
     @wp.func
     def camera_view(cameras: wp.array(dtype=ViewParams), anchor: int) -> ViewParams:
         """``read_again(cameras, 0, anchor)``, its projection the compiled one where the composite has one."""
-        v = read_again(cameras, 0, anchor)
-        if wp.static(CAMERA_ORTHO >= 0):
-            v.orthographic = CAMERA_ORTHO
-        return v
+        return camera_projected(read_again(cameras, 0, anchor))
 
     @wp.func
     def screen_space_hit(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),

@@ -45,7 +45,7 @@ import math
 
 import warp as wp
 
-from .raster.views import ViewParams, world_project
+from .raster.views import ViewParams, fixed_projection, world_project
 from .photons.hidden_flux import hidden_irradiance
 from .scene.model import LAYER_OPAQUE
 from .shade import MISSED_REFLECTED, MISSED_REFRACTED, direct_at, shadow_map_args, water_rays
@@ -210,16 +210,14 @@ _HIDDEN_RAY = {naive: _hidden_ray_func(naive) for naive in (False, True)}
 
 
 def _camera_view_func(camera_ortho: int):
-    """``cameras[0]`` as the trace reads it: with ``camera_ortho`` 0 or 1 its ``orthographic`` field replaced by that
-    constant, which the compiler folds through ``water_rays`` and :func:`seen_by_camera` (the kernel compiled for
-    the camera's projection, :func:`projected_hidden`; docs/perf_notes.md section 56); -1 reads it at run time."""
+    """``cameras[0]`` as the trace reads it, its projection the constant ``camera_ortho`` (0 or 1; -1: read at run
+    time; ``views.fixed_projection``), folded through ``water_rays`` and :func:`seen_by_camera` (the kernel compiled
+    for the camera's projection, :func:`projected_hidden`; docs/perf_notes.md section 56)."""
+    camera_projected = fixed_projection(camera_ortho)
 
     @wp.func
     def camera_view(cameras: wp.array(dtype=ViewParams)) -> ViewParams:
-        v = cameras[0]
-        if wp.static(camera_ortho >= 0):
-            v.orthographic = camera_ortho
-        return v
+        return camera_projected(cameras[0])
 
     return camera_view
 

@@ -38,7 +38,7 @@ from ..frame import FrameInputs
 from ..optics import reflect, refract
 from ..raster import GBuffer, LightMaps, Rasterizer
 from ..raster.light_maps import INACTIVE_FAR, CascadeState
-from ..raster.views import MERGE_AREA, ViewParams, fit_angle, fit_windows, pixel_ray_world
+from ..raster.views import MERGE_AREA, ViewParams, fit_angle, fit_windows, fixed_projection, pixel_ray_world
 from ..scene import DeviceScene
 from ..scene.device import SurfaceGeometry
 from .common import surface_at_sample, tally_new
@@ -163,21 +163,8 @@ def _make_pilot_branches(light_ortho: int = -1, camera_ortho: int = -1):
     LIGHT_ORTHO = int(light_ortho)
     CAMERA_ORTHO = int(camera_ortho)
 
-    @wp.func
-    def light_projected(light: ViewParams) -> ViewParams:
-        """``light``, its projection the compiled one where the kernel has one (``light_ortho``)."""
-        v = light
-        if wp.static(LIGHT_ORTHO >= 0):
-            v.orthographic = LIGHT_ORTHO
-        return v
-
-    @wp.func
-    def camera_projected(camera: ViewParams) -> ViewParams:
-        """``camera``, its projection the compiled one where the kernel has one (``camera_ortho``)."""
-        v = camera
-        if wp.static(CAMERA_ORTHO >= 0):
-            v.orthographic = CAMERA_ORTHO
-        return v
+    light_projected = fixed_projection(LIGHT_ORTHO)
+    camera_projected = fixed_projection(CAMERA_ORTHO)
 
     def pilot_branches(
         light: ViewParams,  # a pilot (whole) view of the light

@@ -11,7 +11,7 @@ import warp as wp
 
 from ..scene.device import SurfaceGeometry
 from ..raster.light_maps import CascadeState, cascade_photons
-from ..raster.views import ViewParams, read_again, world_project
+from ..raster.views import ViewParams, fixed_projection, read_again, world_project
 from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED,
                      L_REFRACTED, L_REJECTED, L_SAMPLED, L_STEPS, L_STORED, PHOTON_LAUNCH_BOUNDS, Tally, book, deposit,
                      emit_sample, entry_mask, ledger_slot, record_outcome, photon_index, specular_scatter, tally_new)
@@ -354,22 +354,19 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
     if LIGHT_ORTHO >= 0 or CAMERA_ORTHO >= 0:
         kernel_module = "unique"
 
+    light_projected = fixed_projection(LIGHT_ORTHO)
+    camera_projected = fixed_projection(CAMERA_ORTHO)
+
     @wp.func
     def light_view(light_views: wp.array(dtype=ViewParams), view_index: int) -> ViewParams:
         """``light_views[view_index]``, its projection the compiled one where the trace has one (``light_ortho``)."""
-        v = light_views[view_index]
-        if wp.static(LIGHT_ORTHO >= 0):
-            v.orthographic = LIGHT_ORTHO
-        return v
+        return light_projected(light_views[view_index])
 
     @wp.func
     def camera_view(cameras: wp.array(dtype=ViewParams), anchor: int) -> ViewParams:
         """``read_again(cameras, 0, anchor)``, its projection the compiled one where the trace has one
         (``camera_ortho``)."""
-        v = read_again(cameras, 0, anchor)
-        if wp.static(CAMERA_ORTHO >= 0):
-            v.orthographic = CAMERA_ORTHO
-        return v
+        return camera_projected(read_again(cameras, 0, anchor))
 
     @wp.func
     def trace_photon(

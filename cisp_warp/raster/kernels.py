@@ -345,6 +345,16 @@ RASTER_BLOCK = 128
 
 
 @wp.func
+def _item_edges(sub_v: wp.array(dtype=wp.vec3), s: int):
+    """Set-up triangle ``s``'s vertices (pixel x, y, depth terms) and its three edges' terms (:func:`_edge_terms`: the
+    edge opposite a, b and c)."""
+    a = sub_v[3 * s + 0]
+    b = sub_v[3 * s + 1]
+    c = sub_v[3 * s + 2]
+    return a, b, c, _edge_terms(b, c), _edge_terms(c, a), _edge_terms(a, b)
+
+
+@wp.func
 def _item_setup(a: wp.vec3, b: wp.vec3, c: wp.vec3, s: int, layers: wp.array(dtype=wp.int32), mask: int, mask_b: int):
     """Set-up triangle ``s``'s (vertices ``a``, ``b``, ``c``) terms for :func:`_row_fragments`: 1 / its doubled area,
     its triangle id and whether it is drawn into each of the two layers (``mask``, ``mask_b``)."""
@@ -395,12 +405,7 @@ def raster_tiles_reject(
     while item < total:
         s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
         item += stride
-        a = sub_v[3 * s + 0]
-        b = sub_v[3 * s + 1]
-        c = sub_v[3 * s + 2]
-        e0 = _edge_terms(b, c)
-        e1 = _edge_terms(c, a)
-        e2 = _edge_terms(a, b)
+        a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
         box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
         if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
                 or _box_outside(e2, _edge_slack(e2, box), box)):
@@ -442,12 +447,7 @@ def raster_tile_rows(
         j = (j_hi / TILE) * TILE + r
         if j < j_lo or j > j_hi:
             continue
-        a = sub_v[3 * s + 0]
-        b = sub_v[3 * s + 1]
-        c = sub_v[3 * s + 2]
-        e0 = _edge_terms(b, c)
-        e1 = _edge_terms(c, a)
-        e2 = _edge_terms(a, b)
+        a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
         box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
         x0 = float(i_lo) + 0.5
         x1 = float(i_hi) + 0.5

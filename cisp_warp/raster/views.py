@@ -102,6 +102,28 @@ def read_again(views: wp.array(dtype=ViewParams), index: int, anchor: int) -> Vi
     return views[index + wp.min(anchor, 0)]
 
 
+def _fixed_projection_func(ortho: int):
+    @wp.func
+    def projected(view: ViewParams) -> ViewParams:
+        v = view
+        if wp.static(ortho >= 0):
+            v.orthographic = ortho
+        return v
+
+    return projected
+
+
+_FIXED_PROJECTION = {o: _fixed_projection_func(o) for o in (-1, 0, 1)}
+
+
+def fixed_projection(orthographic: int):
+    """A func ``(view) -> view``: with ``orthographic`` 0 or 1 the view with its ``orthographic`` field replaced by
+    that constant, which the compiler folds through everything the kernel then does with the view (a kernel compiled
+    for one projection: docs/perf_notes.md sections 51, 56, 57); with -1 the view as it is (its projection read at run
+    time, the twin). The same values wherever the constant equals the view's field: the same bits."""
+    return _FIXED_PROJECTION[int(orthographic)]
+
+
 @dataclass(frozen=True)
 class View:
     """Host-side description of a view; ``params`` builds the kernel struct."""
