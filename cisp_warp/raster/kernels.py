@@ -13,10 +13,14 @@ adjacent tiles at a time, a thread per pixel column, and skips columns proven ou
 ``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
 pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
 
-An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, the flux, and the depth bounds of its
-opaque depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise
-with the camera's bounds (``resolve_back_view``); ``resolve_depth`` + ``resolve_rsm_specular``, ``resolve_back`` and
-``photons.march.depth_bounds`` + ``coarsen_bounds`` are their naive twins.
+An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, and the depth bounds of its opaque
+depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise with the
+camera's bounds (``resolve_back_view``); ``resolve_depth`` + ``resolve_rsm_specular``, ``resolve_back`` and
+``photons.march.depth_bounds`` + ``coarsen_bounds`` are their naive twins. By default an RSM view keeps per specular
+texel only its triangle and depth: its point and normal (``texel_surface``), its flux (``texel_emitted_flux``) and its
+roughness and IOR (``texel_roughness``, ``texel_ior``) are computed where they are read, from the view, the light
+(``TexelEmission``) and the triangle, the bits the resolves write where the maps are kept (docs/perf_notes.md
+sections 43 and 58).
 """
 
 from __future__ import annotations
@@ -1345,7 +1349,7 @@ def resolve_rsm_view(
     bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) depth bounds of opaque_depth (write; empty: not wanted)
 ):
     """One pass over an RSM view's two visibility buffers: the opaque layer's depth (:func:`resolve_depth`), the
-    specular layer with its shadow depth and flux (:func:`resolve_rsm_specular`), and the depth bounds of the opaque
+    specular layer with its shadow depth (and its flux, roughness and IOR where kept) (:func:`resolve_rsm_specular`), and the depth bounds of the opaque
     depth (``photons.march.depth_bounds`` then ``coarsen_bounds``), instead of two resolves and two bounds passes
     that read back what the first wrote. ``wp.launch_tiled`` over the view's coarse cells (BOUNDS_COARSE² texels, a
     warp per texel row of it: the same coalesced rows as one thread per texel); the block keeps its texels' opaque
