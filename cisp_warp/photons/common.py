@@ -477,11 +477,12 @@ def _march_group(
     tri = rsm_tri[texel]
     if tri < 0 or (sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]):
         return SORT_NOT_TRACED
-    # every texel value the prediction may need, read together: one dependent round trip to memory instead of
-    # three (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels. The
-    # normal is the one the texel's resolve finds (the RSM keeps no normal array: kernels.texel_surface from the
-    # texel's triangle, its vertex indices read beside the texel's values, its points and normals beside the
-    # material's opacity; the point it also gives is not used, so not computed)
+    # every value the prediction may need, read together: one dependent round trip to memory instead of three
+    # (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels. The RSM keeps
+    # no normal, flux, roughness or IOR per texel (perf_notes sections 43 and 58): the normal is the one the texel's
+    # resolve finds (kernels.texel_surface from the texel's triangle, its vertex indices read beside the texel's
+    # solid angle, its points and normals beside the material's roughness, IOR and opacity; the point it also gives
+    # is not used, so not computed), the flux the one it would write (from the light and the solid angle)
     rough = texel_roughness(rsm_emission, tri)
     flux = texel_emitted_flux(rsm_emission, light, texel)
     x_t, n = texel_surface(light, texel, tri, 0.0, geometry.points, geometry.normals, geometry.indices)

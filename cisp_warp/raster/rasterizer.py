@@ -161,8 +161,8 @@ class SpecularLayer(_Buffers):
     depth: wp.array  #: (H*W,) float32 linear depth [m]; 0 = none
     position: wp.array  #: (H*W,) vec3 world position [m]
     normal: wp.array  #: (H*W,) vec3 authored (outward) unit normal
-    roughness: wp.array  #: (H*W,) float32
-    ior: wp.array  #: (H*W,) float32 index of refraction behind the surface
+    roughness: wp.array  #: (H*W,) float32 (empty unless kept: RSM views, see :meth:`allocate`)
+    ior: wp.array  #: (H*W,) float32 index of refraction behind the surface (empty with ``roughness``)
     tri_id: wp.array  #: (H*W,) int32 triangle id; -1 = none
 
     @staticmethod
@@ -329,7 +329,8 @@ class RSMView(_Buffers):
     opaque_tri: wp.array  #: (H*W,) int32
     shadow_depth: wp.array  #: (H*W,) float32 depth of the nearest surface of any kind [m]; 0 = none
     specular: SpecularLayer
-    flux: wp.array  #: (H*W,) vec3 [W]: power the light sends through the texel onto its specular surface
+    flux: wp.array  #: (H*W,) vec3 [W]: power the light sends through the texel onto its specular surface (empty
+    #: unless kept, :meth:`keep_texel_maps`; ``LightMaps.emission`` gives it where it is read)
     solid_angle: wp.array  #: (H*W,) float32 [sr] per texel (perspective views; zeros for orthographic)
 
     @staticmethod
