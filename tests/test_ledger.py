@@ -77,12 +77,26 @@ def test_outcome_pass_sums_every_record(device, rng, monkeypatch):
 
 def test_max_luminance_is_the_maximum(device, rng, monkeypatch):
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    """The max over the texels with a specular surface of their flux's luminance (a perspective view's flux: the
+    light's intensity × the texel's solid angle, random), the texels without one left out even where their solid
+    angle is the largest."""
+    from cisp_warp.raster import ViewParams
+    from cisp_warp.raster.kernels import TexelEmission
+
     n = 3 * 64 * C.MAX_LUM_TEXELS + 17  # a partial last block
-    flux = rng.random((n, 3), dtype=np.float32)
-    lum = flux @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    rgb = np.array([2.0, 1.0, 0.5], np.float32)
+    sa = rng.random(n, dtype=np.float32)
+    tri = np.where(rng.random(n) < 0.3, -1, 0).astype(np.int32)
+    tri[np.argmax(sa)] = -1  # the largest solid angle has no specular surface
+    lum = (sa[:, None] * rgb[None, :]) @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    e = TexelEmission()
+    e.light_rgb = wp.vec3(*rgb)
+    e.texel_solid_angle = wp.array(sa, dtype=wp.float32, device=device)
+    views = wp.array([ViewParams()], dtype=ViewParams, device=device)  # perspective (orthographic 0)
     for block in (1, 64):
         out = wp.zeros(1, dtype=wp.float32, device=device)
         blocks = -(-n // (block * C.MAX_LUM_TEXELS))
         wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=device,
-                        inputs=[wp.array(flux, dtype=wp.vec3, device=device), n, out])
-        np.testing.assert_allclose(out.numpy()[0], lum.max(), rtol=1e-6)
+                        inputs=[views, 0, wp.array(tri, dtype=wp.int32, device=device), e, n, out])
+        np.testing.assert_allclose(out.numpy()[0], lum[tri >= 0].max(), rtol=1e-6)
+        assert out.numpy()[0] < lum.max()

@@ -155,6 +155,7 @@ def test_point_light_cube_flux_is_4pi_intensity(device):
     scene = _sphere_scene(1, light)
     ds = DeviceScene(scene, device)
     lm = LightMaps(ds, light, 32)
+    lm.keep_texel_maps()  # the flux map kept (by default a reader computes it)
     lm.render(Rasterizer(ds))
     total = sum(r.flux.numpy().astype(np.float64).sum(axis=0) for r in lm.rsm)
     expected = 4 * math.pi * 2.5 * np.array([1.0, 0.5, 0.25])
@@ -172,6 +173,7 @@ def test_distant_light_flux_is_irradiance_times_projected_area(device):
     scene = make_scene([sheet, floor], cam, [light])
     ds = DeviceScene(scene, device)
     lm = LightMaps(ds, light, 256)
+    lm.keep_texel_maps()  # the flux map kept (by default a reader computes it)
     lm.render(Rasterizer(ds))
     total = lm.rsm[0].flux.numpy().astype(np.float64).sum(axis=0)
     expected = 800.0 * 1.5 * math.cos(theta)
@@ -190,6 +192,7 @@ def test_spot_flux_matches_cone_integral(device):
     scene = make_scene([plane], cam, [light])
     ds = DeviceScene(scene, device)
     lm = LightMaps(ds, light, 256)
+    lm.keep_texel_maps()  # the flux map kept (by default a reader computes it)
     lm.render(Rasterizer(ds))
     total = lm.rsm[0].flux.numpy().astype(np.float64).sum(axis=0)[0]
     a = np.linspace(0, cone, 20001)
@@ -311,6 +314,7 @@ def test_rsm_resolve_flux_is_the_flux_pass(device):
     for light in lights:
         ds = DeviceScene(make_scene(box_room()[1:], cam, [light]), device)  # no room: the sun reaches the water
         lm = LightMaps(ds, light, 40)
+        lm.keep_texel_maps()  # the flux map kept (by default a reader computes it)
         lm.render(Rasterizer(ds))
         for k, r in enumerate(lm.rsm):
             twin = wp.zeros_like(r.flux)
@@ -555,7 +559,7 @@ def test_reject_and_row_rasters_are_the_tile_raster(device, stride):
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 
-def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False):
+def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False, texel_maps=False):
     """Every buffer of a light's RSM views after ``frames`` (light poses) drawn with the fused resolve or its twins,
     and the depth bounds of each view's opaque depth (written by the fused resolve; built by ``photons.cisp``'s
     ``build_bounds``, the twin kernels ``depth_bounds`` + ``coarsen_bounds``, otherwise)."""
@@ -567,6 +571,8 @@ def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=F
     lm.fused_resolve = fused
     if surface:  # the specular layers keep their position and normal (LightMaps.keep_surface_maps)
         lm.keep_surface_maps()
+    if texel_maps:  # the views keep their flux and their layers' roughness and IOR (LightMaps.keep_texel_maps)
+        lm.keep_texel_maps()
     bounds = [wp.full(bounds_size(r.width, r.height), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=ds.device)
               for r in lm.rsm]
     lm.keep_depth_bounds(bounds, *thickness)
@@ -600,11 +606,13 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
              (box_room()[1:], [Light(LightKind.DISTANT, "sun", intensity=500.0, direction=(0.3, -1.0, 0.1))])]
     for parts, frames in cases:
         ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
-        for surface in (False, True):  # without the specular layer's position and normal (the default), and with
-            fused = _rsm_frame(ds, frames[0], size, True, frames, surface=surface)
-            twins = _rsm_frame(ds, frames[0], size, False, frames, surface=surface)
+        # without the specular layer's position and normal, the flux, roughness and IOR (the default), and with
+        for surface, texel_maps in ((False, False), (True, False), (False, True)):
+            fused = _rsm_frame(ds, frames[0], size, True, frames, surface=surface, texel_maps=texel_maps)
+            twins = _rsm_frame(ds, frames[0], size, False, frames, surface=surface, texel_maps=texel_maps)
             assert fused.keys() == twins.keys()
             assert ("0_specular_position" in fused) == surface and ("0_specular_normal" in fused) == surface
+            assert all((f"0_{a}" in fused) == texel_maps for a in ("flux", "specular_roughness", "specular_ior"))
             for k in fused:
                 np.testing.assert_array_equal(fused[k], twins[k], err_msg=f"{frames[0].name} {k}")
             b = fused["0_bounds"]
@@ -668,6 +676,68 @@ def test_texel_surface_is_what_the_resolve_writes(device, rng):
                 covered += int(on.sum())
                 np.testing.assert_array_equal(_bits(x_t.numpy()[on]), _bits(sp.position.numpy()[on]))
                 np.testing.assert_array_equal(_bits(n_t.numpy()[on]), _bits(sp.normal.numpy()[on]))
+    assert covered > 5000
+
+
+@wp.kernel
+def _texel_emission_of_layer(views: wp.array(dtype=ViewParams), k: int, tri_id: wp.array(dtype=wp.int32),
+                             emission: RK.TexelEmission, flux_out: wp.array(dtype=wp.vec3),
+                             roughness_out: wp.array(dtype=wp.float32), ior_out: wp.array(dtype=wp.float32)):
+    p = wp.tid()
+    tri = tri_id[p]
+    if tri >= 0:
+        flux_out[p] = RK.texel_emitted_flux(emission, views[k], p)
+        roughness_out[p] = RK.texel_roughness(emission, tri)
+        ior_out[p] = RK.texel_ior(emission, tri)
+
+
+def test_texel_emission_is_what_the_resolve_writes(device, rng):
+    """``TexelEmission`` (a specular texel's flux, roughness and IOR as a reader computes them from the light, its
+    triangle and the materials, for RSM views that keep no such maps) gives, on every covered texel, the bits
+    ``resolve_rsm_view`` writes into ``flux``, ``roughness`` and ``ior`` where they are kept, and a texel without a
+    specular surface has zero flux there (what ``max_luminance`` and ``book_outside_window`` assume): random spot,
+    point and distant lights over the room with two materials on the water side (its sphere and box are specular
+    too), two poses each, odd sizes; fitted views (cascades and their pilots) beside whole ones."""
+    from cisp_warp.raster import LightViewSettings
+
+    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
+    covered = 0
+    for trial in range(6):
+        kind = (LightKind.SPOT, LightKind.POINT, LightKind.DISTANT)[trial % 3]
+        frames = []
+        for _ in range(2):
+            pos = tuple(float(v) for v in rng.uniform((-0.6, 0.5, -0.6), (0.6, 0.9, 0.6)))
+            aim = rng.uniform((-0.4, -1.0, -0.4), (0.4, -0.6, 0.4))
+            frames.append(Light(kind, f"l{trial}", intensity=float(rng.uniform(0.5, 3.0)), color=(1.0, 0.7, 0.4),
+                                position=pos, direction=tuple(float(v) for v in aim),
+                                cone_angle=math.radians(float(rng.uniform(25, 60))), cone_softness=0.2))
+        parts = box_room()[1:] if kind == LightKind.DISTANT else box_room()  # no room: the sun reaches the water
+        ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
+        size = int(rng.integers(40, 72))
+        raster = Rasterizer(ds)
+        settings = LightViewSettings(fit="camera", pilot_size=24) if trial >= 3 else None
+        lm = LightMaps(ds, frames[0], size, settings)
+        assert not any(r.has_texel_maps or r.specular.has_material for r in lm.rsm + lm.pilot)  # the default
+        assert lm.rsm[0].flux.shape == (0,) and lm.rsm[0].specular.ior.shape == (0,)
+        lm.keep_texel_maps()
+        for light in frames:
+            if lm.light is not light:
+                lm.set_light(light)
+            if lm.fitted:
+                lm.render_pilot(raster)
+            lm.render(raster)
+            for views, maps in ((lm.views, lm.rsm), (lm.pilot_views, lm.pilot)):
+                for k, r in enumerate(maps):
+                    sp = r.specular
+                    f_t, r_t, i_t = wp.zeros_like(r.flux), wp.zeros_like(sp.roughness), wp.zeros_like(sp.ior)
+                    wp.launch(_texel_emission_of_layer, dim=r.width * r.height, device=device,
+                              inputs=[views, k, sp.tri_id, lm.emission(r), f_t, r_t, i_t])
+                    on = sp.tri_id.numpy() >= 0
+                    covered += int(on.sum())
+                    np.testing.assert_array_equal(_bits(f_t.numpy()[on]), _bits(r.flux.numpy()[on]))
+                    np.testing.assert_array_equal(_bits(r_t.numpy()[on]), _bits(sp.roughness.numpy()[on]))
+                    np.testing.assert_array_equal(_bits(i_t.numpy()[on]), _bits(sp.ior.numpy()[on]))
+                    assert not r.flux.numpy()[~on].any()
     assert covered > 5000
 
 

@@ -210,8 +210,9 @@ def run_scene(name: str, args, device) -> None:
                               photons=PhotonSettings(photons=args.n_photons, sort_photons=True))
     r = Renderer(scene, settings, device=device)
     r.use_graph = False
-    for lm in r.lights:  # main's copies below read the RSM's position and normal, which the views no longer keep
-        lm.keep_surface_maps()
+    for lm in r.lights:  # main's copies below read the RSM's position, normal, flux, roughness and IOR, which the
+        lm.keep_surface_maps()  # views no longer keep (perf_notes sections 43 and 58)
+        lm.keep_texel_maps()
     for _ in range(3):
         r.render_frame()
     P = r.photons
@@ -249,8 +250,8 @@ def run_scene(name: str, args, device) -> None:
         gi = list(g[3])
         chained = [gi[at["views"]], gi[at["states"]], vi, gi[at["light_photons"]], int(lm.light.kind),
                    wp.vec3(*np.asarray(lm.light.position, np.float32)), gi[at["randoms"]], stream,
-                   rv.specular.position, rv.specular.normal, gi[at["rsm_flux"]], gi[at["rsm_roughness"]],
-                   gi[at["rsm_ior"]], gi[at["rsm_tri"]], gi[at["triangle_material"]], gi[at["mat_opacity"]],
+                   rv.specular.position, rv.specular.normal, rv.flux, rv.specular.roughness,
+                   rv.specular.ior, gi[at["rsm_tri"]], gi[at["triangle_material"]], gi[at["mat_opacity"]],
                    gi[at["max_lum"]], gi[at["roughness_cutoff"]], gi[at["luminance_cutoff"]], gi[at["order"]],
                    gi[at["order_stride"]], gi[at["orders"]], slots, gi[at["keys"]], gi[at["block_counts"]]]
         chained_nopos = list(chained)

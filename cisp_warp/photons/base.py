@@ -408,15 +408,15 @@ class PhotonPass:
     def begin_light(self, li: int, lm: LightMaps) -> None:
         """Light ``li``'s part of :meth:`begin`: its brightest whole-view texel, and the power outside its fitted
         views booked."""
-        for r in lm.whole_rsm:
+        for k, r in enumerate(lm.whole_rsm):
             n = r.width * r.height
             block = 256 if self.device.is_cuda else 1
             blocks = max(1, (n + block * C.MAX_LUM_TEXELS - 1) // (block * C.MAX_LUM_TEXELS))
             wp.launch_tiled(C.max_luminance, dim=blocks, block_dim=block, device=self.device,
-                            inputs=[r.flux, n, self._max_lum_of[li]])
+                            inputs=[lm.whole_views, k, r.specular.tri_id, lm.emission(r), n, self._max_lum_of[li]])
         for b, r in enumerate(lm.pilot):
             self.launch_photons(C.book_outside_window, r.width * r.height,
-                                [r.flux, r.width, r.width * r.height, lm.outside, lm.outside_angle, b,
+                                [lm.pilot_views, r.specular.tri_id, lm.emission(r), r.width, r.width * r.height, lm.outside, lm.outside_angle, b,
                                  wp.vec2(r.view.cx, r.view.cy), float(r.view.fx / r.view.fy), self.ledger_rows])
 
     def launch_photons(self, kernel, n: int, inputs: list) -> None:
@@ -514,7 +514,7 @@ class PhotonPass:
             grid = blocks if self.group_max_blocks is None else min(blocks, self.group_max_blocks)
             wp.launch_tiled(C.photon_group_keys, dim=grid, block_dim=self.group_block, device=self.device, inputs=[
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
-                r.flux, sp.roughness, sp.ior, sp.tri_id, sc.geometry, sc.triangle_material, sc.opacity, max_lum,
+                lm.emission(r), sp.tri_id, sc.geometry, sc.triangle_material, sc.opacity, max_lum,
                 float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
                 order, stride, orders, slots, self._sort_keys, counts, grid])
             wp.utils.array_scan(counts, offsets, inclusive=False)

@@ -122,7 +122,7 @@ class CausticsMap(PhotonPass):
             cm.texel_power.zero_()
             self.launch_photons(K.trace_to_caustic_map, n, inputs=[
                 params, int(light.kind), light_pos,
-                r.opaque_depth, r.opaque_tri, sp.depth, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                r.opaque_depth, r.opaque_tri, sp.depth, b.lights.emission(r), sp.tri_id,
                 sc.geometry, b.skip_window, cm.receiver_normal, sc.triangle_material, sc.opacity, sc.albedo,
                 self._max_lum_of[b.light_index],
                 n, b.seed, b.scramble, b.order, self.use_order,

@@ -145,7 +145,7 @@ class CISP(PhotonPass):
             rsm_bounds = self.build_rsm_bounds(b.lights, b.light_index, b.view_index)
             self.launch_photons(self.trace_kernel(r.view.orthographic), b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
-                r.opaque_depth, rsm_bounds, sp.depth, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                r.opaque_depth, rsm_bounds, sp.depth, b.lights.emission(r), sp.tri_id,
                 sc.geometry, sc.triangle_material, sc.opacity, sc.albedo, self._max_lum_of[b.light_index],
                 self.inputs.cameras, gbuffer.depth_layers, self.cam_bounds, gbuffer.position, gbuffer.normal, self.solid_angle,
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,

@@ -18,7 +18,7 @@ import warp as wp
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.light_maps import CascadeState, cascade_photons
-from ..raster.kernels import texel_surface
+from ..raster.kernels import TexelEmission, texel_emitted_flux, texel_ior, texel_roughness, texel_surface
 from ..raster.views import ViewParams, pixel_ray_world
 from ..scene.device import SurfaceGeometry
 
@@ -311,20 +311,26 @@ MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
 
 @wp.kernel
 def max_luminance(
-    flux: wp.array(dtype=wp.vec3),  # (Hl*Wl,) RSM flux per texel [W] (read)
+    views: wp.array(dtype=ViewParams),  # the light's whole views (LightMaps.whole_views, read)
+    view_index: int,
+    rsm_tri: wp.array(dtype=wp.int32),  # (Hl*Wl,) the view's specular layer's triangle per texel, -1 none (read)
+    rsm_emission: TexelEmission,  # its specular texels' flux from the light (read)
     count: int,  # texels
     out: wp.array(dtype=wp.float32),  # (1,) max luminance [W] (atomic max; zeroed by the caller)
 ):
-    """out[0] = max over texels of luminance(flux): each thread reads MAX_LUM_TEXELS texels (coalesced across the
-    block), the block takes the max as a tile and adds it with one atomic_max, not one per texel."""
+    """out[0] = max over texels of luminance(flux) (a texel without a specular surface sends none): each thread
+    reads MAX_LUM_TEXELS texels (coalesced across the block), the block takes the max as a tile and adds it with one
+    atomic_max, not one per texel."""
     block, lane = wp.tid()
     bd = wp.block_dim()
+    view = views[view_index]
     first = block * bd * MAX_LUM_TEXELS + lane
     m = float(0.0)
     for i in range(MAX_LUM_TEXELS):
         p = first + i * bd
         if p < count:
-            m = wp.max(m, luminance(flux[p]))
+            if rsm_tri[p] >= 0:
+                m = wp.max(m, luminance(texel_emitted_flux(rsm_emission, view, p)))
     block_max = wp.tile_max(wp.tile(m))
     if lane == 0:
         wp.atomic_max(out, 0, block_max[0])
@@ -444,9 +450,7 @@ def _march_group(
     n_photons: int,
     randoms: wp.array(dtype=wp.vec3i),
     stream: int,
-    rsm_flux: wp.array(dtype=wp.vec3),
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,
     triangle_material: wp.array(dtype=wp.int32),
@@ -473,15 +477,16 @@ def _march_group(
     tri = rsm_tri[texel]
     if tri < 0 or (sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]):
         return SORT_NOT_TRACED
-    # every texel value the prediction may need, read together: one dependent round trip to memory instead of
-    # three (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels. The
-    # normal is the one the texel's resolve finds (the RSM keeps no normal array: kernels.texel_surface from the
-    # texel's triangle, its vertex indices read beside the texel's values, its points and normals beside the
-    # material's opacity; the point it also gives is not used, so not computed)
-    rough = rsm_roughness[texel]
-    flux = rsm_flux[texel]
+    # every value the prediction may need, read together: one dependent round trip to memory instead of three
+    # (roughness, then flux, then normal and IOR), at the price of the normal and IOR of culled texels. The RSM keeps
+    # no normal, flux, roughness or IOR per texel (perf_notes sections 43 and 58): the normal is the one the texel's
+    # resolve finds (kernels.texel_surface from the texel's triangle, its vertex indices read beside the texel's
+    # solid angle, its points and normals beside the material's roughness, IOR and opacity; the point it also gives
+    # is not used, so not computed), the flux the one it would write (from the light and the solid angle)
+    rough = texel_roughness(rsm_emission, tri)
+    flux = texel_emitted_flux(rsm_emission, light, texel)
     x_t, n = texel_surface(light, texel, tri, 0.0, geometry.points, geometry.normals, geometry.indices)
-    eta = rsm_ior[texel]
+    eta = texel_ior(rsm_emission, tri)
     opacity = mat_opacity[triangle_material[tri]]
     if rough > roughness_cutoff or luminance(flux) < luminance_cutoff * cascade.texel_scale * max_lum[0]:
         return SORT_NOT_TRACED  # culled as emit_photon culls (the same two tests)
@@ -508,9 +513,7 @@ def photon_group_keys(
     light_photons: int,  # the light's photons, split over its active views (cascade_photons)
     randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
     stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
-    rsm_flux: wp.array(dtype=wp.vec3),  # (Hl*Wl,) the RSM's specular layer (read)
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,  # the scene's triangles: the texel's normal (kernels.texel_surface, read)
     triangle_material: wp.array(dtype=wp.int32),
@@ -560,8 +563,8 @@ def photon_group_keys(
             if t < n_slots:
                 group = SORT_GROUP_LAST
                 if t < n_photons:
-                    group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_flux,
-                                         rsm_roughness, rsm_ior, rsm_tri, geometry, triangle_material, mat_opacity,
+                    group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_emission,
+                                         rsm_tri, geometry, triangle_material, mat_opacity,
                                          max_lum, roughness_cutoff, luminance_cutoff, order, base + t)
                 keys[t] = group
             packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
@@ -738,8 +741,7 @@ def emit_sample(
     n_photons: int,
     scramble: wp.vec2i,
     rsm_depth: wp.array(dtype=wp.float32),
-    rsm_flux: wp.array(dtype=wp.vec3),
-    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,
     skip_window: wp.vec4,
@@ -771,10 +773,11 @@ def emit_sample(
         return int(-1), zero, zero, zero, zero, int(-1)
     if sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]:
         return int(-1), zero, zero, zero, zero, int(-1)
-    power = rsm_flux[texel] * (float(light.width * light.height) / float(n_photons))
-    if rsm_roughness[texel] > roughness_cutoff:
+    flux = texel_emitted_flux(rsm_emission, light, texel)
+    power = flux * (float(light.width * light.height) / float(n_photons))
+    if texel_roughness(rsm_emission, tri) > roughness_cutoff:
         return int(-1), power, zero, zero, zero, L_CULLED_ROUGH
-    if luminance(rsm_flux[texel]) < luminance_cutoff * max_lum:
+    if luminance(flux) < luminance_cutoff * max_lum:
         return int(-1), power, zero, zero, zero, L_CULLED_LUM
     # origin and normal: the light ray through the sample point, cut with the texel's triangle
     lo, ld = pixel_ray_world(light, sx, sy)
@@ -794,8 +797,7 @@ def emit_photon(
     n_photons: int,
     scramble: wp.vec2i,
     rsm_depth: wp.array(dtype=wp.float32),
-    rsm_flux: wp.array(dtype=wp.vec3),
-    rsm_roughness: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,
     skip_window: wp.vec4,
@@ -807,7 +809,7 @@ def emit_photon(
     """Photon k of an RSM view (:func:`emit_sample`). Returns (texel or -1 when none is emitted, power [W], origin,
     incident direction, surface normal); books the power as sampled, and culled when the texel is culled."""
     texel, power, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
-                                                       rsm_depth, rsm_flux, rsm_roughness, rsm_tri,
+                                                       rsm_depth, rsm_emission, rsm_tri,
                                                        geometry, skip_window, max_lum, roughness_cutoff,
                                                        luminance_cutoff)
     if entry >= 0:
@@ -827,7 +829,9 @@ OUTSIDE_SUBSAMPLES = wp.constant(4)  #: per axis: a pilot texel's area inside a 
 
 @wp.kernel(enable_backward=False)  # books into a tally by reference
 def book_outside_window(
-    rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) a pilot view's flux per texel [W] (read)
+    views: wp.array(dtype=ViewParams),  # (V,) the pilot views (LightMaps.pilot_views, read)
+    rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) pilot view ``view_index``'s specular layer's triangle, -1 none (read)
+    rsm_emission: TexelEmission,  # its specular texels' flux from the light (read)
     width: int,
     count: int,  # texels
     windows: wp.array(dtype=wp.vec4),  # (V,) per pilot view (x0, y0, x1, y1) sampled by the cascades, in its pixels
@@ -847,7 +851,9 @@ def book_outside_window(
     p = block * wp.block_dim() + lane
     tally = tally_new()
     if p < count:
-        f = rsm_flux[p]
+        f = wp.vec3(0.0)
+        if rsm_tri[p] >= 0:
+            f = texel_emitted_flux(rsm_emission, views[view_index], p)
         i = float(p % width)
         j = float(p / width)
         inside = float(0.0)
@@ -915,9 +921,7 @@ def emit_and_bounce(
     scramble: wp.vec2i,
     seed: int,
     rsm_depth: wp.array(dtype=wp.float32),
-    rsm_flux: wp.array(dtype=wp.vec3),
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,
     skip_window: wp.vec4,
@@ -933,14 +937,15 @@ def emit_and_bounce(
     starts on (:func:`specular_bounce`), all booked. Returns (texel or -1 when none, power [W] after the
     bounce, origin [m], surface normal, outgoing direction, rng state)."""
     texel, power, origin, d_in, n = emit_photon(light, light_kind, light_pos, k, n_photons, scramble, rsm_depth,
-                                                rsm_flux, rsm_roughness, rsm_tri, geometry, skip_window,
+                                                rsm_emission, rsm_tri, geometry, skip_window,
                                                 max_lum, roughness_cutoff, luminance_cutoff, tally)
     state = wp.rand_init(seed, k)
     if texel < 0:
         return texel, power, origin, n, d_in, state
-    m = triangle_material[rsm_tri[texel]]
-    d, power, refracted, state = specular_bounce(d_in, n, int(mat_opacity[m] < 1.0), rsm_ior[texel], mat_albedo[m],
-                                                 power, state, tally)
+    tri = rsm_tri[texel]
+    m = triangle_material[tri]
+    d, power, refracted, state = specular_bounce(d_in, n, int(mat_opacity[m] < 1.0), texel_ior(rsm_emission, tri),
+                                                 mat_albedo[m], power, state, tally)
     book_bounce(tally, refracted, power)
     return texel, power, origin, n, d, state
 

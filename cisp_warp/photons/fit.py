@@ -37,6 +37,7 @@ import warp as wp
 from ..frame import FrameInputs
 from ..optics import reflect, refract
 from ..raster import GBuffer, LightMaps, Rasterizer
+from ..raster.kernels import TexelEmission, texel_emitted_flux, texel_ior, texel_roughness
 from ..raster.light_maps import INACTIVE_FAR, CascadeState
 from ..raster.views import MERGE_AREA, ViewParams, fit_angle, fit_windows, fixed_projection, pixel_ray_world
 from ..scene import DeviceScene
@@ -54,9 +55,7 @@ def pilot_branch(
     light_kind: int,
     light_pos: wp.vec3,
     rsm_depth: wp.array(dtype=wp.float32),
-    rsm_flux: wp.array(dtype=wp.vec3),
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,
     ws: WorldScene,
@@ -74,7 +73,9 @@ def pilot_branch(
     world space from the texel's exact surface point), 0 where it lands nowhere seen or the texel sends no light
     (arguments as :func:`pilot_receivers`'; ``cam.view`` is this frame's camera)."""
     tri = rsm_tri[p]
-    if tri < 0 or rsm_roughness[p] > roughness_cutoff or wp.length(rsm_flux[p]) <= 0.0:
+    if tri < 0 or texel_roughness(rsm_emission, tri) > roughness_cutoff:
+        return 0.0
+    if wp.length(texel_emitted_flux(rsm_emission, light, p)) <= 0.0:
         return 0.0
     lo, ld = pixel_ray_world(light, float(p % light.width) + 0.5, float(p / light.width) + 0.5)
     x, n_s = surface_at_sample(light, lo, ld, tri, p, rsm_depth, geometry)
@@ -82,7 +83,7 @@ def pilot_branch(
     if light_kind != 0:
         d_in = wp.normalize(x - light_pos)
     nn = n_s
-    eta = rsm_ior[p]
+    eta = texel_ior(rsm_emission, tri)
     if wp.dot(d_in, n_s) > 0.0:
         nn = -n_s
         eta = 1.0 / eta
@@ -114,9 +115,7 @@ def pilot_receivers(
     light_kind: int,  # 0 distant, 1 point, 2 spot
     light_pos: wp.vec3,  # [m]
     rsm_depth: wp.array(dtype=wp.float32),  # (P*P,) specular layer's depth [m] (read)
-    rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
-    rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
-    rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) -1 = none (read)
     geometry: SurfaceGeometry,
     ws: WorldScene,
@@ -137,7 +136,7 @@ def pilot_receivers(
     seed = randoms[stream][2]
     nearest = float(0.0)
     for branch in range(2):
-        z = pilot_branch(light, light_kind, light_pos, rsm_depth, rsm_flux, rsm_roughness, rsm_ior, rsm_tri,
+        z = pilot_branch(light, light_kind, light_pos, rsm_depth, rsm_emission, rsm_tri,
                          geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces, seed, p,
                          branch)
         if z > 0.0 and (nearest == 0.0 or z < nearest):
@@ -171,9 +170,7 @@ def _make_pilot_branches(light_ortho: int = -1, camera_ortho: int = -1):
         light_kind: int,  # 0 distant, 1 point, 2 spot
         light_pos: wp.vec3,  # [m]
         rsm_depth: wp.array(dtype=wp.float32),  # (P*P,) specular layer's depth [m] (read)
-        rsm_flux: wp.array(dtype=wp.vec3),  # (P*P,) [W] (read)
-        rsm_roughness: wp.array(dtype=wp.float32),  # (P*P,) (read)
-        rsm_ior: wp.array(dtype=wp.float32),  # (P*P,) (read)
+        rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
         rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) -1 = none (read)
         geometry: SurfaceGeometry,
         ws: WorldScene,
@@ -198,8 +195,7 @@ def _make_pilot_branches(light_ortho: int = -1, camera_ortho: int = -1):
         p = tid - branch * n
         branch_depth[tid] = PILOT_NONE
         cam.view = camera_projected(cameras[0])
-        z = pilot_branch(light_projected(light), light_kind, light_pos, rsm_depth, rsm_flux, rsm_roughness, rsm_ior,
-                         rsm_tri, geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces,
+        z = pilot_branch(light_projected(light), light_kind, light_pos, rsm_depth, rsm_emission, rsm_tri, geometry, ws, cam, roughness_cutoff, thickness, thickness_rel, t_max, max_bounces,
                          randoms[stream][2], p, branch)
         if z > 0.0:
             branch_depth[tid] = z
@@ -865,7 +861,7 @@ class LightViewFitter:
         r = lm.pilot[vi]
         sp = r.specular
         return [r.view.params(), int(lm.light.kind), wp.vec3(*np.asarray(lm.light.position, np.float32)), sp.depth,
-                r.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
+                lm.emission(r), sp.tri_id, self.scene.geometry, self.world, self.cam, self.inputs.cameras,
                 float(self.roughness_cutoff), float(self.thickness), float(self.thickness_rel), float(self.t_max),
                 int(self.max_bounces), self.inputs.randoms, self.inputs.pilot_stream(self.light_index[i], vi)]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..scene.device import SurfaceGeometry
+from ..raster.kernels import TexelEmission, texel_ior
 from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, fixed_projection, read_again, world_project
 from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_LOST_LIGHT, L_OCCLUDED, L_REFLECTED,
@@ -80,9 +81,7 @@ def emit_and_scatter(
     scramble: wp.vec2i,
     seed: int,
     rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
-    rsm_flux: wp.array(dtype=wp.vec3),
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,
     skip_window: wp.vec4,
@@ -98,17 +97,18 @@ def emit_and_scatter(
     bounce, origin [m], surface normal, outgoing direction, rng state, entry, power as sampled, power absorbed,
     refracted 0/1): what :func:`emission_add` books."""
     texel, sampled, origin, d_in, n, entry = emit_sample(light, light_kind, light_pos, k, n_photons, scramble,
-                                                         rsm_depth, rsm_flux, rsm_roughness, rsm_tri,
+                                                         rsm_depth, rsm_emission, rsm_tri,
                                                          geometry, skip_window, max_lum, roughness_cutoff,
                                                          luminance_cutoff)
     state = wp.rand_init(seed, k)
     zero = wp.vec3(0.0)
     if texel < 0:
         return texel, zero, origin, n, d_in, state, entry, sampled, zero, int(0)
-    m = triangle_material[rsm_tri[texel]]
+    tri = rsm_tri[texel]
+    m = triangle_material[tri]
     transmissive = int(mat_opacity[m] < 1.0)
-    d, power, refracted, state = specular_scatter(d_in, n, transmissive, rsm_ior[texel], mat_albedo[m], sampled,
-                                                  state)
+    d, power, refracted, state = specular_scatter(d_in, n, transmissive, texel_ior(rsm_emission, tri), mat_albedo[m],
+                                                  sampled, state)
     absorbed = zero
     if transmissive == 0:
         absorbed = sampled - power
@@ -485,9 +485,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
             rsm_opaque_depth: wp.array(dtype=wp.float32),
             rsm_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of rsm_opaque_depth (read)
             rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
-            rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-            rsm_roughness: wp.array(dtype=wp.float32),
-            rsm_ior: wp.array(dtype=wp.float32),
+            rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
             rsm_tri: wp.array(dtype=wp.int32),
             geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
             triangle_material: wp.array(dtype=wp.int32),
@@ -573,7 +571,7 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
                 # exact Fresnel as a probability (power unchanged); metals reflect with their albedo
                 texel, power, origin, n, d, state, entry, sampled, absorbed, refracted = emit_and_scatter(
                     light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth,
-                    rsm_flux, rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity,
+                    rsm_emission, rsm_tri, geometry, skip_window, triangle_material, mat_opacity,
                     mat_albedo, max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale)
             emission_add(ledger, block, lane, entry, sampled, absorbed, power, refracted)
             tally = tally_new()

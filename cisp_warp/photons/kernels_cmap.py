@@ -19,6 +19,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..scene.device import SurfaceGeometry
+from ..raster.kernels import TexelEmission
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
 from .common import (EMISSION_ENTRIES, FOOTPRINT_EXACT, L_LOST_LIGHT, L_REJECTED, L_STEPS, L_STORED,
                      Tally, book, emit_and_bounce, entry_mask, ledger_add, photon_index,
@@ -132,9 +133,7 @@ def trace_to_caustic_map(
     rsm_opaque_depth: wp.array(dtype=wp.float32),  # linear depth of the nearest opaque surface [m], 0 = none
     rsm_opaque_tri: wp.array(dtype=wp.int32),  # its triangle, -1 = none
     rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
-    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),  # specular layer triangle, -1 = none
     geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
     skip_window: wp.vec4,  # this view's pixels sampled by a finer cascade (x0, y0, x1, y1); empty if x1 <= x0
@@ -175,8 +174,8 @@ def trace_to_caustic_map(
     if t < n_photons:
         k = photon_index(order, use_order, t)
         texel, power, origin, n, d, state = emit_and_bounce(
-            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth, rsm_flux,
-            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth, rsm_emission,
+            rsm_tri, geometry, skip_window, triangle_material, mat_opacity, mat_albedo,
             max_lum[0], roughness_cutoff, luminance_cutoff, emitted)
     ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()

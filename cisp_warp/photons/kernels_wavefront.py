@@ -29,6 +29,7 @@ import warp as wp
 
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
+from ..raster.kernels import TexelEmission, texel_emitted_flux, texel_ior, texel_roughness
 from ..raster.views import ViewParams, pixel_ray_world
 from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_REFLECTED, L_REFRACTED, L_SAMPLED, L_STORED,
                      LEDGER_ENTRIES, tally_new)
@@ -115,9 +116,7 @@ def grid_cell(
     grid: Grid,
     rsm_position: wp.array(dtype=wp.vec3),  # (H*W,) specular layer [m] (read)
     rsm_normal: wp.array(dtype=wp.vec3),  # (H*W,) authored unit normal (read)
-    rsm_flux: wp.array(dtype=wp.vec3),  # (H*W,) [W] (read)
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),  # -1 = no specular surface
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
@@ -155,11 +154,11 @@ def grid_cell(
             keep = texel_outside(i, j, skip_window)
             if keep <= 0.0:
                 continue  # a finer cascade's texels
-            flux = rsm_flux[t]
+            flux = texel_emitted_flux(rsm_emission, light, t)
             dimmed = luminance(flux) < luminance_cutoff * max_lum[0]  # the texel's whole flux, as points test it
             flux = flux * keep
             sampled += flux
-            if rsm_roughness[t] > roughness_cutoff:
+            if texel_roughness(rsm_emission, tri) > roughness_cutoff:
                 rough += flux
                 continue
             if dimmed:
@@ -175,7 +174,7 @@ def grid_cell(
             refr = zero
             if mat_opacity[m] < 1.0:
                 nn = n
-                eta = rsm_ior[t]
+                eta = texel_ior(rsm_emission, tri)
                 if wp.dot(d_in, n) > 0.0:
                     nn = -n
                     eta = 1.0 / eta
@@ -221,9 +220,7 @@ def grid_cells(
     grid: Grid,
     rsm_position: wp.array(dtype=wp.vec3),  # (H*W,) specular layer [m] (read)
     rsm_normal: wp.array(dtype=wp.vec3),  # (H*W,) authored unit normal (read)
-    rsm_flux: wp.array(dtype=wp.vec3),  # (H*W,) [W] (read)
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),  # -1 = no specular surface
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
@@ -240,9 +237,9 @@ def grid_cells(
     c = block * wp.block_dim() + lane
     rows = LedgerRows()
     if c < grid.cells_x * grid.cells_y:
-        rows = grid_cell(c, light, light_kind, light_pos, grid, rsm_position, rsm_normal, rsm_flux, rsm_roughness,
-                         rsm_ior, rsm_tri, triangle_material, mat_opacity, mat_albedo, max_lum, roughness_cutoff,
-                         luminance_cutoff, skip_window, tri_power)
+        rows = grid_cell(c, light, light_kind, light_pos, grid, rsm_position, rsm_normal, rsm_emission, rsm_tri,
+                         triangle_material, mat_opacity, mat_albedo, max_lum, roughness_cutoff, luminance_cutoff,
+                         skip_window, tri_power)
     ledger_flush(ledger, rows, lane)
 
 
@@ -461,13 +458,13 @@ def trace_grid_cisp(
     rsm_depth_bounds: wp.array(dtype=wp.vec2),  # its march.depth_bounds (read)
     rsm_position: wp.array(dtype=wp.vec3),  # (H_l*W_l,) specular layer [m] (read)
     rsm_normal: wp.array(dtype=wp.vec3),
-    rsm_ior: wp.array(dtype=wp.float32),
     rsm_tri: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3),  # (V,) scene vertices [m] (read)
     normals: wp.array(dtype=wp.vec3),  # (V,) unit vertex normals (read)
     indices: wp.array(dtype=wp.int32),  # (3T,) (read)
     triangle_material: wp.array(dtype=wp.int32),
     mat_opacity: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),  # (M,) per material: the IOR behind the corner's texel (read)
     camera: ViewParams,
     cam_depth: wp.array(dtype=wp.float32),  # (H*W,) [m] (read)
     cam_depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of cam_depth (read)
@@ -492,8 +489,9 @@ def trace_grid_cisp(
     d_in = wp.normalize(ld)
     if light_kind != 0:
         d_in = wp.normalize(origin - light_pos)
-    transmissive = int(mat_opacity[triangle_material[rsm_tri[texel]]] < 1.0)
-    trace_corner_cisp(p, sheet, origin, n, d_in, transmissive, rsm_ior[texel], light, rsm_opaque_depth,
+    m = triangle_material[rsm_tri[texel]]
+    transmissive = int(mat_opacity[m] < 1.0)
+    trace_corner_cisp(p, sheet, origin, n, d_in, transmissive, mat_ior[m], light, rsm_opaque_depth,
                       rsm_depth_bounds, camera, cam_depth, cam_depth_bounds, cam_position, cam_normal, max_steps,
                       thickness, thickness_rel, t_max, use_cascade, rec)
 

@@ -19,7 +19,7 @@ import math
 import warp as wp
 
 from ..optics import fresnel_dielectric, reflect, refract
-from ..raster.kernels import spot_falloff
+from ..raster.kernels import TexelEmission, spot_falloff
 from ..scene.device import SurfaceGeometry
 from ..raster.light_maps import CascadeState, cascade_photons
 from ..raster.views import ViewParams, pixel_ray_world, view_eye_world, world_project
@@ -230,9 +230,7 @@ def trace_sspm(
     light_pos: wp.vec3,  # [m]
     # RSM view of the light (flat H*W arrays, read)
     rsm_depth: wp.array(dtype=wp.float32),  # specular layer: depth [m] (point, normal: texel_surface)
-    rsm_flux: wp.array(dtype=wp.vec3),  # [W] per texel
-    rsm_roughness: wp.array(dtype=wp.float32),
-    rsm_ior: wp.array(dtype=wp.float32),
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
     rsm_tri: wp.array(dtype=wp.int32),
     geometry: SurfaceGeometry,  # the scene's triangles, for each photon's exact origin and normal (read)
     max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
@@ -289,8 +287,8 @@ def trace_sspm(
     if t < n_photons:
         k = photon_index(order, use_order, t)
         texel, power, origin, n, d, state = emit_and_bounce(
-            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth, rsm_flux,
-            rsm_roughness, rsm_ior, rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
+            light, light_kind, light_pos, k, n_photons, scramble, seed, rsm_depth, rsm_emission,
+            rsm_tri, geometry, skip_window, ws.triangle_material, ws.opacity, ws.albedo,
             max_lum[0], roughness_cutoff, luminance_cutoff * cascade.texel_scale, emitted)
     ledger_add(ledger, emitted, block, EMISSION_ENTRIES)
     tally = tally_new()

@@ -108,15 +108,15 @@ class WavefrontSplat:
                 cells = g.cells_x * g.cells_y
                 corners = (g.cells_x + 1) * (g.cells_y + 1)
                 p.launch_photons(K.grid_cells, cells, inputs=[
-                    params, kind, light_pos, g, sp.position, sp.normal, r.flux, sp.roughness, sp.ior, sp.tri_id,
+                    params, kind, light_pos, g, sp.position, sp.normal, lm.emission(r), sp.tri_id,
                     sc.triangle_material, sc.opacity, sc.albedo, p._max_lum_of[li], float(s.roughness_cutoff),
                     float(s.luminance_cutoff * lm.texel_scale[vi]), wp.vec4(*lm.skip_windows[vi]), self.tri_power,
                     p.ledger])
                 if tracer == "cisp":  # p is the CISP pass: its depth bounds let the march skip hitless cells
                     rsm_bounds = p.build_rsm_bounds(lm, li, vi)
                     wp.launch(K.trace_grid_cisp, dim=2 * corners, device=dev, inputs=[
-                        params, kind, light_pos, g, r.opaque_depth, rsm_bounds, sp.position, sp.normal, sp.ior,
-                        sp.tri_id, sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, self.cam.view,
+                        params, kind, light_pos, g, r.opaque_depth, rsm_bounds, sp.position, sp.normal, sp.tri_id,
+                        sc.points, sc.normals, sc.indices, sc.triangle_material, sc.opacity, sc.ior, self.cam.view,
                         self.cam.depth, p.cam_bounds, self.cam.position, self.cam.normal, int(s.max_steps),
                         float(s.thickness), float(s.thickness_rel), p.t_max, int(s.cascade), self.rec])
                 else:

@@ -81,7 +81,7 @@ class SSPM(_WorldPass):
             sp = b.rsm.specular
             self.launch_photons(K.trace_sspm, b.slots, inputs=[
                 b.lights.views, b.lights.states, b.view_index, int(b.lights.light.kind), b.light_pos,
-                sp.depth, b.rsm.flux, sp.roughness, sp.ior, sp.tri_id, self.scene.geometry,
+                sp.depth, b.lights.emission(b.rsm), sp.tri_id, self.scene.geometry,
                 self._max_lum_of[b.light_index], self.world, self.cam, self.inputs.cameras, b.light_photons, b.slots,
                 self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, float(s.thickness), float(s.thickness_rel),

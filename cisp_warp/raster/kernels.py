@@ -13,10 +13,14 @@ adjacent tiles at a time, a thread per pixel column, and skips columns proven ou
 ``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
 pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
 
-An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, the flux, and the depth bounds of its
-opaque depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise
-with the camera's bounds (``resolve_back_view``); ``resolve_depth`` + ``resolve_rsm_specular``, ``resolve_back`` and
-``photons.march.depth_bounds`` + ``coarsen_bounds`` are their naive twins.
+An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, and the depth bounds of its opaque
+depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise with the
+camera's bounds (``resolve_back_view``); ``resolve_depth`` + ``resolve_rsm_specular``, ``resolve_back`` and
+``photons.march.depth_bounds`` + ``coarsen_bounds`` are their naive twins. By default an RSM view keeps per specular
+texel only its triangle and depth: its point and normal (``texel_surface``), its flux (``texel_emitted_flux``) and its
+roughness and IOR (``texel_roughness``, ``texel_ior``) are computed where they are read, from the view, the light
+(``TexelEmission``) and the triangle, the bits the resolves write where the maps are kept (docs/perf_notes.md
+sections 43 and 58).
 """
 
 from __future__ import annotations
@@ -1014,21 +1018,24 @@ def specular_texel_key(
     if nearest_depth.shape[0] > 0:
         nearest_depth[p] = wp.where(tri >= 0 and t > 0.0, t, od)
     surface = position.shape[0] > 0  # the point and normal kept (else texel_surface gives them from tri_id, depth)
+    material = roughness.shape[0] > 0  # the material kept (else texel_roughness and texel_ior give it from tri_id)
     if tri < 0:
         depth[p] = 0.0
         if surface:
             position[p] = wp.vec3(0.0)
             normal[p] = wp.vec3(0.0)
-        roughness[p] = 0.0
-        ior[p] = 1.0
+        if material:
+            roughness[p] = 0.0
+            ior[p] = 1.0
         return -1
     depth[p] = t
     if surface:
         position[p] = x
         normal[p] = interp_normal(tri, bary, normals, indices)
-    m = triangle_material[tri]
-    roughness[p] = mat_roughness[m]
-    ior[p] = mat_ior[m]
+    if material:
+        m = triangle_material[tri]
+        roughness[p] = mat_roughness[m]
+        ior[p] = mat_ior[m]
     return tri
 
 
@@ -1098,6 +1105,43 @@ def texel_flux(
     return light_rgb * scale
 
 
+@wp.struct
+class TexelEmission:
+    """What an RSM view's specular texel's flux, roughness and IOR are computed from where they are read, instead of
+    per-texel maps written by the resolve (docs/perf_notes.md section 58): the light's terms of
+    :func:`texel_flux` and the scene's materials. One per RSM view (``LightMaps.emission``)."""
+
+    light_rgb: wp.vec3  # irradiance [W/m²] (distant) or intensity [W/sr] (point, spot), per channel
+    spot_axis: wp.vec3  # world direction of the spot axis (unused unless is_spot)
+    is_spot: int
+    cone_angle: float  # [rad]
+    cone_softness: float
+    texel_solid_angle: wp.array(dtype=wp.float32)  # (H*W,) [sr] of the view's texels, perspective views (read)
+    triangle_material: wp.array(dtype=wp.int32)  # (T,) material per triangle (read)
+    mat_roughness: wp.array(dtype=wp.float32)  # (M,) per material (read)
+    mat_ior: wp.array(dtype=wp.float32)  # (M,) per material (read)
+
+
+@wp.func
+def texel_emitted_flux(e: TexelEmission, view: ViewParams, p: int) -> wp.vec3:
+    """Flux [W] through specular texel ``p`` of ``view`` (its triangle >= 0): the bits the resolve's
+    :func:`texel_flux` writes into a kept ``flux`` map (the same function of the same values)."""
+    return texel_flux(view, p, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
+                      e.texel_solid_angle)
+
+
+@wp.func
+def texel_roughness(e: TexelEmission, tri: int) -> float:
+    """Roughness of a specular texel whose triangle is ``tri`` >= 0 (what a kept ``roughness`` map holds)."""
+    return e.mat_roughness[e.triangle_material[tri]]
+
+
+@wp.func
+def texel_ior(e: TexelEmission, tri: int) -> float:
+    """IOR behind a specular texel whose triangle is ``tri`` >= 0 (what a kept ``ior`` map holds)."""
+    return e.mat_ior[e.triangle_material[tri]]
+
+
 @wp.kernel
 def rsm_flux(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -1143,11 +1187,12 @@ def resolve_rsm_specular(
     depth: wp.array(dtype=wp.float32),  # (H*W,) [m], 0 = none or hidden behind opaque (write)
     position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write)
     normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write)
-    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
-    ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write; an empty array, with ior: not wanted, texel_roughness)
+    ior: wp.array(dtype=wp.float32),  # (H*W,) (write; empty with roughness: texel_ior gives it)
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
     nearest_depth: wp.array(dtype=wp.float32),  # (H*W,) the RSM's shadow depth [m], 0 = none (write)
-    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
+    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write; an
+    # empty array: not wanted, texel_emitted_flux gives it)
 ):
     """An RSM view's specular layer (:func:`resolve_specular`), its shadow depth and its flux per texel
     (:func:`rsm_flux`) in one pass: the texel's triangle is known where its flux is computed."""
@@ -1157,6 +1202,8 @@ def resolve_rsm_specular(
     p = wp.tid()
     tri = specular_texel(view, p, visibility, opaque_depth, points, normals, indices, triangle_material, mat_roughness,
                          mat_ior, depth, position, normal, roughness, ior, tri_id, nearest_depth)
+    if flux.shape[0] == 0:  # not kept: texel_emitted_flux gives it from tri_id
+        return
     if tri == -1:
         flux[p] = wp.vec3(0.0)
     elif tri >= 0:  # (-2: empty as before, its flux is zero already)
@@ -1291,17 +1338,18 @@ def resolve_rsm_view(
     depth: wp.array(dtype=wp.float32),  # (H*W,) specular layer [m], 0 = none or hidden behind opaque (write)
     position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (write; an empty array: not wanted, texel_surface gives it)
     normal: wp.array(dtype=wp.vec3),  # (H*W,) authored (outward) unit normal, not flipped (write; empty with position)
-    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write)
-    ior: wp.array(dtype=wp.float32),  # (H*W,) (write)
+    roughness: wp.array(dtype=wp.float32),  # (H*W,) (write; an empty array, with ior: not wanted, texel_roughness)
+    ior: wp.array(dtype=wp.float32),  # (H*W,) (write; empty with roughness: texel_ior gives it)
     tri_id: wp.array(dtype=wp.int32),  # (H*W,) -1 = none (write)
     nearest_depth: wp.array(dtype=wp.float32),  # (H*W,) the RSM's shadow depth [m], 0 = none (write)
-    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write)
+    flux: wp.array(dtype=wp.vec3),  # (H*W,) power the light sends through the texel onto the surface [W] (write; an
+    # empty array: not wanted, texel_emitted_flux gives it)
     thickness: float,  # [m] the depth bounds' absolute surface thickness (``march.depth_bounds``)
     thickness_rel: float,  # their relative thickness (× sample depth)
     bounds: wp.array(dtype=wp.vec2),  # (march.bounds_size,) depth bounds of opaque_depth (write; empty: not wanted)
 ):
     """One pass over an RSM view's two visibility buffers: the opaque layer's depth (:func:`resolve_depth`), the
-    specular layer with its shadow depth and flux (:func:`resolve_rsm_specular`), and the depth bounds of the opaque
+    specular layer with its shadow depth (and its flux, roughness and IOR where kept) (:func:`resolve_rsm_specular`), and the depth bounds of the opaque
     depth (``photons.march.depth_bounds`` then ``coarsen_bounds``), instead of two resolves and two bounds passes
     that read back what the first wrote. ``wp.launch_tiled`` over the view's coarse cells (BOUNDS_COARSE² texels, a
     warp per texel row of it: the same coalesced rows as one thread per texel); the block keeps its texels' opaque
@@ -1319,6 +1367,7 @@ def resolve_rsm_view(
     x0 = (block % cw) * BOUNDS_COARSE
     y0 = (block / cw) * BOUNDS_COARSE
     want_bounds = bounds.shape[0] > 0
+    keep_flux = flux.shape[0] > 0  # (else texel_emitted_flux gives it from tri_id where it is read)
     zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
     # RESOLVE_TEXELS_PER_THREAD texels a thread a round (a round is the whole block on CUDA; the CPU's one lane takes
     # 1024 rounds): their opaque depths are kept in registers and put into shared memory after the round, so the
@@ -1349,9 +1398,9 @@ def resolve_rsm_view(
                 tri = specular_texel_key(view, p, key_s, od, points, normals, indices, triangle_material,
                                          mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
                                          nearest_depth)
-                if tri == -1:
+                if tri == -1 and keep_flux:
                     flux[p] = wp.vec3(0.0)
-                elif tri >= 0:  # (-2: empty as before, its flux is zero already)
+                elif tri >= 0 and keep_flux:  # (-2: empty as before, its flux is zero already)
                     flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
                                          texel_solid_angle)
                 if m == 0:

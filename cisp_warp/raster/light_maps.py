@@ -318,14 +318,14 @@ class LightMaps:
         whole = light_views(scene.scene, light, rsm_size)
         d = scene.device
         if self.fitted:
-            self.pilot = [RSMView.allocate(resized_view(v, vs.pilot_size, f"pilot_{v.name[4:]}"), d, False)
+            self.pilot = [RSMView.allocate(resized_view(v, vs.pilot_size, f"pilot_{v.name[4:]}"), d, False, False)
                           for v in whole]
             self.rsm = [RSMView.allocate(window_view(v, (0, 0, v.width, v.height), rsm_size, f"{v.name}_c{c}"), d,
-                                         False) for v in whole for c in range(vs.cascades)]
+                                         False, False) for v in whole for c in range(vs.cascades)]
             self.cascades = vs.cascades
         else:
             self.pilot = []
-            self.rsm = [RSMView.allocate(v, d, False) for v in whole]
+            self.rsm = [RSMView.allocate(v, d, False, False) for v in whole]
             self.cascades = 1
         #: host ViewParams of the RSM views: exact for whole views; for fitted ones the views they start from
         #: (the fit writes ``views`` on the device)
@@ -418,6 +418,11 @@ class LightMaps:
     def whole_rsm(self) -> list[RSMView]:
         """The views over all the light's specular geometry (pilot views when fitted)."""
         return self.pilot if self.fitted else self.rsm
+
+    @property
+    def whole_views(self) -> wp.array:
+        """The device views of :attr:`whole_rsm` (``pilot_views`` when fitted, else ``views``)."""
+        return self.pilot_views if self.fitted else self.views
 
     def set_light(self, light: Light) -> None:
         """Move or re-aim the light for the next frame: its views are refitted, every buffer is kept.
@@ -535,6 +540,31 @@ class LightMaps:
         consumer that reads the arrays (``photons.wavefront``); pilot views are left without (the fit computes them)."""
         for r in self.rsm:
             r.specular.keep_surface()
+
+    def keep_texel_maps(self) -> None:
+        """Have every RSM and pilot view keep its per-texel ``flux`` and its specular layer's ``roughness`` and ``ior``
+        (allocated here, written by each resolve from the next on; by default they are not: the photon passes compute
+        them from the texel's triangle with :meth:`emission`), for tests and tools that read the arrays."""
+        for r in self.rsm + self.pilot:
+            r.keep_texel_maps()
+
+    def emission(self, r: RSMView) -> K.TexelEmission:
+        """What RSM (or pilot) view ``r``'s texels' flux, roughness and IOR are computed from where they are read
+        (``kernels.texel_emitted_flux``, ``texel_roughness``, ``texel_ior``): this light's terms as the resolve
+        takes them this frame, the view's texel solid angles and the scene's materials."""
+        s = self.scene
+        light = self.light
+        e = K.TexelEmission()
+        e.light_rgb = wp.vec3(*light.radiometric_rgb.astype(np.float32))
+        e.spot_axis = wp.vec3(*np.asarray(light.direction, dtype=np.float32))
+        e.is_spot = int(light.kind == LightKind.SPOT)
+        e.cone_angle = float(light.cone_angle)
+        e.cone_softness = float(light.cone_softness)
+        e.texel_solid_angle = r.solid_angle
+        e.triangle_material = s.triangle_material
+        e.mat_roughness = s.roughness
+        e.mat_ior = s.ior
+        return e
 
     def builds_depth_bounds(self, bounds: wp.array) -> bool:
         """Whether the resolve writes ``bounds`` (one of :meth:`keep_depth_bounds`'s) each frame the view is drawn."""

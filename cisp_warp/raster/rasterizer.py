@@ -161,19 +161,22 @@ class SpecularLayer(_Buffers):
     depth: wp.array  #: (H*W,) float32 linear depth [m]; 0 = none
     position: wp.array  #: (H*W,) vec3 world position [m]
     normal: wp.array  #: (H*W,) vec3 authored (outward) unit normal
-    roughness: wp.array  #: (H*W,) float32
-    ior: wp.array  #: (H*W,) float32 index of refraction behind the surface
+    roughness: wp.array  #: (H*W,) float32 (empty unless kept: RSM views, see :meth:`allocate`)
+    ior: wp.array  #: (H*W,) float32 index of refraction behind the surface (empty with ``roughness``)
     tri_id: wp.array  #: (H*W,) int32 triangle id; -1 = none
 
     @staticmethod
-    def allocate(width: int, height: int, device, surface: bool = True) -> "SpecularLayer":
+    def allocate(width: int, height: int, device, surface: bool = True, material: bool = True) -> "SpecularLayer":
         """``surface`` False: ``position`` and ``normal`` empty (not written by the resolves; a reader computes them
-        from ``tri_id`` and ``depth`` with ``kernels.texel_surface``) until :meth:`keep_surface`."""
+        from ``tri_id`` and ``depth`` with ``kernels.texel_surface``) until :meth:`keep_surface`. ``material`` False:
+        ``roughness`` and ``ior`` empty (a reader takes them from ``tri_id``'s material: ``kernels.texel_roughness``,
+        ``kernels.texel_ior``) until :meth:`keep_material`."""
         hw = (height, width) if surface else (0, 0)
+        hm = (height, width) if material else (0, 0)
         return SpecularLayer(width, height, visibility_buffer(width * height, device),
                              _pixels((height, width), wp.float32, device), _pixels(hw, wp.vec3, device),
-                             _pixels(hw, wp.vec3, device), _pixels((height, width), wp.float32, device),
-                             _pixels((height, width), wp.float32, device), _pixels((height, width), wp.int32, device))
+                             _pixels(hw, wp.vec3, device), _pixels(hm, wp.float32, device),
+                             _pixels(hm, wp.float32, device), _pixels((height, width), wp.int32, device))
 
     @property
     def has_surface(self) -> bool:
@@ -186,6 +189,18 @@ class SpecularLayer(_Buffers):
             d = self.depth.device
             self.position = _pixels((self.height, self.width), wp.vec3, d)
             self.normal = _pixels((self.height, self.width), wp.vec3, d)
+
+    @property
+    def has_material(self) -> bool:
+        """Whether the resolves write ``roughness`` and ``ior``."""
+        return self.roughness.shape[0] == self.width * self.height
+
+    def keep_material(self) -> None:
+        """Allocate ``roughness`` and ``ior`` (zero), so the resolves write them from the next one on."""
+        if not self.has_material:
+            d = self.depth.device
+            self.roughness = _pixels((self.height, self.width), wp.float32, d)
+            self.ior = _pixels((self.height, self.width), wp.float32, d)
 
     def resolve(self, scene: DeviceScene, views: wp.array, view_index: int, opaque_depth: wp.array,
                 nearest_depth: wp.array | None = None) -> None:
@@ -314,20 +329,38 @@ class RSMView(_Buffers):
     opaque_tri: wp.array  #: (H*W,) int32
     shadow_depth: wp.array  #: (H*W,) float32 depth of the nearest surface of any kind [m]; 0 = none
     specular: SpecularLayer
-    flux: wp.array  #: (H*W,) vec3 [W]: power the light sends through the texel onto its specular surface
+    flux: wp.array  #: (H*W,) vec3 [W]: power the light sends through the texel onto its specular surface (empty
+    #: unless kept, :meth:`keep_texel_maps`; ``LightMaps.emission`` gives it where it is read)
     solid_angle: wp.array  #: (H*W,) float32 [sr] per texel (perspective views; zeros for orthographic)
 
     @staticmethod
-    def allocate(view: View, device, surface: bool = True) -> "RSMView":
-        """``surface``: whether the specular layer keeps ``position`` and ``normal`` (:meth:`SpecularLayer.allocate`)."""
+    def allocate(view: View, device, surface: bool = True, texel_maps: bool = True) -> "RSMView":
+        """``surface``: whether the specular layer keeps ``position`` and ``normal`` (:meth:`SpecularLayer.allocate`);
+        ``texel_maps``: whether the view keeps ``flux`` and its layer ``roughness`` and ``ior`` (else they are empty,
+        not written by the resolves: a reader computes them from ``tri_id`` with ``kernels.TexelEmission``) until
+        :meth:`keep_texel_maps`."""
         w, h = view.width, view.height
-        check_memory(w * h * (96 if surface else 72), f"a {w}x{h} reflective shadow map", device)
+        check_memory(w * h * (52 + (24 if surface else 0) + (20 if texel_maps else 0)),
+                     f"a {w}x{h} reflective shadow map", device)
         hw = (h, w)
         sa = view.texel_solid_angle().astype(np.float32).reshape(-1) if not view.orthographic else np.zeros(w * h, np.float32)
         return RSMView(view, w, h, visibility_buffer(w * h, device), _pixels(hw, wp.float32, device),
                        _pixels(hw, wp.int32, device), _pixels(hw, wp.float32, device),
-                       SpecularLayer.allocate(w, h, device, surface), _pixels(hw, wp.vec3, device),
+                       SpecularLayer.allocate(w, h, device, surface, texel_maps),
+                       _pixels(hw if texel_maps else (0, 0), wp.vec3, device),
                        wp.array(sa, dtype=wp.float32, device=device))
+
+    @property
+    def has_texel_maps(self) -> bool:
+        """Whether the resolves write ``flux`` and the layer's ``roughness`` and ``ior``."""
+        return self.flux.shape[0] == self.width * self.height
+
+    def keep_texel_maps(self) -> None:
+        """Allocate ``flux`` and the layer's ``roughness`` and ``ior`` (zero), so the resolves write them from the
+        next one on (tests, and tools that compare them with the twins')."""
+        if not self.has_texel_maps:
+            self.flux = _pixels((self.height, self.width), wp.vec3, self.opaque_depth.device)
+        self.specular.keep_material()
 
     def numpy(self, prefix: str = "") -> dict[str, np.ndarray]:
         out = super().numpy(prefix)
