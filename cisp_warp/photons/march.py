@@ -268,32 +268,39 @@ def _texel(view: ViewParams, s0: wp.vec2, ds: wp.vec2, s: float) -> wp.vec2i:
                     wp.clamp(int(wp.floor(sp[1])), 0, view.height - 1))
 
 
+#: log2 of the cells' edges: a cell index is a texel coordinate shifted right (texel coordinates are >= 0, clamped
+#: to the image: the same integer as the division, one instruction instead of a signed division's three)
+CELL_SHIFT = wp.constant(int(BOUNDS_CELL).bit_length() - 1)
+COARSE_SHIFT = wp.constant(int(BOUNDS_COARSE).bit_length() - 1)
+assert 1 << int(CELL_SHIFT) == int(BOUNDS_CELL) and 1 << int(COARSE_SHIFT) == int(BOUNDS_COARSE)
+
+
 @wp.func
-def _cell_exit(ci: int, cell: int, s0: float, ds: float, inv_step: float) -> float:
-    """Step index (as a float) past which the samples leave cell ``ci`` along one screen axis; 1e9 if never.
-    ``inv_step`` = 1 / (ds · ds_step), computed once per march (no divisions per cell: an ulp off only moves the
-    estimate by one step, which :func:`_cell_span` checks)."""
-    if ds > 0.0:
-        return (float((ci + 1) * cell) - s0) * inv_step
-    if ds < 0.0:
-        return (float(ci * cell) - s0) * inv_step
-    return 1.0e9
+def _cell_exit(ci: int, shift: int, s0: float, ds: float, inv_step: float) -> float:
+    """Step index (as a float) past which the samples leave cell ``ci`` (of ``1 << shift`` texels) along one screen
+    axis; 1e9 if never. ``inv_step`` = 1 / (ds · ds_step), computed once per march (no divisions per cell: an ulp
+    off only moves the estimate by one step, which :func:`_cell_span` checks). The cell's far edge selected by the
+    sign of ``ds`` and the value by whether it moves (the same values as a return in each branch, without the
+    branches: this runs four times a cell test of every march; docs/perf_notes.md section 59)."""
+    forward = ds > 0.0
+    edge = (ci << shift) + wp.where(forward, 1 << shift, 0)
+    return wp.where(forward or ds < 0.0, (float(edge) - s0) * inv_step, 1.0e9)
 
 
 @wp.func
 def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_step: wp.vec2, i: int, n: int,
-               tx: wp.vec2i, cell: int):
-    """The cell (ci, cj) of ``cell`` texels that step i's sample (texel ``tx``) lies in, and a step ``last`` in
+               tx: wp.vec2i, shift: int):
+    """The cell (ci, cj) of ``1 << shift`` texels that step i's sample (texel ``tx``) lies in, and a step ``last`` in
     [i, n] whose sample still does: all samples between lie in it too (texel coordinates are monotonic in the
     step). ``last`` is the cell's last step up to rounding: one step short only costs another visit of the cell."""
-    ci = tx[0] / cell
-    cj = tx[1] / cell
-    last_f = wp.min(_cell_exit(ci, cell, s0[0], ds[0], inv_step[0]), _cell_exit(cj, cell, s0[1], ds[1], inv_step[1]))
+    ci = tx[0] >> shift
+    cj = tx[1] >> shift
+    last_f = wp.min(_cell_exit(ci, shift, s0[0], ds[0], inv_step[0]), _cell_exit(cj, shift, s0[1], ds[1], inv_step[1]))
     last = n
     if last_f < float(n):
         last = wp.max(int(wp.ceil(last_f)) - 1, i)
     tl = _texel(view, s0, ds, ds_step * float(last))
-    while last > i and (tl[0] / cell != ci or tl[1] / cell != cj):  # rounding: step back into the cell
+    while last > i and ((tl[0] >> shift) != ci or (tl[1] >> shift) != cj):  # rounding: step back into the cell
         last -= 1
         tl = _texel(view, s0, ds, ds_step * float(last))
     return last, ci, cj
@@ -577,9 +584,9 @@ def _make_marches(back_layer: bool, counted: bool = False):
         if inside == 0:
             return MARCH_EXIT, float(0.0), int(0)
         ortho = view.orthographic
-        fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
-        coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
-        coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+        fine_x = (view.width + BOUNDS_CELL - 1) >> CELL_SHIFT  # (sizes and texel coordinates >= 0: shifts)
+        coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) >> CELL_SHIFT)
+        coarse_x = (view.width + BOUNDS_COARSE - 1) >> COARSE_SHIFT
         # 1 / (screen pixels per step) along each axis (0 where the segment does not move along it), for the cell
         # exits; selected, not assigned in branches (the same values, no division merged through local memory)
         inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
@@ -596,8 +603,8 @@ def _make_marches(back_layer: bool, counted: bool = False):
             last = n
             skip = False
             zr_last = float(0.0)
-            if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
-                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
+            if (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, COARSE_SHIFT)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
@@ -606,7 +613,7 @@ def _make_marches(back_layer: bool, counted: bool = False):
                 if not skip:
                     failed_coarse = cj * coarse_x + ci
             if not skip:
-                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, CELL_SHIFT)
                 b = bounds[cj * fine_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
