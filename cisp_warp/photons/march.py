@@ -47,6 +47,12 @@ MARCH_HIDDEN = wp.constant(3)
 #: diff_prev of :func:`screen_march_bounded` after a skip, until read: no depth difference comes near it (depths and
 #: BIG_DEPTH are below 1e31)
 DIFF_UNREAD = wp.constant(3.0e38)
+#: zr_prev of :func:`screen_march_bounded` after a skip, until its pixel steps need it (depths are > 0): the ray's
+#: depth there is computed once when a cell's steps are walked, not at every skip (a division a cell test before)
+ZR_UNREAD = wp.constant(-1.0)
+#: a perspective cell test's margin in inverse depth (2^-20, 16 float32 ulps): a skip it allows is one the depth
+#: test allows, whatever the rounding of the products and of the ray's 1/depth (:func:`_cell_skipped`)
+INV_DEPTH_MARGIN = wp.constant(9.5367431640625e-07)
 
 
 @wp.func
@@ -124,6 +130,26 @@ def _ray_depth(orthographic: int, z0: float, z1: float, k0: float, k1: float, s:
     # both computed and one selected (the same values as a return in each branch; the division in a branch merged
     # through local memory in the marches' cell loops at the trace's register bound: perf_notes section 48)
     return wp.where(orthographic != 0, z0 + (z1 - z0) * s, 1.0 / (k0 + (k1 - k0) * s))
+
+
+@wp.func
+def _cell_skipped(orthographic: int, z0: float, z1: float, k0: float, k1: float, s_prev: float, s_last: float,
+                  b: wp.vec2) -> bool:
+    """Whether no step of a stretch from screen-segment parameter ``s_prev`` (the last step before it) to ``s_last``
+    (its last step) can hit a cell whose depth bounds are ``b`` (nearest surface, farthest back face, :func:`depth_bounds`):
+    the ray's depth over the stretch stays in front of ``b[0]`` or behind ``b[1]`` (it is monotonic along the segment,
+    so its range is that of the two ends). Orthographic: the depths :func:`_ray_depth` gives, compared. Perspective:
+    without their divisions, in inverse depth w = k0 + (k1 − k0)·s (> 0): depth < b[0] where b[0]·w > 1, depth > b[1]
+    where b[1]·w < 1, each with ``INV_DEPTH_MARGIN``, far above the rounding of the product and of 1/w (a few ulps)
+    and below the bounds' own 1e-6 widening: every skip is still a proof, so the march ends where the naive one does,
+    bit for bit (docs/perf_notes.md section 59)."""
+    za = z0 + (z1 - z0) * s_prev
+    zb = z0 + (z1 - z0) * s_last
+    wa = k0 + (k1 - k0) * s_prev
+    wb = k0 + (k1 - k0) * s_last
+    ortho_skip = wp.max(za, zb) < b[0] or wp.min(za, zb) > b[1]
+    persp_skip = b[0] * wp.min(wa, wb) > 1.0 + INV_DEPTH_MARGIN or b[1] * wp.max(wa, wb) < 1.0 - INV_DEPTH_MARGIN
+    return wp.where(orthographic != 0, ortho_skip, persp_skip)
 
 
 @wp.func
@@ -602,14 +628,12 @@ def _make_marches(back_layer: bool, counted: bool = False):
             # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
             last = n
             skip = False
-            zr_last = float(0.0)
             if (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, COARSE_SHIFT)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
-                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+                skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
                 if not skip:
                     failed_coarse = cj * coarse_x + ci
             if not skip:
@@ -617,15 +641,16 @@ def _make_marches(back_layer: bool, counted: bool = False):
                 b = bounds[cj * fine_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
-                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+                skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
             if skip:
                 # no step i..last can hit: continue after them, as the naive march would
                 s_prev = ds_step * float(last)
-                zr_prev = zr_last
+                zr_prev = ZR_UNREAD  # the ray's depth at s_prev, computed only if its next steps are walked
                 diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
                 i = last + 1
                 continue
+            if zr_prev < 0.0:  # ZR_UNREAD: the value the naive march had there (its step at s_prev)
+                zr_prev = _ray_depth(ortho, z0, z1, k0, k1, s_prev)
             while i <= last:
                 if wp.static(counted):
                     work += 1
