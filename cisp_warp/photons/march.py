@@ -47,6 +47,12 @@ MARCH_HIDDEN = wp.constant(3)
 #: diff_prev of :func:`screen_march_bounded` after a skip, until read: no depth difference comes near it (depths and
 #: BIG_DEPTH are below 1e31)
 DIFF_UNREAD = wp.constant(3.0e38)
+#: zr_prev of :func:`screen_march_bounded` after a skip, until its pixel steps need it (depths are > 0): the ray's
+#: depth there is computed once when a cell's steps are walked, not at every skip (a division a cell test before)
+ZR_UNREAD = wp.constant(-1.0)
+#: a perspective cell test's margin in inverse depth (2^-20, 16 float32 ulps): a skip it allows is one the depth
+#: test allows, whatever the rounding of the products and of the ray's 1/depth (:func:`_cell_skipped`)
+INV_DEPTH_MARGIN = wp.constant(9.5367431640625e-07)
 
 
 @wp.func
@@ -124,6 +130,26 @@ def _ray_depth(orthographic: int, z0: float, z1: float, k0: float, k1: float, s:
     # both computed and one selected (the same values as a return in each branch; the division in a branch merged
     # through local memory in the marches' cell loops at the trace's register bound: perf_notes section 48)
     return wp.where(orthographic != 0, z0 + (z1 - z0) * s, 1.0 / (k0 + (k1 - k0) * s))
+
+
+@wp.func
+def _cell_skipped(orthographic: int, z0: float, z1: float, k0: float, k1: float, s_prev: float, s_last: float,
+                  b: wp.vec2) -> bool:
+    """Whether no step of a stretch from screen-segment parameter ``s_prev`` (the last step before it) to ``s_last``
+    (its last step) can hit a cell whose depth bounds are ``b`` (nearest surface, farthest back face, :func:`depth_bounds`):
+    the ray's depth over the stretch stays in front of ``b[0]`` or behind ``b[1]`` (it is monotonic along the segment,
+    so its range is that of the two ends). Orthographic: the depths :func:`_ray_depth` gives, compared. Perspective:
+    without their divisions, in inverse depth w = k0 + (k1 − k0)·s (> 0): depth < b[0] where b[0]·w > 1, depth > b[1]
+    where b[1]·w < 1, each with ``INV_DEPTH_MARGIN``, far above the rounding of the product and of 1/w (a few ulps)
+    and below the bounds' own 1e-6 widening: every skip is still a proof, so the march ends where the naive one does,
+    bit for bit (docs/perf_notes.md section 59)."""
+    za = z0 + (z1 - z0) * s_prev
+    zb = z0 + (z1 - z0) * s_last
+    wa = k0 + (k1 - k0) * s_prev
+    wb = k0 + (k1 - k0) * s_last
+    ortho_skip = wp.max(za, zb) < b[0] or wp.min(za, zb) > b[1]
+    persp_skip = b[0] * wp.min(wa, wb) > 1.0 + INV_DEPTH_MARGIN or b[1] * wp.max(wa, wb) < 1.0 - INV_DEPTH_MARGIN
+    return wp.where(orthographic != 0, ortho_skip, persp_skip)
 
 
 @wp.func
@@ -268,32 +294,39 @@ def _texel(view: ViewParams, s0: wp.vec2, ds: wp.vec2, s: float) -> wp.vec2i:
                     wp.clamp(int(wp.floor(sp[1])), 0, view.height - 1))
 
 
+#: log2 of the cells' edges: a cell index is a texel coordinate shifted right (texel coordinates are >= 0, clamped
+#: to the image: the same integer as the division, one instruction instead of a signed division's three)
+CELL_SHIFT = wp.constant(int(BOUNDS_CELL).bit_length() - 1)
+COARSE_SHIFT = wp.constant(int(BOUNDS_COARSE).bit_length() - 1)
+assert 1 << int(CELL_SHIFT) == int(BOUNDS_CELL) and 1 << int(COARSE_SHIFT) == int(BOUNDS_COARSE)
+
+
 @wp.func
-def _cell_exit(ci: int, cell: int, s0: float, ds: float, inv_step: float) -> float:
-    """Step index (as a float) past which the samples leave cell ``ci`` along one screen axis; 1e9 if never.
-    ``inv_step`` = 1 / (ds · ds_step), computed once per march (no divisions per cell: an ulp off only moves the
-    estimate by one step, which :func:`_cell_span` checks)."""
-    if ds > 0.0:
-        return (float((ci + 1) * cell) - s0) * inv_step
-    if ds < 0.0:
-        return (float(ci * cell) - s0) * inv_step
-    return 1.0e9
+def _cell_exit(ci: int, shift: int, s0: float, ds: float, inv_step: float) -> float:
+    """Step index (as a float) past which the samples leave cell ``ci`` (of ``1 << shift`` texels) along one screen
+    axis; 1e9 if never. ``inv_step`` = 1 / (ds · ds_step), computed once per march (no divisions per cell: an ulp
+    off only moves the estimate by one step, which :func:`_cell_span` checks). The cell's far edge selected by the
+    sign of ``ds`` and the value by whether it moves (the same values as a return in each branch, without the
+    branches: this runs four times a cell test of every march; docs/perf_notes.md section 59)."""
+    forward = ds > 0.0
+    edge = (ci << shift) + wp.where(forward, 1 << shift, 0)
+    return wp.where(forward or ds < 0.0, (float(edge) - s0) * inv_step, 1.0e9)
 
 
 @wp.func
 def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_step: wp.vec2, i: int, n: int,
-               tx: wp.vec2i, cell: int):
-    """The cell (ci, cj) of ``cell`` texels that step i's sample (texel ``tx``) lies in, and a step ``last`` in
+               tx: wp.vec2i, shift: int):
+    """The cell (ci, cj) of ``1 << shift`` texels that step i's sample (texel ``tx``) lies in, and a step ``last`` in
     [i, n] whose sample still does: all samples between lie in it too (texel coordinates are monotonic in the
     step). ``last`` is the cell's last step up to rounding: one step short only costs another visit of the cell."""
-    ci = tx[0] / cell
-    cj = tx[1] / cell
-    last_f = wp.min(_cell_exit(ci, cell, s0[0], ds[0], inv_step[0]), _cell_exit(cj, cell, s0[1], ds[1], inv_step[1]))
+    ci = tx[0] >> shift
+    cj = tx[1] >> shift
+    last_f = wp.min(_cell_exit(ci, shift, s0[0], ds[0], inv_step[0]), _cell_exit(cj, shift, s0[1], ds[1], inv_step[1]))
     last = n
     if last_f < float(n):
         last = wp.max(int(wp.ceil(last_f)) - 1, i)
     tl = _texel(view, s0, ds, ds_step * float(last))
-    while last > i and (tl[0] / cell != ci or tl[1] / cell != cj):  # rounding: step back into the cell
+    while last > i and ((tl[0] >> shift) != ci or (tl[1] >> shift) != cj):  # rounding: step back into the cell
         last -= 1
         tl = _texel(view, s0, ds, ds_step * float(last))
     return last, ci, cj
@@ -577,9 +610,9 @@ def _make_marches(back_layer: bool, counted: bool = False):
         if inside == 0:
             return MARCH_EXIT, float(0.0), int(0)
         ortho = view.orthographic
-        fine_x = (view.width + BOUNDS_CELL - 1) / BOUNDS_CELL
-        coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) / BOUNDS_CELL)
-        coarse_x = (view.width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+        fine_x = (view.width + BOUNDS_CELL - 1) >> CELL_SHIFT  # (sizes and texel coordinates >= 0: shifts)
+        coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) >> CELL_SHIFT)
+        coarse_x = (view.width + BOUNDS_COARSE - 1) >> COARSE_SHIFT
         # 1 / (screen pixels per step) along each axis (0 where the segment does not move along it), for the cell
         # exits; selected, not assigned in branches (the same values, no division merged through local memory)
         inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
@@ -595,30 +628,29 @@ def _make_marches(back_layer: bool, counted: bool = False):
             # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
             last = n
             skip = False
-            zr_last = float(0.0)
-            if (tx[1] / BOUNDS_COARSE) * coarse_x + tx[0] / BOUNDS_COARSE != failed_coarse:
-                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, BOUNDS_COARSE)
+            if (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, COARSE_SHIFT)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
-                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+                skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
                 if not skip:
                     failed_coarse = cj * coarse_x + ci
             if not skip:
-                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, BOUNDS_CELL)
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, CELL_SHIFT)
                 b = bounds[cj * fine_x + ci]
                 if wp.static(counted):
                     work += WORK_TESTS
-                zr_last = _ray_depth(ortho, z0, z1, k0, k1, ds_step * float(last))
-                skip = wp.max(zr_prev, zr_last) < b[0] or wp.min(zr_prev, zr_last) > b[1]
+                skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
             if skip:
                 # no step i..last can hit: continue after them, as the naive march would
                 s_prev = ds_step * float(last)
-                zr_prev = zr_last
+                zr_prev = ZR_UNREAD  # the ray's depth at s_prev, computed only if its next steps are walked
                 diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
                 i = last + 1
                 continue
+            if zr_prev < 0.0:  # ZR_UNREAD: the value the naive march had there (its step at s_prev)
+                zr_prev = _ray_depth(ortho, z0, z1, k0, k1, s_prev)
             while i <= last:
                 if wp.static(counted):
                     work += 1
