@@ -392,22 +392,43 @@ class PhotonPass:
         n = max(1, self.settings.photons // max(1, sum(active)))
         return [n if a else 0 for a in active]
 
+    #: zero the frame's accumulators (photon map, its Σ e², hidden flux, ledger, maxima) in one kernel
+    #: (``common.clear_frame``); False: one memset each (the twin)
+    FUSED_CLEAR = True
+
     def begin(self) -> None:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
-        self.photon_map.zero_()
-        if self.hidden is not None:
-            self.hidden.zero()
-        self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
-        if self.photon_m2 is not None:
-            self.photon_m2.zero_()
+        if self.FUSED_CLEAR:
+            hidden = self.hidden.all_flux if self.hidden is not None else None
+            n = max(self.photon_map.shape[0], self._accumulators.shape[0], 0 if hidden is None else hidden.shape[0])
+            wp.launch(C.clear_frame, dim=n, device=self.device,
+                      inputs=[self.photon_map, self.photon_m2, hidden, self._accumulators])
+        else:
+            self.photon_map.zero_()
+            if self.hidden is not None:
+                self.hidden.zero()
+            self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
+            if self.photon_m2 is not None:
+                self.photon_m2.zero_()
         for li, lm in enumerate(self.lights):
             with self.light_lane(li):
                 self.begin_light(li, lm)
 
+    #: a fitted light's pilots in one launch each (``common.pilot_texel_pass``: the brightest texel and the power outside
+    #: the fitted views from one flux per texel); False: ``max_luminance`` then ``book_outside_window`` (the twins)
+    FUSED_PILOT_PASS = True
+
     def begin_light(self, li: int, lm: LightMaps) -> None:
         """Light ``li``'s part of :meth:`begin`: its brightest whole-view texel, and the power outside its fitted
         views booked."""
+        if lm.fitted and self.FUSED_PILOT_PASS:
+            for b, r in enumerate(lm.pilot):
+                self.launch_photons(C.pilot_texel_pass, r.width * r.height,
+                                    [lm.pilot_views, r.specular.tri_id, lm.emission(r), r.width, r.width * r.height,
+                                     lm.outside, lm.outside_angle, b, wp.vec2(r.view.cx, r.view.cy),
+                                     float(r.view.fx / r.view.fy), self.ledger_rows, self._max_lum_of[li]])
+            return
         for k, r in enumerate(lm.whole_rsm):
             n = r.width * r.height
             block = 256 if self.device.is_cuda else 1
