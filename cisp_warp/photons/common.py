@@ -483,12 +483,9 @@ def _march_group(
     max_lum: wp.array(dtype=wp.float32),
     roughness_cutoff: float,
     luminance_cutoff: float,
-    order: wp.array(dtype=wp.int32),
-    at: int,
+    k: int,
 ) -> int:
-    """The march group of photon ``order[at]`` (a thread's entry of its view's texel order; see
-    :func:`photon_group_keys`)."""
-    k = order[at]
+    """The march group of photon ``k`` (a thread's entry of its view's texel order; see :func:`photon_group_keys`)."""
     cascade = states[view_index]
     light = views[view_index]
     rnd = randoms[stream]
@@ -575,8 +572,18 @@ def photon_group_keys(
     tiles = block_counts.shape[0] / SORT_GROUPS
     mask = (1 << SORT_COUNT_BITS) - 1
     tile = block
+    # each tile's photon indices are loaded one tile ahead (``k``), so that a tile's chain of dependent loads starts
+    # at its texel's triangle, not at the order: the next tile's order load is in flight while this tile's chain runs
+    k = int(0)
+    t_first = tile * bd + lane
+    if t_first < n_photons and t_first < n_slots:
+        k = order[base + t_first]
     while tile < tiles:  # the same trip count for every thread of the block
         first = tile * bd
+        t_next = first + grid * bd + lane
+        k_next = int(0)
+        if t_next < n_photons and t_next < n_slots:
+            k_next = order[base + t_next]
         if first >= n_photons:  # a tile wholly past the view's photons: all last
             if lane == 0:
                 for g in range(SORT_GROUPS - 1):
@@ -590,7 +597,7 @@ def photon_group_keys(
                 if t < n_photons:
                     group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_emission,
                                          rsm_tri, geometry, triangle_material, mat_opacity,
-                                         max_lum, roughness_cutoff, luminance_cutoff, order, base + t)
+                                         max_lum, roughness_cutoff, luminance_cutoff, k)
                 keys[t] = group
             packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
             if lane == 0:
@@ -601,6 +608,7 @@ def photon_group_keys(
                     block_counts[g * tiles + tile] = n_g
                     rest -= n_g
                 block_counts[(SORT_GROUPS - 1) * tiles + tile] = rest
+        k = k_next
         tile += grid
 
 
@@ -636,10 +644,16 @@ def photon_group_scatter(
         group = int(-1)
         if t < n_slots:
             group = keys[t]
+        # the photon and its group's offset loaded before the scan, in flight while the block scans
+        k = int(0)
+        offset = int(0)
+        if t < n_slots and group != SORT_GROUP_LAST:
+            k = order[base + t]
+            offset = offsets[group * tiles + tile]
         before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
         if t < n_slots and group != SORT_GROUP_LAST:
             rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
-            grouped[offsets[group * tiles + tile] + rank] = order[base + t]
+            grouped[offset + rank] = k
         tile += grid
 
 

@@ -117,11 +117,17 @@ def cascade_solid_angles(views: wp.array(dtype=ViewParams), states: wp.array(dty
             out[p] = texel_solid_angle(view, p)
 
 
+#: threads per view of :func:`cascade_solid_angles_all` at most: a light's views that stand still then cost a few
+#: hundred blocks that read one flag each (2048 blocks a 2048² view at CASCADE_TEXELS_PER_THREAD; ~2 µs a thousand
+#: blocks to schedule on an H100, perf_notes section 40), one that moved 64 texels a thread
+CASCADE_THREADS_PER_VIEW = 1 << 16
+
+
 @wp.kernel
 def cascade_solid_angles_all(views: wp.array(dtype=ViewParams), states: wp.array(dtype=CascadeState), texels: int,
-                             out: wp.array(dtype=wp.float32)):
-    """:func:`cascade_solid_angles` of every view of a light in one launch, ``dim = (V, ceil(texels /
-    CASCADE_TEXELS_PER_THREAD))``: thread (k, t) writes texels t, t + threads, ... of view k where the fit moved it.
+                             threads: int, out: wp.array(dtype=wp.float32)):
+    """:func:`cascade_solid_angles` of every view of a light in one launch, ``dim = (V, threads)``: thread (k, t)
+    writes texels t, t + threads, ... (coalesced) of view k where the fit moved it; one flag read where it did not.
 
     ``texels``: H*W of each view; ``out``: (V*H*W,) float32, view k's at [k*H*W, (k+1)*H*W) (write when changed)."""
     k, t = wp.tid()
@@ -130,11 +136,10 @@ def cascade_solid_angles_all(views: wp.array(dtype=ViewParams), states: wp.array
     view = views[k]
     if view.orthographic != 0 or view.far <= INACTIVE_FAR:
         return
-    threads = (texels + CASCADE_TEXELS_PER_THREAD - 1) / CASCADE_TEXELS_PER_THREAD
-    for i in range(CASCADE_TEXELS_PER_THREAD):
-        p = t + i * threads
-        if p < texels:
-            out[k * texels + p] = texel_solid_angle(view, p)
+    p = t
+    while p < texels:
+        out[k * texels + p] = texel_solid_angle(view, p)
+        p += threads
 
 
 #: 32-bit words of one ViewParams (compared bit for bit by :func:`redraw_gate`)
@@ -544,8 +549,9 @@ class LightMaps:
             return
         if self.FUSED_SOLID_ANGLES and self.cascade_solid_angle is not None:
             n = self.rsm_size * self.rsm_size
-            wp.launch(cascade_solid_angles_all, dim=(len(self.rsm), (n + CASCADE_TEXELS_PER_THREAD - 1) // CASCADE_TEXELS_PER_THREAD),
-                      device=self.scene.device, inputs=[self.views, self.states, n, self.cascade_solid_angle])
+            threads = min(CASCADE_THREADS_PER_VIEW, (n + CASCADE_TEXELS_PER_THREAD - 1) // CASCADE_TEXELS_PER_THREAD)
+            wp.launch(cascade_solid_angles_all, dim=(len(self.rsm), threads), device=self.scene.device,
+                      inputs=[self.views, self.states, n, threads, self.cascade_solid_angle])
             return
         for k, r in enumerate(self.rsm):
             n = r.width * r.height
