@@ -1020,14 +1020,16 @@ def test_redraw_gate_compares_views_bit_for_bit(device):
     scene = make_scene(box_room(), Camera(look_at_matrix((0, 0, 1), (0, 0, 0))))
     assert DeviceScene(scene, device).dynamic_layers == LAYER_OPAQUE | LAYER_SPECULAR
     # the gated clear of kept keys: every key when the view is drawn (2501 keys: a partial last stride), none when not
-    from cisp_warp.raster.light_maps import SHADOW_TEXELS_PER_THREAD, clear_keys_if_drawn
+    from cisp_warp.raster.light_maps import clear_keys_if_drawn, shadow_clear_threads
 
-    keys = wp.full(2501, 5, dtype=wp.uint64, device=device)
-    threads = (2501 + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD
-    for far, expect in ((0.0, 5), (2.0, RK.EMPTY_KEY_VALUE)):
-        w2.far = far
-        wp.launch(clear_keys_if_drawn, dim=threads, device=device, inputs=[wp.array([w2], dtype=ViewParams, device=device), keys])
-        assert np.all(keys.numpy() == np.uint64(expect))
+    for threads in (shadow_clear_threads(2501), 7):  # as launched, and a stride that does not divide the keys
+        keys = wp.full(2501, 5, dtype=wp.uint64, device=device)
+        for far, expect in ((0.0, 5), (2.0, RK.EMPTY_KEY_VALUE)):
+            w2.far = far
+            wp.launch(clear_keys_if_drawn, dim=threads, device=device,
+                      inputs=[wp.array([w2], dtype=ViewParams, device=device), keys, threads])
+            assert np.all(keys.numpy() == np.uint64(expect))
+    assert shadow_clear_threads(2048 * 2048) == 1 << 16 and shadow_clear_threads(2501) == 313
 
 
 def test_split_redraw_gates_in_one_launch_are_the_two_gates(device, rng):

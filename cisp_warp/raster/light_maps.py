@@ -238,19 +238,28 @@ def _same_params(a: ViewParams, rec) -> bool:
             and all(np.float32(getattr(a, f)) == np.float32(rec[f]) for f in ("fx", "fy", "cx", "cy", "near", "far")))
 
 
+#: threads of :func:`clear_keys_if_drawn` at most: a skipped clear (the frames whose opaque layer stood still) then
+#: costs a few hundred blocks that read one flag each instead of 2048 (a 2048² map at SHADOW_TEXELS_PER_THREAD)
+SHADOW_CLEAR_THREADS = 1 << 16
+
+
+def shadow_clear_threads(n: int) -> int:
+    """Threads :func:`clear_keys_if_drawn` is launched with for ``n`` keys."""
+    return max(1, min(SHADOW_CLEAR_THREADS, (n + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD))
+
+
 @wp.kernel
-def clear_keys_if_drawn(draw: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.uint64)):
+def clear_keys_if_drawn(draw: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.uint64), threads: int):
     """Fill ``keys`` with EMPTY_KEY when ``draw[0]`` is drawn this frame (``redraw_gate``), else leave them.
-    ``ceil(n / SHADOW_TEXELS_PER_THREAD)`` threads, thread t covering texels t, t + threads, ..."""
+    ``threads`` threads (:func:`shadow_clear_threads`), thread t covering texels t, t + threads, ... (coalesced)."""
     if draw[0].far <= INACTIVE_FAR:
         return
     t = wp.tid()
     n = keys.shape[0]
-    threads = (n + SHADOW_TEXELS_PER_THREAD - 1) / SHADOW_TEXELS_PER_THREAD
-    for i in range(SHADOW_TEXELS_PER_THREAD):
-        p = t + i * threads
-        if p < n:
-            keys[p] = K.EMPTY_KEY
+    p = t
+    while p < n:
+        keys[p] = K.EMPTY_KEY
+        p += threads
 
 
 @wp.kernel
@@ -334,8 +343,8 @@ class _ShadowView:
             wp.launch(redraw_gate, dim=1, device=s.device,
                       inputs=[self.views, self._words, 0, s.generation, LAYER_OPAQUE, 0, self.drawn_opaque_words,
                               self.drawn_opaque_generation, self.draw_opaque])
-        threads = (w * h + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD
-        wp.launch(clear_keys_if_drawn, dim=threads, device=s.device, inputs=[self.draw_opaque, self.opaque_keys])
+        threads = shadow_clear_threads(w * h)
+        wp.launch(clear_keys_if_drawn, dim=threads, device=s.device, inputs=[self.draw_opaque, self.opaque_keys, threads])
         raster.draw(self.draw_opaque, 0, w, h, LAYER_OPAQUE, self.opaque_keys, clear=False)
         raster.draw(self.draw_view, 0, w, h, LAYER_SPECULAR, self.visibility, clear=False)
         wp.launch(resolve_depth_over, dim=w * h, device=s.device,
