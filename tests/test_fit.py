@@ -200,11 +200,12 @@ def wp_device_is_cpu(device) -> bool:
     return wp.get_device(device).is_cpu
 
 
-@pytest.mark.parametrize("block", [1, 32, 128])
+@pytest.mark.parametrize("block", [1, 32, 128, 160])
 def test_fit_reductions_by_columns_equal_the_naive_ones(device, monkeypatch, block):
     """fit_reduce_angles / fit_reduce_cascades (a column's first and last useful texels turned) write the naive
     kernels' boxes, counts and angles bit for bit: random sparse depths with gaps in columns, a full view, a diagonal
-    band, on 40² pilots (blocks narrower and wider than a row, lanes left idle)."""
+    band, on 40² pilots (blocks narrower and wider than a row, lanes left idle; 160: four rows at a time, as FIT_BLOCK
+    = 512 takes a 128² pilot's)."""
     import warp as wp
 
     from cisp_warp.photons import fit as F

@@ -249,7 +249,11 @@ def pilot_nearest(
 
 #: turns about the pilot view's axis tried by the fit, in [0, 90°) (``views.fit_angle``'s ``steps``)
 FIT_STEPS = 18
-FIT_BLOCK = 256  #: threads per block of the fit's reductions on CUDA (one per block on the CPU)
+#: threads per block of the fit's reductions on CUDA (one per block on the CPU): 512 = four rows of a 128² pilot at a
+#: time, so a thread's column takes 8 rounds of COLUMN_ROUND rows instead of 16 at 256 (each round a round trip to L2,
+#: ~0.4 µs: perf_notes sections 53, 63); 104 registers (fit_reduce_angles) × 512 fit one block an SM, and the launches
+#: are 19 and 2 blocks a pilot view
+FIT_BLOCK = 512
 MAX_CASCADES = 4  #: LightViewSettings.cascades is at most this (the solve keeps windows in a mat44d)
 #: where a LightViewFitter fits unless told: True, on the device; False, the numpy twin (a host sync per frame)
 FIT_ON_DEVICE = True
