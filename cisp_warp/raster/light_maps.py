@@ -117,10 +117,10 @@ def cascade_solid_angles(views: wp.array(dtype=ViewParams), states: wp.array(dty
             out[p] = texel_solid_angle(view, p)
 
 
-#: threads per view of :func:`cascade_solid_angles_all` at most: a light's views that stand still then cost a few
-#: hundred blocks that read one flag each (2048 blocks a 2048² view at CASCADE_TEXELS_PER_THREAD; ~2 µs a thousand
-#: blocks to schedule on an H100, perf_notes section 40), one that moved 64 texels a thread
-CASCADE_THREADS_PER_VIEW = 1 << 16
+#: threads per view of :func:`cascade_solid_angles_all` at most: a light's views that stand still then cost 512 blocks
+#: that read one flag each (2048 a 2048² view at CASCADE_TEXELS_PER_THREAD; ~2 µs a thousand blocks to schedule on an
+#: H100, perf_notes section 40), one that moved 32 texels a thread (~4 blocks of 256 an SM for its float64 work)
+CASCADE_THREADS_PER_VIEW = 1 << 17
 
 
 @wp.kernel
