@@ -158,11 +158,12 @@ def test_pilot_texel_pass_is_max_luminance_and_book_outside_window(device, rng, 
 
 
 def test_clear_frame_zeroes_every_accumulator(device):
-    """``clear_frame`` zeroes each array it is given over its whole length (arrays of unequal lengths, an empty
-    one), as the memsets it replaces do, and nothing else."""
-    a = wp.full(37, wp.vec3(1.0, -2.0, 3.0), dtype=wp.vec3, device=device)
-    h = wp.full(53, wp.vec3(-1.0), dtype=wp.vec3, device=device)
-    acc = wp.full(90, 5.0, dtype=wp.float64, device=device)
+    """``clear_frame`` zeroes each array it is given over its whole length (arrays of unequal lengths, a view into a
+    longer one, an empty one), as the memsets it replaces do, and nothing else; the pass's float32 aliases of its
+    accumulators (``PhotonPass._clear_words``) cover every byte of them."""
+    a = wp.full(37, 1.5, dtype=wp.float32, device=device)
+    h = wp.full(53, -1.0, dtype=wp.float32, device=device)
+    acc = wp.full(90, 5.0, dtype=wp.float32, device=device)
     whole = wp.full(60, 9.0, dtype=wp.float32, device=device)
     part = whole[10:21]  # a view: its neighbours must keep their values
     wp.launch(C.clear_frame, dim=90, device=device, inputs=[a, part, h, acc])
@@ -171,3 +172,20 @@ def test_clear_frame_zeroes_every_accumulator(device):
     w = whole.numpy()
     assert not w[10:21].any() and (w[:10] == 9.0).all() and (w[21:] == 9.0).all()
     wp.launch(C.clear_frame, dim=37, device=device, inputs=[a, None, None, acc[:0]])  # absent arrays
+    settings = RenderSettings(rsm_size=32, method="cisp", denoiser="none", photons=PhotonSettings(photons=500, seed=7))
+    p = Renderer(wavy_water(width=16, height=12), settings, device=device).photons
+    words = p._clear_words()
+    arrays = (p.photon_map, p.photon_m2, p.hidden.all_flux, p._accumulators)
+    for w, arr in zip(words, arrays):
+        assert w.ptr == arr.ptr and 4 * w.shape[0] == arr.capacity
+    assert p._clear_words() is words  # made once
+    for arr in arrays:
+        arr.fill_(3)
+    wp.launch(C.clear_frame, dim=max(w.shape[0] for w in words), device=device, inputs=words)
+    for arr in arrays:
+        assert not arr.numpy().any()
+    for arr in arrays:
+        arr.fill_(3)
+    p.begin()  # clears, then books the light's brightest texel and the power outside its fitted views
+    for arr in arrays[:3]:
+        assert not arr.numpy().any()

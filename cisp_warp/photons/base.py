@@ -400,10 +400,8 @@ class PhotonPass:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
         if self.FUSED_CLEAR:
-            hidden = self.hidden.all_flux if self.hidden is not None else None
-            n = max(self.photon_map.shape[0], self._accumulators.shape[0], 0 if hidden is None else hidden.shape[0])
-            wp.launch(C.clear_frame, dim=n, device=self.device,
-                      inputs=[self.photon_map, self.photon_m2, hidden, self._accumulators])
+            words = self._clear_words()
+            wp.launch(C.clear_frame, dim=max(1, max(a.shape[0] for a in words)), device=self.device, inputs=words)
         else:
             self.photon_map.zero_()
             if self.hidden is not None:
@@ -418,6 +416,23 @@ class PhotonPass:
     #: a fitted light's pilots in one launch each (``common.pilot_texel_pass``: the brightest texel and the power outside
     #: the fitted views from one flux per texel); False: ``max_luminance`` then ``book_outside_window`` (the twins)
     FUSED_PILOT_PASS = True
+
+    def _clear_words(self) -> list[wp.array]:
+        """float32 aliases of the arrays :func:`~.common.clear_frame` zeroes (photon map, Σ e², hidden flux,
+        accumulators; empty where the pass keeps none), made once per set of arrays (they are allocated at set-up)."""
+        arrays = (self.photon_map, self.photon_m2, self.hidden.all_flux if self.hidden is not None else None,
+                  self._accumulators)
+        key = tuple(None if a is None else (a.ptr, a.capacity) for a in arrays)
+        if getattr(self, "_clear_key", None) != key:
+            words = []
+            for a in arrays:
+                n = 0 if a is None else a.capacity // 4
+                w = wp.array(ptr=a.ptr if n else 0, dtype=wp.float32, shape=(n,), device=self.device)
+                if a is not None:
+                    w._owner = a
+                words.append(w)
+            self._clear_key, self._clear_words_cache = key, words
+        return self._clear_words_cache
 
     def begin_light(self, li: int, lm: LightMaps) -> None:
         """Light ``li``'s part of :meth:`begin`: its brightest whole-view texel, and the power outside its fitted

@@ -313,22 +313,23 @@ def ledger_add_outcomes(
 
 @wp.kernel
 def clear_frame(
-    photon_map: wp.array(dtype=wp.vec3),  # (H*W,) irradiance [W/m²] (write: zero)
+    photon_map: wp.array(dtype=wp.float32),  # (3*H*W,) the photon map's words (a float32 alias, write: zero)
     photon_m2: wp.array(dtype=wp.float32),  # (H*W,) or empty: Σ luminance(e)² (write: zero)
-    hidden: wp.array(dtype=wp.vec3),  # every light's hidden flux map (HiddenFlux.all_flux) or empty (write: zero)
-    accumulators: wp.array(dtype=wp.float64),  # the striped ledger, the ledger and the lights' maxima (write: zero)
+    hidden: wp.array(dtype=wp.float32),  # every light's hidden flux map's words (HiddenFlux.all_flux) or empty
+    accumulators: wp.array(dtype=wp.float32),  # the striped ledger, ledger and lights' maxima's words (write: zero)
 ):
-    """The photon pass's per-frame accumulators zeroed in one launch, thread t zeroing element t of each array that
-    has one (launched over the longest): what ``PhotonPass.begin`` did in one memset per array (the twin)."""
+    """The photon pass's per-frame accumulators zeroed in one launch, thread t zeroing word t of each array that has
+    one (launched over the longest; 4-byte words, so a warp's stores are one contiguous run): what
+    ``PhotonPass.begin`` did in one memset per array (the twin)."""
     t = wp.tid()
     if t < photon_map.shape[0]:
-        photon_map[t] = wp.vec3(0.0)
+        photon_map[t] = 0.0
     if t < photon_m2.shape[0]:
         photon_m2[t] = 0.0
     if t < hidden.shape[0]:
-        hidden[t] = wp.vec3(0.0)
+        hidden[t] = 0.0
     if t < accumulators.shape[0]:
-        accumulators[t] = wp.float64(0.0)
+        accumulators[t] = 0.0
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
