@@ -189,3 +189,47 @@ def test_clear_frame_zeroes_every_accumulator(device):
     p.begin()  # clears, then books the light's brightest texel and the power outside its fitted views
     for arr in arrays[:3]:
         assert not arr.numpy().any()
+
+
+def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
+    """Two frames of the shipped pool (a fitted sun and a fitted spot, split shadow maps) at 48×27 with the launch
+    folds of perf_notes section 63 on or off (their twins): the ledger and every AOV."""
+    import warnings
+    from pathlib import Path
+
+    from cisp_warp.photons.base import PhotonPass
+    from cisp_warp.raster.light_maps import LightMaps, _ShadowView
+    from cisp_warp.usd import load_usd
+
+    for cls, name in ((PhotonPass, "FUSED_PILOT_PASS"), (PhotonPass, "FUSED_CLEAR"), (_ShadowView, "FUSED_GATES"),
+                      (LightMaps, "FUSED_SOLID_ANGLES")):
+        monkeypatch.setattr(cls, name, fused)
+    path = Path(__file__).resolve().parents[1] / "scenes_usd" / "pool.usda"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stage = load_usd(path, width=48, height=27, device=device)
+    r = Renderer(stage, RenderSettings(width=48, height=27, rsm_size=64, method="cisp", denoiser="svgf",
+                                       photons=PhotonSettings(photons=8000, seed=3)), device=device)
+    for _ in range(2):
+        r.render_frame()
+    out = {k: np.asarray(v) for k, v in r.aovs().items()}
+    out["ledger"] = r.photons.read_ledger().values
+    return out
+
+
+def test_folded_launches_render_the_twins_frames(device, monkeypatch):
+    """The frame with the folded launches (``pilot_texel_pass``, ``clear_frame``, ``redraw_gate_split``,
+    ``cascade_solid_angles_all``) against the one with their twins: on the CPU every AOV and the ledger bit for bit
+    (the same sums in the same order); on a GPU, whose atomics add in any order, the ledger to 1e-9 and the maps to
+    1e-5 of their maximum."""
+    fused = _pool_frames(device, True, monkeypatch)
+    twin = _pool_frames(device, False, monkeypatch)
+    assert fused.keys() == twin.keys() and fused["ledger"][C.L_OUTSIDE].sum() > 0.0
+    exact = wp.get_device(device).is_cpu
+    for k in fused:
+        if exact:
+            assert fused[k].tobytes() == twin[k].tobytes(), k
+        elif k == "ledger":
+            np.testing.assert_allclose(fused[k], twin[k], rtol=1e-9, atol=1e-9 * twin[k].max())
+        elif np.issubdtype(fused[k].dtype, np.floating):
+            np.testing.assert_allclose(fused[k], twin[k], rtol=1e-5, atol=1e-5 * max(1e-30, np.abs(twin[k]).max()))
