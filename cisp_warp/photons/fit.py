@@ -810,12 +810,17 @@ def fit_solve_cascades(
     b = k / cascades
     ci = k - b * cascades
     n_active = int(0)
+    kept = wp.mat44d()
+    n_kept = int(0)
+    angle = wp.float64(0.0)
     for bb in range(n_views):
         kept_bb, n_bb, angle_bb = _view_windows(bb, width, height, aspects, cascades, margin, cascade_boxes,
                                                 cascade_counts, angles)
         n_active += n_bb
-    kept, n_kept, angle = _view_windows(b, width, height, aspects, cascades, margin, cascade_boxes, cascade_counts,
-                                        angles)
+        if bb == b:  # its own view's windows
+            kept = kept_bb
+            n_kept = n_bb
+            angle = angle_bb
     if ci == 0:
         _write_outside(b, kept, n_kept, angle, outside, outside_angle)
     v, st = _cascade_view(pilot_views[b], views[k], ci, cascades, kept, n_kept, angle, rsm_size)
