@@ -16,8 +16,9 @@ Per frame, after the camera's G-buffer and before the lights' RSM views are draw
    box of the turned useful texels (and their depth range) with Warp tiles, one block each, turning only each
    column's first and last useful texel (``fit_reduce_*_naive``, every texel turned, are the twins);
    :func:`fit_reduce_cascades` picks the tightest turn and reduces each cascade's box (texels nearer than its
-   split); :func:`fit_solve` (one thread per light) grows, clips, merges and nests the windows and writes the
-   cascades' views and states into ``LightMaps.views`` / ``states`` / ``outside`` (see ``LightMaps``);
+   split); :func:`fit_solve_cascades` (one thread per cascade; :func:`fit_solve`, one thread per light, is the twin)
+   grows, clips, merges and nests the windows and writes the cascades' views and states into ``LightMaps.views`` /
+   ``states`` / ``outside`` (see ``LightMaps``);
 4. the photon and raster kernels read those arrays: the host neither waits for the fit nor knows its result.
 
 The numpy fit (:meth:`LightViewFitter.fit_host`: read the depths back, ``fit_angle``, ``fit_windows``,
