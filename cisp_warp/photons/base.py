@@ -215,6 +215,8 @@ class PhotonPass:
         for alias in (self.ledger_rows, self.ledger, self._ledger_entries, self.max_lum):
             alias._owner = self._accumulators  # views of it (host copies via numpy() too) keep the memory alive
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
+        self._clear_key = None  #: the arrays ``_clear_words_cache`` aliases (:meth:`_clear_words`)
+        self._clear_words_cache: list[wp.array] = []
         #: (H*W,) float32: the camera pixels' exact solid angles [sr] (:meth:`set_camera_view` when the camera's
         #: intrinsics change)
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -423,7 +425,7 @@ class PhotonPass:
         arrays = (self.photon_map, self.photon_m2, self.hidden.all_flux if self.hidden is not None else None,
                   self._accumulators)
         key = tuple(None if a is None else (a.ptr, a.capacity) for a in arrays)
-        if getattr(self, "_clear_key", None) != key:
+        if self._clear_key != key:
             words = []
             for a in arrays:
                 n = 0 if a is None else a.capacity // 4
