@@ -200,11 +200,12 @@ def wp_device_is_cpu(device) -> bool:
     return wp.get_device(device).is_cpu
 
 
-@pytest.mark.parametrize("block", [1, 32, 128])
+@pytest.mark.parametrize("block", [1, 32, 128, 160])
 def test_fit_reductions_by_columns_equal_the_naive_ones(device, monkeypatch, block):
     """fit_reduce_angles / fit_reduce_cascades (a column's first and last useful texels turned) write the naive
     kernels' boxes, counts and angles bit for bit: random sparse depths with gaps in columns, a full view, a diagonal
-    band, on 40² pilots (blocks narrower and wider than a row, lanes left idle)."""
+    band, on 40² pilots (blocks narrower and wider than a row, lanes left idle; 160: four rows at a time, as FIT_BLOCK
+    = 512 takes a 128² pilot's)."""
     import warp as wp
 
     from cisp_warp.photons import fit as F
@@ -291,3 +292,39 @@ def test_fit_reduce_angles_from_branches_equals_pilot_nearest_first(device, monk
     np.testing.assert_array_equal(folded.numpy(), depth.numpy())
     np.testing.assert_array_equal(folded_boxes.numpy(), boxes.numpy())
     assert (depth.numpy() > 0).sum() > 100 and (depth.numpy() == 1.5).sum() == 225
+
+
+def test_fit_solve_per_cascade_is_the_one_thread_solve(device):
+    """``fit_solve_cascades`` (a thread a cascade) writes ``fit_solve``'s views, states, outside windows and turns,
+    and through them the cascades' solid angles, bit for bit: a point light's six pilot views with three cascades
+    each, on the frame's own depths, on hand-made ones (nested windows, a merge, cascades left inactive) and on none
+    (every cascade inactive), each twice (the second time nothing moved: ``changed`` 0)."""
+    r = Renderer(_spot_closeup(), RenderSettings(rsm_size=32, method="cisp", denoiser="none", photons=5_000,
+                                                 light_views=LightViewSettings(cascades=3, pilot_size=64)),
+                 device=device)
+    r.render_frame()
+    f, lm = r.fitter, r.lights[0]
+    assert len(lm.pilot) == 6
+    outputs = (lm.views, lm.states, lm.outside, lm.outside_angle, lm.cascade_solid_angle)
+    p = lm.pilot[0]
+    frame = f.receiver_depth_all[0].numpy().copy()
+    made = np.zeros((len(lm.pilot), p.height, p.width), np.float32)
+    made[0, 10:30, 5:60] = 9.0
+    made[0, 15:18, 20:23] = 1.0
+    made[2, 40:42, 3:5] = 3.0
+    made[3, 5:60, 5:60] = 2.0  # one depth: the cascades merge
+    start = [a.numpy().copy() for a in outputs]
+    for depths in (frame, made.reshape(-1), np.zeros_like(frame)):
+        got = {}
+        for per_cascade in (False, True):
+            for a, v in zip(outputs, start):
+                a.assign(v)
+            f.solve_per_cascade = per_cascade
+            got[per_cascade] = []
+            for _ in range(2):
+                f.receiver_depth_all[0].assign(depths)
+                f.fit_device()
+                got[per_cascade].append([a.numpy().tobytes() for a in outputs])
+        assert got[True] == got[False]
+        start = [a.numpy().copy() for a in outputs]
+    assert not any(lm.active)  # the last depths: nothing seen

@@ -341,3 +341,36 @@ def test_turned_windows_keep_the_energy(device, monkeypatch):
     np.testing.assert_allclose(lf["sampled"], lw["sampled"], rtol=2e-3)
     np.testing.assert_allclose(lf["stored"], lw["stored"], rtol=0.02)
     np.testing.assert_allclose(fitted.mean(), whole.mean(), rtol=0.02)
+
+
+def test_cascade_solid_angles_of_a_light_in_one_launch_are_the_per_view_ones(device):
+    """``cascade_solid_angles_all`` (every view of a light in one launch, into one array, a few threads a view each
+    striding over its texels) writes each view's slice as ``cascade_solid_angles`` writes that view's array, bit for
+    bit: a moved view, one that stood still, an inactive one; a texel count not a multiple of the threads."""
+    import warp as wp
+
+    from cisp_warp.raster.light_maps import (CASCADE_TEXELS_PER_THREAD, CascadeState, cascade_solid_angles,
+                                             cascade_solid_angles_all)
+    from cisp_warp.raster.views import View, ViewParams, window_view
+
+    whole = View(np.eye(4), 128, 128, 0.01, 10.0, 64.0, 64.0, False, "w")
+    n = 37 * 37
+    params = [window_view(whole, w, 37, "c").params() for w in ((90.0, 20.0, 97.0, 25.0), (10.0, 12.0, 70.0, 60.0),
+                                                                 (0.0, 0.0, 128.0, 128.0), (30.0, 30.0, 40.0, 44.0))]
+    params[2].far = 0.0  # inactive
+    views = wp.array(params, dtype=ViewParams, device=device)
+    states = []
+    for changed in (1, 0, 1, 1):
+        st = CascadeState()
+        st.active, st.active_views, st.texel_scale, st.changed = 1, 3, 1.0, changed
+        states.append(st)
+    states = wp.array(states, dtype=CascadeState, device=device)
+    threads = (n + CASCADE_TEXELS_PER_THREAD - 1) // CASCADE_TEXELS_PER_THREAD
+    fused = wp.full(4 * n, -1.0, dtype=wp.float32, device=device)
+    wp.launch(cascade_solid_angles_all, dim=(4, 100), inputs=[views, states, n, 100, fused], device=device)  # 13.69 a thread
+    for k in range(4):
+        out = wp.full(n, -1.0, dtype=wp.float32, device=device)
+        wp.launch(cascade_solid_angles, dim=threads, inputs=[views, states, k, n, out], device=device)
+        assert fused.numpy()[k * n : (k + 1) * n].tobytes() == out.numpy().tobytes(), k
+    written = fused.numpy().reshape(4, n) != -1.0
+    assert written[0].all() and written[3].all() and not written[1].any() and not written[2].any()

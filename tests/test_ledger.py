@@ -44,11 +44,13 @@ def test_ledger_does_not_depend_on_the_block_size(device, method, monkeypatch):
     np.testing.assert_allclose(map_many, map_one, rtol=1e-5, atol=1e-6 * map_one.max())
 
 
-def test_outcome_pass_sums_every_record(device, rng, monkeypatch):
+@pytest.mark.parametrize("runs", ["several", "one"])
+def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs):
     """ledger_add_outcomes against numpy: records of every final entry (and codes outside the mask, which it must
     leave out), summed by 3 blocks of 32 threads into 4 stripes, then folded: float64 sums to 1e-12. The records
-    come in two runs of slots of which the last 5 of each lie past the view's photon count (stale records of a
-    fixed-size launch): those must be left out too."""
+    come in two runs of slots (and a partial third) of which the last 5 of each lie past the view's photon count
+    (stale records of a fixed-size launch): those must be left out too; or in one run (the records no more than a
+    run's slots: the pass then skips the division by the run), its last 5 past the count."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     n = 3 * 32 * 7 + 13
     finals = [e for e in range(C.LEDGER_ENTRIES) if (int(C.FINAL_ENTRIES) >> e) & 1]
@@ -56,7 +58,7 @@ def test_outcome_pass_sums_every_record(device, rng, monkeypatch):
     power = rng.random((n, 3), dtype=np.float32)
     mask = C.entry_mask(*finals[:-1])  # the last final entry is left out of the mask
     records = np.concatenate([power, codes[:, None].astype(np.float32)], axis=1)
-    run = n // 2  # n is odd: the last record lies in a third, partial run
+    run = n // 2 if runs == "several" else n  # n is odd: the last record lies in a third, partial run
     live = np.arange(n) % run < run - 5
     states = wp.array([_state(True, 1)], dtype=CascadeState, device=device)
     stripes = wp.zeros(4 * C.LEDGER_ROW, dtype=wp.vec3d, device=device)
@@ -100,3 +102,134 @@ def test_max_luminance_is_the_maximum(device, rng, monkeypatch):
                         inputs=[views, 0, wp.array(tri, dtype=wp.int32, device=device), e, n, out])
         np.testing.assert_allclose(out.numpy()[0], lum[tri >= 0].max(), rtol=1e-6)
         assert out.numpy()[0] < lum.max()
+
+
+@pytest.mark.parametrize("block", [1, 32])
+def test_pilot_texel_pass_is_max_luminance_and_book_outside_window(device, rng, monkeypatch, block):
+    """``pilot_texel_pass`` (a fitted light's pilot in one launch) against its twins ``max_luminance`` and
+    ``book_outside_window``: the same maximum, bit for bit, and the same bookings (the striped ledger bit for bit at
+    the same block size) for an unturned window cutting texels, a turned one, and an empty one (every texel
+    outside); texels without a specular surface book nothing and are left out of the maximum even where their solid
+    angle is the largest; a partial last block."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    from cisp_warp.raster import ViewParams
+    from cisp_warp.raster.kernels import TexelEmission
+
+    if wp.get_device(device).is_cuda:
+        block = max(block, 32)
+    width, height = 40, 37
+    n = width * height
+    sa = rng.random(n, dtype=np.float32)
+    tri = np.where(rng.random(n) < 0.3, -1, 0).astype(np.int32)
+    tri[np.argmax(sa)] = -1
+    e = TexelEmission()
+    e.light_rgb = wp.vec3(2.0, 1.0, 0.5)
+    e.texel_solid_angle = wp.array(sa, dtype=wp.float32, device=device)
+    views = wp.array([ViewParams(), ViewParams(), ViewParams()], dtype=ViewParams, device=device)
+    windows = wp.array(np.array([[3.5, 2.25, 30.75, 20.5], [5.0, 4.0, 33.0, 30.0], [0.0, 0.0, 0.0, 0.0]], np.float32),
+                       dtype=wp.vec4, device=device)
+    angles = wp.array(np.array([0.0, 0.3, 0.0], np.float32), dtype=wp.float32, device=device)
+    tri_d = wp.array(tri, dtype=wp.int32, device=device)
+    blocks = -(-n // block)
+    outside = []
+    for vi in range(3):
+        common = [views, tri_d, e, width, n, windows, angles, vi, wp.vec2(20.0, 18.5), 1.25]
+        twin_rows = wp.zeros(C.LEDGER_ROW, dtype=wp.vec3d, device=device)
+        twin_max = wp.zeros(1, dtype=wp.float32, device=device)
+        wp.launch_tiled(C.max_luminance, dim=-(-n // (block * C.MAX_LUM_TEXELS)), block_dim=block, device=device,
+                        inputs=[views, vi, tri_d, e, n, twin_max])
+        wp.launch_tiled(C.book_outside_window, dim=blocks, block_dim=block, device=device, inputs=common + [twin_rows])
+        rows = wp.zeros(C.LEDGER_ROW, dtype=wp.vec3d, device=device)
+        lum_max = wp.zeros(1, dtype=wp.float32, device=device)
+        wp.launch_tiled(C.pilot_texel_pass, dim=blocks, block_dim=block, device=device,
+                        inputs=common + [rows, lum_max])
+        assert lum_max.numpy().tobytes() == twin_max.numpy().tobytes()
+        assert 0.0 < lum_max.numpy()[0]
+        got = rows.numpy()
+        if block == 1 or wp.get_device(device).is_cpu:
+            assert got.tobytes() == twin_rows.numpy().tobytes()
+        else:  # the GPU adds its blocks in any order
+            np.testing.assert_allclose(got, twin_rows.numpy(), rtol=1e-12)
+        np.testing.assert_array_equal(got[C.L_SAMPLED], got[C.L_OUTSIDE])
+        outside.append(got[C.L_OUTSIDE].sum())
+    flux_total = (sa[tri >= 0].astype(np.float64)).sum() * 3.5
+    assert 0.0 < outside[0] < flux_total and 0.0 < outside[1] < flux_total
+    np.testing.assert_allclose(outside[2], flux_total, rtol=1e-5)  # an empty window: everything outside
+
+
+def test_clear_frame_zeroes_every_accumulator(device):
+    """``clear_frame`` zeroes each array it is given over its whole length (arrays of unequal lengths, a view into a
+    longer one, an empty one), as the memsets it replaces do, and nothing else; the pass's float32 aliases of its
+    accumulators (``PhotonPass._clear_words``) cover every byte of them."""
+    a = wp.full(37, 1.5, dtype=wp.float32, device=device)
+    h = wp.full(53, -1.0, dtype=wp.float32, device=device)
+    acc = wp.full(90, 5.0, dtype=wp.float32, device=device)
+    whole = wp.full(60, 9.0, dtype=wp.float32, device=device)
+    part = whole[10:21]  # a view: its neighbours must keep their values
+    wp.launch(C.clear_frame, dim=90, device=device, inputs=[a, part, h, acc])
+    for arr in (a, h, acc):
+        assert not arr.numpy().any() and not np.signbit(arr.numpy()).any()
+    w = whole.numpy()
+    assert not w[10:21].any() and (w[:10] == 9.0).all() and (w[21:] == 9.0).all()
+    wp.launch(C.clear_frame, dim=37, device=device, inputs=[a, None, None, acc[:0]])  # absent arrays
+    settings = RenderSettings(rsm_size=32, method="cisp", denoiser="none", photons=PhotonSettings(photons=500, seed=7))
+    p = Renderer(wavy_water(width=16, height=12), settings, device=device).photons
+    words = p._clear_words()
+    arrays = (p.photon_map, p.photon_m2, p.hidden.all_flux, p._accumulators)
+    for w, arr in zip(words, arrays):
+        assert w.ptr == arr.ptr and 4 * w.shape[0] == arr.capacity
+    assert p._clear_words() is words  # made once
+    for arr in arrays:
+        arr.fill_(3)
+    wp.launch(C.clear_frame, dim=max(w.shape[0] for w in words), device=device, inputs=words)
+    for arr in arrays:
+        assert not arr.numpy().any()
+    for arr in arrays:
+        arr.fill_(3)
+    p.begin()  # clears, then books the light's brightest texel and the power outside its fitted views
+    for arr in arrays[:3]:
+        assert not arr.numpy().any()
+
+
+def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
+    """Two frames of the shipped pool (a fitted sun and a fitted spot, split shadow maps) at 48×27 with the launch
+    folds of perf_notes section 63 on or off (their twins): the ledger and every AOV."""
+    import warnings
+    from pathlib import Path
+
+    from cisp_warp.photons.base import PhotonPass
+    from cisp_warp.raster.light_maps import LightMaps, _ShadowView
+    from cisp_warp.usd import load_usd
+
+    for cls, name in ((PhotonPass, "FUSED_PILOT_PASS"), (PhotonPass, "FUSED_CLEAR"), (_ShadowView, "FUSED_GATES"),
+                      (LightMaps, "FUSED_SOLID_ANGLES")):
+        monkeypatch.setattr(cls, name, fused)
+    path = Path(__file__).resolve().parents[1] / "scenes_usd" / "pool.usda"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stage = load_usd(path, width=48, height=27, device=device)
+    r = Renderer(stage, RenderSettings(width=48, height=27, rsm_size=64, method="cisp", denoiser="svgf",
+                                       photons=PhotonSettings(photons=8000, seed=3)), device=device)
+    for _ in range(2):
+        r.render_frame()
+    out = {k: np.asarray(v) for k, v in r.aovs().items()}
+    out["ledger"] = r.photons.read_ledger().values
+    return out
+
+
+def test_folded_launches_render_the_twins_frames(device, monkeypatch):
+    """The frame with the folded launches (``pilot_texel_pass``, ``clear_frame``, ``redraw_gate_split``,
+    ``cascade_solid_angles_all``) against the one with their twins: on the CPU every AOV and the ledger bit for bit
+    (the same sums in the same order); on a GPU, whose atomics add in any order, the ledger to 1e-9 and the maps to
+    1e-5 of their maximum."""
+    fused = _pool_frames(device, True, monkeypatch)
+    twin = _pool_frames(device, False, monkeypatch)
+    assert fused.keys() == twin.keys() and fused["ledger"][C.L_OUTSIDE].sum() > 0.0
+    exact = wp.get_device(device).is_cpu
+    for k in fused:
+        if exact:
+            assert fused[k].tobytes() == twin[k].tobytes(), k
+        elif k == "ledger":
+            np.testing.assert_allclose(fused[k], twin[k], rtol=1e-9, atol=1e-9 * twin[k].max())
+        elif np.issubdtype(fused[k].dtype, np.floating):
+            np.testing.assert_allclose(fused[k], twin[k], rtol=1e-5, atol=1e-5 * max(1e-30, np.abs(twin[k]).max()))

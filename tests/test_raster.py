@@ -1020,11 +1020,54 @@ def test_redraw_gate_compares_views_bit_for_bit(device):
     scene = make_scene(box_room(), Camera(look_at_matrix((0, 0, 1), (0, 0, 0))))
     assert DeviceScene(scene, device).dynamic_layers == LAYER_OPAQUE | LAYER_SPECULAR
     # the gated clear of kept keys: every key when the view is drawn (2501 keys: a partial last stride), none when not
-    from cisp_warp.raster.light_maps import SHADOW_TEXELS_PER_THREAD, clear_keys_if_drawn
+    from cisp_warp.raster.light_maps import clear_keys_if_drawn, shadow_clear_threads
 
-    keys = wp.full(2501, 5, dtype=wp.uint64, device=device)
-    threads = (2501 + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD
-    for far, expect in ((0.0, 5), (2.0, RK.EMPTY_KEY_VALUE)):
-        w2.far = far
-        wp.launch(clear_keys_if_drawn, dim=threads, device=device, inputs=[wp.array([w2], dtype=ViewParams, device=device), keys])
-        assert np.all(keys.numpy() == np.uint64(expect))
+    for threads in (shadow_clear_threads(2501), 7):  # as launched, and a stride that does not divide the keys
+        keys = wp.full(2501, 5, dtype=wp.uint64, device=device)
+        for far, expect in ((0.0, 5), (2.0, RK.EMPTY_KEY_VALUE)):
+            w2.far = far
+            wp.launch(clear_keys_if_drawn, dim=threads, device=device,
+                      inputs=[wp.array([w2], dtype=ViewParams, device=device), keys, threads])
+            assert np.all(keys.numpy() == np.uint64(expect))
+    assert shadow_clear_threads(2048 * 2048) == 1 << 16 and shadow_clear_threads(2501) == 313
+
+
+def test_split_redraw_gates_in_one_launch_are_the_two_gates(device, rng):
+    """``redraw_gate_split`` (a split shadow map's two gates in one thread) against two ``redraw_gate`` launches over
+    a random run of frames: views that stand still, move by one bit, go inactive, and layers whose generation moves
+    (the opaque, the specular, both): the same views to draw and the same records of what was drawn, bit for bit."""
+    from cisp_warp.raster.light_maps import VIEW_WORDS, redraw_gate, redraw_gate_split, view_words
+    from cisp_warp.scene.device import LAYER_BITS
+
+    v = light_views(make_scene(box_room(), Camera(look_at_matrix((0, 0, 1), (0, 0, 0)))),
+                    Light(LightKind.DISTANT, "sun", direction=(0.0, -1.0, 0.0)), 16)[0].params()
+    views = wp.array([v], dtype=ViewParams, device=device)
+    words = view_words(views)
+    gen = wp.zeros(LAYER_BITS, dtype=wp.int32, device=device)
+    both = LAYER_OPAQUE | LAYER_SPECULAR
+    mk = lambda: [wp.zeros(VIEW_WORDS, dtype=wp.uint32, device=device), wp.zeros(LAYER_BITS, dtype=wp.int32, device=device),  # noqa: E731
+                  wp.zeros(1, dtype=ViewParams, device=device)]
+    twin, twin_o, fused, fused_o = mk(), mk(), mk(), mk()
+    base = views.numpy()
+    drawn = [0, 0]
+    for frame in range(40):
+        rec = base.copy()
+        what = rng.integers(0, 5)
+        if what == 1:  # one bit of the pose moves
+            rec[0]["cx"] = np.float32(rec[0]["cx"]) + np.float32(frame % 3)
+        elif what == 2:  # inactive
+            rec[0]["far"] = 0.0
+        elif what == 3:  # a layer moved
+            g = gen.numpy()
+            g[rng.integers(0, 2)] += 1
+            gen.assign(g)
+        views.assign(rec)
+        for arrays, layers in ((twin, both), (twin_o, LAYER_OPAQUE)):
+            wp.launch(redraw_gate, dim=1, device=device, inputs=[views, words, 0, gen, layers, 0, *arrays])
+        wp.launch(redraw_gate_split, dim=1, device=device,
+                  inputs=[views, words, 0, gen, both, LAYER_OPAQUE, *fused, *fused_o])
+        for a, b in zip(twin + twin_o, fused + fused_o):
+            assert a.numpy().tobytes() == b.numpy().tobytes(), frame
+        drawn[0] += int(twin[2].numpy()[0]["far"] > 0.0)
+        drawn[1] += int(twin[2].numpy()[0]["far"] == 0.0)
+    assert drawn[0] > 3 and drawn[1] > 3  # both decisions were taken

@@ -154,12 +154,13 @@ def outcomes_no_block_sums(
     sa = C.OutcomeSums()
     sb = C.OutcomeSums()
     end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
+    one_run = wp.where(count <= run, 1, 0)
     r = t
     while r < end:
-        o0 = C._outcome_at(outcome, r, end, run, n_photons)
-        o1 = C._outcome_at(outcome, r + threads, end, run, n_photons)
-        o2 = C._outcome_at(outcome, r + 2 * threads, end, run, n_photons)
-        o3 = C._outcome_at(outcome, r + 3 * threads, end, run, n_photons)
+        o0 = C._outcome_at(outcome, r, end, run, n_photons, one_run)
+        o1 = C._outcome_at(outcome, r + threads, end, run, n_photons, one_run)
+        o2 = C._outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run)
+        o3 = C._outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run)
         sa, sb = C._outcome_add(sa, sb, o0)
         sa, sb = C._outcome_add(sa, sb, o1)
         sa, sb = C._outcome_add(sa, sb, o2)

@@ -215,6 +215,8 @@ class PhotonPass:
         for alias in (self.ledger_rows, self.ledger, self._ledger_entries, self.max_lum):
             alias._owner = self._accumulators  # views of it (host copies via numpy() too) keep the memory alive
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
+        self._clear_key = None  #: the arrays ``_clear_words_cache`` aliases (:meth:`_clear_words`)
+        self._clear_words_cache: list[wp.array] = []
         #: (H*W,) float32: the camera pixels' exact solid angles [sr] (:meth:`set_camera_view` when the camera's
         #: intrinsics change)
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -392,22 +394,58 @@ class PhotonPass:
         n = max(1, self.settings.photons // max(1, sum(active)))
         return [n if a else 0 for a in active]
 
+    #: zero the frame's accumulators (photon map, its Σ e², hidden flux, ledger, maxima) in one kernel
+    #: (``common.clear_frame``); False: one memset each (the twin)
+    FUSED_CLEAR = True
+
     def begin(self) -> None:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
-        self.photon_map.zero_()
-        if self.hidden is not None:
-            self.hidden.zero()
-        self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
-        if self.photon_m2 is not None:
-            self.photon_m2.zero_()
+        if self.FUSED_CLEAR:
+            words = self._clear_words()
+            wp.launch(C.clear_frame, dim=max(1, max(a.shape[0] for a in words)), device=self.device, inputs=words)
+        else:
+            self.photon_map.zero_()
+            if self.hidden is not None:
+                self.hidden.zero()
+            self._accumulators.zero_()  # ledger stripes, ledger and max_lum: one memset
+            if self.photon_m2 is not None:
+                self.photon_m2.zero_()
         for li, lm in enumerate(self.lights):
             with self.light_lane(li):
                 self.begin_light(li, lm)
 
+    #: a fitted light's pilots in one launch each (``common.pilot_texel_pass``: the brightest texel and the power outside
+    #: the fitted views from one flux per texel); False: ``max_luminance`` then ``book_outside_window`` (the twins)
+    FUSED_PILOT_PASS = True
+
+    def _clear_words(self) -> list[wp.array]:
+        """float32 aliases of the arrays :func:`~.common.clear_frame` zeroes (photon map, Σ e², hidden flux,
+        accumulators; empty where the pass keeps none), made once per set of arrays (they are allocated at set-up)."""
+        arrays = (self.photon_map, self.photon_m2, self.hidden.all_flux if self.hidden is not None else None,
+                  self._accumulators)
+        key = tuple(None if a is None else (a.ptr, a.capacity) for a in arrays)
+        if self._clear_key != key:
+            words = []
+            for a in arrays:
+                n = 0 if a is None else a.capacity // 4
+                w = wp.array(ptr=a.ptr if n else 0, dtype=wp.float32, shape=(n,), device=self.device)
+                if a is not None:
+                    w._owner = a
+                words.append(w)
+            self._clear_key, self._clear_words_cache = key, words
+        return self._clear_words_cache
+
     def begin_light(self, li: int, lm: LightMaps) -> None:
         """Light ``li``'s part of :meth:`begin`: its brightest whole-view texel, and the power outside its fitted
         views booked."""
+        if lm.fitted and self.FUSED_PILOT_PASS:
+            for b, r in enumerate(lm.pilot):
+                self.launch_photons(C.pilot_texel_pass, r.width * r.height,
+                                    [lm.pilot_views, r.specular.tri_id, lm.emission(r), r.width, r.width * r.height,
+                                     lm.outside, lm.outside_angle, b, wp.vec2(r.view.cx, r.view.cy),
+                                     float(r.view.fx / r.view.fy), self.ledger_rows, self._max_lum_of[li]])
+            return
         for k, r in enumerate(lm.whole_rsm):
             n = r.width * r.height
             block = 256 if self.device.is_cuda else 1

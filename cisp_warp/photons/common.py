@@ -214,11 +214,15 @@ OutcomeRows = wp.types.vector(length=5, dtype=wp.int32)
 
 
 @wp.func
-def _outcome_at(outcome: wp.array(dtype=wp.vec4), r: int, end: int, run: int, n_photons: int) -> wp.vec4:
-    """Outcome record ``r``, or an empty one (entry -1) past ``end`` or past the view's photons in its run."""
-    if r < end and r % run < n_photons:
-        return outcome[r]
-    return wp.vec4(0.0, 0.0, 0.0, -1.0)
+def _outcome_at(outcome: wp.array(dtype=wp.vec4), r: int, end: int, run: int, n_photons: int, one_run: int) -> wp.vec4:
+    """Outcome record ``r``, or an empty one (entry -1) past ``end`` or past the view's photons in its run. With
+    ``one_run`` (the records are one run: ``end`` <= the view's photons already) without the division ``r % run``."""
+    if r >= end:
+        return wp.vec4(0.0, 0.0, 0.0, -1.0)
+    if one_run == 0:
+        if r % run >= n_photons:
+            return wp.vec4(0.0, 0.0, 0.0, -1.0)
+    return outcome[r]
 
 
 @wp.func
@@ -285,13 +289,14 @@ def ledger_add_outcomes(
     sb = OutcomeSums()
     # records past the last run's last written one were never written: the loop ends there
     end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
+    one_run = wp.where(count <= run, 1, 0)  # then end <= n_photons: no record past the photons before it
     # four records a step, their loads issued together, added in the order one at a time would add them
     r = t
     while r < end:
-        o0 = _outcome_at(outcome, r, end, run, n_photons)
-        o1 = _outcome_at(outcome, r + threads, end, run, n_photons)
-        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons)
-        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons)
+        o0 = _outcome_at(outcome, r, end, run, n_photons, one_run)
+        o1 = _outcome_at(outcome, r + threads, end, run, n_photons, one_run)
+        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run)
+        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run)
         sa, sb = _outcome_add(sa, sb, o0)
         sa, sb = _outcome_add(sa, sb, o1)
         sa, sb = _outcome_add(sa, sb, o2)
@@ -304,6 +309,27 @@ def ledger_add_outcomes(
     if lane == 0:
         _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
         _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+
+
+@wp.kernel
+def clear_frame(
+    photon_map: wp.array(dtype=wp.float32),  # (3*H*W,) the photon map's words (a float32 alias, write: zero)
+    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) or empty: Σ luminance(e)² (write: zero)
+    hidden: wp.array(dtype=wp.float32),  # every light's hidden flux map's words (HiddenFlux.all_flux) or empty
+    accumulators: wp.array(dtype=wp.float32),  # the striped ledger, ledger and lights' maxima's words (write: zero)
+):
+    """The photon pass's per-frame accumulators zeroed in one launch, thread t zeroing word t of each array that has
+    one (launched over the longest; 4-byte words, so a warp's stores are one contiguous run): what
+    ``PhotonPass.begin`` did in one memset per array (the twin)."""
+    t = wp.tid()
+    if t < photon_map.shape[0]:
+        photon_map[t] = 0.0
+    if t < photon_m2.shape[0]:
+        photon_m2[t] = 0.0
+    if t < hidden.shape[0]:
+        hidden[t] = 0.0
+    if t < accumulators.shape[0]:
+        accumulators[t] = 0.0
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
@@ -458,12 +484,9 @@ def _march_group(
     max_lum: wp.array(dtype=wp.float32),
     roughness_cutoff: float,
     luminance_cutoff: float,
-    order: wp.array(dtype=wp.int32),
-    at: int,
+    k: int,
 ) -> int:
-    """The march group of photon ``order[at]`` (a thread's entry of its view's texel order; see
-    :func:`photon_group_keys`)."""
-    k = order[at]
+    """The march group of photon ``k`` (a thread's entry of its view's texel order; see :func:`photon_group_keys`)."""
     cascade = states[view_index]
     light = views[view_index]
     rnd = randoms[stream]
@@ -550,8 +573,18 @@ def photon_group_keys(
     tiles = block_counts.shape[0] / SORT_GROUPS
     mask = (1 << SORT_COUNT_BITS) - 1
     tile = block
+    # each tile's photon indices are loaded one tile ahead (``k``), so that a tile's chain of dependent loads starts
+    # at its texel's triangle, not at the order: the next tile's order load is in flight while this tile's chain runs
+    k = int(0)
+    t_first = tile * bd + lane
+    if t_first < n_photons and t_first < n_slots:
+        k = order[base + t_first]
     while tile < tiles:  # the same trip count for every thread of the block
         first = tile * bd
+        t_next = first + grid * bd + lane
+        k_next = int(0)
+        if t_next < n_photons and t_next < n_slots:
+            k_next = order[base + t_next]
         if first >= n_photons:  # a tile wholly past the view's photons: all last
             if lane == 0:
                 for g in range(SORT_GROUPS - 1):
@@ -565,7 +598,7 @@ def photon_group_keys(
                 if t < n_photons:
                     group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_emission,
                                          rsm_tri, geometry, triangle_material, mat_opacity,
-                                         max_lum, roughness_cutoff, luminance_cutoff, order, base + t)
+                                         max_lum, roughness_cutoff, luminance_cutoff, k)
                 keys[t] = group
             packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
             if lane == 0:
@@ -576,6 +609,7 @@ def photon_group_keys(
                     block_counts[g * tiles + tile] = n_g
                     rest -= n_g
                 block_counts[(SORT_GROUPS - 1) * tiles + tile] = rest
+        k = k_next
         tile += grid
 
 
@@ -611,10 +645,16 @@ def photon_group_scatter(
         group = int(-1)
         if t < n_slots:
             group = keys[t]
+        # the photon and its group's offset loaded before the scan, in flight while the block scans
+        k = int(0)
+        offset = int(0)
+        if t < n_slots and group != SORT_GROUP_LAST:
+            k = order[base + t]
+            offset = offsets[group * tiles + tile]
         before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
         if t < n_slots and group != SORT_GROUP_LAST:
             rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
-            grouped[offsets[group * tiles + tile] + rank] = order[base + t]
+            grouped[offset + rank] = k
         tile += grid
 
 
@@ -827,6 +867,49 @@ OUTSIDE_ENTRIES = wp.constant(entry_mask(L_SAMPLED, L_OUTSIDE))  #: what book_ou
 OUTSIDE_SUBSAMPLES = wp.constant(4)  #: per axis: a pilot texel's area inside a turned window, from 4×4 points
 
 
+@wp.func
+def _pilot_texel_flux(views: wp.array(dtype=ViewParams), rsm_tri: wp.array(dtype=wp.int32),
+                      rsm_emission: TexelEmission, view_index: int, p: int) -> wp.vec3:
+    """Pilot texel ``p``'s flux [W] RGB as the resolve would write it (zero where no specular surface)."""
+    f = wp.vec3(0.0)
+    if rsm_tri[p] >= 0:
+        f = texel_emitted_flux(rsm_emission, views[view_index], p)
+    return f
+
+
+@wp.func
+def _outside_fraction(p: int, width: int, window: wp.vec4, angle: float, centre: wp.vec2, aspect: float) -> float:
+    """The fraction of pilot texel ``p``'s area outside ``window`` (pilot pixels turned by ``angle`` about
+    ``centre``): exact for an unturned window, from 4×4 points for a turned one."""
+    i = float(p % width)
+    j = float(p / width)
+    inside = float(0.0)
+    if angle == 0.0:
+        ox = wp.max(wp.min(i + 1.0, window[2]) - wp.max(i, window[0]), 0.0)
+        oy = wp.max(wp.min(j + 1.0, window[3]) - wp.max(j, window[1]), 0.0)
+        inside = ox * oy
+    else:
+        c = wp.cos(angle)
+        s = wp.sin(angle)
+        for a in range(OUTSIDE_SUBSAMPLES):
+            for b in range(OUTSIDE_SUBSAMPLES):
+                dx = i + (float(a) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[0]
+                dy = j + (float(b) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[1]
+                u = centre[0] + c * dx - s * aspect * dy
+                v = centre[1] + s * dx / aspect + c * dy
+                if u >= window[0] and u < window[2] and v >= window[1] and v < window[3]:
+                    inside += 1.0 / float(OUTSIDE_SUBSAMPLES * OUTSIDE_SUBSAMPLES)
+    return 1.0 - inside
+
+
+@wp.func
+def _book_outside(tally: wp.ref[Tally], f: wp.vec3, outside: float):
+    """Book a texel's flux ``f`` [W] times its fraction ``outside`` as sampled and ``outside_fitted_view``."""
+    if outside > 0.0 and f[0] + f[1] + f[2] > 0.0:
+        book(tally, L_SAMPLED, f * outside)
+        book(tally, L_OUTSIDE, f * outside)
+
+
 @wp.kernel(enable_backward=False)  # books into a tally by reference
 def book_outside_window(
     views: wp.array(dtype=ViewParams),  # (V,) the pilot views (LightMaps.pilot_views, read)
@@ -844,38 +927,54 @@ def book_outside_window(
 ):
     """Book the power of each pilot texel's area outside ``window`` as sampled and ``outside_fitted_view``
     (one thread per texel, tallied and added once per block, as the photon kernels do). Unturned windows
-    cut texels exactly; a turned one is measured on 4×4 points per texel."""
+    cut texels exactly; a turned one is measured on 4×4 points per texel. With :func:`max_luminance` the twin of
+    :func:`pilot_texel_pass`."""
     window = windows[view_index]
     angle = angles[view_index]
     block, lane = wp.tid()
     p = block * wp.block_dim() + lane
     tally = tally_new()
     if p < count:
-        f = wp.vec3(0.0)
+        f = _pilot_texel_flux(views, rsm_tri, rsm_emission, view_index, p)
+        _book_outside(tally, f, _outside_fraction(p, width, window, angle, centre, aspect))
+    ledger_add(ledger, tally, block, OUTSIDE_ENTRIES)
+
+
+@wp.kernel(enable_backward=False)  # books into a tally by reference
+def pilot_texel_pass(
+    views: wp.array(dtype=ViewParams),  # (V,) the pilot views (LightMaps.pilot_views, read)
+    rsm_tri: wp.array(dtype=wp.int32),  # (P*P,) pilot view ``view_index``'s specular layer's triangle, -1 none (read)
+    rsm_emission: TexelEmission,  # its specular texels' flux from the light (read)
+    width: int,
+    count: int,  # texels
+    windows: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside (read), as book_outside_window's
+    angles: wp.array(dtype=wp.float32),  # (V,) LightMaps.outside_angle (read)
+    view_index: int,  # this pilot view
+    centre: wp.vec2,  # the pilot view's principal point [pixels]
+    aspect: float,  # the pilot view's fx / fy
+    ledger: wp.array(dtype=wp.vec3d),  # the striped ledger, power [W] per entry, RGB (accumulate)
+    max_lum: wp.array(dtype=wp.float32),  # (1,) the light's brightest whole-view texel luminance [W] (atomic max;
+    # zeroed by the caller)
+):
+    """A fitted light's pilot view in one pass, one thread per texel (blocks of ``LEDGER_BLOCK``): each texel's flux
+    computed once for both :func:`max_luminance` (the block's maximum as a tile, one ``atomic_max`` a block) and
+    :func:`book_outside_window` (its area outside the coarsest window booked, tallied and added once per block). The
+    same maximum and bookings as those two launches (their twin), in one launch spread over the whole GPU: 16k texels
+    of a 128² pilot are 128 blocks, where ``max_luminance``'s 16 texels a thread made 4 blocks on 4 SMs."""
+    window = windows[view_index]
+    angle = angles[view_index]
+    block, lane = wp.tid()
+    p = block * wp.block_dim() + lane
+    tally = tally_new()
+    m = float(0.0)
+    if p < count:
+        f = _pilot_texel_flux(views, rsm_tri, rsm_emission, view_index, p)
         if rsm_tri[p] >= 0:
-            f = texel_emitted_flux(rsm_emission, views[view_index], p)
-        i = float(p % width)
-        j = float(p / width)
-        inside = float(0.0)
-        if angle == 0.0:
-            ox = wp.max(wp.min(i + 1.0, window[2]) - wp.max(i, window[0]), 0.0)
-            oy = wp.max(wp.min(j + 1.0, window[3]) - wp.max(j, window[1]), 0.0)
-            inside = ox * oy
-        else:
-            c = wp.cos(angle)
-            s = wp.sin(angle)
-            for a in range(OUTSIDE_SUBSAMPLES):
-                for b in range(OUTSIDE_SUBSAMPLES):
-                    dx = i + (float(a) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[0]
-                    dy = j + (float(b) + 0.5) / float(OUTSIDE_SUBSAMPLES) - centre[1]
-                    u = centre[0] + c * dx - s * aspect * dy
-                    v = centre[1] + s * dx / aspect + c * dy
-                    if u >= window[0] and u < window[2] and v >= window[1] and v < window[3]:
-                        inside += 1.0 / float(OUTSIDE_SUBSAMPLES * OUTSIDE_SUBSAMPLES)
-        outside = 1.0 - inside
-        if outside > 0.0 and f[0] + f[1] + f[2] > 0.0:
-            book(tally, L_SAMPLED, f * outside)
-            book(tally, L_OUTSIDE, f * outside)
+            m = wp.max(m, luminance(f))
+        _book_outside(tally, f, _outside_fraction(p, width, window, angle, centre, aspect))
+    block_max = wp.tile_max(wp.tile(m))
+    if lane == 0:
+        wp.atomic_max(max_lum, 0, block_max[0])
     ledger_add(ledger, tally, block, OUTSIDE_ENTRIES)
 
 

@@ -16,8 +16,9 @@ Per frame, after the camera's G-buffer and before the lights' RSM views are draw
    box of the turned useful texels (and their depth range) with Warp tiles, one block each, turning only each
    column's first and last useful texel (``fit_reduce_*_naive``, every texel turned, are the twins);
    :func:`fit_reduce_cascades` picks the tightest turn and reduces each cascade's box (texels nearer than its
-   split); :func:`fit_solve` (one thread per light) grows, clips, merges and nests the windows and writes the
-   cascades' views and states into ``LightMaps.views`` / ``states`` / ``outside`` (see ``LightMaps``);
+   split); :func:`fit_solve_cascades` (one thread per cascade; :func:`fit_solve`, one thread per light, is the twin)
+   grows, clips, merges and nests the windows and writes the cascades' views and states into ``LightMaps.views`` /
+   ``states`` / ``outside`` (see ``LightMaps``);
 4. the photon and raster kernels read those arrays: the host neither waits for the fit nor knows its result.
 
 The numpy fit (:meth:`LightViewFitter.fit_host`: read the depths back, ``fit_angle``, ``fit_windows``,
@@ -249,7 +250,11 @@ def pilot_nearest(
 
 #: turns about the pilot view's axis tried by the fit, in [0, 90°) (``views.fit_angle``'s ``steps``)
 FIT_STEPS = 18
-FIT_BLOCK = 256  #: threads per block of the fit's reductions on CUDA (one per block on the CPU)
+#: threads per block of the fit's reductions on CUDA (one per block on the CPU): 512 = four rows of a 128² pilot at a
+#: time, so a thread's column takes 8 rounds of COLUMN_ROUND rows instead of 16 at 256 (each round a round trip to L2,
+#: ~0.4 µs: perf_notes sections 53, 63); 104 registers (fit_reduce_angles) × 512 fit one block an SM, and the launches
+#: are 19 and 2 blocks a pilot view
+FIT_BLOCK = 512
 MAX_CASCADES = 4  #: LightViewSettings.cascades is at most this (the solve keeps windows in a mat44d)
 #: where a LightViewFitter fits unless told: True, on the device; False, the numpy twin (a host sync per frame)
 FIT_ON_DEVICE = True
@@ -634,6 +639,113 @@ def _same_view(a: ViewParams, b: ViewParams) -> int:
     return same
 
 
+@wp.func
+def _view_windows(b: int, width: int, height: int, aspects: wp.array(dtype=wp.float64), cascades: int, margin: float,
+                  cascade_boxes: wp.array(dtype=wp.vec4d), cascade_counts: wp.array(dtype=wp.float64),
+                  angles: wp.array(dtype=wp.float64)):
+    """Pilot view ``b``'s windows (``views.fit_windows``: grown by the margin and the turned texel's half extent,
+    clipped to the turned pilot image, merged when a finer one covers more than ``MERGE_AREA`` of the next, repeats
+    dropped), finest first. Returns (windows as rows of a mat44d, their count, the view's turn [rad])."""
+    angle = angles[b]
+    aspect = aspects[b]
+    c = wp.cos(angle)
+    s = wp.sin(angle)
+    ca = wp.abs(c)
+    sa = wp.abs(s)
+    half_u = wp.float64(0.5) * (ca + sa * aspect)
+    half_v = wp.float64(0.5) * (sa / aspect + ca)
+    w = wp.float64(width)
+    h = wp.float64(height)
+    hw = wp.float64(0.5) * w
+    hh = wp.float64(0.5) * h
+    # the turned pilot image's box: its four corners turned about the centre
+    lo_u = wp.float64(1.0e300)
+    hi_u = -lo_u
+    lo_v = lo_u
+    hi_v = -lo_u
+    for corner in range(4):
+        px = wp.float64(0.0)
+        py = wp.float64(0.0)
+        if corner == 1 or corner == 2:
+            px = w
+        if corner >= 2:
+            py = h
+        tu = hw + c * (px - hw) - s * aspect * (py - hh)
+        tv = hh + s * (px - hw) / aspect + c * (py - hh)
+        lo_u = wp.min(lo_u, tu)
+        hi_u = wp.max(hi_u, tu)
+        lo_v = wp.min(lo_v, tv)
+        hi_v = wp.max(hi_v, tv)
+    wins = wp.mat44d()
+    n_win = int(0)
+    for ci in range(cascades):
+        if cascade_counts[b * cascades + ci] > wp.float64(0.0):
+            box = cascade_boxes[b * cascades + ci]
+            x0 = box[0] - half_u
+            x1 = box[1] + half_u
+            y0 = box[2] - half_v
+            y1 = box[3] + half_v
+            gx = wp.float64(margin) + wp.float64(0.02) * (x1 - x0)
+            gy = wp.float64(margin) + wp.float64(0.02) * (y1 - y0)
+            wins[n_win] = wp.vec4d(_round6(wp.max(x0 - gx, lo_u)), _round6(wp.max(y0 - gy, lo_v)),
+                                   _round6(wp.min(x1 + gx, hi_u)), _round6(wp.min(y1 + gy, hi_v)))
+            n_win += 1
+    # merge a finer window into the next coarser when it is not much smaller, then drop repeats
+    kept = wp.mat44d()
+    n_kept = int(0)
+    for i in range(n_win):
+        keep = int(1)
+        if i < n_win - 1:
+            keep = int(_area(wins[i]) <= wp.float64(MERGE_AREA) * _area(wins[i + 1]))
+        if keep != 0:
+            if n_kept == 0 or _same4(wins[i], kept[n_kept - 1]) == 0:
+                kept[n_kept] = wins[i]
+                n_kept += 1
+    return kept, n_kept, angle
+
+
+@wp.func
+def _write_outside(b: int, kept: wp.mat44d, n_kept: int, angle: wp.float64, outside: wp.array(dtype=wp.vec4),
+                   outside_angle: wp.array(dtype=wp.float32)):
+    """Pilot view ``b``'s coarsest window (zeros when none) and its turn, as ``LightMaps.outside`` keeps them."""
+    if n_kept > 0:
+        last = kept[n_kept - 1]
+        outside[b] = wp.vec4(_f32(last[0]), _f32(last[1]), _f32(last[2]), _f32(last[3]))
+    else:
+        outside[b] = wp.vec4(0.0)
+    outside_angle[b] = _f32(angle)
+
+
+@wp.func
+def _cascade_view(pilot: ViewParams, old: ViewParams, ci: int, cascades: int, kept: wp.mat44d, n_kept: int,
+                  angle: wp.float64, rsm_size: int):
+    """Cascade ``ci``'s view and state (``active_views`` left 0) from its pilot view's windows, as
+    ``LightMaps.set_windows`` writes them; ``old``: its view last frame (an inactive cascade keeps it with ``far`` =
+    INACTIVE_FAR; ``changed`` compares with it)."""
+    c_empty = cascades - n_kept
+    st = CascadeState()
+    st.texel_scale = 1.0
+    st.skip_window = wp.vec4(0.0)
+    if ci < c_empty:
+        v = old
+        v.far = INACTIVE_FAR
+        st.active = 0
+        st.changed = 1 - _same_view(v, old)
+        return v, st
+    win = kept[ci - c_empty]
+    v = _window_params(pilot, angle, win, rsm_size)
+    sx = wp.float64(rsm_size) / (win[2] - win[0])
+    sy = wp.float64(rsm_size) / (win[3] - win[1])
+    st.active = 1
+    st.texel_scale = _f32(wp.float64(1.0) / (sx * sy))
+    if ci > c_empty:
+        f = kept[ci - c_empty - 1]
+        st.skip_window = wp.vec4(_f32((f[0] - win[0]) * sx), _f32((f[1] - win[1]) * sy),
+                                 _f32((f[2] - win[0]) * sx), _f32((f[3] - win[1]) * sy))
+    st.changed = 1 - _same_view(v, old)
+    return v, st
+
+
 @wp.kernel
 def fit_solve(
     pilot_views: wp.array(dtype=ViewParams),  # (V,) the light's pilot views (read)
@@ -652,106 +764,70 @@ def fit_solve(
     outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside: the coarsest window (write)
     outside_angle: wp.array(dtype=wp.float32),  # (V,) its turn [rad] (write)
 ):
-    """One thread per light: every pilot view's windows (``views.fit_windows``: grown by the margin and the turned
-    texel's half extent, clipped to the turned pilot image, merged when a finer one covers more than
-    ``MERGE_AREA`` of the next, repeats dropped), then each cascade's view and state as
-    ``LightMaps.set_windows`` writes them."""
+    """One thread per light: every pilot view's windows (:func:`_view_windows`), then each cascade's view and state
+    as ``LightMaps.set_windows`` writes them (:func:`_cascade_view`), one after another. The twin of
+    :func:`fit_solve_cascades` (a thread a cascade)."""
     n_active = int(0)
     for b in range(n_views):
-        angle = angles[b]
-        aspect = aspects[b]
-        c = wp.cos(angle)
-        s = wp.sin(angle)
-        ca = wp.abs(c)
-        sa = wp.abs(s)
-        half_u = wp.float64(0.5) * (ca + sa * aspect)
-        half_v = wp.float64(0.5) * (sa / aspect + ca)
-        w = wp.float64(width)
-        h = wp.float64(height)
-        hw = wp.float64(0.5) * w
-        hh = wp.float64(0.5) * h
-        # the turned pilot image's box: its four corners turned about the centre
-        lo_u = wp.float64(1.0e300)
-        hi_u = -lo_u
-        lo_v = lo_u
-        hi_v = -lo_u
-        for corner in range(4):
-            px = wp.float64(0.0)
-            py = wp.float64(0.0)
-            if corner == 1 or corner == 2:
-                px = w
-            if corner >= 2:
-                py = h
-            tu = hw + c * (px - hw) - s * aspect * (py - hh)
-            tv = hh + s * (px - hw) / aspect + c * (py - hh)
-            lo_u = wp.min(lo_u, tu)
-            hi_u = wp.max(hi_u, tu)
-            lo_v = wp.min(lo_v, tv)
-            hi_v = wp.max(hi_v, tv)
-        wins = wp.mat44d()
-        n_win = int(0)
-        for ci in range(cascades):
-            if cascade_counts[b * cascades + ci] > wp.float64(0.0):
-                box = cascade_boxes[b * cascades + ci]
-                x0 = box[0] - half_u
-                x1 = box[1] + half_u
-                y0 = box[2] - half_v
-                y1 = box[3] + half_v
-                gx = wp.float64(margin) + wp.float64(0.02) * (x1 - x0)
-                gy = wp.float64(margin) + wp.float64(0.02) * (y1 - y0)
-                wins[n_win] = wp.vec4d(_round6(wp.max(x0 - gx, lo_u)), _round6(wp.max(y0 - gy, lo_v)),
-                                       _round6(wp.min(x1 + gx, hi_u)), _round6(wp.min(y1 + gy, hi_v)))
-                n_win += 1
-        # merge a finer window into the next coarser when it is not much smaller, then drop repeats
-        kept = wp.mat44d()
-        n_kept = int(0)
-        for i in range(n_win):
-            keep = int(1)
-            if i < n_win - 1:
-                keep = int(_area(wins[i]) <= wp.float64(MERGE_AREA) * _area(wins[i + 1]))
-            if keep != 0:
-                if n_kept == 0 or _same4(wins[i], kept[n_kept - 1]) == 0:
-                    kept[n_kept] = wins[i]
-                    n_kept += 1
-        c_empty = cascades - n_kept
-        if n_kept > 0:
-            last = kept[n_kept - 1]
-            outside[b] = wp.vec4(_f32(last[0]), _f32(last[1]), _f32(last[2]), _f32(last[3]))
-        else:
-            outside[b] = wp.vec4(0.0)
-        outside_angle[b] = _f32(angle)
+        kept, n_kept, angle = _view_windows(b, width, height, aspects, cascades, margin, cascade_boxes, cascade_counts,
+                                            angles)
+        _write_outside(b, kept, n_kept, angle, outside, outside_angle)
         for ci in range(cascades):
             k = b * cascades + ci
-            old = views[k]
-            st = CascadeState()
-            st.texel_scale = 1.0
-            st.skip_window = wp.vec4(0.0)
-            if ci < c_empty:
-                v = old
-                v.far = INACTIVE_FAR
-                st.active = 0
-                st.changed = 1 - _same_view(v, old)
-                views[k] = v
-                states[k] = st
-                continue
-            win = kept[ci - c_empty]
-            v = _window_params(pilot_views[b], angle, win, rsm_size)
-            sx = wp.float64(rsm_size) / (win[2] - win[0])
-            sy = wp.float64(rsm_size) / (win[3] - win[1])
-            st.active = 1
-            st.texel_scale = _f32(wp.float64(1.0) / (sx * sy))
-            if ci > c_empty:
-                f = kept[ci - c_empty - 1]
-                st.skip_window = wp.vec4(_f32((f[0] - win[0]) * sx), _f32((f[1] - win[1]) * sy),
-                                         _f32((f[2] - win[0]) * sx), _f32((f[3] - win[1]) * sy))
-            st.changed = 1 - _same_view(v, old)
-            n_active += 1
+            v, st = _cascade_view(pilot_views[b], views[k], ci, cascades, kept, n_kept, angle, rsm_size)
+            n_active += st.active
             views[k] = v
             states[k] = st
     for k in range(n_views * cascades):
         st = states[k]
         st.active_views = n_active
         states[k] = st
+
+
+@wp.kernel
+def fit_solve_cascades(
+    pilot_views: wp.array(dtype=ViewParams),  # (V,) the light's pilot views (read)
+    width: int,  # P
+    height: int,
+    aspects: wp.array(dtype=wp.float64),  # (V,) (read)
+    n_views: int,  # V
+    cascades: int,
+    margin: float,  # pilot texels around each window (plus 2% of its size)
+    rsm_size: int,
+    cascade_boxes: wp.array(dtype=wp.vec4d),  # (V*cascades,) from fit_reduce_cascades (read)
+    cascade_counts: wp.array(dtype=wp.float64),  # (V*cascades,) (read)
+    angles: wp.array(dtype=wp.float64),  # (V,) (read)
+    views: wp.array(dtype=ViewParams),  # (V*cascades,) LightMaps.views (read, write: thread k its own)
+    states: wp.array(dtype=CascadeState),  # (V*cascades,) LightMaps.states (write)
+    outside: wp.array(dtype=wp.vec4),  # (V,) LightMaps.outside: the coarsest window (write)
+    outside_angle: wp.array(dtype=wp.float32),  # (V,) its turn [rad] (write)
+):
+    """:func:`fit_solve` with one thread per cascade (``dim = V*cascades``): thread k = b*cascades + ci counts every
+    pilot view's windows (the light's active views: a few float64 operations a view), keeps its own view's and
+    writes its cascade's view and state once, with ``active_views``; thread ci = 0 writes its view's ``outside``.
+    The same functions of the same values as :func:`fit_solve` (its twin): the same bits; a light's solve is then
+    one view's windows and one cascade long, not every cascade one after another."""
+    k = wp.tid()
+    b = k / cascades
+    ci = k - b * cascades
+    n_active = int(0)
+    kept = wp.mat44d()
+    n_kept = int(0)
+    angle = wp.float64(0.0)
+    for bb in range(n_views):
+        kept_bb, n_bb, angle_bb = _view_windows(bb, width, height, aspects, cascades, margin, cascade_boxes,
+                                                cascade_counts, angles)
+        n_active += n_bb
+        if bb == b:  # its own view's windows
+            kept = kept_bb
+            n_kept = n_bb
+            angle = angle_bb
+    if ci == 0:
+        _write_outside(b, kept, n_kept, angle, outside, outside_angle)
+    v, st = _cascade_view(pilot_views[b], views[k], ci, cascades, kept, n_kept, angle, rsm_size)
+    st.active_views = n_active
+    views[k] = v
+    states[k] = st
 
 
 class LightViewFitter:
@@ -814,6 +890,9 @@ class LightViewFitter:
         #: threads per block of the fit's reductions (Warp runs CPU tiles one thread per block unless
         #: ``wp.config.enable_cpu_blocks`` is set; a test does, with blocks of 32)
         self.fit_block = FIT_BLOCK if self.device.is_cuda else 1
+        #: the windows' solve with a thread per cascade (``fit_solve_cascades``); False: one thread a light
+        #: (``fit_solve``, the twin)
+        self.solve_per_cascade = True
 
     def fit(self, raster: Rasterizer, camera: wp.struct, frame: int) -> None:
         """Draw the pilots, trace them and fit every light's cascades (on the device, or :meth:`fit_host`)."""
@@ -904,7 +983,8 @@ class LightViewFitter:
         wp.launch_tiled(fit_reduce_cascades, dim=(nv, lm.cascades), block_dim=block, device=self.device,
                         inputs=[self.receiver_depth_all[i], p.width, p.height, self._aspects[i], lm.cascades,
                                 self._boxes[i], self._cascade_boxes[i], self._cascade_counts[i], self._angles[i]])
-        wp.launch(fit_solve, dim=1, device=self.device, inputs=[
+        solve = fit_solve_cascades if self.solve_per_cascade else fit_solve
+        wp.launch(solve, dim=nv * lm.cascades if self.solve_per_cascade else 1, device=self.device, inputs=[
             lm.pilot_views, p.width, p.height, self._aspects[i], nv, lm.cascades, float(vs.margin), lm.rsm_size,
             self._cascade_boxes[i], self._cascade_counts[i], self._angles[i], lm.views, lm.states, lm.outside,
             lm.outside_angle])

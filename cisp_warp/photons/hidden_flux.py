@@ -129,6 +129,7 @@ class HiddenFlux:
         self.device = wp.get_device(device)
         self.gather = HIDDEN_GATHER
         self.views, self.flux, self.shape = [], [], []
+        sizes = []
         for lm in lights:
             views = lm.pilot_views if lm.fitted else lm.views
             n_views = len(lm.pilot) if lm.fitted else len(lm.rsm)
@@ -137,11 +138,17 @@ class HiddenFlux:
             w, h = map_shape(edge, edge, s)
             self.views.append(views)
             self.shape.append((w, h))
-            self.flux.append(wp.zeros(n_views * w * h, dtype=wp.vec3, device=self.device))
+            sizes.append(n_views * w * h)
+        #: every light's map in one allocation, ``flux[light]`` a slice of it: a frame clears them with one write
+        #: (:meth:`zero`, or ``common.clear_frame`` with the photon pass's other accumulators)
+        self.all_flux = wp.zeros(max(1, sum(sizes)), dtype=wp.vec3, device=self.device)
+        start = 0
+        for n in sizes:
+            self.flux.append(self.all_flux[start : start + n])
+            start += n
 
     def zero(self) -> None:
-        for m in self.flux:
-            m.zero_()
+        self.all_flux.zero_()
 
 
 __all__ = ["HIDDEN_GATHER", "HIDDEN_PHOTONS_PER_TEXEL", "HiddenFlux", "hidden_irradiance", "hidden_stride",

@@ -117,6 +117,31 @@ def cascade_solid_angles(views: wp.array(dtype=ViewParams), states: wp.array(dty
             out[p] = texel_solid_angle(view, p)
 
 
+#: threads per view of :func:`cascade_solid_angles_all` at most: a light's views that stand still then cost 512 blocks
+#: that read one flag each (2048 a 2048² view at CASCADE_TEXELS_PER_THREAD; ~2 µs a thousand blocks to schedule on an
+#: H100, perf_notes section 40), one that moved 32 texels a thread (~4 blocks of 256 an SM for its float64 work)
+CASCADE_THREADS_PER_VIEW = 1 << 17
+
+
+@wp.kernel
+def cascade_solid_angles_all(views: wp.array(dtype=ViewParams), states: wp.array(dtype=CascadeState), texels: int,
+                             threads: int, out: wp.array(dtype=wp.float32)):
+    """:func:`cascade_solid_angles` of every view of a light in one launch, ``dim = (V, threads)``: thread (k, t)
+    writes texels t, t + threads, ... (coalesced) of view k where the fit moved it; one flag read where it did not.
+
+    ``texels``: H*W of each view; ``out``: (V*H*W,) float32, view k's at [k*H*W, (k+1)*H*W) (write when changed)."""
+    k, t = wp.tid()
+    if states[k].changed == 0:
+        return
+    view = views[k]
+    if view.orthographic != 0 or view.far <= INACTIVE_FAR:
+        return
+    p = t
+    while p < texels:
+        out[k * texels + p] = texel_solid_angle(view, p)
+        p += threads
+
+
 #: 32-bit words of one ViewParams (compared bit for bit by :func:`redraw_gate`)
 VIEW_WORDS = wp.types.type_size_in_bytes(ViewParams) // 4
 #: texels each thread of :func:`clear_keys_if_drawn` covers (coalesced stride): a clear that is skipped costs one flag
@@ -130,6 +155,38 @@ def view_words(views: wp.array) -> wp.array:
     """The memory of a ViewParams array as uint32 words (an alias, no copy): view k is words
     [k·VIEW_WORDS, (k + 1)·VIEW_WORDS)."""
     return wp.array(ptr=views.ptr, dtype=wp.uint32, shape=(views.shape[0] * VIEW_WORDS,), device=views.device)
+
+
+@wp.func
+def _gate(
+    views: wp.array(dtype=ViewParams),
+    words: wp.array(dtype=wp.uint32),
+    view_index: int,
+    generation: wp.array(dtype=wp.int32),
+    layers: int,
+    force: int,
+    drawn_words: wp.array(dtype=wp.uint32),
+    drawn_generation: wp.array(dtype=wp.int32),
+) -> ViewParams:
+    """:func:`redraw_gate`'s decision: the view to draw this frame (``far`` = INACTIVE_FAR: nothing), recording it as
+    drawn when it is."""
+    view = views[view_index]
+    same = force == 0
+    base = view_index * VIEW_WORDS
+    for i in range(VIEW_WORDS):
+        if words[base + i] != drawn_words[i]:
+            same = False
+    for b in range(LAYER_BITS):
+        if ((layers >> b) & 1) != 0 and generation[b] != drawn_generation[b]:
+            same = False
+    if same:
+        view.far = INACTIVE_FAR
+    elif view.far > INACTIVE_FAR:
+        for i in range(VIEW_WORDS):
+            drawn_words[i] = words[base + i]
+        for b in range(LAYER_BITS):
+            drawn_generation[b] = generation[b]
+    return view
 
 
 @wp.kernel
@@ -150,23 +207,29 @@ def redraw_gate(
     and the resolves draw nothing for (the maps keep their values, the visibility stays clear); else the view itself,
     recorded as drawn. An inactive view draws nothing and records nothing. Decided on the device: a captured frame
     keeps deciding."""
-    view = views[view_index]
-    same = force == 0
-    base = view_index * VIEW_WORDS
-    for i in range(VIEW_WORDS):
-        if words[base + i] != drawn_words[i]:
-            same = False
-    for b in range(LAYER_BITS):
-        if ((layers >> b) & 1) != 0 and generation[b] != drawn_generation[b]:
-            same = False
-    if same:
-        view.far = INACTIVE_FAR
-    elif view.far > INACTIVE_FAR:
-        for i in range(VIEW_WORDS):
-            drawn_words[i] = words[base + i]
-        for b in range(LAYER_BITS):
-            drawn_generation[b] = generation[b]
-    draw[0] = view
+    draw[0] = _gate(views, words, view_index, generation, layers, force, drawn_words, drawn_generation)
+
+
+@wp.kernel
+def redraw_gate_split(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): gates views[view_index]
+    words: wp.array(dtype=wp.uint32),  # (V·VIEW_WORDS,) ``view_words(views)`` (read)
+    view_index: int,
+    generation: wp.array(dtype=wp.int32),  # (LAYER_BITS,) DeviceScene.generation (read)
+    layers: int,  # layer bits the whole map draws
+    opaque_layers: int,  # the layer bits whose keys are kept apart (LAYER_OPAQUE)
+    drawn_words: wp.array(dtype=wp.uint32),  # (VIEW_WORDS,) the view the map was last drawn for (read, write)
+    drawn_generation: wp.array(dtype=wp.int32),  # (LAYER_BITS,) its layers' generations then (read, write)
+    draw: wp.array(dtype=ViewParams),  # (1,) the view to draw the specular layer and resolve for (write)
+    drawn_opaque_words: wp.array(dtype=wp.uint32),  # (VIEW_WORDS,) as ``drawn_words``, for the kept opaque keys
+    drawn_opaque_generation: wp.array(dtype=wp.int32),  # (LAYER_BITS,)
+    draw_opaque: wp.array(dtype=ViewParams),  # (1,) the view to draw the opaque keys for (write)
+):
+    """A split shadow map's two gates (:func:`redraw_gate` over ``layers``, then over ``opaque_layers``) in one
+    thread and one launch: the same decisions, in the same order, as the two launches (the twin)."""
+    draw[0] = _gate(views, words, view_index, generation, layers, 0, drawn_words, drawn_generation)
+    draw_opaque[0] = _gate(views, words, view_index, generation, opaque_layers, 0, drawn_opaque_words,
+                           drawn_opaque_generation)
 
 
 def _same_params(a: ViewParams, rec) -> bool:
@@ -175,19 +238,28 @@ def _same_params(a: ViewParams, rec) -> bool:
             and all(np.float32(getattr(a, f)) == np.float32(rec[f]) for f in ("fx", "fy", "cx", "cy", "near", "far")))
 
 
+#: threads of :func:`clear_keys_if_drawn` at most: a skipped clear (the frames whose opaque layer stood still) then
+#: costs a few hundred blocks that read one flag each instead of 2048 (a 2048² map at SHADOW_TEXELS_PER_THREAD)
+SHADOW_CLEAR_THREADS = 1 << 16
+
+
+def shadow_clear_threads(n: int) -> int:
+    """Threads :func:`clear_keys_if_drawn` is launched with for ``n`` keys."""
+    return max(1, min(SHADOW_CLEAR_THREADS, (n + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD))
+
+
 @wp.kernel
-def clear_keys_if_drawn(draw: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.uint64)):
+def clear_keys_if_drawn(draw: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.uint64), threads: int):
     """Fill ``keys`` with EMPTY_KEY when ``draw[0]`` is drawn this frame (``redraw_gate``), else leave them.
-    ``ceil(n / SHADOW_TEXELS_PER_THREAD)`` threads, thread t covering texels t, t + threads, ..."""
+    ``threads`` threads (:func:`shadow_clear_threads`), thread t covering texels t, t + threads, ... (coalesced)."""
     if draw[0].far <= INACTIVE_FAR:
         return
     t = wp.tid()
     n = keys.shape[0]
-    threads = (n + SHADOW_TEXELS_PER_THREAD - 1) / SHADOW_TEXELS_PER_THREAD
-    for i in range(SHADOW_TEXELS_PER_THREAD):
-        p = t + i * threads
-        if p < n:
-            keys[p] = K.EMPTY_KEY
+    p = t
+    while p < n:
+        keys[p] = K.EMPTY_KEY
+        p += threads
 
 
 @wp.kernel
@@ -223,6 +295,8 @@ class _ShadowView:
     the two keys per texel (``resolve_depth_over``): the same depth bit for bit as one draw of both layers."""
 
     LAYERS = LAYER_OPAQUE | LAYER_SPECULAR
+    #: a split map's two gates in one launch (``redraw_gate_split``); False: two ``redraw_gate`` launches (the twin)
+    FUSED_GATES = True
 
     def __init__(self, view: View, device, split: bool = False):
         n = view.width * view.height
@@ -251,19 +325,26 @@ class _ShadowView:
         naive path) both layers are drawn into one buffer and resolved every frame."""
         s = raster.scene
         w, h = self.view.width, self.view.height
-        wp.launch(redraw_gate, dim=1, device=s.device,
-                  inputs=[self.views, self._words, 0, s.generation, self.LAYERS, int(not cache), self.drawn_words,
-                          self.drawn_generation, self.draw_view])
+        if cache and self.split and self.FUSED_GATES:  # both gates in one launch
+            wp.launch(redraw_gate_split, dim=1, device=s.device,
+                      inputs=[self.views, self._words, 0, s.generation, self.LAYERS, LAYER_OPAQUE, self.drawn_words,
+                              self.drawn_generation, self.draw_view, self.drawn_opaque_words,
+                              self.drawn_opaque_generation, self.draw_opaque])
+        else:
+            wp.launch(redraw_gate, dim=1, device=s.device,
+                      inputs=[self.views, self._words, 0, s.generation, self.LAYERS, int(not cache), self.drawn_words,
+                              self.drawn_generation, self.draw_view])
         if not (cache and self.split):
             raster.draw(self.draw_view, 0, w, h, self.LAYERS, self.visibility, clear=False)
             wp.launch(K.resolve_depth, dim=w * h, device=s.device,
                       inputs=[self.draw_view, 0, self.visibility, s.points, s.indices, self.depth, None])  # depth only
             return
-        wp.launch(redraw_gate, dim=1, device=s.device,
-                  inputs=[self.views, self._words, 0, s.generation, LAYER_OPAQUE, 0, self.drawn_opaque_words,
-                          self.drawn_opaque_generation, self.draw_opaque])
-        threads = (w * h + SHADOW_TEXELS_PER_THREAD - 1) // SHADOW_TEXELS_PER_THREAD
-        wp.launch(clear_keys_if_drawn, dim=threads, device=s.device, inputs=[self.draw_opaque, self.opaque_keys])
+        if not self.FUSED_GATES:
+            wp.launch(redraw_gate, dim=1, device=s.device,
+                      inputs=[self.views, self._words, 0, s.generation, LAYER_OPAQUE, 0, self.drawn_opaque_words,
+                              self.drawn_opaque_generation, self.draw_opaque])
+        threads = shadow_clear_threads(w * h)
+        wp.launch(clear_keys_if_drawn, dim=threads, device=s.device, inputs=[self.draw_opaque, self.opaque_keys, threads])
         raster.draw(self.draw_opaque, 0, w, h, LAYER_OPAQUE, self.opaque_keys, clear=False)
         raster.draw(self.draw_view, 0, w, h, LAYER_SPECULAR, self.visibility, clear=False)
         wp.launch(resolve_depth_over, dim=w * h, device=s.device,
@@ -323,10 +404,19 @@ class LightMaps:
             self.rsm = [RSMView.allocate(window_view(v, (0, 0, v.width, v.height), rsm_size, f"{v.name}_c{c}"), d,
                                          False, False) for v in whole for c in range(vs.cascades)]
             self.cascades = vs.cascades
+            # the cascades' texel solid angles in one array, each view's ``solid_angle`` a slice of it (in view order):
+            # the fit rewrites the moved ones in one launch (refresh_cascade_solid_angles)
+            n = rsm_size * rsm_size
+            assert all(r.width * r.height == n for r in self.rsm)
+            self.cascade_solid_angle = wp.zeros(len(self.rsm) * n, dtype=wp.float32, device=d)
+            for k, r in enumerate(self.rsm):
+                wp.copy(self.cascade_solid_angle, r.solid_angle, dest_offset=k * n, count=n)
+                r.solid_angle = self.cascade_solid_angle[k * n : (k + 1) * n]
         else:
             self.pilot = []
             self.rsm = [RSMView.allocate(v, d, False, False) for v in whole]
             self.cascades = 1
+            self.cascade_solid_angle = None  #: (len(rsm) * rsm_size²,) float32: fitted views' solid angles, else None
         #: host ViewParams of the RSM views: exact for whole views; for fitted ones the views they start from
         #: (the fit writes ``views`` on the device)
         self.params = [r.view.params() for r in self.rsm]
@@ -458,9 +548,19 @@ class LightMaps:
                 wp.launch(texel_solid_angles, dim=r.width * r.height, device=self.scene.device,
                           inputs=[r.view.params(), r.solid_angle])
 
+    #: every fitted view's texel solid angles in one launch (``cascade_solid_angles_all`` over ``cascade_solid_angle``);
+    #: False: one ``cascade_solid_angles`` launch per view (the twin)
+    FUSED_SOLID_ANGLES = True
+
     def refresh_cascade_solid_angles(self) -> None:
         """Rewrite the texel solid angles of the perspective RSM views the fit moved (device flags; fixed dims)."""
         if self.light.kind == LightKind.DISTANT:
+            return
+        if self.FUSED_SOLID_ANGLES and self.cascade_solid_angle is not None:
+            n = self.rsm_size * self.rsm_size
+            threads = min(CASCADE_THREADS_PER_VIEW, (n + CASCADE_TEXELS_PER_THREAD - 1) // CASCADE_TEXELS_PER_THREAD)
+            wp.launch(cascade_solid_angles_all, dim=(len(self.rsm), threads), device=self.scene.device,
+                      inputs=[self.views, self.states, n, threads, self.cascade_solid_angle])
             return
         for k, r in enumerate(self.rsm):
             n = r.width * r.height
