@@ -394,9 +394,10 @@ class PhotonPass:
         n = max(1, self.settings.photons // max(1, sum(active)))
         return [n if a else 0 for a in active]
 
-    #: zero the frame's accumulators (photon map, its Σ e², hidden flux, ledger, maxima) in one kernel
-    #: (``common.clear_frame``); False: one memset each (the twin)
-    FUSED_CLEAR = True
+    #: True: zero the frame's accumulators (photon map, its Σ e², hidden flux, ledger, maxima) in one kernel
+    #: (``common.clear_frame``); False (default): one memset each. The kernel's 4-byte stores measured slower than the
+    #: memsets on the H100 (Cornell 0.026 -> 0.034 ms, pool 0.030 -> 0.032; docs/perf_notes.md section 63)
+    FUSED_CLEAR = False
 
     def begin(self) -> None:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
