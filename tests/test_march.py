@@ -7,7 +7,7 @@ import pytest
 import warp as wp
 
 from cisp_warp.photons.cisp import build_bounds
-from cisp_warp.photons.march import (_cell_skipped, _ray_depth, _step_missed, bounds_size, screen_march, screen_march_bounded, screen_march_bounded_plain,
+from cisp_warp.photons.march import (_cell_skipped, _ray_depth, bounds_size, screen_march, screen_march_bounded, screen_march_bounded_plain,
                                      screen_march_naive, screen_march_naive_plain, screen_march_plain)
 from cisp_warp.raster.views import View, ViewParams
 
@@ -234,56 +234,3 @@ def test_perspective_cell_skip_is_a_proof(device, rng):
     w = [(k0 + (k1 - k0) * s).astype(np.float32) for s in (s_prev, s_last)]
     bare = ((near * np.minimum(*w)).astype(np.float32) > 1) | ((far * np.maximum(*w)).astype(np.float32) < 1)
     assert np.any(bare & ~depth_skip)
-
-
-@wp.kernel
-def step_tests(z: wp.array(dtype=wp.vec2), s: wp.array(dtype=wp.vec2), surf: wp.array(dtype=wp.vec2),
-               out: wp.array(dtype=wp.vec4i)):
-    i = wp.tid()
-    z0 = z[i][0]
-    z1 = z[i][1]
-    k0 = 1.0 / z0  # as _screen_segment's perspective reciprocals
-    k1 = 1.0 / z1
-    za = wp.where(s[i][0] == 0.0, z0, _ray_depth(0, z0, z1, k0, k1, s[i][0]))  # the depths the march steps with
-    zb = _ray_depth(0, z0, z1, k0, k1, s[i][1])
-    in_front = wp.max(za, zb) < surf[i][0]
-    behind = wp.min(za, zb) > surf[i][1]
-    out[i] = wp.vec4i(int(_step_missed(0, z0, z1, k0, k1, s[i][0], s[i][1], surf[i][0], surf[i][1], True)),
-                      int(_step_missed(0, z0, z1, k0, k1, s[i][0], s[i][1], surf[i][0], surf[i][1], False)),
-                      int(in_front or behind), int(in_front))
-
-
-def test_perspective_step_miss_is_a_proof(device, rng):
-    """``_step_missed`` tests a perspective pixel step in inverse depth, without the ray's division: every step it
-    passes over misses by the march's depth test on the depths it steps with (z0 at the segment's start, 1/w after),
-    with surfaces within 8 ulps of the ray's depth at either end; without ``behind`` only steps in front of the
-    surface (a back-face layer's hidden half is tested on the depths); and it passes steps clear by 1e-5."""
-    n = 200000
-    z0 = rng.uniform(0.2, 40.0, n).astype(np.float32)
-    z1 = np.where(rng.random(n) < 0.5, z0 * rng.uniform(0.02, 1.0, n), z0 * rng.uniform(1.0, 50.0, n)).astype(np.float32)
-    s_prev = np.where(rng.random(n) < 0.2, 0.0, rng.uniform(0.0, 1.0, n)).astype(np.float32)
-    s_next = np.minimum(s_prev + rng.uniform(0.0, 0.05, n), 1.0).astype(np.float32)
-    k0, k1 = np.float32(1.0) / z0, np.float32(1.0) / z1
-    za = np.where(s_prev == 0.0, z0, np.float32(1.0) / (k0 + (k1 - k0) * s_prev)).astype(np.float32)
-    zb = (np.float32(1.0) / (k0 + (k1 - k0) * s_next)).astype(np.float32)
-    lo, hi = np.minimum(za, zb), np.maximum(za, zb)
-    ulps = rng.integers(-8, 9, (n, 2)).astype(np.float32) * np.float32(2.0 ** -23)
-    zs = np.where(rng.random(n) < 0.5, hi * (1 + ulps[:, 0]), hi * rng.uniform(0.5, 1.5, n)).astype(np.float32)
-    z_far = np.where(rng.random(n) < 0.5, lo * (1 + ulps[:, 1]), lo * rng.uniform(0.5, 1.5, n)).astype(np.float32)
-    z_far = np.maximum(z_far, zs)
-    zs = np.where(rng.random(n) < 0.05, np.float32(1e30), zs)  # a hole (BIG_DEPTH)
-    out = wp.zeros(n, dtype=wp.vec4i, device=device)
-    wp.launch(step_tests, dim=n, device=device, inputs=[wp.array(np.stack([z0, z1], 1), dtype=wp.vec2, device=device),
-              wp.array(np.stack([s_prev, s_next], 1), dtype=wp.vec2, device=device),
-              wp.array(np.stack([zs, z_far], 1), dtype=wp.vec2, device=device), out])
-    missed, missed_front, depth_miss, in_front = out.numpy().T.astype(bool)
-    assert depth_miss.sum() > n // 10 and missed.sum() > n // 10 and missed_front.sum() > n // 10
-    assert not np.any(missed & ~depth_miss), "a step passed over that the depth test does not prove hitless"
-    assert not np.any(missed_front & ~in_front), "a step passed over that is not in front of the surface"
-    clear_front = hi < zs * (1 - 1e-5)
-    clear = clear_front | (lo > z_far * (1 + 1e-5))
-    assert clear.sum() > n // 20 and np.all(missed[clear]) and np.all(missed_front[clear_front])
-    # the cases are sharp: the product test without the margin passes over unproven steps among them
-    w = [(k0 + (k1 - k0) * s).astype(np.float32) for s in (s_prev, s_next)]
-    bare = ((zs * np.minimum(*w)).astype(np.float32) > 1) | ((z_far * np.maximum(*w)).astype(np.float32) < 1)
-    assert np.any(bare & ~depth_miss)

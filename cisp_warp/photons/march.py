@@ -153,24 +153,6 @@ def _cell_skipped(orthographic: int, z0: float, z1: float, k0: float, k1: float,
 
 
 @wp.func
-def _step_missed(orthographic: int, z0: float, z1: float, k0: float, k1: float, s_prev: float, s: float, zs: float,
-                 z_far: float, behind: bool) -> bool:
-    """Whether a pixel step from ``s_prev`` to ``s`` provably misses its sample's surface [``zs``, ``z_far``]: the
-    ray's depth over the step stays in front of ``zs`` or, where ``behind``, behind ``z_far`` (the negation of the
-    march's depth test, :func:`_cell_skipped`'s way: orthographic the depths compared; perspective in inverse depth
-    without a division, with ``INV_DEPTH_MARGIN``, so that the depth test on the ray's 1/w agrees wherever this
-    returns True). ``behind`` False (a depth buffer with a back-face layer) proves only the first: a ray behind the
-    far side may be in an object's hidden half (:func:`_hidden`), which the march tests on the depths."""
-    za = z0 + (z1 - z0) * s_prev
-    zb = z0 + (z1 - z0) * s
-    wa = k0 + (k1 - k0) * s_prev
-    wb = k0 + (k1 - k0) * s
-    ortho_miss = wp.max(za, zb) < zs or (behind and wp.min(za, zb) > z_far)
-    persp_miss = zs * wp.min(wa, wb) > 1.0 + INV_DEPTH_MARGIN or (behind and z_far * wp.max(wa, wb) < 1.0 - INV_DEPTH_MARGIN)
-    return wp.where(orthographic != 0, ortho_miss, persp_miss)
-
-
-@wp.func
 def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, z_far: float) -> float:
     """Where along a step the ray crosses the surface, u in [0, 1], or -1 when the ray's depth over the step,
     [min, max], does not overlap the surface's [zs, z_far] (:func:`surface_far`).
@@ -667,24 +649,16 @@ def _make_marches(back_layer: bool, counted: bool = False):
                 diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
                 i = last + 1
                 continue
+            if zr_prev < 0.0:  # ZR_UNREAD: the value the naive march had there (its step at s_prev)
+                zr_prev = _ray_depth(ortho, z0, z1, k0, k1, s_prev)
             while i <= last:
                 if wp.static(counted):
                     work += 1
                 s = ds_step * float(i)
                 sp = s0 + ds * s
+                zr = _ray_depth(ortho, z0, z1, k0, k1, s)
                 zs = _buffer_depth(view, depth, sp[0], sp[1])
                 z_far = _far(view, depth, sp[0], sp[1], zs, thickness, thickness_rel)
-                # a step its inverse depths prove hitless goes on without the ray's depth (a division), as after a
-                # skip; the depths are computed where the test below needs them (the same values: section 64)
-                if _step_missed(ortho, z0, z1, k0, k1, s_prev, s, zs, z_far, not wp.static(back_layer)):
-                    s_prev = s
-                    zr_prev = ZR_UNREAD
-                    diff_prev = DIFF_UNREAD
-                    i += 1
-                    continue
-                if zr_prev < 0.0:  # ZR_UNREAD: the value the naive march had there (its step at s_prev)
-                    zr_prev = _ray_depth(ortho, z0, z1, k0, k1, s_prev)
-                zr = _ray_depth(ortho, z0, z1, k0, k1, s)
                 if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
                     if diff_prev == DIFF_UNREAD:  # the sample after a skip, read now (the naive march read it then)
                         sp_prev = s0 + ds * s_prev
