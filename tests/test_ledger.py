@@ -44,6 +44,20 @@ def test_ledger_does_not_depend_on_the_block_size(device, method, monkeypatch):
     np.testing.assert_allclose(map_many, map_one, rtol=1e-5, atol=1e-6 * map_one.max())
 
 
+@pytest.mark.parametrize("block", [96, 128])
+def test_emission_reduction_of_whole_warps(device, block, monkeypatch):
+    """``cisp``'s emission entries summed over blocks of whole warps (on CUDA ``kernels_cisp._emission_reduce``: a
+    reduce-scatter of 18 doubles per warp, the warps' sums in shared memory, 18 float64 atomics; 128 threads is
+    the frame's block, 96 three warps) against blocks of 1 (Warp's tile sum, each photon's values added in photon
+    order): every entry to 1e-12 and closing; on the CPU both are the tile path (fibers)."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    one, _ = ledger_with_block(device, "cisp", 1, stripes=1)
+    many, _ = ledger_with_block(device, "cisp", block, stripes=3)
+    assert one["sampled"].sum() > 0 and one["refracted"].sum() > 0
+    np.testing.assert_allclose(many.values, one.values, rtol=1e-12, atol=1e-12 * one["sampled"].max())
+    assert many.closure() < 1e-12
+
+
 @pytest.mark.parametrize("runs", ["several", "one"])
 def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs):
     """ledger_add_outcomes against numpy: records of every final entry (and codes outside the mask, which it must

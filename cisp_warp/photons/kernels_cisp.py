@@ -38,17 +38,120 @@ def _add_entry(ledger: wp.array(dtype=wp.vec3d), block: int, entry: int, s: vec1
     wp.atomic_add(ledger, ledger_slot(ledger, block, entry), wp.vec3d(s[3 * i], s[3 * i + 1], s[3 * i + 2]))
 
 
+#: CUDA only (blocks of whole warps): the block's sums of ``v`` (18 doubles a thread) by a reduce-scatter in each warp
+#: (rounds of 9, 5, 3, 2 and 1 shuffles at lane distances 16..1, a lane keeping the half of its values its bit
+#: selects and adding its partner's copy of that half: 20 shuffled doubles instead of Warp's 5 x 18, none looping
+#: over a vector kept in local memory), each lane left with one value's warp sum (lane bits -> value
+#: 9*b4 + 5*b3 + 3*b2 + 2*b1 + b0 where the bits do not select padding), written to shared memory; one barrier;
+#: thread i < 18 then adds the warps' sums of value i in warp order and adds it to the ledger (one float64 atomic a
+#: thread, all 18 in one instruction of warp 0). Deterministic within a block (a fixed tree); the ledger's stripes
+#: take the blocks' adds in any order, as before. On the CPU (or blocks of a partial warp) it returns 0 and
+#: :func:`emission_add` sums with Warp's tiles (the CPU's blocks are one thread, or fibers with
+#: ``enable_cpu_blocks``).
+_EMISSION_REDUCE = """
+#if defined(__CUDA_ARCH__) && (WP_TILE_BLOCK_DIM % 32 == 0)
+constexpr int NW = WP_TILE_BLOCK_DIM / 32;
+__shared__ double emission_partials[NW][18];
+const unsigned FULL = 0xffffffffu;
+const int lane = threadIdx.x & 31;
+const int warp = threadIdx.x >> 5;
+double a[10];
+{
+    const bool h = (lane & 16) != 0;
+    #pragma unroll
+    for (int i = 0; i < 9; ++i) {
+        const double send = h ? v.c[i] : v.c[i + 9];
+        const double keep = h ? v.c[i + 9] : v.c[i];
+        a[i] = keep + __shfl_xor_sync(FULL, send, 16);
+    }
+    a[9] = 0.0;
+}
+double b[6];
+{
+    const bool h = (lane & 8) != 0;
+    #pragma unroll
+    for (int i = 0; i < 5; ++i) {
+        const double send = h ? a[i] : a[i + 5];
+        const double keep = h ? a[i + 5] : a[i];
+        b[i] = keep + __shfl_xor_sync(FULL, send, 8);
+    }
+    b[5] = 0.0;
+}
+double c[4];
+{
+    const bool h = (lane & 4) != 0;
+    #pragma unroll
+    for (int i = 0; i < 3; ++i) {
+        const double send = h ? b[i] : b[i + 3];
+        const double keep = h ? b[i + 3] : b[i];
+        c[i] = keep + __shfl_xor_sync(FULL, send, 4);
+    }
+    c[3] = 0.0;
+}
+double d[2];
+{
+    const bool h = (lane & 2) != 0;
+    #pragma unroll
+    for (int i = 0; i < 2; ++i) {
+        const double send = h ? c[i] : c[i + 2];
+        const double keep = h ? c[i + 2] : c[i];
+        d[i] = keep + __shfl_xor_sync(FULL, send, 2);
+    }
+}
+double e;
+{
+    const bool h = (lane & 1) != 0;
+    const double send = h ? d[0] : d[1];
+    const double keep = h ? d[1] : d[0];
+    e = keep + __shfl_xor_sync(FULL, send, 1);
+}
+const int b0 = lane & 1, b1 = (lane >> 1) & 1, b2 = (lane >> 2) & 1, b3 = (lane >> 3) & 1, b4 = (lane >> 4) & 1;
+const int i3 = 2 * b1 + b0;   // index into c (3 values and a pad)
+const int i2 = 3 * b2 + i3;   // into b (5 and a pad)
+const int i1 = 5 * b3 + i2;   // into a (9 and a pad)
+if (i3 < 3 && i2 < 5 && i1 < 9)
+    emission_partials[warp][9 * b4 + i1] = e;
+__syncthreads();
+if (threadIdx.x < 18) {
+    const int i = threadIdx.x;
+    double s = emission_partials[0][i];
+    #pragma unroll
+    for (int w = 1; w < NW; ++w)
+        s += emission_partials[w][i];
+    const int q = i / 3;
+    const int entry = q == 0 ? e0 : q == 1 ? e1 : q == 2 ? e2 : q == 3 ? e3 : q == 4 ? e4 : e5;
+    double* p = reinterpret_cast<double*>(wp::address(ledger, stripe + entry));
+    atomicAdd(p + (i - 3 * q), s);
+}
+return 1;
+#else
+return 0;
+#endif
+"""
+
+
+@wp.func_native(_EMISSION_REDUCE)
+def _emission_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, v: vec18d, e0: int, e1: int, e2: int, e3: int,
+                     e4: int, e5: int) -> int:
+    """On CUDA (blocks of whole warps): the block's sums of ``v`` added to entries ``e0``..``e5`` (three values
+    each) of the ledger's row ``stripe`` (see ``_EMISSION_REDUCE``); returns 1. Elsewhere it does nothing and
+    returns 0."""
+    ...
+
+
 @wp.func
 def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry: int, sampled: wp.vec3,
                  absorbed: wp.vec3, power: wp.vec3, refracted: int):
     """The emission's ledger entries (``EMISSION_ENTRIES``) of the block's photons from what each thread kept of
     its emission and bounce (:func:`emit_and_scatter`: ``entry`` -1 none sampled, ``L_CULLED_*`` culled,
     ``L_SAMPLED`` emitted; the power as sampled, absorbed at a metal, and after the bounce): all six summed in
-    float64 over the block in one tile reduction (18 values), added by the block's first thread in entry order.
-    These are the values ``emit_and_bounce`` books into a tally and ``ledger_add(..., EMISSION_ENTRIES)`` adds, each
-    at most once a photon, so a float32 value converted equals the float64 tally's sum (on the CPU, a block of one
-    thread: the same adds bit for bit); no tally is held through the emission, and one reduction replaces six
-    (docs/perf_notes.md section 39). Every thread of the block calls it (no early return before it)."""
+    float64 over the block in one reduction (18 values), added once a block. These are the values
+    ``emit_and_bounce`` books into a tally and ``ledger_add(..., EMISSION_ENTRIES)`` adds, each at most once a
+    photon, so a float32 value converted equals the float64 tally's sum (on the CPU, a block of one thread: the same
+    adds bit for bit); no tally is held through the emission, and one reduction replaces six (docs/perf_notes.md
+    section 39). On CUDA the reduction is :func:`_emission_reduce` (a reduce-scatter: section 64), elsewhere one
+    tile reduction of a ``vec18d`` added by the block's first thread in entry order. Every thread of the block calls
+    it (no early return before it)."""
     zero = wp.vec3(0.0)
     a = sampled
     b = wp.where(entry == L_CULLED_ROUGH, sampled, zero)
@@ -61,14 +164,16 @@ def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry:
                wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
                wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
                wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
-    s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
-    if lane == 0:
-        _add_entry(ledger, block, L_SAMPLED, s, 0)
-        _add_entry(ledger, block, L_CULLED_ROUGH, s, 1)
-        _add_entry(ledger, block, L_CULLED_LUM, s, 2)
-        _add_entry(ledger, block, L_ABSORBED, s, 3)
-        _add_entry(ledger, block, L_REFLECTED, s, 4)
-        _add_entry(ledger, block, L_REFRACTED, s, 5)
+    if _emission_reduce(ledger, ledger_slot(ledger, block, 0), v, L_SAMPLED, L_CULLED_ROUGH, L_CULLED_LUM,
+                        L_ABSORBED, L_REFLECTED, L_REFRACTED) == 0:
+        s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
+        if lane == 0:
+            _add_entry(ledger, block, L_SAMPLED, s, 0)
+            _add_entry(ledger, block, L_CULLED_ROUGH, s, 1)
+            _add_entry(ledger, block, L_CULLED_LUM, s, 2)
+            _add_entry(ledger, block, L_ABSORBED, s, 3)
+            _add_entry(ledger, block, L_REFLECTED, s, 4)
+            _add_entry(ledger, block, L_REFRACTED, s, 5)
 
 
 @wp.func
