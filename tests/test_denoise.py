@@ -968,8 +968,9 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     """The level with real multi-lane blocks on the CPU (cooperative fibers): the barriers between the shared
     tables' phases are where a race would show; equals the twin like the one-lane CPU block."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False)
-    test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True)
+    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False, 32.0)
+    test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True, 32.0)
+    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False, 128.0)
     test_atrous_level_signal_in_the_apron_only_is_filtered("cpu", None)  # the two barriers' flags across lanes
     test_atrous_level_signal_free_block_skips_its_weights("cpu")
     test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin("cpu", 0, None)

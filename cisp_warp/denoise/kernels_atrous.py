@@ -358,12 +358,15 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, log2
     gate = wp.where(gated != 0, wp.clamp(wp.min(gd_p[3], gd_q[3]) * two_over_step - 1.0, 0.0, 1.0), 1.0)
     phi_z = wp.max(gd_p[0], gd_q[0]) * dist + depth_eps * wp.max(gs_p[3], gs_q[3])
     dz = wp.abs(gs_p[3] - gs_q[3])
-    e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(gd_p[1] + gd_q[1] + VARIANCE_EPS) - log2_kernel_weight
     if squarings > 0:
         cn = wp.max(c, 0.0)
         for i in range(MAX_SQUARINGS):  # unrolled; the steps at or above a constant ``squarings`` fold away
             cn = wp.where(i < squarings, cn * cn, cn)
-        return cn * fast_exp2(-fast_div(dz, phi_z) - e_l) * gate
+        # two FFMA into the exponent; g3x3(Var)_p / 2 + ε is p's, shared by its taps
+        x = log2_kernel_weight - dz * fast_rcp(phi_z)
+        x = x - wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt((gd_p[1] + VARIANCE_EPS) + gd_q[1])
+        return cn * fast_exp2(x) * gate
+    e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(gd_p[1] + gd_q[1] + VARIANCE_EPS) - log2_kernel_weight
     if c < 0.5:
         if gs_q[3] <= 0.0 or c <= 0.0 or gate <= 0.0:
             return 0.0
@@ -383,7 +386,12 @@ def pair_scales(sigma_depth: float, sigma_normal: float, sigma_luminance: float)
 def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: int, active: bool, s: float,
                two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int) -> float:
     """w(p, p + forward tap ``f``) from the loaded guides of p and q; 0 where p is not ``active`` (no surface, or
-    a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold."""
+    a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold. With
+    ``squarings`` (no branch in :func:`pair_weight`) the weight is evaluated either way and selected, without a
+    branch (an inactive p's weight may be NaN: q without a surface either, φ_z = 0; it is never used)."""
+    if squarings > 0:
+        return wp.where(active, pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f),
+                                            two_over_step, depth_eps, sigma_normal, gated, squarings), 0.0)
     if not active:
         return 0.0
     return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f), two_over_step, depth_eps,
