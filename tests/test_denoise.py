@@ -792,13 +792,15 @@ def test_caustic_photon_m2_follows_a_caustic_the_differences_take_for_noise(devi
     assert still_m2 <= 1.01 * still
 
 
-@pytest.mark.parametrize("step,conserve,gate,lattice", [(1, True, None, False), (4, False, None, False),
-                                                        (16, True, None, False), (2, True, 0.1, False),
-                                                        (8, True, None, True), (16, False, None, True)])
-def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, lattice):
+@pytest.mark.parametrize("step,conserve,gate,lattice,sigma_normal", [
+    (1, True, None, False, 32.0), (4, False, None, False, 32.0), (16, True, None, False, 32.0),
+    (2, True, 0.1, False, 32.0), (8, True, None, True, 32.0), (16, False, None, True, 32.0),
+    (1, True, None, False, 128.0), (2, True, 0.1, False, 128.0), (8, False, None, True, 128.0)])
+def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, lattice, sigma_normal):
     """The tiled level (:func:`launch_atrous`, SVGF's) over several blocks: tiles of each sub-lattice (step² of them), aprons that cross tiles and
     sub-lattices, a partial last tile and image sizes no multiple of the step, against the float64 twin; with
-    ``lattice`` the level reads its packed input, guide and guide-pass terms in sub-lattice-major order."""
+    ``lattice`` the level reads its packed input, guide and guide-pass terms in sub-lattice-major order. σ_n = 128
+    (both denoisers' default) runs the level compiled for it (its normal term seven squarings, no logarithm)."""
     rng = np.random.default_rng(23 + step)
     w, h = 45, 38
     g = plane(w, h)
@@ -811,7 +813,7 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, latti
     color[g["depth"] <= 0] = 0.0
     variance = rng.exponential(1.0, (h, w)).astype(np.float32)
     variance[g["depth"] <= 0] = 0.0
-    s = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0, conserve_energy=conserve)
+    s = SVGFSettings(sigma_luminance=2.0, sigma_normal=sigma_normal, conserve_energy=conserve)
     dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
     slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
     var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
@@ -840,8 +842,9 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, latti
     np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("feedback,levels", [(0, 3), (2, 3), (-1, 3), (3, 5), (4, 6)])
-def test_svgf_levels_match_naive_twin(device, feedback, levels):
+@pytest.mark.parametrize("feedback,levels,sigma_normal", [(0, 3, 32.0), (2, 3, 32.0), (-1, 3, 32.0), (3, 5, 32.0),
+                                                        (4, 6, 32.0), (3, 5, 128.0)])
+def test_svgf_levels_match_naive_twin(device, feedback, levels, sigma_normal):
     """SVGF's chained levels (packed by reproject and filter_moments, ping-ponged packed, the last one unpacked, the
     feedback level writing the colour history; steps 8 and up read in sub-lattice-major order, the guide of steps 8
     and 16 written so by reproject, of step 32 copied by its guide pass) equal the float64 twin's levels applied to
@@ -854,7 +857,7 @@ def test_svgf_levels_match_naive_twin(device, feedback, levels):
     gs[1]["depth"][10:24, 4:20] = 1.2  # the second frame's G-buffer differs from the first's (a wrong row shows)
     frames = [(gs[k], photon_map(rng, h, w, 0.3, [5.0, 3.0, 1.0])) for k in range(2 if feedback == -1 else 1)]
     g = frames[-1][0]
-    base = SVGFSettings(sigma_luminance=2.0, sigma_normal=32.0)
+    base = SVGFSettings(sigma_luminance=2.0, sigma_normal=sigma_normal)
     temporal = SVGF(w, h, device, replace(base, atrous_levels=0, feedback_level=-1))
     out = wp.zeros(w * h, dtype=wp.vec3, device=device)
     for gk, e in frames:
@@ -965,8 +968,9 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     """The level with real multi-lane blocks on the CPU (cooperative fibers): the barriers between the shared
     tables' phases are where a race would show; equals the twin like the one-lane CPU block."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False)
-    test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True)
+    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False, 32.0)
+    test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True, 32.0)
+    test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False, 128.0)
     test_atrous_level_signal_in_the_apron_only_is_filtered("cpu", None)  # the two barriers' flags across lanes
     test_atrous_level_signal_free_block_skips_its_weights("cpu")
     test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin("cpu", 0, None)

@@ -61,7 +61,9 @@ pair weights (~37 instructions each on the common path, ~43 before section 46), 
 guides; two blocks an SM (the shared tables, 101 KB, and 64 registers a thread allow no more). Section 50: blocks
 whose tile and apron hold no signal (a still pool's walls and deck, 28-64% of its blocks by level) skip the pair
 weights, sums and taps: SVGF's pool levels 1.075 → 0.76 ms. (Sparing them their guide loads too, through per-block
-flags of the previous level, measured slower: section 50.)
+flags of the previous level, measured slower: section 50.) Section 61: σ_n = 128 (the default) as seven squarings,
+~26 instructions a pair weight and no branch: 0.67 → 0.64 (Cornell), 0.72 → 0.70 (pool) on section 38's G-buffers;
+with the pair phase skipped altogether the levels still take 0.47 / 0.57 ms (what remains is that fixed part).
 """
 
 from __future__ import annotations
@@ -134,6 +136,10 @@ _RUNS_X = wp.constant(GUIDE_X // RUN)
 _RUN_N = wp.constant(PAIR_ROWS * GUIDE_X // RUN)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
+#: σ_n = 2^NORMAL_SQUARINGS (128, both denoisers' default) has a level of its own whose normal term is that many
+#: multiplications (:func:`pair_weight`); MAX_SQUARINGS bounds the unrolled loop that takes them
+NORMAL_SQUARINGS = 7
+MAX_SQUARINGS = wp.constant(8)
 #: W_p's own term h(0)² = (3/8)²
 CENTRE_WEIGHT = wp.constant(0.140625)
 #: ln 2 and log2(e), the scales of :func:`pair_scales`
@@ -332,7 +338,7 @@ def forward_distance(f: int) -> float:
 
 @wp.func
 def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, log2_kernel_weight: float, dist: float,
-                two_over_step: float, depth_eps: float, sigma_normal: float, gated: int) -> float:
+                two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int) -> float:
     """w_pq of the module docstring, symmetric in p and q, from the guides ``gs`` = (n, z) and ``gd`` =
     (σ_z ‖∇z‖ ln 2, g3x3(Var) / 2, luminance log2(e) / σ_l, R); ``dist`` = ‖p − q‖ [pixels], ``depth_eps`` = σ_z ε_z
     ln 2, ``sigma_normal`` = 2 σ_n log2(e), ``log2_kernel_weight`` = log2(h(dx) h(dy)). p must have a surface; 0
@@ -344,11 +350,24 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, log2
     c = n_p·n_q ≥ 0.5, in ln c = 2 atanh((c − 1)/(c + 1)): both divisions come from one reciprocal, r = 1 / ((c + 1)
     φ_z). Below c = 0.5 (a normal edge, or q without a surface) the rare branch takes ``wp.log``. g3x3(Var) >= 0,
     so the sum under the square root needs no clamp. (Every branch returns: a value assigned in two branches of a
-    loop's body stays live across iterations in Warp's generated code and spills.)"""
+    loop's body stays live across iterations in Warp's generated code and spills.)
+
+    ``squarings`` = k > 0 (a compile-time constant, σ_n = 2^k, :data:`NORMAL_SQUARINGS` for the default 128):
+    max(0, n_p·n_q)^σ_n is k multiplications, w_pq = c^σ_n · 2^(−|z_p − z_q| / φ_z − e_l), with no logarithm, no
+    series and no branch (c^128 < 2^−128 below c = 1/2, flushed to 0 on CUDA: the twin's weight there is below
+    1e-38 of the centre's); ``sigma_normal`` is then not read."""
     c = gs_p[0] * gs_q[0] + gs_p[1] * gs_q[1] + gs_p[2] * gs_q[2]
     gate = wp.where(gated != 0, wp.clamp(wp.min(gd_p[3], gd_q[3]) * two_over_step - 1.0, 0.0, 1.0), 1.0)
     phi_z = wp.max(gd_p[0], gd_q[0]) * dist + depth_eps * wp.max(gs_p[3], gs_q[3])
     dz = wp.abs(gs_p[3] - gs_q[3])
+    if squarings > 0:
+        cn = wp.max(c, 0.0)
+        for i in range(MAX_SQUARINGS):  # unrolled; the steps at or above a constant ``squarings`` fold away
+            cn = wp.where(i < squarings, cn * cn, cn)
+        # two FFMA into the exponent; g3x3(Var)_p / 2 + ε is p's, shared by its taps
+        x = log2_kernel_weight - dz * fast_rcp(phi_z)
+        x = x - wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt((gd_p[1] + VARIANCE_EPS) + gd_q[1])
+        return cn * fast_exp2(x) * gate
     e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(gd_p[1] + gd_q[1] + VARIANCE_EPS) - log2_kernel_weight
     if c < 0.5:
         if gs_q[3] <= 0.0 or c <= 0.0 or gate <= 0.0:
@@ -367,19 +386,25 @@ def pair_scales(sigma_depth: float, sigma_normal: float, sigma_luminance: float)
 
 @wp.func
 def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: int, active: bool, s: float,
-               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int) -> float:
+               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int) -> float:
     """w(p, p + forward tap ``f``) from the loaded guides of p and q; 0 where p is not ``active`` (no surface, or
-    a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold."""
+    a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold. With
+    ``squarings`` (no branch in :func:`pair_weight`) the weight is evaluated either way and selected, without a
+    branch (an inactive p's weight may be NaN: q without a surface either, φ_z = 0; it is never used)."""
+    if squarings > 0:
+        return wp.where(active, pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f),
+                                            two_over_step, depth_eps, sigma_normal, gated, squarings), 0.0)
     if not active:
         return 0.0
     return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f), two_over_step, depth_eps,
-                       sigma_normal, gated)
+                       sigma_normal, gated, squarings)
 
 
 @wp.func
 def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                  pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
-                 lane: int, threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int):
+                 lane: int, threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int,
+                 squarings: int):
     """Steps 2 and 3 of :func:`atrous_level` (cooperative: every thread of the block calls it). Writes ``pair``
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
     and ``inv_weight_sum`` (shared, 1 / W_q of the tile and an apron of 2, at their guide index)."""
@@ -398,13 +423,13 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
         active_1 = gs_1[3] > 0.0 and (gated == 0 or gd_1[3] * two_over_step > 1.0)
         active_2 = gs_2[3] > 0.0 and (gated == 0 or gd_2[3] * two_over_step > 1.0)
         # row 0: taps (0, 1) and (0, 2); u + 1 is p_1's first q
-        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated))
+        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
         for j in range(2):  # q = u + 2 + j: p_1's tap (0, 2) (j = 0), p_2's tap (0, 1 + j)
             gs_q = read_guide(guide_s, u + 2 + j)
             gd_q = read_guide(guide_d, u + 2 + j)
             if j == 0:
-                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated))
-            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated))
+                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
         # rows 1 and 2: q = u + dy PITCH + dx, dx = -2 .. 3: p_1's tap (dy, dx) for dx <= 2 (f = 5 dy - 1 + dx),
         # p_2's tap (dy, dx - 1) for dx >= -1
         for t in range(12):
@@ -414,9 +439,9 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
             gs_q = read_guide(guide_s, v)
             gd_q = read_guide(guide_d, v)
             if dx <= 2:
-                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated))
+                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
             if dx >= -1:
-                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated))
+                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
         k += threads
     block_sync()
 
@@ -633,14 +658,17 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
     return bits
 
 
-def make_atrous_level(gated: int):
-    """:func:`atrous_level` compiled for one value of ``gated`` (a closure constant, folded by the compiler): the
-    ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one (the caustics
-    denoiser) is the same code with every gate evaluated. Same arithmetic either way (an open gate multiplies
-    by 1)."""
+def make_atrous_level(gated: int, squarings: int = 0):
+    """:func:`atrous_level` compiled for one value of ``gated`` and of ``squarings`` (closure constants, folded by
+    the compiler): the ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one
+    (the caustics denoiser) is the same code with every gate evaluated. Same arithmetic either way (an open gate
+    multiplies by 1). ``squarings`` = k > 0: the form for σ_n = 2^k, whose normal term is k multiplications
+    (:func:`pair_weight`); 0: any σ_n, through a logarithm."""
     GATED = int(gated)
+    SQUARINGS = int(squarings)
+    name = ("atrous_level_gated" if GATED else "atrous_level") + (f"_pow{SQUARINGS}" if SQUARINGS else "")
 
-    @wp.kernel(name="atrous_level_gated" if GATED else "atrous_level",
+    @wp.kernel(name=name,
                launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
     def atrous_level(
         color_variance: wp.array(dtype=wp.vec4),
@@ -749,7 +777,7 @@ def make_atrous_level(gated: int):
         run = to_filter != 0 and any_signal != 0
         if run:
             fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
-                         normal_scale, GATED)
+                         normal_scale, GATED, SQUARINGS)
 
         # 4. the filter of the tile's pixels
         k = lane
@@ -804,8 +832,15 @@ def make_atrous_level(gated: int):
     return atrous_level
 
 
-#: the level by gating: ATROUS_LEVEL[0] (SVGF) and ATROUS_LEVEL[1] (the caustics denoiser's gated levels)
-ATROUS_LEVEL = {0: make_atrous_level(0), 1: make_atrous_level(1)}
+#: the level by (gating, squarings): gating 0 (SVGF) and 1 (the caustics denoiser's gated levels); squarings
+#: NORMAL_SQUARINGS for σ_n = 2^NORMAL_SQUARINGS (both denoisers' default), 0 for any other σ_n
+ATROUS_LEVEL = {(g, k): make_atrous_level(g, k) for g in (0, 1) for k in (0, NORMAL_SQUARINGS)}
+
+
+def normal_squarings(sigma_normal: float) -> int:
+    """The ``squarings`` of the compiled level for σ_n: ``NORMAL_SQUARINGS`` where σ_n = 2^NORMAL_SQUARINGS
+    exactly, else 0 (the general form)."""
+    return NORMAL_SQUARINGS if float(sigma_normal) == float(2 ** NORMAL_SQUARINGS) else 0
 
 
 @wp.kernel
@@ -929,7 +964,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
-    wp.launch_tiled(ATROUS_LEVEL[int(gated)], dim=blocks, block_dim=BLOCK_THREADS, device=d,
+    wp.launch_tiled(ATROUS_LEVEL[int(gated), normal_squarings(sigma_normal)], dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, depth_scale,
                             normal_scale, luminance_scale, int(conserve_energy),
                             int(color_variance_out is not None),
