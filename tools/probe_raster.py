@@ -8,7 +8,8 @@ Renders a few frames of ``cisp`` (the one-stream program), records the draws of 
 then replays each draw's set-up and times the tile-raster variants on it with CUDA events (``--reps`` launches each,
 into scratch buffers: ``atomic_min`` does the same work whatever the buffers hold): ``raster_tiles`` (the naive twin),
 ``raster_tiles_reject`` (tiles outside an edge skipped; also at 4 blocks an SM),
-``raster_tile_rows`` (a thread per item row). Counts per draw: sub-triangles drawn, (sub-triangle, tile)
+``raster_tile_rows`` (a thread per item row), the binned raster (``raster_bin_items`` + ``raster_bins``, bins of 48
+and 96 sub-triangles; ``bins_pass``: ``raster_bins`` alone over the bins one binned draw left). Counts per draw: sub-triangles drawn, (sub-triangle, tile)
 items, items with no covered pixel centre, pixel tests and fragments (covered, in depth range). The variants' buffers
 are compared with the naive twin's (on CUDA they may differ by FMA contraction: the count of differing keys).
 """
@@ -97,17 +98,41 @@ def probe_scene(scene_path, args, device):
                        empty_items=int((c[:, 1] == 0).sum()))
         bufs = [wp.full(w * h, K.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device) for _ in range(2)]
         s = raster.scene
-        variants = {"raster_tiles": (K.raster_tiles, 256), "reject": (K.raster_tiles_reject, 256),
-                    "reject_b4": (reject_b4, 256), "reject_bd128": (K.raster_tiles_reject, 128),
-                    "tile_rows": (K.raster_tile_rows, 256)}
+        inputs = [views, int(vi), raster.sub_v, raster.sub_bbox, raster.tile_end, n_sub, raster.stride,
+                  s.triangle_layers, int(layer), bufs[0], int(layer_b), bufs[1]]
+
+        def kernel_launch(kern, block):
+            return lambda: wp.launch(kern, dim=raster.stride, device=device, inputs=inputs, block_dim=block)
+
+        def binned(capacity):
+            def go():
+                raster.bin_capacity = capacity
+                raster._draw_binned(views, vi, w, h, layer, bufs[0], layer_b, bufs[1])
+            return go
+
+        def bins_pass():  # raster_bins alone, over the bins the last binned draw left (capacity 48)
+            tiles = raster.bins_for(w, h)
+            threads = min(raster.stride, tiles * K.WARP)
+            wp.launch(K.raster_bins, dim=threads, device=device, block_dim=K.BIN_BLOCK,
+                      inputs=[views, int(vi), raster.sub_v, raster.sub_bbox, threads, s.triangle_layers, int(layer),
+                              bufs[0], int(layer_b), bufs[1], (w + K.TILE - 1) // K.TILE, tiles, 48,
+                              raster.bin_fill, raster.bin_subs])
+
+        variants = {"raster_tiles": kernel_launch(K.raster_tiles, 256), "reject_bd128": kernel_launch(K.raster_tiles_reject, 128),
+                    "tile_rows": kernel_launch(K.raster_tile_rows, 256), "binned_c96": binned(96),
+                    "binned": binned(48), "bins_pass": bins_pass}
+        if args.all_variants:
+            variants.update(reject=kernel_launch(K.raster_tiles_reject, 256), reject_b4=kernel_launch(reject_b4, 256))
         ref = None
-        for name, (kern, block) in variants.items():
+        for name, launch in variants.items():
             for b in bufs:
                 b.fill_(K.EMPTY_KEY_VALUE)
-            inputs = [views, int(vi), raster.sub_v, raster.sub_bbox, raster.tile_end, n_sub, raster.stride,
-                      s.triangle_layers, int(layer), bufs[0], int(layer_b), bufs[1]]
-            wp.launch(kern, dim=raster.stride, device=device, inputs=inputs, block_dim=block)
+            launch()
             out = [b.numpy().copy() for b in bufs]
+            if name == "binned":
+                fill = raster.bin_fill.numpy()[:raster.bins_for(w, h)]
+                row.update(bin_entries=int(fill.sum()), bin_max=int(fill.max()) if fill.size else 0,
+                           bin_overflow_items=int(np.maximum(fill - 48, 0).sum()))
             if ref is None:
                 ref = out
             else:
@@ -118,7 +143,7 @@ def probe_scene(scene_path, args, device):
                 wp.capture_begin(device, force_module_load=False)
                 try:
                     for _ in range(args.reps):
-                        wp.launch(kern, dim=raster.stride, device=device, inputs=inputs, block_dim=block)
+                        launch()
                 finally:
                     graph = wp.capture_end(device)
                 wp.capture_launch(graph)
@@ -143,6 +168,7 @@ def main(argv=None) -> int:
     p.add_argument("--photons", type=int, default=2_000_000)
     p.add_argument("--reps", type=int, default=10)
     p.add_argument("--smoke", action="store_true")
+    p.add_argument("--all-variants", action="store_true", help="also raster_tiles_reject at 256 and at 4 blocks an SM")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     if args.smoke:

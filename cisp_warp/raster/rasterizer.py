@@ -27,6 +27,9 @@ COLUMN_BLOCKS_PER_SM = 3
 class Rasterizer:
     """Visibility-buffer rasterizer over one :class:`DeviceScene`; its scratch is allocated once."""
 
+    #: the default of :attr:`binned` for new rasterizers (a benchmark sets it before building a renderer)
+    BINNED = False
+
     def __init__(self, scene: DeviceScene):
         self.scene = scene
         d = scene.device
@@ -54,7 +57,7 @@ class Rasterizer:
         #: (``kernels.raster_bin_items``: the reject's items binned per 8x8 screen tile; ``kernels.raster_bins``: a warp
         #: per tile keeps its pixels' keys in registers and writes each covered pixel once; perf_notes section 60).
         #: The same buffers bit for bit on the CPU
-        self.binned = False
+        self.binned = Rasterizer.BINNED
         #: sub-triangles a screen tile's bin holds; the items past it are drawn by the binning pass itself (atomic
         #: min, as ``raster_tiles_reject``): nothing is lost
         self.bin_capacity = 48
