@@ -9,7 +9,7 @@ then replays each draw's set-up and times the tile-raster variants on it with CU
 into scratch buffers: ``atomic_min`` does the same work whatever the buffers hold): ``raster_tiles`` (the naive twin),
 ``raster_tiles_reject`` (tiles outside an edge skipped; also at 4 blocks an SM),
 ``raster_tile_rows`` (a thread per item row), the binned raster (``raster_bin_items`` + ``raster_bins``, bins of 48
-and 96 sub-triangles; ``bins_pass``: ``raster_bins`` alone over the bins one binned draw left). Counts per draw: sub-triangles drawn, (sub-triangle, tile)
+and 96 sub-triangles, and ``binned_lb8``: ``raster_bins`` bounded to 8 blocks of 128 an SM; ``bins_pass``: ``raster_bins`` alone over the bins one binned draw left). Counts per draw: sub-triangles drawn, (sub-triangle, tile)
 items, items with no covered pixel centre, pixel tests and fragments (covered, in depth range). The variants' buffers
 are compared with the naive twin's (on CUDA they may differ by FMA contraction: the count of differing keys).
 """
@@ -50,7 +50,9 @@ def _make_counter():
 
     # raster_tiles_reject at 4 blocks of 256 an SM (64 registers; 3 without the bound): same function, own module
     reject_b4 = wp.kernel(K.raster_tiles_reject.func, launch_bounds=(256, 4), module="unique")
-    return count_items, reject_b4
+    # raster_bins bounded to 8 blocks of 128 an SM (at most 64 registers; 82 unbounded, 6 blocks): its own module
+    bins_lb8 = wp.kernel(K.raster_bins.func, launch_bounds=(K.BIN_BLOCK, 8), module="unique")
+    return count_items, reject_b4, bins_lb8
 
 
 def probe_scene(scene_path, args, device):
@@ -81,7 +83,7 @@ def probe_scene(scene_path, args, device):
     finally:
         Rasterizer.draw = orig_draw
     wp.synchronize_device(device)
-    counter, reject_b4 = _make_counter()
+    counter, reject_b4, bins_lb8 = _make_counter()
     rows = []
     for (raster, views, vi, w, h, layer, layer_b) in calls:
         far = float(views.list()[vi].far)
@@ -104,10 +106,23 @@ def probe_scene(scene_path, args, device):
         def kernel_launch(kern, block):
             return lambda: wp.launch(kern, dim=raster.stride, device=device, inputs=inputs, block_dim=block)
 
-        def binned(capacity):
+        def binned(capacity, bins_kernel=None):
             def go():
                 raster.bin_capacity = capacity
-                raster._draw_binned(views, vi, w, h, layer, bufs[0], layer_b, bufs[1])
+                if bins_kernel is None:
+                    raster._draw_binned(views, vi, w, h, layer, bufs[0], layer_b, bufs[1])
+                    return
+                # Rasterizer._draw_binned with another raster_bins build
+                tiles = raster.bins_for(w, h)
+                fill = raster.bin_fill[:tiles]
+                fill.zero_()
+                wp.launch(K.raster_bin_items, dim=raster.stride, device=device, block_dim=K.RASTER_BLOCK,
+                          inputs=inputs + [(w + K.TILE - 1) // K.TILE, capacity, fill, raster.bin_subs])
+                threads = max(K.WARP, min(raster.stride, tiles * K.WARP) // K.WARP * K.WARP)
+                wp.launch(bins_kernel, dim=threads, device=device, block_dim=K.BIN_BLOCK,
+                          inputs=[views, int(vi), raster.sub_v, raster.sub_bbox, threads, s.triangle_layers,
+                                  int(layer), bufs[0], int(layer_b), bufs[1], (w + K.TILE - 1) // K.TILE, tiles,
+                                  capacity, fill, raster.bin_subs])
             return go
 
         def bins_pass():  # raster_bins alone, over the bins the last binned draw left (capacity 48)
@@ -120,7 +135,7 @@ def probe_scene(scene_path, args, device):
 
         variants = {"raster_tiles": kernel_launch(K.raster_tiles, 256), "reject_bd128": kernel_launch(K.raster_tiles_reject, 128),
                     "tile_rows": kernel_launch(K.raster_tile_rows, 256), "binned_c96": binned(96),
-                    "binned": binned(48), "bins_pass": bins_pass}
+                    "binned_lb8": binned(48, bins_lb8), "binned": binned(48), "bins_pass": bins_pass}
         if args.all_variants:
             variants.update(reject=kernel_launch(K.raster_tiles_reject, 256), reject_b4=kernel_launch(reject_b4, 256))
         ref = None
@@ -135,7 +150,7 @@ def probe_scene(scene_path, args, device):
                            bin_overflow_items=int(np.maximum(fill - 48, 0).sum()))
             if ref is None:
                 ref = out
-            else:
+            elif name != "bins_pass":  # bins_pass leaves out the overflowed items: a time, not a raster
                 row[f"{name}_diff_keys"] = int(sum((x != y).sum() for x, y in zip(ref, out)))
                 low = np.uint64(0xFFFFFFFF)
                 row[f"{name}_diff_tri"] = int(sum(((x & low) != (y & low)).sum() for x, y in zip(ref, out)))
