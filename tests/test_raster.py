@@ -1072,3 +1072,25 @@ def test_binned_raster_is_the_tile_raster(device, stride, capacity):
             qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
             np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}")
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
+
+
+def test_probe_raster_smoke_binned_keys_are_the_twins(tmp_path):
+    """``tools/probe_raster.py --smoke`` on the flooded Cornell box (CPU): every draw of a frame replayed with each
+    variant (the reject, the row raster, the binned raster with bins of 48 and 96, bounded and a thread a pixel) leaves
+    ``raster_tiles``' keys bit for bit."""
+    import importlib.util
+    import json
+    import os
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools", "probe_raster.py")
+    spec = importlib.util.spec_from_file_location("probe_raster", path)
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    out = tmp_path / "probe.json"
+    assert probe.main(["--device", "cpu", "--smoke", "--scenes", "cornell", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["cornell"]
+    active = [r for r in rows if r["active"]]
+    assert active and all(r["items"] > 0 for r in active)
+    for r in rows:
+        diffs = {k: v for k, v in r.items() if k.endswith("_diff_keys")}
+        assert {"binned_diff_keys", "binned_c96_diff_keys", "binned_lb8_diff_keys", "binned_px1_diff_keys"} <= set(diffs)
+        assert not any(diffs.values()), (r["size"], diffs)

@@ -11,7 +11,9 @@ out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run o
 adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
 ``raster_tiles``, its naive twin, a thread per item found by binary search. The default draws with
 ``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
-pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
+pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU. The binned raster (``Rasterizer.binned``, opt-in:
+``raster_bin_items`` bins the reject's items per 8x8 screen tile, ``raster_bins`` gives each tile a warp that keeps its
+pixels' keys in registers and writes each covered pixel once) is too.
 
 An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, and the depth bounds of its opaque
 depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise with the
