@@ -7,11 +7,13 @@
 Renders a few frames of ``cisp`` (the one-stream program), records the draws of the next frame (view, size, layers),
 then replays each draw's set-up and times the tile-raster variants on it with CUDA events (``--reps`` launches each,
 into scratch buffers: ``atomic_min`` does the same work whatever the buffers hold): ``raster_tiles`` (the naive twin),
-``raster_tiles_reject`` (tiles outside an edge skipped; also at 4 blocks an SM),
+``raster_tiles_reject`` (tiles outside an edge skipped; with ``--all-variants`` also at 256 and at 4 blocks an SM),
 ``raster_tile_rows`` (a thread per item row), the binned raster (``raster_bin_items`` + ``raster_bins``, bins of 48
-and 96 sub-triangles, and ``binned_lb8``: ``raster_bins`` bounded to 8 blocks of 128 an SM, ``binned_px1``: a thread a pixel; ``bins_pass``: ``raster_bins`` alone over the bins one binned draw left). Counts per draw: sub-triangles drawn, (sub-triangle, tile)
-items, items with no covered pixel centre, pixel tests and fragments (covered, in depth range). The variants' buffers
-are compared with the naive twin's (on CUDA they may differ by FMA contraction: the count of differing keys).
+and 96 sub-triangles), ``binned_lb8`` (``raster_bins`` bounded to 8 blocks of 128 an SM), ``binned_px1`` (a thread a
+pixel) and ``bins_pass`` (``raster_bins`` alone over the bins one binned draw left: a time, not compared). Counts
+per draw: sub-triangles drawn, (sub-triangle, tile) items, items with no covered pixel centre, pixel tests and
+fragments (covered, in depth range), bin entries, the fullest bin and the items past full bins (48). The variants'
+buffers are compared with the naive twin's (on CUDA they may differ by FMA contraction: the count of differing keys).
 """
 
 from __future__ import annotations
@@ -173,9 +175,11 @@ def probe_scene(scene_path, args, device):
                               bufs[0], int(layer_b), bufs[1], (w + K.TILE - 1) // K.TILE, tiles, 48,
                               raster.bin_fill, raster.bin_subs])
 
-        variants = {"raster_tiles": kernel_launch(K.raster_tiles, 256), "reject_bd128": kernel_launch(K.raster_tiles_reject, 128),
+        variants = {"raster_tiles": kernel_launch(K.raster_tiles, 256),
+                    "reject_bd128": kernel_launch(K.raster_tiles_reject, 128),
                     "tile_rows": kernel_launch(K.raster_tile_rows, 256), "binned_c96": binned(96),
-                    "binned_lb8": binned(48, bins_lb8), "binned_px1": binned(48, bins_px1), "binned": binned(48), "bins_pass": bins_pass}
+                    "binned_lb8": binned(48, bins_lb8), "binned_px1": binned(48, bins_px1), "binned": binned(48),
+                    "bins_pass": bins_pass}
         if args.all_variants:
             variants.update(reject=kernel_launch(K.raster_tiles_reject, 256), reject_b4=kernel_launch(reject_b4, 256))
         ref = None

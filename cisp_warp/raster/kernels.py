@@ -11,9 +11,10 @@ out (triangle, tile) work items: ``raster_tile_columns`` gives each warp a run o
 adjacent tiles at a time, a thread per pixel column, and skips columns proven outside an edge;
 ``raster_tiles``, its naive twin, a thread per item found by binary search. The default draws with
 ``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
-pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU. The binned raster (``Rasterizer.binned``, opt-in:
-``raster_bin_items`` bins the reject's items per 8x8 screen tile, ``raster_bins`` gives each tile a warp that keeps its
-pixels' keys in registers and writes each covered pixel once) is too.
+pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
+So is the binned raster (``Rasterizer.binned``, opt-in: ``raster_bin_items`` bins the reject's items per 8x8 screen
+tile, ``raster_bins`` gives each tile a warp that keeps its pixels' keys in registers and writes each covered pixel
+once).
 
 An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, and the depth bounds of its opaque
 depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise with the
@@ -509,8 +510,8 @@ def raster_bins(
     bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per tile (read; may exceed capacity)
     bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) (read)
 ):
-    """The second pass of the binned raster (:func:`raster_bin_items` the first): a warp per 8x8 screen tile, grid-stride,
-    a lane per pixel column and two rows (lane / 8 and lane / 8 + 4). The warp walks its bin's sub-triangles; each lane
+    """The second pass of the binned raster (:func:`raster_bin_items` the first): a warp per 8x8 screen tile
+    (grid-stride), a lane per pixel column and two rows (lane / 8 and lane / 8 + 4). The warp walks its bin's sub-triangles; each lane
     tests its two pixel centres against each (in its box, the same edge terms and tests as :func:`raster_tiles`) and
     keeps each layer's nearest key in registers, then writes each covered pixel once: no atomic per fragment, and the
     lanes of a warp test one triangle's pixels together. The same fragments and keys as ``raster_tiles``: the buffers
