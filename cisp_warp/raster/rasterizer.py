@@ -114,7 +114,9 @@ class Rasterizer:
 
     def bins_for(self, width: int, height: int) -> int:
         """The screen tiles of a ``width`` x ``height`` view, the bins grown to hold them (on the host, from sizes the
-        host knows: the first draw of a larger view allocates, a frame that was drawn once allocates nothing)."""
+        host knows: the first draw of a larger view allocates, a frame that was drawn once allocates nothing; a first
+        draw inside a CUDA graph capture, as a rasterizer made by ``Renderer.set_concurrent`` after frames were
+        captured meets, allocates from Warp's stream-ordered pool, which graphs allow)."""
         tiles = ((width + K.TILE - 1) // K.TILE) * ((height + K.TILE - 1) // K.TILE)
         if self.bin_fill.shape[0] < tiles or self.bin_subs.shape[0] < tiles * self.bin_capacity:
             d = self.scene.device
