@@ -12,6 +12,9 @@ adjacent tiles at a time, a thread per pixel column, and skips columns proven ou
 ``raster_tiles``, its naive twin, a thread per item found by binary search. The default draws with
 ``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
 pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
+So is the binned raster (``Rasterizer.binned``, opt-in: ``raster_bin_items`` bins the reject's items per 8x8 screen
+tile, ``raster_bins`` gives each tile a warp that keeps its pixels' keys in registers and writes each covered pixel
+once).
 
 An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, and the depth bounds of its opaque
 depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise with the
@@ -418,6 +421,157 @@ def raster_tiles_reject(
         for j in range(j_lo, j_hi + 1):
             _row_fragments(view, a, b, c, e0, e1, e2, inv_area, tri, to_a, to_b, j, i_lo, i_hi, visibility,
                            visibility_b)
+
+
+#: threads per block of :func:`raster_bins` (4 screen tiles a block, a warp a tile)
+BIN_BLOCK = 128
+
+
+@wp.kernel
+def raster_bin_items(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    stride: int,
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min: overflowed items only)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (as ``visibility``)
+    tiles_x: int,  # 8x8 screen tiles per row of the view
+    capacity: int,  # sub-triangles a screen tile's bin holds
+    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per screen tile (zero on entry; atomic add)
+    bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) the binned sub-triangles, per tile (write)
+):
+    """The first pass of the binned raster: :func:`raster_tiles_reject`'s items (the same search and tile reject), each
+    item that is not rejected appended to its screen tile's bin (its sub-triangle; an item is one tile of one
+    sub-triangle, so a bin holds a sub-triangle at most once) for :func:`raster_bins`. A bin's order is that of its
+    atomic adds (the keys do not depend on it: a pixel keeps the minimum). An item past a full bin (``capacity``)
+    is drawn here as :func:`raster_tiles_reject` draws it (atomic min): nothing is lost, it only costs atomics."""
+    view = views[view_index]
+    item = wp.tid()
+    total = tile_end[n_sub - 1]
+    while item < total:
+        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
+        item += stride
+        a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
+        box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+        if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
+                or _box_outside(e2, _edge_slack(e2, box), box)):
+            continue
+        tile = (j_lo / TILE) * tiles_x + i_lo / TILE
+        slot = wp.atomic_add(bin_fill, tile, 1)
+        if slot < capacity:
+            bin_subs[tile * capacity + slot] = s
+        else:
+            inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
+            for j in range(j_lo, j_hi + 1):
+                _row_fragments(view, a, b, c, e0, e1, e2, inv_area, tri, to_a, to_b, j, i_lo, i_hi, visibility,
+                               visibility_b)
+
+
+@wp.func
+def _bin_pixel_covered(e0: wp.vec4, e1: wp.vec4, e2: wp.vec4, box: wp.vec4i, i: int, j: int) -> bool:
+    """Whether pixel (i, j) lies in the sub-triangle's box and its centre passes the three edge tests, as
+    :func:`_row_fragments` tests it."""
+    if i < box[0] or i > box[2] or j < box[1] or j > box[3]:
+        return False
+    x = float(i) + 0.5
+    y = float(j) + 0.5
+    return _edge_at(e0, x, y) >= 0.0 and _edge_at(e1, x, y) >= 0.0 and _edge_at(e2, x, y) >= 0.0
+
+
+@wp.func
+def _bin_write(key: wp.uint64, p: int, visibility: wp.array(dtype=wp.uint64)):
+    """A screen tile's pixel key into the buffer, once (an atomic min onto its own address: the buffer may hold the
+    overflowed items' fragments or keys drawn before)."""
+    if key != EMPTY_KEY:
+        wp.atomic_min(visibility, p, key)
+
+
+@wp.kernel
+def raster_bins(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    stride: int,  # threads launched (a multiple of 32)
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (one atomic min per covered pixel)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (as ``visibility``)
+    tiles_x: int,  # 8x8 screen tiles per row of the view
+    tiles: int,  # screen tiles of the view
+    capacity: int,  # sub-triangles a bin holds
+    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per tile (read; may exceed capacity)
+    bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) (read)
+):
+    """The second pass of the binned raster (:func:`raster_bin_items` the first): a warp per 8x8 screen tile
+    (grid-stride), a lane per pixel column and two rows (lane / 8 and lane / 8 + 4). The warp walks its bin's sub-triangles; each lane
+    tests its two pixel centres against each (in its box, the same edge terms and tests as :func:`raster_tiles`) and
+    keeps each layer's nearest key in registers, then writes each covered pixel once: no atomic per fragment, and the
+    lanes of a warp test one triangle's pixels together. The same fragments and keys as ``raster_tiles``: the buffers
+    are its bit for bit on the CPU."""
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view: nothing binned
+        return
+    t = wp.tid()
+    lane = t % WARP
+    i_in = lane % TILE
+    j_in = lane / TILE
+    tile = t / WARP
+    while tile < tiles:
+        tx = tile % tiles_x
+        ty = tile / tiles_x
+        i = tx * TILE + i_in
+        j0 = ty * TILE + j_in
+        j1 = j0 + TILE / 2
+        n = wp.min(bin_fill[tile], capacity)
+        k0a = EMPTY_KEY
+        k0b = EMPTY_KEY
+        k1a = EMPTY_KEY
+        k1b = EMPTY_KEY
+        for k in range(n):
+            s = bin_subs[tile * capacity + k]
+            a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
+            box = sub_bbox[s]
+            cov0 = _bin_pixel_covered(e0, e1, e2, box, i, j0)
+            cov1 = _bin_pixel_covered(e0, e1, e2, box, i, j1)
+            if cov0 or cov1:
+                inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
+                x = float(i) + 0.5
+                if cov0:
+                    y = float(j0) + 0.5
+                    depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
+                                           inv_area)
+                    if depth > 0.0 and depth <= view.far:
+                        key = depth_key(view, depth, tri)
+                        if to_a:
+                            k0a = wp.min(k0a, key)
+                        if to_b:
+                            k0b = wp.min(k0b, key)
+                if cov1:
+                    y = float(j1) + 0.5
+                    depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
+                                           inv_area)
+                    if depth > 0.0 and depth <= view.far:
+                        key = depth_key(view, depth, tri)
+                        if to_a:
+                            k1a = wp.min(k1a, key)
+                        if to_b:
+                            k1b = wp.min(k1b, key)
+        p0 = j0 * view.width + i
+        p1 = j1 * view.width + i
+        _bin_write(k0a, p0, visibility)
+        _bin_write(k1a, p1, visibility)
+        if mask_b != 0:
+            _bin_write(k0b, p0, visibility_b)
+            _bin_write(k1b, p1, visibility_b)
+        tile += stride / WARP
 
 
 @wp.kernel
