@@ -1079,7 +1079,8 @@ def test_binned_raster_is_the_tile_raster(device, stride, capacity):
     its pixels' keys in registers) fills both layers' buffers exactly as its naive twin ``raster_tiles``:
     perspective and orthographic views, a near-clipped triangle over the whole screen (every tile), a one-pixel
     sliver, triangles off screen and degenerate ones (culled by the set-up); grid strides with many tiles a warp or
-    one; bins that overflow (capacity 1 and 3: the items past it drawn by the binning pass) lose nothing."""
+    one; bins that overflow (capacity 1 and 3: the items past it drawn by the binning pass) lose nothing; each draw's
+    bin counts are its own (zeroed by ``setup_triangles``, views of different sizes drawn one after another)."""
     cam = Camera(look_at_matrix((0, 0, 0), (0, 0, -1)), fov_y=math.radians(60), near=0.05, far=50.0, width=80, height=60)
     big = (np.array([[-50.0, -40.0, -6.0], [60.0, -30.0, -7.0], [0.0, 50.0, 2.0]]), np.array([[0, 1, 2]]), 0)
     sliver = (np.array([[-1.0, 0.1, -2.0], [1.0, 0.13, -2.0], [1.0, 0.1, -2.0]]), np.array([[0, 1, 2]]), 1)
@@ -1103,6 +1104,13 @@ def test_binned_raster_is_the_tile_raster(device, stride, capacity):
                         visibility_b=bufs[1])
             out.append([b.numpy().copy() for b in bufs])
         fill = raster.bin_fill.numpy()[:raster.bins_for(vp.width, vp.height)]
+        # the counts are this draw's own (setup_triangles zeroed the previous view's): a fresh rasterizer's. (Stale
+        # counts would leave the keys right, the extra entries and overflow drawing the same fragments, so the keys
+        # alone do not tell.)
+        fresh = Rasterizer(ds)
+        fresh.stride, fresh.rows_max_pixels, fresh.bin_capacity, fresh.binned = stride, 0, capacity, True
+        fresh.draw(arr, 0, vp.width, vp.height, LAYER_OPAQUE, bufs[0], layer_b=LAYER_SPECULAR, visibility_b=bufs[1])
+        np.testing.assert_array_equal(fill, fresh.bin_fill.numpy()[:fill.shape[0]], err_msg=f"view {k}: bin counts")
         if capacity == 1:
             assert fill.max() > capacity, "no bin overflowed: the overflow path is not tested"
         for naive, fast in zip(*out):

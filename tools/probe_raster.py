@@ -151,6 +151,10 @@ def probe_scene(scene_path, args, device):
             def go():
                 raster.bin_capacity = capacity
                 if bins_kernel is None:
+                    # the frame's setup_triangles zeroes the counts (clear_bins); the probe set up once, so a memset
+                    # here (as section 60's binned_ms had it: comparable with its figures)
+                    tiles = raster.bins_for(w, h)
+                    raster.bin_fill[:tiles].zero_()
                     raster._draw_binned(views, vi, w, h, layer, bufs[0], layer_b, bufs[1])
                     return
                 # Rasterizer._draw_binned with another raster_bins build

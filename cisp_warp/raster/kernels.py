@@ -149,10 +149,19 @@ def setup_triangles(
     tile_count: wp.array(dtype=wp.int32),  # (2T,) tiles touched, 0 = culled (write)
     normals: wp.array(dtype=wp.vec3),  # (V,) authored (outward) vertex normals (read; only when back_only != 0)
     back_only: int,  # 1: only the triangles that face away from the view (:func:`faces_away`), 0: all
+    bin_fill: wp.array(dtype=wp.int32),  # (>= clear_bins,) the binned raster's counts per screen tile (zeroed)
+    clear_bins: int,  # screen tiles whose counts are zeroed (0: none, the draw is not binned)
+    threads: int,  # threads launched (the triangle count): the stride of the counts' zeroing
 ):
-    """Near-clip each triangle of the layer into at most two, project them, count their tiles."""
+    """Near-clip each triangle of the layer into at most two, project them, count their tiles. With ``clear_bins``,
+    the threads also zero the binned raster's first ``clear_bins`` tile counts (grid-stride, coalesced), which
+    :func:`raster_bin_items` then fills: no memset node of its own (perf_notes section 66)."""
     view = views[view_index]
     t = wp.tid()
+    k = t
+    while k < clear_bins:
+        bin_fill[k] = 0
+        k += threads
     tile_count[2 * t] = 0
     tile_count[2 * t + 1] = 0
     if (layers[t] & layer_mask) == 0 or view.far <= 0.0:  # far = 0: an inactive view (light_maps.INACTIVE_FAR), nothing drawn
@@ -443,7 +452,8 @@ def raster_bin_items(
     visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (as ``visibility``)
     tiles_x: int,  # 8x8 screen tiles per row of the view
     capacity: int,  # sub-triangles a screen tile's bin holds
-    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per screen tile (zero on entry; atomic add)
+    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per screen tile (zero on entry, setup_triangles
+    # zeroes it; atomic add)
     bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) the binned sub-triangles, per tile (write)
 ):
     """The first pass of the binned raster: :func:`raster_tiles_reject`'s items (the same search and tile reject), each

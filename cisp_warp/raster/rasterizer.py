@@ -85,7 +85,8 @@ class Rasterizer:
             visibility.fill_(K.EMPTY_KEY_VALUE)
             if layer_b != 0:
                 visibility_b.fill_(K.EMPTY_KEY_VALUE)
-        self._setup(views, view_index, width, height, layer | layer_b, back_only=False)
+        binned = (not self.columns and self.reject and self.binned and width * height > self.rows_max_pixels)
+        self._setup(views, view_index, width, height, layer | layer_b, back_only=False, clear_bins=binned)
         if self.columns:
             threads = self.column_threads or self.stride
             wp.launch(K.raster_tile_columns, dim=threads, device=d,
@@ -94,7 +95,7 @@ class Rasterizer:
                               visibility_b])
         elif self.reject and width * height <= self.rows_max_pixels:
             self._draw_rows(views, view_index, layer, visibility, layer_b, visibility_b)
-        elif self.reject and self.binned:
+        elif binned:
             self._draw_binned(views, view_index, width, height, layer, visibility, layer_b, visibility_b)
         elif self.reject:
             wp.launch(K.raster_tiles_reject, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK,
@@ -125,15 +126,14 @@ class Rasterizer:
         return tiles
 
     def _draw_binned(self, views, view_index, width, height, layer, visibility, layer_b, visibility_b) -> None:
-        """The binned raster over the set-up's items: the bins' counts zeroed, ``kernels.raster_bin_items`` (the items
-        not rejected into their screen tile's bin, the overflow drawn at once), ``kernels.raster_bins`` (a warp a
-        tile)."""
+        """The binned raster over the set-up's items (:meth:`_setup` with ``clear_bins`` zeroed the bins' counts):
+        ``kernels.raster_bin_items`` (the items not rejected into their screen tile's bin, the overflow drawn at once),
+        ``kernels.raster_bins`` (a warp a tile)."""
         s = self.scene
         d = s.device
         tiles = self.bins_for(width, height)
         tiles_x = (width + K.TILE - 1) // K.TILE
         fill = self.bin_fill[:tiles]
-        fill.zero_()
         wp.launch(K.raster_bin_items, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK,
                   inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
                           self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b, tiles_x,
@@ -145,15 +145,19 @@ class Rasterizer:
                           self.bin_subs])
 
     def _setup(self, views: wp.array, view_index: int, width: int, height: int, layer_mask: int,
-               back_only: bool) -> None:
+               back_only: bool, clear_bins: bool = False) -> None:
         """Near-clip and project the triangles of ``layer_mask`` (only those facing away from the view with
-        ``back_only``) into ``sub_v`` / ``sub_bbox``, count their tiles and scan the counts into ``tile_end``."""
+        ``back_only``) into ``sub_v`` / ``sub_bbox``, count their tiles and scan the counts into ``tile_end``.
+        ``clear_bins``: the same launch zeroes the binned raster's counts for the view's screen tiles (grown first,
+        :meth:`bins_for`), instead of a memset of their own before the binning pass."""
         s = self.scene
         tiles_x = (width + K.TILE - 1) // K.TILE
         tiles_y = (height + K.TILE - 1) // K.TILE
+        bins = self.bins_for(width, height) if clear_bins else 0
         wp.launch(K.setup_triangles, dim=s.triangle_count, device=s.device,
                   inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer_mask), tiles_x,
-                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, int(back_only)])
+                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, int(back_only),
+                          self.bin_fill, bins, s.triangle_count])
         wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
 
     def draw_back(self, views: wp.array, view_index: int, width: int, height: int, layer: int,
