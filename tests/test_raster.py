@@ -559,14 +559,20 @@ def test_reject_and_row_rasters_are_the_tile_raster(device, stride):
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 
-def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False, texel_maps=False):
+def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False, texel_maps=False,
+               bin_capacity=0):
     """Every buffer of a light's RSM views after ``frames`` (light poses) drawn with the fused resolve or its twins,
     and the depth bounds of each view's opaque depth (written by the fused resolve; built by ``photons.cisp``'s
-    ``build_bounds``, the twin kernels ``depth_bounds`` + ``coarsen_bounds``, otherwise)."""
+    ``build_bounds``, the twin kernels ``depth_bounds`` + ``coarsen_bounds``, otherwise). ``bin_capacity`` > 0: every
+    view drawn by the binned raster with bins of that size (with ``fused``: drawn and resolved by
+    ``raster_bins_rsm_view``)."""
     from cisp_warp.photons.cisp import build_bounds
     from cisp_warp.photons.march import bounds_size
 
     raster = Rasterizer(ds)
+    if bin_capacity > 0:
+        raster.binned, raster.rows_max_pixels, raster.bin_capacity = True, 0, bin_capacity
+        assert raster.draws_rsm_view(size, size) == raster.fused_rsm
     lm = LightMaps(ds, frames[0], size)
     lm.fused_resolve = fused
     if surface:  # the specular layers keep their position and normal (LightMaps.keep_surface_maps)
@@ -621,6 +627,42 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
     with pytest.raises(ValueError, match="bounds_size"):  # a bounds array the kernel would write past
         lm.keep_depth_bounds([wp.zeros(len(b) - 1, dtype=wp.vec2, device=device) for _ in lm.rsm], 0.03, 0.02)
         assert any((fused[f"{k}_specular_tri_id"] >= 0).any() for k in range(len([x for x in fused if x.endswith("_bounds")])))
+
+
+@pytest.mark.parametrize("size,capacity", [(48, 48), (70, 2)])
+def test_binned_rsm_view_is_its_twins(device, size, capacity):
+    """``raster_bins_rsm_view`` (the binned raster's tile pass and ``resolve_rsm_view`` in one: the keys kept in
+    registers from the bin walk to the texel's resolve) fills every buffer and bound exactly as its twins, the
+    tile raster ``raster_tiles`` then ``resolve_depth`` + ``resolve_rsm_specular`` + ``depth_bounds`` +
+    ``coarsen_bounds``, and leaves both visibility buffers clear: a spot light moved between two frames, a point
+    light's cube faces, a distant light; bins of 48 and of 2 (most tiles overflow: their pixels' keys are read from
+    the buffers the binning pass drew them into, and reset)."""
+    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
+    spots = [Light(LightKind.SPOT, "spot", intensity=3.0, position=p, direction=d, cone_angle=math.radians(40),
+                   cone_softness=0.3) for p, d in (((0.0, 0.9, 0.0), (0, -1, 0)), ((0.5, 0.6, -0.3), (-0.3, -1, 0.2)))]
+    cases = [(box_room(), spots), (box_room(), [Light(LightKind.POINT, "bulb", intensity=2.0, position=(0.1, 0.2, 0.0))]),
+             (box_room()[1:], [Light(LightKind.DISTANT, "sun", intensity=500.0, direction=(0.3, -1.0, 0.1))])]
+    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
+    overflowed = 0
+    for parts, frames in cases:
+        ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
+        for surface, texel_maps in ((False, False), (True, True)):
+            fused = _rsm_frame(ds, frames[0], size, True, frames, surface=surface, texel_maps=texel_maps,
+                               bin_capacity=capacity)
+            twins = _rsm_frame(ds, frames[0], size, False, frames, surface=surface, texel_maps=texel_maps)
+            assert fused.keys() == twins.keys()
+            for k in fused:
+                np.testing.assert_array_equal(fused[k], twins[k], err_msg=f"{frames[0].name} {k}")
+                if k.endswith("visibility"):
+                    assert (fused[k] == empty).all(), k
+            assert any((fused[f"{k}_specular_tri_id"] >= 0).any() or (fused[f"{k}_opaque_depth"] > 0).any()
+                       for k in range(len([x for x in fused if x.endswith("_bounds")])))
+        raster = Rasterizer(ds)
+        raster.binned, raster.rows_max_pixels, raster.bin_capacity = True, 0, capacity
+        lm = LightMaps(ds, frames[0], size)
+        lm.render(raster)
+        overflowed += int((raster.bin_fill.numpy() > capacity).sum())
+    assert overflowed > 0, overflowed  # the overflow path is tested (tiles past 48 too: a room's walls at 48²)
 
 
 @wp.kernel

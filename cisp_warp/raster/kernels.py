@@ -502,6 +502,50 @@ def _bin_write(key: wp.uint64, p: int, visibility: wp.array(dtype=wp.uint64)):
         wp.atomic_min(visibility, p, key)
 
 
+@wp.func
+def _bin_keys(view: ViewParams, sub_v: wp.array(dtype=wp.vec3), sub_bbox: wp.array(dtype=wp.vec4i),
+              layers: wp.array(dtype=wp.int32), mask: int, mask_b: int, tile: int, i: int, j0: int, j1: int,
+              capacity: int, bin_fill: wp.array(dtype=wp.int32), bin_subs: wp.array(dtype=wp.int32)):
+    """A lane's walk of screen tile ``tile``'s bin (:func:`raster_bins`): the nearest key of pixels (i, j0) and (i, j1)
+    in each layer (``mask``, ``mask_b``; EMPTY_KEY: none) over the binned sub-triangles (the items past the bin's
+    capacity are not among them: :func:`raster_bin_items` drew them into the buffers)."""
+    n = wp.min(bin_fill[tile], capacity)
+    k0a = EMPTY_KEY
+    k0b = EMPTY_KEY
+    k1a = EMPTY_KEY
+    k1b = EMPTY_KEY
+    for k in range(n):
+        s = bin_subs[tile * capacity + k]
+        a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
+        box = sub_bbox[s]
+        cov0 = _bin_pixel_covered(e0, e1, e2, box, i, j0)
+        cov1 = _bin_pixel_covered(e0, e1, e2, box, i, j1)
+        if cov0 or cov1:
+            inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
+            x = float(i) + 0.5
+            if cov0:
+                y = float(j0) + 0.5
+                depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
+                                       inv_area)
+                if depth > 0.0 and depth <= view.far:
+                    key = depth_key(view, depth, tri)
+                    if to_a:
+                        k0a = wp.min(k0a, key)
+                    if to_b:
+                        k0b = wp.min(k0b, key)
+            if cov1:
+                y = float(j1) + 0.5
+                depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
+                                       inv_area)
+                if depth > 0.0 and depth <= view.far:
+                    key = depth_key(view, depth, tri)
+                    if to_a:
+                        k1a = wp.min(k1a, key)
+                    if to_b:
+                        k1b = wp.min(k1b, key)
+    return k0a, k0b, k1a, k1b
+
+
 @wp.kernel
 def raster_bins(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
@@ -540,40 +584,8 @@ def raster_bins(
         i = tx * TILE + i_in
         j0 = ty * TILE + j_in
         j1 = j0 + TILE / 2
-        n = wp.min(bin_fill[tile], capacity)
-        k0a = EMPTY_KEY
-        k0b = EMPTY_KEY
-        k1a = EMPTY_KEY
-        k1b = EMPTY_KEY
-        for k in range(n):
-            s = bin_subs[tile * capacity + k]
-            a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
-            box = sub_bbox[s]
-            cov0 = _bin_pixel_covered(e0, e1, e2, box, i, j0)
-            cov1 = _bin_pixel_covered(e0, e1, e2, box, i, j1)
-            if cov0 or cov1:
-                inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
-                x = float(i) + 0.5
-                if cov0:
-                    y = float(j0) + 0.5
-                    depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
-                                           inv_area)
-                    if depth > 0.0 and depth <= view.far:
-                        key = depth_key(view, depth, tri)
-                        if to_a:
-                            k0a = wp.min(k0a, key)
-                        if to_b:
-                            k0b = wp.min(k0b, key)
-                if cov1:
-                    y = float(j1) + 0.5
-                    depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
-                                           inv_area)
-                    if depth > 0.0 and depth <= view.far:
-                        key = depth_key(view, depth, tri)
-                        if to_a:
-                            k1a = wp.min(k1a, key)
-                        if to_b:
-                            k1b = wp.min(k1b, key)
+        k0a, k0b, k1a, k1b = _bin_keys(view, sub_v, sub_bbox, layers, mask, mask_b, tile, i, j0, j1, capacity,
+                                       bin_fill, bin_subs)
         p0 = j0 * view.width + i
         p1 = j1 * view.width + i
         _bin_write(k0a, p0, visibility)
@@ -1580,6 +1592,137 @@ def resolve_rsm_view(
             _scatter_texel(zs, c0, 1, threads, lane, x0, y0, width, height, od1)
             _scatter_texel(zs, c0, 2, threads, lane, x0, y0, width, height, od2)
             _scatter_texel(zs, c0, 3, threads, lane, x0, y0, width, height, od3)
+    if not want_bounds:
+        return
+    _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
+
+
+#: threads of a block of :func:`raster_bins_rsm_view` (a coarse cell of the depth bounds: 16 screen tiles, a warp a
+#: tile, so 2 tiles a warp)
+BIN_RSM_THREADS = 256
+#: screen tiles a coarse cell holds (BOUNDS_COARSE / TILE squared) and their lanes
+_CELL_TILES = wp.constant(16)
+_CELL_LANES = wp.constant(512)
+
+
+@wp.func
+def _bin_layer_key(key: wp.uint64, overflowed: bool, p: int, visibility: wp.array(dtype=wp.uint64)) -> wp.uint64:
+    """A pixel's nearest key of one layer: its tile's bin walk's ``key``, and where the tile's bin overflowed, the
+    fragments :func:`raster_bin_items` drew into ``visibility`` (read, then reset to EMPTY_KEY, as a resolve leaves
+    it); a tile that did not overflow left its pixels in ``visibility`` clear, which is not read."""
+    if not overflowed:
+        return key
+    drawn = visibility[p]
+    if drawn != EMPTY_KEY:
+        visibility[p] = EMPTY_KEY
+    return wp.min(key, drawn)
+
+
+@wp.kernel(launch_bounds=(BIN_RSM_THREADS, 2))
+def raster_bins_rsm_view(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws and resolves views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # the opaque layers
+    opaque_visibility: wp.array(dtype=wp.uint64),  # (H*W,) overflowed tiles' opaque fragments (read, reset); else clear
+    mask_b: int,  # the specular layers
+    specular_visibility: wp.array(dtype=wp.uint64),  # (H*W,) the same for the specular layer
+    tiles_x: int,  # 8x8 screen tiles per row of the view
+    capacity: int,  # sub-triangles a bin holds
+    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per tile (read; may exceed capacity)
+    bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) (read)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    light_rgb: wp.vec3,  # as resolve_rsm_view's
+    spot_axis: wp.vec3,
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),
+    opaque_depth: wp.array(dtype=wp.float32),
+    opaque_tri: wp.array(dtype=wp.int32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+    flux: wp.array(dtype=wp.vec3),
+    thickness: float,
+    thickness_rel: float,
+    bounds: wp.array(dtype=wp.vec2),
+):
+    """:func:`raster_bins` and :func:`resolve_rsm_view` (its twins) in one pass: ``wp.launch_tiled`` over the view's
+    coarse cells of the depth bounds (BOUNDS_COARSE² texels = 16 screen tiles; a warp a tile, as raster_bins, two
+    tiles a warp). A lane's two pixels' nearest keys of both layers stay in registers from the bin walk to the
+    texel's resolve (the same texel functions as resolve_rsm_view's), so the keys are neither written nor read nor
+    reset, except in a tile whose bin overflowed (:func:`_bin_layer_key`); the opaque depths go into shared memory
+    for the block's depth bounds (:func:`_block_bounds`). Every map and bound the same bit for bit as the twins' on
+    the CPU, where a block is one lane that does it all."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view: nothing drawn; its maps and bounds are kept (as resolve_rsm_view)
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    tiles_y = (height + TILE - 1) / TILE
+    want_bounds = bounds.shape[0] > 0
+    keep_flux = flux.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    for u0 in range(0, _CELL_LANES, threads):
+        u = u0 + lane
+        w = u / WARP  # the cell's screen tile, 4 x 4
+        tl = u % WARP
+        tx = x0 / TILE + w % 4
+        ty = y0 / TILE + w / 4
+        i = tx * TILE + tl % TILE
+        j0 = ty * TILE + tl / TILE
+        j1 = j0 + TILE / 2
+        od0 = float(0.0)
+        od1 = float(0.0)
+        if u < _CELL_LANES and tx < tiles_x and ty < tiles_y:
+            tile = ty * tiles_x + tx
+            k0a, k0b, k1a, k1b = _bin_keys(view, sub_v, sub_bbox, layers, mask, mask_b, tile, i, j0, j1, capacity,
+                                           bin_fill, bin_subs)
+            overflowed = bin_fill[tile] > capacity
+            for r in range(2):
+                j = wp.where(r == 0, j0, j1)
+                if i < width and j < height:
+                    p = j * width + i
+                    key_o = _bin_layer_key(wp.where(r == 0, k0a, k1a), overflowed, p, opaque_visibility)
+                    key_s = _bin_layer_key(wp.where(r == 0, k0b, k1b), overflowed, p, specular_visibility)
+                    tri_o, od, x_o, bary_o, d_o = triangle_hit(view, key_o, p, points, indices)
+                    opaque_depth[p] = od
+                    if opaque_tri.shape[0] > 0:
+                        opaque_tri[p] = tri_o
+                    tri = specular_texel_key(view, p, key_s, od, points, normals, indices, triangle_material,
+                                             mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
+                                             nearest_depth)
+                    if tri == -1 and keep_flux:
+                        flux[p] = wp.vec3(0.0)
+                    elif tri >= 0 and keep_flux:
+                        flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
+                                             texel_solid_angle)
+                    if r == 0:
+                        od0 = od
+                    else:
+                        od1 = od
+        if want_bounds:  # every thread of the block (the scatters synchronise it)
+            k0 = (j0 - y0) * BOUNDS_COARSE + (i - x0)
+            wp.tile_scatter_masked(zs, k0, od0, u < _CELL_LANES and i < width and j0 < height)
+            wp.tile_scatter_masked(zs, k0 + (TILE / 2) * BOUNDS_COARSE, od1, u < _CELL_LANES and i < width
+                                   and j1 < height)
     if not want_bounds:
         return
     _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)

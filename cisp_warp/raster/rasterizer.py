@@ -61,6 +61,11 @@ class Rasterizer:
         #: sub-triangles a screen tile's bin holds; the items past it are drawn by the binning pass itself (atomic
         #: min, as ``raster_tiles_reject``): nothing is lost
         self.bin_capacity = 48
+        #: with ``binned``: an RSM view's draw and its fused resolve (``kernels.resolve_rsm_view``) in one pass
+        #: (:meth:`draw_rsm_view`: ``kernels.raster_bins_rsm_view``, the keys kept in registers from the bin walk to
+        #: the texel's resolve; perf_notes section 66); False: the binned draw, then the resolve (the twins). The same
+        #: maps bit for bit on the CPU
+        self.fused_rsm = True
         self.bin_fill = wp.zeros(0, dtype=wp.int32, device=d)  # (tiles,) per screen tile: sub-triangles binned
         self.bin_subs = wp.zeros(0, dtype=wp.int32, device=d)  # (tiles * bin_capacity,) the binned sub-triangles
         #: threads of the column raster on CUDA: one resident wave (``COLUMN_BLOCKS_PER_SM`` blocks of 256 an SM), so
@@ -143,6 +148,35 @@ class Rasterizer:
                   inputs=[views, int(view_index), self.sub_v, self.sub_bbox, threads, s.triangle_layers, int(layer),
                           visibility, int(layer_b), visibility_b, tiles_x, tiles, int(self.bin_capacity), fill,
                           self.bin_subs])
+
+    def draws_rsm_view(self, width: int, height: int) -> bool:
+        """Whether :meth:`draw_rsm_view` takes a ``width`` x ``height`` RSM view (else the caller draws it with
+        :meth:`draw` and resolves it with ``kernels.resolve_rsm_view``)."""
+        return (self.fused_rsm and self.binned and self.reject and not self.columns
+                and width * height > self.rows_max_pixels)
+
+    def draw_rsm_view(self, views: wp.array, view_index: int, width: int, height: int, layer: int,
+                      visibility: wp.array, layer_b: int, visibility_b: wp.array, resolve_inputs: list) -> None:
+        """Draw and resolve an RSM view in one tile pass (:meth:`draws_rsm_view`): the set-up (the bins' counts
+        zeroed), ``kernels.raster_bin_items`` (items past a full bin drawn into ``visibility`` / ``visibility_b``,
+        clear on entry as a resolve leaves them), then ``kernels.raster_bins_rsm_view`` over the view's coarse cells
+        with ``resolve_inputs`` (``kernels.resolve_rsm_view``'s inputs after its two visibility buffers), which reads
+        and resets only the overflowed tiles' pixels of the buffers."""
+        s = self.scene
+        d = s.device
+        self._setup(views, view_index, width, height, layer | layer_b, back_only=False, clear_bins=True)
+        tiles = self.bins_for(width, height)
+        tiles_x = (width + K.TILE - 1) // K.TILE
+        fill = self.bin_fill[:tiles]
+        wp.launch(K.raster_bin_items, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK,
+                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                          self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b, tiles_x,
+                          int(self.bin_capacity), fill, self.bin_subs])
+        coarse = ((width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE) * ((height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
+        wp.launch_tiled(K.raster_bins_rsm_view, dim=coarse, block_dim=K.BIN_RSM_THREADS, device=d,
+                        inputs=[views, int(view_index), self.sub_v, self.sub_bbox, s.triangle_layers, int(layer),
+                                visibility, int(layer_b), visibility_b, tiles_x, int(self.bin_capacity), fill,
+                                self.bin_subs] + list(resolve_inputs))
 
     def _setup(self, views: wp.array, view_index: int, width: int, height: int, layer_mask: int,
                back_only: bool, clear_bins: bool = False) -> None:
