@@ -1618,6 +1618,20 @@ def _bin_layer_key(key: wp.uint64, overflowed: bool, p: int, visibility: wp.arra
     return wp.min(key, drawn)
 
 
+@wp.func
+def _scatter_tile_texel(zs: wp.tile(dtype=wp.float32, shape=(1024,)), u0: int, q: int, threads: int, lane: int,
+                        x0: int, y0: int, width: int, height: int, z: float):
+    """Texel ``q`` (round ``q / 2``, row ``q % 2``) of lane ``u0 + (q / 2)·threads + lane`` of the block's coarse cell
+    (:func:`raster_bins_rsm_view`'s layout: 16 screen tiles of 32 lanes, a lane's two rows 4 apart): its depth ``z``
+    into ``zs`` when it is in the view (every thread of the block calls it: it synchronises the block)."""
+    u = u0 + (q / 2) * threads + lane
+    w = u / WARP
+    tl = u % WARP
+    i = (w % 4) * TILE + tl % TILE
+    j = (w / 4) * TILE + tl / TILE + (q % 2) * (TILE / 2)
+    wp.tile_scatter_masked(zs, j * BOUNDS_COARSE + i, z, u < _CELL_LANES and x0 + i < width and y0 + j < height)
+
+
 @wp.kernel(launch_bounds=(BIN_RSM_THREADS, 2))
 def raster_bins_rsm_view(
     views: wp.array(dtype=ViewParams),  # (V,) views (read): draws and resolves views[view_index]
@@ -1680,49 +1694,58 @@ def raster_bins_rsm_view(
     want_bounds = bounds.shape[0] > 0
     keep_flux = flux.shape[0] > 0
     zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
-    for u0 in range(0, _CELL_LANES, threads):
-        u = u0 + lane
-        w = u / WARP  # the cell's screen tile, 4 x 4
-        tl = u % WARP
-        tx = x0 / TILE + w % 4
-        ty = y0 / TILE + w / 4
-        i = tx * TILE + tl % TILE
-        j0 = ty * TILE + tl / TILE
-        j1 = j0 + TILE / 2
+    # two tiles a warp a round (a round is the whole block on CUDA; the CPU's one lane takes 256 rounds): their four
+    # opaque depths are kept in registers and put into shared memory after the round, so the block's barriers (one a
+    # scatter) come after both tiles' work, not between them
+    for u0 in range(0, _CELL_LANES, threads * 2):
         od0 = float(0.0)
         od1 = float(0.0)
-        if u < _CELL_LANES and tx < tiles_x and ty < tiles_y:
-            tile = ty * tiles_x + tx
-            k0a, k0b, k1a, k1b = _bin_keys(view, sub_v, sub_bbox, layers, mask, mask_b, tile, i, j0, j1, capacity,
-                                           bin_fill, bin_subs)
-            overflowed = bin_fill[tile] > capacity
-            for r in range(2):
-                j = wp.where(r == 0, j0, j1)
-                if i < width and j < height:
-                    p = j * width + i
-                    key_o = _bin_layer_key(wp.where(r == 0, k0a, k1a), overflowed, p, opaque_visibility)
-                    key_s = _bin_layer_key(wp.where(r == 0, k0b, k1b), overflowed, p, specular_visibility)
-                    tri_o, od, x_o, bary_o, d_o = triangle_hit(view, key_o, p, points, indices)
-                    opaque_depth[p] = od
-                    if opaque_tri.shape[0] > 0:
-                        opaque_tri[p] = tri_o
-                    tri = specular_texel_key(view, p, key_s, od, points, normals, indices, triangle_material,
-                                             mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
-                                             nearest_depth)
-                    if tri == -1 and keep_flux:
-                        flux[p] = wp.vec3(0.0)
-                    elif tri >= 0 and keep_flux:
-                        flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
-                                             texel_solid_angle)
-                    if r == 0:
-                        od0 = od
-                    else:
-                        od1 = od
+        od2 = float(0.0)
+        od3 = float(0.0)
+        for m in range(wp.min(2, threads * 2)):  # kept rolled (one copy of the bin walk); od0-od3 by selects
+            u = u0 + m * threads + lane
+            w = u / WARP  # the cell's screen tile, 4 x 4
+            tl = u % WARP
+            tx = x0 / TILE + w % 4
+            ty = y0 / TILE + w / 4
+            i = tx * TILE + tl % TILE
+            j0 = ty * TILE + tl / TILE
+            if u < _CELL_LANES and tx < tiles_x and ty < tiles_y:
+                tile = ty * tiles_x + tx
+                k0a, k0b, k1a, k1b = _bin_keys(view, sub_v, sub_bbox, layers, mask, mask_b, tile, i, j0,
+                                               j0 + TILE / 2, capacity, bin_fill, bin_subs)
+                overflowed = bin_fill[tile] > capacity
+                for r in range(2):
+                    j = j0 + r * (TILE / 2)
+                    if i < width and j < height:
+                        p = j * width + i
+                        key_o = _bin_layer_key(wp.where(r == 0, k0a, k1a), overflowed, p, opaque_visibility)
+                        key_s = _bin_layer_key(wp.where(r == 0, k0b, k1b), overflowed, p, specular_visibility)
+                        tri_o, z, x_o, bary_o, d_o = triangle_hit(view, key_o, p, points, indices)
+                        opaque_depth[p] = z
+                        if opaque_tri.shape[0] > 0:
+                            opaque_tri[p] = tri_o
+                        tri = specular_texel_key(view, p, key_s, z, points, normals, indices, triangle_material,
+                                                 mat_roughness, mat_ior, depth, position, normal, roughness, ior,
+                                                 tri_id, nearest_depth)
+                        if tri == -1 and keep_flux:
+                            flux[p] = wp.vec3(0.0)
+                        elif tri >= 0 and keep_flux:
+                            flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
+                                                 texel_solid_angle)
+                        if m == 0 and r == 0:
+                            od0 = z
+                        elif m == 0:
+                            od1 = z
+                        elif r == 0:
+                            od2 = z
+                        else:
+                            od3 = z
         if want_bounds:  # every thread of the block (the scatters synchronise it)
-            k0 = (j0 - y0) * BOUNDS_COARSE + (i - x0)
-            wp.tile_scatter_masked(zs, k0, od0, u < _CELL_LANES and i < width and j0 < height)
-            wp.tile_scatter_masked(zs, k0 + (TILE / 2) * BOUNDS_COARSE, od1, u < _CELL_LANES and i < width
-                                   and j1 < height)
+            _scatter_tile_texel(zs, u0, 0, threads, lane, x0, y0, width, height, od0)
+            _scatter_tile_texel(zs, u0, 1, threads, lane, x0, y0, width, height, od1)
+            _scatter_tile_texel(zs, u0, 2, threads, lane, x0, y0, width, height, od2)
+            _scatter_tile_texel(zs, u0, 3, threads, lane, x0, y0, width, height, od3)
     if not want_bounds:
         return
     _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
