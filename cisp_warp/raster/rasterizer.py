@@ -27,8 +27,10 @@ COLUMN_BLOCKS_PER_SM = 3
 class Rasterizer:
     """Visibility-buffer rasterizer over one :class:`DeviceScene`; its scratch is allocated once."""
 
-    #: the default of :attr:`binned` for new rasterizers (a benchmark sets it before building a renderer)
-    BINNED = False
+    #: the default of :attr:`binned` for new rasterizers (a benchmark sets it before building a renderer). True since
+    #: perf_notes section 66 (the RSM views' tile pass resolves them: predicted to win on the H100, to be measured;
+    #: section 65 measured the binned raster without that slower than the reject raster)
+    BINNED = True
 
     def __init__(self, scene: DeviceScene):
         self.scene = scene
