@@ -106,7 +106,12 @@ def probe_scene(scene_path, args, device):
     scene = load_usd(scene_path, width=args.width, height=args.height, device=device)
     settings = RenderSettings(rsm_size=args.rsm_size, method="cisp", photons=PhotonSettings(photons=args.photons),
                               denoiser="svgf")
-    r = Renderer(scene, settings, device=device)
+    binned_default = Rasterizer.BINNED
+    Rasterizer.BINNED = False  # every draw through Rasterizer.draw (the fused RSM pass, section 66, draws without it)
+    try:
+        r = Renderer(scene, settings, device=device)
+    finally:
+        Rasterizer.BINNED = binned_default
     r.set_concurrent(False)
     r.use_graph = False
     for _ in range(3):
