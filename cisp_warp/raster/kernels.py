@@ -12,6 +12,9 @@ adjacent tiles at a time, a thread per pixel column, and skips columns proven ou
 ``raster_tiles``, its naive twin, a thread per item found by binary search. The default draws with
 ``raster_tiles_reject`` (``raster_tiles`` with the tiles proven outside an edge skipped) and, for small views (the
 pilots), ``raster_tile_rows`` (a thread per tile row); both are ``raster_tiles``' buffers bit for bit on the CPU.
+So is the binned raster (``Rasterizer.binned``, opt-in: ``raster_bin_items`` bins the reject's items per 8x8 screen
+tile, ``raster_bins`` gives each tile a warp that keeps its pixels' keys in registers and writes each covered pixel
+once).
 
 An RSM view is resolved in one tiled pass (``resolve_rsm_view``: both layers, and the depth bounds of its opaque
 depth that the photon march reads, reduced per block in shared memory), the camera's back-face layer likewise with the
@@ -146,10 +149,19 @@ def setup_triangles(
     tile_count: wp.array(dtype=wp.int32),  # (2T,) tiles touched, 0 = culled (write)
     normals: wp.array(dtype=wp.vec3),  # (V,) authored (outward) vertex normals (read; only when back_only != 0)
     back_only: int,  # 1: only the triangles that face away from the view (:func:`faces_away`), 0: all
+    bin_fill: wp.array(dtype=wp.int32),  # (>= clear_bins,) the binned raster's counts per screen tile (zeroed)
+    clear_bins: int,  # screen tiles whose counts are zeroed (0: none, the draw is not binned)
+    threads: int,  # threads launched (the triangle count): the stride of the counts' zeroing
 ):
-    """Near-clip each triangle of the layer into at most two, project them, count their tiles."""
+    """Near-clip each triangle of the layer into at most two, project them, count their tiles. With ``clear_bins``,
+    the threads also zero the binned raster's first ``clear_bins`` tile counts (grid-stride, coalesced), which
+    :func:`raster_bin_items` then fills: no memset node of its own (perf_notes section 66)."""
     view = views[view_index]
     t = wp.tid()
+    k = t
+    while k < clear_bins:
+        bin_fill[k] = 0
+        k += threads
     tile_count[2 * t] = 0
     tile_count[2 * t + 1] = 0
     if (layers[t] & layer_mask) == 0 or view.far <= 0.0:  # far = 0: an inactive view (light_maps.INACTIVE_FAR), nothing drawn
@@ -418,6 +430,170 @@ def raster_tiles_reject(
         for j in range(j_lo, j_hi + 1):
             _row_fragments(view, a, b, c, e0, e1, e2, inv_area, tri, to_a, to_b, j, i_lo, i_hi, visibility,
                            visibility_b)
+
+
+#: threads per block of :func:`raster_bins` (4 screen tiles a block, a warp a tile)
+BIN_BLOCK = 128
+
+
+@wp.kernel
+def raster_bin_items(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    tile_end: wp.array(dtype=wp.int32),  # (2T,) inclusive scan of tile counts (read)
+    n_sub: int,
+    stride: int,
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (atomic min: overflowed items only)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (as ``visibility``)
+    tiles_x: int,  # 8x8 screen tiles per row of the view
+    capacity: int,  # sub-triangles a screen tile's bin holds
+    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per screen tile (zero on entry, setup_triangles
+    # zeroes it; atomic add)
+    bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) the binned sub-triangles, per tile (write)
+):
+    """The first pass of the binned raster: :func:`raster_tiles_reject`'s items (the same search and tile reject), each
+    item that is not rejected appended to its screen tile's bin (its sub-triangle; an item is one tile of one
+    sub-triangle, so a bin holds a sub-triangle at most once) for :func:`raster_bins`. A bin's order is that of its
+    atomic adds (the keys do not depend on it: a pixel keeps the minimum). An item past a full bin (``capacity``)
+    is drawn here as :func:`raster_tiles_reject` draws it (atomic min): nothing is lost, it only costs atomics."""
+    view = views[view_index]
+    item = wp.tid()
+    total = tile_end[n_sub - 1]
+    while item < total:
+        s, i_lo, i_hi, j_lo, j_hi = _tile_of_item(tile_end, n_sub, sub_bbox, item)
+        item += stride
+        a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
+        box = wp.vec4i(i_lo, j_lo, i_hi, j_hi)
+        if (_box_outside(e0, _edge_slack(e0, box), box) or _box_outside(e1, _edge_slack(e1, box), box)
+                or _box_outside(e2, _edge_slack(e2, box), box)):
+            continue
+        tile = (j_lo / TILE) * tiles_x + i_lo / TILE
+        slot = wp.atomic_add(bin_fill, tile, 1)
+        if slot < capacity:
+            bin_subs[tile * capacity + slot] = s
+        else:
+            inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
+            for j in range(j_lo, j_hi + 1):
+                _row_fragments(view, a, b, c, e0, e1, e2, inv_area, tri, to_a, to_b, j, i_lo, i_hi, visibility,
+                               visibility_b)
+
+
+@wp.func
+def _bin_pixel_covered(e0: wp.vec4, e1: wp.vec4, e2: wp.vec4, box: wp.vec4i, i: int, j: int) -> bool:
+    """Whether pixel (i, j) lies in the sub-triangle's box and its centre passes the three edge tests, as
+    :func:`_row_fragments` tests it."""
+    if i < box[0] or i > box[2] or j < box[1] or j > box[3]:
+        return False
+    x = float(i) + 0.5
+    y = float(j) + 0.5
+    return _edge_at(e0, x, y) >= 0.0 and _edge_at(e1, x, y) >= 0.0 and _edge_at(e2, x, y) >= 0.0
+
+
+@wp.func
+def _bin_write(key: wp.uint64, p: int, visibility: wp.array(dtype=wp.uint64)):
+    """A screen tile's pixel key into the buffer, once (an atomic min onto its own address: the buffer may hold the
+    overflowed items' fragments or keys drawn before)."""
+    if key != EMPTY_KEY:
+        wp.atomic_min(visibility, p, key)
+
+
+@wp.func
+def _bin_keys(view: ViewParams, sub_v: wp.array(dtype=wp.vec3), sub_bbox: wp.array(dtype=wp.vec4i),
+              layers: wp.array(dtype=wp.int32), mask: int, mask_b: int, tile: int, i: int, j0: int, j1: int,
+              capacity: int, bin_fill: wp.array(dtype=wp.int32), bin_subs: wp.array(dtype=wp.int32)):
+    """A lane's walk of screen tile ``tile``'s bin (:func:`raster_bins`): the nearest key of pixels (i, j0) and (i, j1)
+    in each layer (``mask``, ``mask_b``; EMPTY_KEY: none) over the binned sub-triangles (the items past the bin's
+    capacity are not among them: :func:`raster_bin_items` drew them into the buffers)."""
+    n = wp.min(bin_fill[tile], capacity)
+    k0a = EMPTY_KEY
+    k0b = EMPTY_KEY
+    k1a = EMPTY_KEY
+    k1b = EMPTY_KEY
+    for k in range(n):
+        s = bin_subs[tile * capacity + k]
+        a, b, c, e0, e1, e2 = _item_edges(sub_v, s)
+        box = sub_bbox[s]
+        cov0 = _bin_pixel_covered(e0, e1, e2, box, i, j0)
+        cov1 = _bin_pixel_covered(e0, e1, e2, box, i, j1)
+        if cov0 or cov1:
+            inv_area, tri, to_a, to_b = _item_setup(a, b, c, s, layers, mask, mask_b)
+            x = float(i) + 0.5
+            if cov0:
+                y = float(j0) + 0.5
+                depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
+                                       inv_area)
+                if depth > 0.0 and depth <= view.far:
+                    key = depth_key(view, depth, tri)
+                    if to_a:
+                        k0a = wp.min(k0a, key)
+                    if to_b:
+                        k0b = wp.min(k0b, key)
+            if cov1:
+                y = float(j1) + 0.5
+                depth = fragment_depth(view, a, b, c, _edge_at(e0, x, y), _edge_at(e1, x, y), _edge_at(e2, x, y),
+                                       inv_area)
+                if depth > 0.0 and depth <= view.far:
+                    key = depth_key(view, depth, tri)
+                    if to_a:
+                        k1a = wp.min(k1a, key)
+                    if to_b:
+                        k1b = wp.min(k1b, key)
+    return k0a, k0b, k1a, k1b
+
+
+@wp.kernel
+def raster_bins(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    stride: int,  # threads launched (a multiple of 32)
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # layers drawn into ``visibility``
+    visibility: wp.array(dtype=wp.uint64),  # (H*W,) packed depth | triangle id (one atomic min per covered pixel)
+    mask_b: int,  # layers drawn into ``visibility_b`` (0: none)
+    visibility_b: wp.array(dtype=wp.uint64),  # (H*W,) a second layer's buffer (as ``visibility``)
+    tiles_x: int,  # 8x8 screen tiles per row of the view
+    tiles: int,  # screen tiles of the view
+    capacity: int,  # sub-triangles a bin holds
+    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per tile (read; may exceed capacity)
+    bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) (read)
+):
+    """The second pass of the binned raster (:func:`raster_bin_items` the first): a warp per 8x8 screen tile
+    (grid-stride), a lane per pixel column and two rows (lane / 8 and lane / 8 + 4). The warp walks its bin's sub-triangles; each lane
+    tests its two pixel centres against each (in its box, the same edge terms and tests as :func:`raster_tiles`) and
+    keeps each layer's nearest key in registers, then writes each covered pixel once: no atomic per fragment, and the
+    lanes of a warp test one triangle's pixels together. The same fragments and keys as ``raster_tiles``: the buffers
+    are its bit for bit on the CPU."""
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view: nothing binned
+        return
+    t = wp.tid()
+    lane = t % WARP
+    i_in = lane % TILE
+    j_in = lane / TILE
+    tile = t / WARP
+    while tile < tiles:
+        tx = tile % tiles_x
+        ty = tile / tiles_x
+        i = tx * TILE + i_in
+        j0 = ty * TILE + j_in
+        j1 = j0 + TILE / 2
+        k0a, k0b, k1a, k1b = _bin_keys(view, sub_v, sub_bbox, layers, mask, mask_b, tile, i, j0, j1, capacity,
+                                       bin_fill, bin_subs)
+        p0 = j0 * view.width + i
+        p1 = j1 * view.width + i
+        _bin_write(k0a, p0, visibility)
+        _bin_write(k1a, p1, visibility)
+        if mask_b != 0:
+            _bin_write(k0b, p0, visibility_b)
+            _bin_write(k1b, p1, visibility_b)
+        tile += stride / WARP
 
 
 @wp.kernel
@@ -1416,6 +1592,160 @@ def resolve_rsm_view(
             _scatter_texel(zs, c0, 1, threads, lane, x0, y0, width, height, od1)
             _scatter_texel(zs, c0, 2, threads, lane, x0, y0, width, height, od2)
             _scatter_texel(zs, c0, 3, threads, lane, x0, y0, width, height, od3)
+    if not want_bounds:
+        return
+    _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
+
+
+#: threads of a block of :func:`raster_bins_rsm_view` (a coarse cell of the depth bounds: 16 screen tiles, a warp a
+#: tile, so 2 tiles a warp)
+BIN_RSM_THREADS = 256
+#: screen tiles a coarse cell holds (BOUNDS_COARSE / TILE squared) and their lanes
+_CELL_TILES = wp.constant(16)
+_CELL_LANES = wp.constant(512)
+
+
+@wp.func
+def _bin_layer_key(key: wp.uint64, overflowed: bool, p: int, visibility: wp.array(dtype=wp.uint64)) -> wp.uint64:
+    """A pixel's nearest key of one layer: its tile's bin walk's ``key``, and where the tile's bin overflowed, the
+    fragments :func:`raster_bin_items` drew into ``visibility`` (read, then reset to EMPTY_KEY, as a resolve leaves
+    it); a tile that did not overflow left its pixels in ``visibility`` clear, which is not read."""
+    if not overflowed:
+        return key
+    drawn = visibility[p]
+    if drawn != EMPTY_KEY:
+        visibility[p] = EMPTY_KEY
+    return wp.min(key, drawn)
+
+
+@wp.func
+def _scatter_tile_texel(zs: wp.tile(dtype=wp.float32, shape=(1024,)), u0: int, q: int, threads: int, lane: int,
+                        x0: int, y0: int, width: int, height: int, z: float):
+    """Texel ``q`` (round ``q / 2``, row ``q % 2``) of lane ``u0 + (q / 2)·threads + lane`` of the block's coarse cell
+    (:func:`raster_bins_rsm_view`'s layout: 16 screen tiles of 32 lanes, a lane's two rows 4 apart): its depth ``z``
+    into ``zs`` when it is in the view (every thread of the block calls it: it synchronises the block)."""
+    u = u0 + (q / 2) * threads + lane
+    w = u / WARP
+    tl = u % WARP
+    i = (w % 4) * TILE + tl % TILE
+    j = (w / 4) * TILE + tl / TILE + (q % 2) * (TILE / 2)
+    wp.tile_scatter_masked(zs, j * BOUNDS_COARSE + i, z, u < _CELL_LANES and x0 + i < width and y0 + j < height)
+
+
+@wp.kernel(launch_bounds=(BIN_RSM_THREADS, 2))
+def raster_bins_rsm_view(
+    views: wp.array(dtype=ViewParams),  # (V,) views (read): draws and resolves views[view_index]
+    view_index: int,
+    sub_v: wp.array(dtype=wp.vec3),  # (6T,) (read)
+    sub_bbox: wp.array(dtype=wp.vec4i),  # (2T,) (read)
+    layers: wp.array(dtype=wp.int32),  # (T,) layer bits per triangle (read)
+    mask: int,  # the opaque layers
+    opaque_visibility: wp.array(dtype=wp.uint64),  # (H*W,) overflowed tiles' opaque fragments (read, reset); else clear
+    mask_b: int,  # the specular layers
+    specular_visibility: wp.array(dtype=wp.uint64),  # (H*W,) the same for the specular layer
+    tiles_x: int,  # 8x8 screen tiles per row of the view
+    capacity: int,  # sub-triangles a bin holds
+    bin_fill: wp.array(dtype=wp.int32),  # (>= tiles,) sub-triangles binned per tile (read; may exceed capacity)
+    bin_subs: wp.array(dtype=wp.int32),  # (>= tiles * capacity,) (read)
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    light_rgb: wp.vec3,  # as resolve_rsm_view's
+    spot_axis: wp.vec3,
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),
+    opaque_depth: wp.array(dtype=wp.float32),
+    opaque_tri: wp.array(dtype=wp.int32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+    flux: wp.array(dtype=wp.vec3),
+    thickness: float,
+    thickness_rel: float,
+    bounds: wp.array(dtype=wp.vec2),
+):
+    """:func:`raster_bins` and :func:`resolve_rsm_view` (its twins) in one pass: ``wp.launch_tiled`` over the view's
+    coarse cells of the depth bounds (BOUNDS_COARSE² texels = 16 screen tiles; a warp a tile, as raster_bins, two
+    tiles a warp). A lane's two pixels' nearest keys of both layers stay in registers from the bin walk to the
+    texel's resolve (the same texel functions as resolve_rsm_view's), so the keys are neither written nor read nor
+    reset, except in a tile whose bin overflowed (:func:`_bin_layer_key`); the opaque depths go into shared memory
+    for the block's depth bounds (:func:`_block_bounds`). Every map and bound the same bit for bit as the twins' on
+    the CPU, where a block is one lane that does it all."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view: nothing drawn; its maps and bounds are kept (as resolve_rsm_view)
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    tiles_y = (height + TILE - 1) / TILE
+    want_bounds = bounds.shape[0] > 0
+    keep_flux = flux.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    # two tiles a warp a round (a round is the whole block on CUDA; the CPU's one lane takes 256 rounds): their four
+    # opaque depths are kept in registers and put into shared memory after the round, so the block's barriers (one a
+    # scatter) come after both tiles' work, not between them
+    for u0 in range(0, _CELL_LANES, threads * 2):
+        od0 = float(0.0)
+        od1 = float(0.0)
+        od2 = float(0.0)
+        od3 = float(0.0)
+        for m in range(wp.min(2, threads * 2)):  # kept rolled (one copy of the bin walk); od0-od3 by selects
+            u = u0 + m * threads + lane
+            w = u / WARP  # the cell's screen tile, 4 x 4
+            tl = u % WARP
+            tx = x0 / TILE + w % 4
+            ty = y0 / TILE + w / 4
+            i = tx * TILE + tl % TILE
+            j0 = ty * TILE + tl / TILE
+            if u < _CELL_LANES and tx < tiles_x and ty < tiles_y:
+                tile = ty * tiles_x + tx
+                k0a, k0b, k1a, k1b = _bin_keys(view, sub_v, sub_bbox, layers, mask, mask_b, tile, i, j0,
+                                               j0 + TILE / 2, capacity, bin_fill, bin_subs)
+                overflowed = bin_fill[tile] > capacity
+                for r in range(2):
+                    j = j0 + r * (TILE / 2)
+                    if i < width and j < height:
+                        p = j * width + i
+                        key_o = _bin_layer_key(wp.where(r == 0, k0a, k1a), overflowed, p, opaque_visibility)
+                        key_s = _bin_layer_key(wp.where(r == 0, k0b, k1b), overflowed, p, specular_visibility)
+                        tri_o, z, x_o, bary_o, d_o = triangle_hit(view, key_o, p, points, indices)
+                        opaque_depth[p] = z
+                        if opaque_tri.shape[0] > 0:
+                            opaque_tri[p] = tri_o
+                        tri = specular_texel_key(view, p, key_s, z, points, normals, indices, triangle_material,
+                                                 mat_roughness, mat_ior, depth, position, normal, roughness, ior,
+                                                 tri_id, nearest_depth)
+                        if tri == -1 and keep_flux:
+                            flux[p] = wp.vec3(0.0)
+                        elif tri >= 0 and keep_flux:
+                            flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
+                                                 texel_solid_angle)
+                        if m == 0 and r == 0:
+                            od0 = z
+                        elif m == 0:
+                            od1 = z
+                        elif r == 0:
+                            od2 = z
+                        else:
+                            od3 = z
+        if want_bounds:  # every thread of the block (the scatters synchronise it)
+            _scatter_tile_texel(zs, u0, 0, threads, lane, x0, y0, width, height, od0)
+            _scatter_tile_texel(zs, u0, 1, threads, lane, x0, y0, width, height, od1)
+            _scatter_tile_texel(zs, u0, 2, threads, lane, x0, y0, width, height, od2)
+            _scatter_tile_texel(zs, u0, 3, threads, lane, x0, y0, width, height, od3)
     if not want_bounds:
         return
     _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
