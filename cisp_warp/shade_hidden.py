@@ -222,9 +222,60 @@ def _camera_view_func(camera_ortho: int):
     return camera_view
 
 
-def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
+PIXELS_PER_THREAD = 8  #: pixels a thread of the strided trace covers (:func:`_trace_hidden_kernel`, ``strided``)
+
+
+def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1, strided: bool = False):
     CAMERA_ORTHO = int(camera_ortho)
     camera_view = _camera_view_func(CAMERA_ORTHO)
+    hidden_ray = _HIDDEN_RAY[naive]
+
+    @wp.func
+    def trace_pixel(
+        p: int,
+        bits: int,
+        cameras: wp.array(dtype=ViewParams),
+        water_position: wp.array(dtype=wp.vec3),
+        water_normal: wp.array(dtype=wp.vec3),
+        water_ior: wp.array(dtype=wp.float32),
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),
+        position: wp.array(dtype=wp.vec3),
+        normal: wp.array(dtype=wp.vec3),
+        radiance: wp.array(dtype=wp.vec3),
+        sky: SkyMap,
+        occlusion: SkyOcclusion,
+        t_max: float,
+        missed: wp.array(dtype=wp.int32),
+        hidden_tri: wp.array(dtype=wp.int32),
+        hidden_uvw: wp.array(dtype=wp.vec3),
+        final: wp.array(dtype=wp.vec3),
+    ):
+        """Pixel ``p`` (its ``missed`` bits ``bits``, not 0) of :func:`trace_hidden`."""
+        camera = camera_view(cameras)
+        f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
+        x = water_position[p]
+        l = wp.vec3(0.0)
+        for k in range(2):
+            flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
+            if (bits & flag) != 0:
+                d = dr
+                w = f
+                if k == 0:
+                    d = dt
+                    w = (1.0 - f) / (eta * eta)
+                pix, term, code, u, v = hidden_ray(layer, camera, depth, position, normal, sky, occlusion, t_max, x,
+                                                   d, w)
+                if pix >= 0:
+                    l = l + radiance[pix] * w
+                else:
+                    l = l + term
+                    if code != 0:
+                        hidden_tri[2 * p + k] = code
+                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
+                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
+        missed[p] = bits
+        final[p] = final[p] + l
 
     def trace_hidden(
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
@@ -251,6 +302,87 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
         bits = missed[p]
         if bits == 0:
             return
+        trace_pixel(p, bits, cameras, water_position, water_normal, water_ior, layer, depth, position, normal,
+                    radiance, sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, final)
+
+    def trace_hidden_strided(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+        water_normal: wp.array(dtype=wp.vec3),  # (H*W,) (read)
+        water_ior: wp.array(dtype=wp.float32),  # (H*W,) (read)
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
+        position: wp.array(dtype=wp.vec3),  # (H*W,) its world position [m] (read)
+        normal: wp.array(dtype=wp.vec3),  # (H*W,) its unit normal (read)
+        radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
+        sky: SkyMap,  # the dome's radiance where a ray meets nothing (black without a sky)
+        occlusion: SkyOcclusion,  # the sky's irradiance at a hidden hit
+        t_max: float,  # longest ray [m]
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read); HIDDEN_* bits added (write)
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) ±(triangle + 1) of a hidden hit (write where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (u, v, throughput) of a hidden hit (write where HIDDEN)
+        final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+        pixels: int,  # H*W
+        stride: int,  # the launch's threads, ceil(H*W / PIXELS_PER_THREAD)
+    ):
+        """:func:`trace_hidden` with a thread for every PIXELS_PER_THREAD pixels ``t + i·stride``: their ``missed``
+        words read together (one round trip, not one a pixel), then the pixels with bits traced in turn. The pixels'
+        work and results are trace_hidden's, bit for bit; what goes is the launch's floor, a round trip a pixel for
+        the ~95% of threads that only read a zero (docs/perf_notes.md section 67)."""
+        t = wp.tid()
+        todo = int(0)  # bit i: pixel t + i·stride has rays to trace
+        for i in range(PIXELS_PER_THREAD):
+            q = t + i * stride
+            b = missed[wp.min(q, pixels - 1)]
+            todo = todo | wp.where(q < pixels and b != 0, 1 << i, 0)
+        i = int(0)
+        while todo != 0:
+            if (todo & 1) != 0:
+                p = t + i * stride
+                trace_pixel(p, missed[p], cameras, water_position, water_normal, water_ior, layer, depth, position,
+                            normal, radiance, sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, final)
+            todo = todo >> 1
+            i += 1
+
+    kernel = trace_hidden_strided if strided else trace_hidden
+    kernel.__qualname__ = kernel.__name__ + ("_orthocam" if CAMERA_ORTHO == 1 else "")
+    if CAMERA_ORTHO < 0:
+        return wp.kernel(kernel, module="unique")
+    return wp.kernel(kernel, module="unique", enable_backward=False)  # no adjoint to compile
+
+
+trace_hidden = _trace_hidden_kernel(False)
+trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
+
+
+def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1, strided: bool = False):
+    CAMERA_ORTHO = int(camera_ortho)
+    camera_view = _camera_view_func(CAMERA_ORTHO)
+    hidden_ray = _HIDDEN_RAY[naive]
+
+    @wp.func
+    def trace_pixel_rays(
+        p: int,
+        bits: int,
+        cameras: wp.array(dtype=ViewParams),
+        water_position: wp.array(dtype=wp.vec3),
+        water_normal: wp.array(dtype=wp.vec3),
+        water_ior: wp.array(dtype=wp.float32),
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),
+        position: wp.array(dtype=wp.vec3),
+        normal: wp.array(dtype=wp.vec3),
+        sky: SkyMap,
+        occlusion: SkyOcclusion,
+        t_max: float,
+        missed: wp.array(dtype=wp.int32),
+        hidden_tri: wp.array(dtype=wp.int32),
+        hidden_uvw: wp.array(dtype=wp.vec3),
+        hits: wp.array(dtype=wp.vec2i),
+        hidden_sum: wp.array(dtype=wp.vec3),
+    ):
+        """Pixel ``p`` (its ``missed`` bits ``bits``, not 0) of :func:`trace_hidden_rays`."""
         camera = camera_view(cameras)
         f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
         x = water_position[p]
@@ -263,10 +395,15 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
                 if k == 0:
                     d = dt
                     w = (1.0 - f) / (eta * eta)
-                pix, term, code, u, v = wp.static(_HIDDEN_RAY[naive])(layer, camera, depth, position, normal, sky,
-                                                                      occlusion, t_max, x, d, w)
+                pix, term, code, u, v = hidden_ray(layer, camera, depth, position, normal, sky, occlusion, t_max, x,
+                                                   d, w)
                 if pix >= 0:
-                    l = l + radiance[pix] * w
+                    h = hits[p]
+                    if k == 0:
+                        h = wp.vec2i(h[0], pix)
+                    else:
+                        h = wp.vec2i(pix, h[1])
+                    hits[p] = h
                 else:
                     l = l + term
                     if code != 0:
@@ -274,21 +411,7 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
                         hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
                         bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
         missed[p] = bits
-        final[p] = final[p] + l
-
-    trace_hidden.__qualname__ = "trace_hidden" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
-    if CAMERA_ORTHO < 0:
-        return wp.kernel(trace_hidden, module="unique")
-    return wp.kernel(trace_hidden, module="unique", enable_backward=False)  # no adjoint to compile
-
-
-trace_hidden = _trace_hidden_kernel(False)
-trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
-
-
-def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1):
-    CAMERA_ORTHO = int(camera_ortho)
-    camera_view = _camera_view_func(CAMERA_ORTHO)
+        hidden_sum[p] = l
 
     def trace_hidden_rays(
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
@@ -317,40 +440,52 @@ def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1):
         bits = missed[p]
         if bits == 0:
             return
-        camera = camera_view(cameras)
-        f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
-        x = water_position[p]
-        l = wp.vec3(0.0)
-        for k in range(2):
-            flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
-            if (bits & flag) != 0:
-                d = dr
-                w = f
-                if k == 0:
-                    d = dt
-                    w = (1.0 - f) / (eta * eta)
-                pix, term, code, u, v = wp.static(_HIDDEN_RAY[naive])(layer, camera, depth, position, normal, sky,
-                                                                      occlusion, t_max, x, d, w)
-                if pix >= 0:
-                    h = hits[p]
-                    if k == 0:
-                        h = wp.vec2i(h[0], pix)
-                    else:
-                        h = wp.vec2i(pix, h[1])
-                    hits[p] = h
-                else:
-                    l = l + term
-                    if code != 0:
-                        hidden_tri[2 * p + k] = code
-                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
-                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
-        missed[p] = bits
-        hidden_sum[p] = l
+        trace_pixel_rays(p, bits, cameras, water_position, water_normal, water_ior, layer, depth, position, normal,
+                         sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, hits, hidden_sum)
 
-    trace_hidden_rays.__qualname__ = "trace_hidden_rays" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
+    def trace_hidden_rays_strided(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+        water_normal: wp.array(dtype=wp.vec3),  # (H*W,) (read)
+        water_ior: wp.array(dtype=wp.float32),  # (H*W,) (read)
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
+        position: wp.array(dtype=wp.vec3),  # (H*W,) its world position [m] (read)
+        normal: wp.array(dtype=wp.vec3),  # (H*W,) its unit normal (read)
+        sky: SkyMap,  # the dome's radiance where a ray meets nothing (black without a sky)
+        occlusion: SkyOcclusion,  # the sky's irradiance at a hidden hit
+        t_max: float,  # longest ray [m]
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read); HIDDEN_* bits added (write)
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) ±(triangle + 1) of a hidden hit (write where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (u, v, throughput) of a hidden hit (write where HIDDEN)
+        hits: wp.array(dtype=wp.vec2i),  # (H*W,) shade.composite_march's; a seen pixel put in a missed ray's slot
+        hidden_sum: wp.array(dtype=wp.vec3),  # (H*W,) the sum of the terms that need no radiance (write where missed)
+        pixels: int,  # H*W
+        stride: int,  # the launch's threads, ceil(H*W / PIXELS_PER_THREAD)
+    ):
+        """:func:`trace_hidden_rays` strided as :func:`trace_hidden`'s strided kernel: the same results bit for bit."""
+        t = wp.tid()
+        todo = int(0)  # bit i: pixel t + i·stride has rays to trace
+        for i in range(PIXELS_PER_THREAD):
+            q = t + i * stride
+            b = missed[wp.min(q, pixels - 1)]
+            todo = todo | wp.where(q < pixels and b != 0, 1 << i, 0)
+        i = int(0)
+        while todo != 0:
+            if (todo & 1) != 0:
+                p = t + i * stride
+                trace_pixel_rays(p, missed[p], cameras, water_position, water_normal, water_ior, layer, depth,
+                                 position, normal, sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, hits,
+                                 hidden_sum)
+            todo = todo >> 1
+            i += 1
+
+    kernel = trace_hidden_rays_strided if strided else trace_hidden_rays
+    kernel.__qualname__ = kernel.__name__ + ("_orthocam" if CAMERA_ORTHO == 1 else "")
     if CAMERA_ORTHO < 0:
-        return wp.kernel(trace_hidden_rays, module="unique")
-    return wp.kernel(trace_hidden_rays, module="unique", enable_backward=False)  # no adjoint to compile
+        return wp.kernel(kernel, module="unique")
+    return wp.kernel(kernel, module="unique", enable_backward=False)  # no adjoint to compile
 
 
 trace_hidden_rays = _trace_hidden_rays_kernel(False)
@@ -368,6 +503,27 @@ def projected_hidden(camera_ortho: int) -> tuple:
     if key not in _PROJECTED_HIDDEN:
         _PROJECTED_HIDDEN[key] = (_trace_hidden_kernel(False, key), _trace_hidden_rays_kernel(False, key))
     return _PROJECTED_HIDDEN[key]
+
+
+_STRIDED_HIDDEN: dict = {}
+
+
+def strided_hidden(camera_ortho: int) -> tuple:
+    """(:func:`trace_hidden`, :func:`trace_hidden_rays`) strided (a thread per :data:`PIXELS_PER_THREAD` pixels, its
+    pixels' ``missed`` words read together) and compiled for the camera's projection as :func:`projected_hidden`'s
+    (-1: read at run time), made on first use, modules of their own. Launched over :func:`strided_threads` threads
+    with ``pixels`` and that count appended to the per-pixel kernel's inputs; each pixel's results those of
+    :func:`projected_hidden`'s kernels bit for bit (``tests/test_shade_strided.py``)."""
+    key = int(camera_ortho)
+    if key not in _STRIDED_HIDDEN:
+        _STRIDED_HIDDEN[key] = (_trace_hidden_kernel(False, key, strided=True),
+                                _trace_hidden_rays_kernel(False, key, strided=True))
+    return _STRIDED_HIDDEN[key]
+
+
+def strided_threads(pixels: int) -> int:
+    """Threads of a strided trace over ``pixels`` pixels: ceil(pixels / PIXELS_PER_THREAD)."""
+    return -(-int(pixels) // PIXELS_PER_THREAD)
 
 
 @wp.func
@@ -496,6 +652,9 @@ class HiddenSurfaces:
     #: trace with the kernels compiled for the camera's projection (:func:`projected_hidden`) where the caller gives
     #: it; False: the run-time kernels :data:`trace_hidden`, :data:`trace_hidden_rays` (the twins)
     PROJECTED = True
+    #: with :attr:`PROJECTED`, trace with :func:`strided_hidden`'s kernels (a thread per PIXELS_PER_THREAD pixels:
+    #: docs/perf_notes.md section 67); False: :func:`projected_hidden`'s, a thread a pixel (their twins)
+    STRIDED = True
 
     def _kernels(self, orthographic: bool | None) -> tuple:
         """(trace_hidden, trace_hidden_rays) to launch for a camera of that projection (None: read at run time)."""
@@ -503,7 +662,17 @@ class HiddenSurfaces:
             return trace_hidden_naive, trace_hidden_rays_naive
         if orthographic is None or not self.PROJECTED:
             return trace_hidden, trace_hidden_rays
+        if self.STRIDED:
+            return strided_hidden(int(bool(orthographic)))
         return projected_hidden(int(bool(orthographic)))
+
+    def _launch_trace(self, kernel, n: int, inputs: list) -> None:
+        """``kernel`` over ``n`` pixels: a thread a pixel, or a strided kernel's :func:`strided_threads`."""
+        if any(kernel in pair for pair in _STRIDED_HIDDEN.values()):
+            threads = strided_threads(n)
+            wp.launch(kernel, dim=threads, device=self.device, inputs=inputs + [n, threads])
+        else:
+            wp.launch(kernel, dim=n, device=self.device, inputs=inputs)
 
     def render(self, gbuffer, lights, cameras: wp.array, radiance: wp.array, sky_map: SkyMap, t_max: float,
                final: wp.array, hidden_flux=None, orthographic: bool | None = None) -> None:
@@ -515,7 +684,7 @@ class HiddenSurfaces:
         w = gbuffer.water
         n = gbuffer.width * gbuffer.height
         kernel = self._kernels(orthographic)[0]
-        wp.launch(kernel, dim=n, device=self.device, inputs=[
+        self._launch_trace(kernel, n, [
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             radiance, sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, final])
         self.shade_hits(gbuffer, lights, final, hidden_flux)
@@ -528,7 +697,7 @@ class HiddenSurfaces:
         ``orthographic``: as :meth:`render`'s."""
         w = gbuffer.water
         kernel = self._kernels(orthographic)[1]
-        wp.launch(kernel, dim=gbuffer.width * gbuffer.height, device=self.device, inputs=[
+        self._launch_trace(kernel, gbuffer.width * gbuffer.height, [
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, hits, hidden_sum])
 
@@ -550,5 +719,6 @@ class HiddenSurfaces:
 
 __all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",
            "hidden_direct",
-           "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "trace_hidden", "trace_hidden_naive",
+           "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "strided_hidden",
+           "strided_threads", "trace_hidden", "trace_hidden_naive",
            "trace_hidden_rays", "trace_hidden_rays_naive"]
