@@ -222,7 +222,19 @@ def _camera_view_func(camera_ortho: int):
     return camera_view
 
 
-PIXELS_PER_THREAD = 8  #: pixels a thread of the strided trace covers (:func:`_trace_hidden_kernel`, ``strided``)
+PIXELS_PER_THREAD = 4  #: pixels a thread of the strided trace covers (:func:`_trace_hidden_kernel`, ``strided``; section 67)
+
+
+@wp.func
+def strided_todo(missed: wp.array(dtype=wp.int32), t: int, stride: int, pixels: int, flags: int) -> int:
+    """Bit i set where pixel ``t + i·stride`` (< ``pixels``) has one of ``flags`` in ``missed``: a strided thread's
+    PIXELS_PER_THREAD words loaded together (one round trip), before any is tested."""
+    todo = int(0)
+    for i in range(PIXELS_PER_THREAD):
+        q = t + i * stride
+        b = wp.where(q < pixels, missed[wp.min(q, pixels - 1)], 0)
+        todo = todo | wp.where((b & flags) != 0, 1 << i, 0)
+    return todo
 
 
 def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1, strided: bool = False):
@@ -331,11 +343,7 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1, strided: bool = Fa
         work and results are trace_hidden's, bit for bit; what goes is the launch's floor, a round trip a pixel for
         the ~95% of threads that only read a zero (docs/perf_notes.md section 67)."""
         t = wp.tid()
-        todo = int(0)  # bit i: pixel t + i·stride has rays to trace
-        for i in range(PIXELS_PER_THREAD):
-            q = t + i * stride
-            b = missed[wp.min(q, pixels - 1)]
-            todo = todo | wp.where(q < pixels and b != 0, 1 << i, 0)
+        todo = strided_todo(missed, t, stride, pixels, -1)  # bit i: pixel t + i·stride has rays to trace
         i = int(0)
         while todo != 0:
             if (todo & 1) != 0:
@@ -466,11 +474,7 @@ def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1, strided: bool
     ):
         """:func:`trace_hidden_rays` strided as :func:`trace_hidden`'s strided kernel: the same results bit for bit."""
         t = wp.tid()
-        todo = int(0)  # bit i: pixel t + i·stride has rays to trace
-        for i in range(PIXELS_PER_THREAD):
-            q = t + i * stride
-            b = missed[wp.min(q, pixels - 1)]
-            todo = todo | wp.where(q < pixels and b != 0, 1 << i, 0)
+        todo = strided_todo(missed, t, stride, pixels, -1)  # bit i: pixel t + i·stride has rays to trace
         i = int(0)
         while todo != 0:
             if (todo & 1) != 0:
@@ -540,6 +544,36 @@ def hidden_hit(layer: OpaqueLayer, hidden_tri: wp.array(dtype=wp.int32), hidden_
     return y, n, layer.albedo[layer.triangle_material[tri]], uvw[2]
 
 
+@wp.func
+def direct_pixel(
+    p: int,
+    bits: int,
+    shadow_view: ViewParams,
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
+    cone_angle: float,
+    cone_softness: float,
+    layer: OpaqueLayer,
+    hidden_tri: wp.array(dtype=wp.int32),
+    hidden_uvw: wp.array(dtype=wp.vec3),
+    final: wp.array(dtype=wp.vec3),
+):
+    """Pixel ``p`` (its ``missed`` bits ``bits``, a HIDDEN one among them) of :func:`hidden_direct`."""
+    l = wp.vec3(0.0)
+    for k in range(2):
+        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
+            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
+            e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                          cone_softness, y, n)
+            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
+    if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
+        final[p] = final[p] + l
+
+
 @wp.kernel
 def hidden_direct(
     shadow_view: ViewParams,  # one shadow map, as shade.direct_light's arguments
@@ -563,12 +597,62 @@ def hidden_direct(
     bits = missed[p]
     if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) == 0:
         return
+    direct_pixel(p, bits, shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                 cone_softness, layer, hidden_tri, hidden_uvw, final)
+
+
+@wp.kernel
+def hidden_direct_strided(
+    shadow_view: ViewParams,  # one shadow map, as shade.direct_light's arguments
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
+    cone_angle: float,
+    cone_softness: float,
+    layer: OpaqueLayer,
+    missed: wp.array(dtype=wp.int32),  # (H*W,) HIDDEN_* bits (read)
+    hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read)
+    hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read)
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+    pixels: int,  # H*W
+    stride: int,  # the launch's threads, strided_threads(H*W)
+):
+    """:func:`hidden_direct` strided as the trace (:func:`strided_hidden`): the same results bit for bit."""
+    t = wp.tid()
+    todo = strided_todo(missed, t, stride, pixels, HIDDEN_REFRACTED | HIDDEN_REFLECTED)
+    i = int(0)
+    while todo != 0:
+        if (todo & 1) != 0:
+            p = t + i * stride
+            direct_pixel(p, missed[p], shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir,
+                         cone_angle, cone_softness, layer, hidden_tri, hidden_uvw, final)
+        todo = todo >> 1
+        i += 1
+
+
+@wp.func
+def caustic_pixel(
+    p: int,
+    bits: int,
+    views: wp.array(dtype=ViewParams),
+    flux: wp.array(dtype=wp.vec3),
+    map_w: int,
+    map_h: int,
+    gather: int,
+    layer: OpaqueLayer,
+    hidden_tri: wp.array(dtype=wp.int32),
+    hidden_uvw: wp.array(dtype=wp.vec3),
+    final: wp.array(dtype=wp.vec3),
+):
+    """Pixel ``p`` (its ``missed`` bits ``bits``, a HIDDEN one among them) of :func:`hidden_caustic`."""
     l = wp.vec3(0.0)
     for k in range(2):
         if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
             y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
-            e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
-                          cone_softness, y, n)
+            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)  # |n · ray|: either side
             l = l + wp.cw_mul(rho, e) * (INV_PI * w)
     if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
         final[p] = final[p] + l
@@ -593,14 +677,34 @@ def hidden_caustic(
     bits = missed[p]
     if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) == 0:
         return
-    l = wp.vec3(0.0)
-    for k in range(2):
-        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
-            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
-            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)  # |n · ray|: either side
-            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
-    if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
-        final[p] = final[p] + l
+    caustic_pixel(p, bits, views, flux, map_w, map_h, gather, layer, hidden_tri, hidden_uvw, final)
+
+
+@wp.kernel
+def hidden_caustic_strided(
+    views: wp.array(dtype=ViewParams),  # one light's whole views (photons.hidden_flux.HiddenFlux.views, read)
+    flux: wp.array(dtype=wp.vec3),  # their landed-photon map, power [W] per map texel (HiddenFlux.flux, read)
+    map_w: int,  # its texels per view, across
+    map_h: int,  # and down
+    gather: int,  # the lookup's (2 gather + 1)² texels
+    layer: OpaqueLayer,
+    missed: wp.array(dtype=wp.int32),  # (H*W,) HIDDEN_* bits (read)
+    hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read)
+    hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read)
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+    pixels: int,  # H*W
+    stride: int,  # the launch's threads, strided_threads(H*W)
+):
+    """:func:`hidden_caustic` strided as the trace (:func:`strided_hidden`): the same results bit for bit."""
+    t = wp.tid()
+    todo = strided_todo(missed, t, stride, pixels, HIDDEN_REFRACTED | HIDDEN_REFLECTED)
+    i = int(0)
+    while todo != 0:
+        if (todo & 1) != 0:
+            p = t + i * stride
+            caustic_pixel(p, missed[p], views, flux, map_w, map_h, gather, layer, hidden_tri, hidden_uvw, final)
+        todo = todo >> 1
+        i += 1
 
 
 def opaque_layer(scene) -> OpaqueLayer:
@@ -652,8 +756,9 @@ class HiddenSurfaces:
     #: trace with the kernels compiled for the camera's projection (:func:`projected_hidden`) where the caller gives
     #: it; False: the run-time kernels :data:`trace_hidden`, :data:`trace_hidden_rays` (the twins)
     PROJECTED = True
-    #: with :attr:`PROJECTED`, trace with :func:`strided_hidden`'s kernels (a thread per PIXELS_PER_THREAD pixels:
-    #: docs/perf_notes.md section 67); False: :func:`projected_hidden`'s, a thread a pixel (their twins)
+    #: a thread per PIXELS_PER_THREAD pixels (docs/perf_notes.md section 67): with :attr:`PROJECTED` the trace by
+    #: :func:`strided_hidden`'s kernels, and :func:`hidden_direct_strided`, :func:`hidden_caustic_strided`; False: a
+    #: thread a pixel, :func:`projected_hidden`'s kernels, :func:`hidden_direct`, :func:`hidden_caustic` (the twins)
     STRIDED = True
 
     def _kernels(self, orthographic: bool | None) -> tuple:
@@ -705,20 +810,25 @@ class HiddenSurfaces:
         """Add to ``final`` the direct light (:func:`hidden_direct`, once per shadow map of every light) and the
         caustic (:func:`hidden_caustic`, once per light of ``hidden_flux``; None: none) at the hidden hits."""
         n = gbuffer.width * gbuffer.height
+        strided = self.STRIDED and not self.naive
+        direct = hidden_direct_strided if strided else hidden_direct
+        caustic = hidden_caustic_strided if strided else hidden_caustic
+        threads = strided_threads(n) if strided else n
+        extra = [n, threads] if strided else []
         for args in shadow_map_args(lights):
-            wp.launch(hidden_direct, dim=n, device=self.device,
-                      inputs=args + [self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
+            wp.launch(direct, dim=threads, device=self.device,
+                      inputs=args + [self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final] + extra)
         if hidden_flux is None:
             return
         for li in range(len(lights)):
             w, h = hidden_flux.shape[li]
-            wp.launch(hidden_caustic, dim=n, device=self.device, inputs=[
+            wp.launch(caustic, dim=threads, device=self.device, inputs=[
                 hidden_flux.views[li], hidden_flux.flux[li], w, h, hidden_flux.gather, self.layer, self.missed,
-                self.hidden_tri, self.hidden_uvw, final])
+                self.hidden_tri, self.hidden_uvw, final] + extra)
 
 
 __all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",
-           "hidden_direct",
+           "hidden_caustic_strided", "hidden_direct", "hidden_direct_strided",
            "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "strided_hidden",
            "strided_threads", "trace_hidden", "trace_hidden_naive",
            "trace_hidden_rays", "trace_hidden_rays_naive"]
