@@ -222,9 +222,72 @@ def _camera_view_func(camera_ortho: int):
     return camera_view
 
 
-def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
+PIXELS_PER_THREAD = 4  #: pixels a thread of the strided trace covers (:func:`_trace_hidden_kernel`, ``strided``; section 67)
+
+
+@wp.func
+def strided_todo(missed: wp.array(dtype=wp.int32), t: int, stride: int, pixels: int, flags: int) -> int:
+    """Bit i set where pixel ``t + i·stride`` (< ``pixels``) has one of ``flags`` in ``missed``: a strided thread's
+    PIXELS_PER_THREAD words loaded together (one round trip), before any is tested."""
+    todo = int(0)
+    for i in range(PIXELS_PER_THREAD):
+        q = t + i * stride
+        b = wp.where(q < pixels, missed[wp.min(q, pixels - 1)], 0)
+        todo = todo | wp.where((b & flags) != 0, 1 << i, 0)
+    return todo
+
+
+def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1, strided: bool = False):
     CAMERA_ORTHO = int(camera_ortho)
     camera_view = _camera_view_func(CAMERA_ORTHO)
+    hidden_ray = _HIDDEN_RAY[naive]
+
+    @wp.func
+    def trace_pixel(
+        p: int,
+        bits: int,
+        cameras: wp.array(dtype=ViewParams),
+        water_position: wp.array(dtype=wp.vec3),
+        water_normal: wp.array(dtype=wp.vec3),
+        water_ior: wp.array(dtype=wp.float32),
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),
+        position: wp.array(dtype=wp.vec3),
+        normal: wp.array(dtype=wp.vec3),
+        radiance: wp.array(dtype=wp.vec3),
+        sky: SkyMap,
+        occlusion: SkyOcclusion,
+        t_max: float,
+        missed: wp.array(dtype=wp.int32),
+        hidden_tri: wp.array(dtype=wp.int32),
+        hidden_uvw: wp.array(dtype=wp.vec3),
+        final: wp.array(dtype=wp.vec3),
+    ):
+        """Pixel ``p`` (its ``missed`` bits ``bits``, not 0) of :func:`trace_hidden`."""
+        camera = camera_view(cameras)
+        f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
+        x = water_position[p]
+        l = wp.vec3(0.0)
+        for k in range(2):
+            flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
+            if (bits & flag) != 0:
+                d = dr
+                w = f
+                if k == 0:
+                    d = dt
+                    w = (1.0 - f) / (eta * eta)
+                pix, term, code, u, v = hidden_ray(layer, camera, depth, position, normal, sky, occlusion, t_max, x,
+                                                   d, w)
+                if pix >= 0:
+                    l = l + radiance[pix] * w
+                else:
+                    l = l + term
+                    if code != 0:
+                        hidden_tri[2 * p + k] = code
+                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
+                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
+        missed[p] = bits
+        final[p] = final[p] + l
 
     def trace_hidden(
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
@@ -251,6 +314,83 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
         bits = missed[p]
         if bits == 0:
             return
+        trace_pixel(p, bits, cameras, water_position, water_normal, water_ior, layer, depth, position, normal,
+                    radiance, sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, final)
+
+    def trace_hidden_strided(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+        water_normal: wp.array(dtype=wp.vec3),  # (H*W,) (read)
+        water_ior: wp.array(dtype=wp.float32),  # (H*W,) (read)
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
+        position: wp.array(dtype=wp.vec3),  # (H*W,) its world position [m] (read)
+        normal: wp.array(dtype=wp.vec3),  # (H*W,) its unit normal (read)
+        radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
+        sky: SkyMap,  # the dome's radiance where a ray meets nothing (black without a sky)
+        occlusion: SkyOcclusion,  # the sky's irradiance at a hidden hit
+        t_max: float,  # longest ray [m]
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read); HIDDEN_* bits added (write)
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) ±(triangle + 1) of a hidden hit (write where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (u, v, throughput) of a hidden hit (write where HIDDEN)
+        final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+        pixels: int,  # H*W
+        stride: int,  # the launch's threads, ceil(H*W / PIXELS_PER_THREAD)
+    ):
+        """:func:`trace_hidden` with a thread for every PIXELS_PER_THREAD pixels ``t + i·stride``: their ``missed``
+        words read together (one round trip, not one a pixel), then the pixels with bits traced in turn. The pixels'
+        work and results are trace_hidden's, bit for bit; what goes is the launch's floor, a round trip a pixel for
+        the ~95% of threads that only read a zero (docs/perf_notes.md section 67)."""
+        t = wp.tid()
+        todo = strided_todo(missed, t, stride, pixels, -1)  # bit i: pixel t + i·stride has rays to trace
+        i = int(0)
+        while todo != 0:
+            if (todo & 1) != 0:
+                p = t + i * stride
+                trace_pixel(p, missed[p], cameras, water_position, water_normal, water_ior, layer, depth, position,
+                            normal, radiance, sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, final)
+            todo = todo >> 1
+            i += 1
+
+    kernel = trace_hidden_strided if strided else trace_hidden
+    kernel.__qualname__ = kernel.__name__ + ("_orthocam" if CAMERA_ORTHO == 1 else "")
+    if CAMERA_ORTHO < 0:
+        return wp.kernel(kernel, module="unique")
+    return wp.kernel(kernel, module="unique", enable_backward=False)  # no adjoint to compile
+
+
+trace_hidden = _trace_hidden_kernel(False)
+trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
+
+
+def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1, strided: bool = False):
+    CAMERA_ORTHO = int(camera_ortho)
+    camera_view = _camera_view_func(CAMERA_ORTHO)
+    hidden_ray = _HIDDEN_RAY[naive]
+
+    @wp.func
+    def trace_pixel_rays(
+        p: int,
+        bits: int,
+        cameras: wp.array(dtype=ViewParams),
+        water_position: wp.array(dtype=wp.vec3),
+        water_normal: wp.array(dtype=wp.vec3),
+        water_ior: wp.array(dtype=wp.float32),
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),
+        position: wp.array(dtype=wp.vec3),
+        normal: wp.array(dtype=wp.vec3),
+        sky: SkyMap,
+        occlusion: SkyOcclusion,
+        t_max: float,
+        missed: wp.array(dtype=wp.int32),
+        hidden_tri: wp.array(dtype=wp.int32),
+        hidden_uvw: wp.array(dtype=wp.vec3),
+        hits: wp.array(dtype=wp.vec2i),
+        hidden_sum: wp.array(dtype=wp.vec3),
+    ):
+        """Pixel ``p`` (its ``missed`` bits ``bits``, not 0) of :func:`trace_hidden_rays`."""
         camera = camera_view(cameras)
         f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
         x = water_position[p]
@@ -263,10 +403,15 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
                 if k == 0:
                     d = dt
                     w = (1.0 - f) / (eta * eta)
-                pix, term, code, u, v = wp.static(_HIDDEN_RAY[naive])(layer, camera, depth, position, normal, sky,
-                                                                      occlusion, t_max, x, d, w)
+                pix, term, code, u, v = hidden_ray(layer, camera, depth, position, normal, sky, occlusion, t_max, x,
+                                                   d, w)
                 if pix >= 0:
-                    l = l + radiance[pix] * w
+                    h = hits[p]
+                    if k == 0:
+                        h = wp.vec2i(h[0], pix)
+                    else:
+                        h = wp.vec2i(pix, h[1])
+                    hits[p] = h
                 else:
                     l = l + term
                     if code != 0:
@@ -274,21 +419,7 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1):
                         hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
                         bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
         missed[p] = bits
-        final[p] = final[p] + l
-
-    trace_hidden.__qualname__ = "trace_hidden" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
-    if CAMERA_ORTHO < 0:
-        return wp.kernel(trace_hidden, module="unique")
-    return wp.kernel(trace_hidden, module="unique", enable_backward=False)  # no adjoint to compile
-
-
-trace_hidden = _trace_hidden_kernel(False)
-trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque triangle against every ray, no BVH
-
-
-def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1):
-    CAMERA_ORTHO = int(camera_ortho)
-    camera_view = _camera_view_func(CAMERA_ORTHO)
+        hidden_sum[p] = l
 
     def trace_hidden_rays(
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
@@ -317,40 +448,48 @@ def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1):
         bits = missed[p]
         if bits == 0:
             return
-        camera = camera_view(cameras)
-        f, dr, dt, eta = water_rays(camera, water_position[p], water_normal[p], water_ior[p])
-        x = water_position[p]
-        l = wp.vec3(0.0)
-        for k in range(2):
-            flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
-            if (bits & flag) != 0:
-                d = dr
-                w = f
-                if k == 0:
-                    d = dt
-                    w = (1.0 - f) / (eta * eta)
-                pix, term, code, u, v = wp.static(_HIDDEN_RAY[naive])(layer, camera, depth, position, normal, sky,
-                                                                      occlusion, t_max, x, d, w)
-                if pix >= 0:
-                    h = hits[p]
-                    if k == 0:
-                        h = wp.vec2i(h[0], pix)
-                    else:
-                        h = wp.vec2i(pix, h[1])
-                    hits[p] = h
-                else:
-                    l = l + term
-                    if code != 0:
-                        hidden_tri[2 * p + k] = code
-                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
-                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
-        missed[p] = bits
-        hidden_sum[p] = l
+        trace_pixel_rays(p, bits, cameras, water_position, water_normal, water_ior, layer, depth, position, normal,
+                         sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, hits, hidden_sum)
 
-    trace_hidden_rays.__qualname__ = "trace_hidden_rays" + ("_orthocam" if CAMERA_ORTHO == 1 else "")
+    def trace_hidden_rays_strided(
+        cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (read)
+        water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
+        water_position: wp.array(dtype=wp.vec3),  # (H*W,) [m] (read)
+        water_normal: wp.array(dtype=wp.vec3),  # (H*W,) (read)
+        water_ior: wp.array(dtype=wp.float32),  # (H*W,) (read)
+        layer: OpaqueLayer,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) camera opaque depth [m], 0 = none (read)
+        position: wp.array(dtype=wp.vec3),  # (H*W,) its world position [m] (read)
+        normal: wp.array(dtype=wp.vec3),  # (H*W,) its unit normal (read)
+        sky: SkyMap,  # the dome's radiance where a ray meets nothing (black without a sky)
+        occlusion: SkyOcclusion,  # the sky's irradiance at a hidden hit
+        t_max: float,  # longest ray [m]
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read); HIDDEN_* bits added (write)
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) ±(triangle + 1) of a hidden hit (write where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (u, v, throughput) of a hidden hit (write where HIDDEN)
+        hits: wp.array(dtype=wp.vec2i),  # (H*W,) shade.composite_march's; a seen pixel put in a missed ray's slot
+        hidden_sum: wp.array(dtype=wp.vec3),  # (H*W,) the sum of the terms that need no radiance (write where missed)
+        pixels: int,  # H*W
+        stride: int,  # the launch's threads, ceil(H*W / PIXELS_PER_THREAD)
+    ):
+        """:func:`trace_hidden_rays` strided as :func:`trace_hidden`'s strided kernel: the same results bit for bit."""
+        t = wp.tid()
+        todo = strided_todo(missed, t, stride, pixels, -1)  # bit i: pixel t + i·stride has rays to trace
+        i = int(0)
+        while todo != 0:
+            if (todo & 1) != 0:
+                p = t + i * stride
+                trace_pixel_rays(p, missed[p], cameras, water_position, water_normal, water_ior, layer, depth,
+                                 position, normal, sky, occlusion, t_max, missed, hidden_tri, hidden_uvw, hits,
+                                 hidden_sum)
+            todo = todo >> 1
+            i += 1
+
+    kernel = trace_hidden_rays_strided if strided else trace_hidden_rays
+    kernel.__qualname__ = kernel.__name__ + ("_orthocam" if CAMERA_ORTHO == 1 else "")
     if CAMERA_ORTHO < 0:
-        return wp.kernel(trace_hidden_rays, module="unique")
-    return wp.kernel(trace_hidden_rays, module="unique", enable_backward=False)  # no adjoint to compile
+        return wp.kernel(kernel, module="unique")
+    return wp.kernel(kernel, module="unique", enable_backward=False)  # no adjoint to compile
 
 
 trace_hidden_rays = _trace_hidden_rays_kernel(False)
@@ -370,6 +509,27 @@ def projected_hidden(camera_ortho: int) -> tuple:
     return _PROJECTED_HIDDEN[key]
 
 
+_STRIDED_HIDDEN: dict = {}
+
+
+def strided_hidden(camera_ortho: int) -> tuple:
+    """(:func:`trace_hidden`, :func:`trace_hidden_rays`) strided (a thread per :data:`PIXELS_PER_THREAD` pixels, its
+    pixels' ``missed`` words read together) and compiled for the camera's projection as :func:`projected_hidden`'s
+    (-1: read at run time), made on first use, modules of their own. Launched over :func:`strided_threads` threads
+    with ``pixels`` and that count appended to the per-pixel kernel's inputs; each pixel's results those of
+    :func:`projected_hidden`'s kernels bit for bit (``tests/test_shade_strided.py``)."""
+    key = int(camera_ortho)
+    if key not in _STRIDED_HIDDEN:
+        _STRIDED_HIDDEN[key] = (_trace_hidden_kernel(False, key, strided=True),
+                                _trace_hidden_rays_kernel(False, key, strided=True))
+    return _STRIDED_HIDDEN[key]
+
+
+def strided_threads(pixels: int) -> int:
+    """Threads of a strided trace over ``pixels`` pixels: ceil(pixels / PIXELS_PER_THREAD)."""
+    return -(-int(pixels) // PIXELS_PER_THREAD)
+
+
 @wp.func
 def hidden_hit(layer: OpaqueLayer, hidden_tri: wp.array(dtype=wp.int32), hidden_uvw: wp.array(dtype=wp.vec3), p: int,
                k: int):
@@ -382,6 +542,36 @@ def hidden_hit(layer: OpaqueLayer, hidden_tri: wp.array(dtype=wp.int32), hidden_
     if st < 0:
         n = -n
     return y, n, layer.albedo[layer.triangle_material[tri]], uvw[2]
+
+
+@wp.func
+def direct_pixel(
+    p: int,
+    bits: int,
+    shadow_view: ViewParams,
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
+    cone_angle: float,
+    cone_softness: float,
+    layer: OpaqueLayer,
+    hidden_tri: wp.array(dtype=wp.int32),
+    hidden_uvw: wp.array(dtype=wp.vec3),
+    final: wp.array(dtype=wp.vec3),
+):
+    """Pixel ``p`` (its ``missed`` bits ``bits``, a HIDDEN one among them) of :func:`hidden_direct`."""
+    l = wp.vec3(0.0)
+    for k in range(2):
+        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
+            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
+            e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                          cone_softness, y, n)
+            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
+    if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
+        final[p] = final[p] + l
 
 
 @wp.kernel
@@ -407,12 +597,62 @@ def hidden_direct(
     bits = missed[p]
     if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) == 0:
         return
+    direct_pixel(p, bits, shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                 cone_softness, layer, hidden_tri, hidden_uvw, final)
+
+
+@wp.kernel
+def hidden_direct_strided(
+    shadow_view: ViewParams,  # one shadow map, as shade.direct_light's arguments
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
+    cone_angle: float,
+    cone_softness: float,
+    layer: OpaqueLayer,
+    missed: wp.array(dtype=wp.int32),  # (H*W,) HIDDEN_* bits (read)
+    hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read)
+    hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read)
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+    pixels: int,  # H*W
+    stride: int,  # the launch's threads, strided_threads(H*W)
+):
+    """:func:`hidden_direct` strided as the trace (:func:`strided_hidden`): the same results bit for bit."""
+    t = wp.tid()
+    todo = strided_todo(missed, t, stride, pixels, HIDDEN_REFRACTED | HIDDEN_REFLECTED)
+    i = int(0)
+    while todo != 0:
+        if (todo & 1) != 0:
+            p = t + i * stride
+            direct_pixel(p, missed[p], shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir,
+                         cone_angle, cone_softness, layer, hidden_tri, hidden_uvw, final)
+        todo = todo >> 1
+        i += 1
+
+
+@wp.func
+def caustic_pixel(
+    p: int,
+    bits: int,
+    views: wp.array(dtype=ViewParams),
+    flux: wp.array(dtype=wp.vec3),
+    map_w: int,
+    map_h: int,
+    gather: int,
+    layer: OpaqueLayer,
+    hidden_tri: wp.array(dtype=wp.int32),
+    hidden_uvw: wp.array(dtype=wp.vec3),
+    final: wp.array(dtype=wp.vec3),
+):
+    """Pixel ``p`` (its ``missed`` bits ``bits``, a HIDDEN one among them) of :func:`hidden_caustic`."""
     l = wp.vec3(0.0)
     for k in range(2):
         if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
             y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
-            e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
-                          cone_softness, y, n)
+            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)  # |n · ray|: either side
             l = l + wp.cw_mul(rho, e) * (INV_PI * w)
     if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
         final[p] = final[p] + l
@@ -437,14 +677,34 @@ def hidden_caustic(
     bits = missed[p]
     if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) == 0:
         return
-    l = wp.vec3(0.0)
-    for k in range(2):
-        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
-            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
-            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)  # |n · ray|: either side
-            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
-    if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
-        final[p] = final[p] + l
+    caustic_pixel(p, bits, views, flux, map_w, map_h, gather, layer, hidden_tri, hidden_uvw, final)
+
+
+@wp.kernel
+def hidden_caustic_strided(
+    views: wp.array(dtype=ViewParams),  # one light's whole views (photons.hidden_flux.HiddenFlux.views, read)
+    flux: wp.array(dtype=wp.vec3),  # their landed-photon map, power [W] per map texel (HiddenFlux.flux, read)
+    map_w: int,  # its texels per view, across
+    map_h: int,  # and down
+    gather: int,  # the lookup's (2 gather + 1)² texels
+    layer: OpaqueLayer,
+    missed: wp.array(dtype=wp.int32),  # (H*W,) HIDDEN_* bits (read)
+    hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read)
+    hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read)
+    final: wp.array(dtype=wp.vec3),  # (H*W,) HDR radiance [W/(m² sr)] (read, add)
+    pixels: int,  # H*W
+    stride: int,  # the launch's threads, strided_threads(H*W)
+):
+    """:func:`hidden_caustic` strided as the trace (:func:`strided_hidden`): the same results bit for bit."""
+    t = wp.tid()
+    todo = strided_todo(missed, t, stride, pixels, HIDDEN_REFRACTED | HIDDEN_REFLECTED)
+    i = int(0)
+    while todo != 0:
+        if (todo & 1) != 0:
+            p = t + i * stride
+            caustic_pixel(p, missed[p], views, flux, map_w, map_h, gather, layer, hidden_tri, hidden_uvw, final)
+        todo = todo >> 1
+        i += 1
 
 
 def opaque_layer(scene) -> OpaqueLayer:
@@ -496,6 +756,10 @@ class HiddenSurfaces:
     #: trace with the kernels compiled for the camera's projection (:func:`projected_hidden`) where the caller gives
     #: it; False: the run-time kernels :data:`trace_hidden`, :data:`trace_hidden_rays` (the twins)
     PROJECTED = True
+    #: a thread per PIXELS_PER_THREAD pixels (docs/perf_notes.md section 67): with :attr:`PROJECTED` the trace by
+    #: :func:`strided_hidden`'s kernels, and :func:`hidden_direct_strided`, :func:`hidden_caustic_strided`; False: a
+    #: thread a pixel, :func:`projected_hidden`'s kernels, :func:`hidden_direct`, :func:`hidden_caustic` (the twins)
+    STRIDED = True
 
     def _kernels(self, orthographic: bool | None) -> tuple:
         """(trace_hidden, trace_hidden_rays) to launch for a camera of that projection (None: read at run time)."""
@@ -503,7 +767,17 @@ class HiddenSurfaces:
             return trace_hidden_naive, trace_hidden_rays_naive
         if orthographic is None or not self.PROJECTED:
             return trace_hidden, trace_hidden_rays
+        if self.STRIDED:
+            return strided_hidden(int(bool(orthographic)))
         return projected_hidden(int(bool(orthographic)))
+
+    def _launch_trace(self, kernel, n: int, inputs: list) -> None:
+        """``kernel`` over ``n`` pixels: a thread a pixel, or a strided kernel's :func:`strided_threads`."""
+        if any(kernel in pair for pair in _STRIDED_HIDDEN.values()):
+            threads = strided_threads(n)
+            wp.launch(kernel, dim=threads, device=self.device, inputs=inputs + [n, threads])
+        else:
+            wp.launch(kernel, dim=n, device=self.device, inputs=inputs)
 
     def render(self, gbuffer, lights, cameras: wp.array, radiance: wp.array, sky_map: SkyMap, t_max: float,
                final: wp.array, hidden_flux=None, orthographic: bool | None = None) -> None:
@@ -515,7 +789,7 @@ class HiddenSurfaces:
         w = gbuffer.water
         n = gbuffer.width * gbuffer.height
         kernel = self._kernels(orthographic)[0]
-        wp.launch(kernel, dim=n, device=self.device, inputs=[
+        self._launch_trace(kernel, n, [
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             radiance, sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, final])
         self.shade_hits(gbuffer, lights, final, hidden_flux)
@@ -528,7 +802,7 @@ class HiddenSurfaces:
         ``orthographic``: as :meth:`render`'s."""
         w = gbuffer.water
         kernel = self._kernels(orthographic)[1]
-        wp.launch(kernel, dim=gbuffer.width * gbuffer.height, device=self.device, inputs=[
+        self._launch_trace(kernel, gbuffer.width * gbuffer.height, [
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, hits, hidden_sum])
 
@@ -536,19 +810,25 @@ class HiddenSurfaces:
         """Add to ``final`` the direct light (:func:`hidden_direct`, once per shadow map of every light) and the
         caustic (:func:`hidden_caustic`, once per light of ``hidden_flux``; None: none) at the hidden hits."""
         n = gbuffer.width * gbuffer.height
+        strided = self.STRIDED and not self.naive
+        direct = hidden_direct_strided if strided else hidden_direct
+        caustic = hidden_caustic_strided if strided else hidden_caustic
+        threads = strided_threads(n) if strided else n
+        extra = [n, threads] if strided else []
         for args in shadow_map_args(lights):
-            wp.launch(hidden_direct, dim=n, device=self.device,
-                      inputs=args + [self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final])
+            wp.launch(direct, dim=threads, device=self.device,
+                      inputs=args + [self.layer, self.missed, self.hidden_tri, self.hidden_uvw, final] + extra)
         if hidden_flux is None:
             return
         for li in range(len(lights)):
             w, h = hidden_flux.shape[li]
-            wp.launch(hidden_caustic, dim=n, device=self.device, inputs=[
+            wp.launch(caustic, dim=threads, device=self.device, inputs=[
                 hidden_flux.views[li], hidden_flux.flux[li], w, h, hidden_flux.gather, self.layer, self.missed,
-                self.hidden_tri, self.hidden_uvw, final])
+                self.hidden_tri, self.hidden_uvw, final] + extra)
 
 
 __all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",
-           "hidden_direct",
-           "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "trace_hidden", "trace_hidden_naive",
+           "hidden_caustic_strided", "hidden_direct", "hidden_direct_strided",
+           "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "strided_hidden",
+           "strided_threads", "trace_hidden", "trace_hidden_naive",
            "trace_hidden_rays", "trace_hidden_rays_naive"]

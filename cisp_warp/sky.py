@@ -33,7 +33,7 @@ import numpy as np
 import warp as wp
 
 from .raster import kernels as RK
-from .raster.views import ViewParams, _ortho_fit, world_project
+from .raster.views import ViewParams, _ortho_fit, fixed_projection, world_project
 from .scene.model import LAYER_OPAQUE, Sky
 
 PI = wp.constant(math.pi)
@@ -168,6 +168,9 @@ def sky_inputs_changed(
         changed[0] = 0
 
 
+occlusion_view = fixed_projection(1)  #: an occlusion map's view: orthographic (``_ortho_fit``), a compile-time constant
+
+
 @wp.func
 def sky_irradiance_at(
     x: wp.vec3,  # world point [m]
@@ -187,7 +190,8 @@ def sky_irradiance_at(
     for k in range(directions.shape[0]):
         w = wp.dot(n, directions[k]) * luminance[k]
         if w > 0.0:
-            num += w * map_visibility(views[k], map_depth, k * map_texels, x, n, directions[k])
+            # the maps' projection folded (no perspective division a map: docs/perf_notes.md section 67)
+            num += w * map_visibility(occlusion_view(views[k]), map_depth, k * map_texels, x, n, directions[k])
             den += w
     a = float(1.0)
     if den > 0.0:

@@ -34,6 +34,7 @@ def _arrays(inputs) -> list[int]:
 @pytest.mark.parametrize("orthographic", [False, True])
 def test_the_composite_compiled_per_projection_equals_the_run_time_one(orthographic, monkeypatch):
     proj = int(orthographic)
+    monkeypatch.setattr(shade_hidden.HiddenSurfaces, "STRIDED", False)  # the strided trace: test_shade_strided.py
     twin_of, other_of = {}, {}
     for o in (0, 1):
         fast = shade.projected_composite(o) + shade_hidden.projected_hidden(o)
