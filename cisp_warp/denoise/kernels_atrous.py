@@ -15,6 +15,9 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
    of ``LATTICE_STEP`` (8) or more, given the buffers (SVGF), it writes its terms and copies of the input and
    the guide in the step's sub-lattice-major order (:func:`lattice_index`), so that the level's tile rows are
    dense: otherwise each of its 16-byte loads takes its own sector at those steps.
+   SVGF's first level (ungated, step 1, packed input, σ_n = 128) has no guide pass (section 68): at step 1 the 3x3
+   neighbourhood of a guide point is its neighbourhood in the level's own tile, so that level (compiled with
+   ``self_guide``) reads σ_z ‖∇z‖ from ``slope`` and blurs its own variance from an apron of 5 (step 1b below).
 
 :func:`atrous_level` then gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one
 sub-lattice, in shared memory (Warp shared tiles):
@@ -26,6 +29,8 @@ sub-lattice, in shared memory (Warp shared tiles):
    tile has any pixel to filter, and a second one whether the tile or its apron of 2 (the taps) has any signal
    (colour != 0 or Var > 0): without both, 2-4 are skipped and each pixel keeps its input, which is then exactly
    the filter's output (0, or the unfiltered pixel where every gate is closed);
+   1b. (``self_guide`` only, where 2-4 run) g3x3(Var) / 2 of every guide point from the Var of the region and its
+   outer ring (read in step 1 into the pair table, which 2 then overwrites), and a barrier;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
    their taps once for both; offsets, kernel weights and distances known to the compiler) and kept in shared
@@ -64,6 +69,7 @@ weights, sums and taps: SVGF's pool levels 1.075 → 0.76 ms. (Sparing them thei
 flags of the previous level, measured slower: section 50.) Section 61: σ_n = 128 (the default) as seven squarings,
 ~26 instructions a pair weight and no branch: 0.67 → 0.64 (Cornell), 0.72 → 0.70 (pool) on section 38's G-buffers;
 with the pair phase skipped altogether the levels still take 0.47 / 0.57 ms (what remains is that fixed part).
+Section 68: SVGF's step-1 level makes its own guide terms, one guide pass (~0.03 ms) fewer.
 """
 
 from __future__ import annotations
