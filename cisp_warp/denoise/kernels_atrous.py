@@ -11,10 +11,11 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
    per-pixel terms every pair weight takes (σ_z ‖∇z‖, the 3x3 Gaussian g3x3(Var) over pixels with a surface,
    paper eq. 5, the luminance, and on gated levels the footprint R still needed). Its 3x3 neighbourhoods lie
    on other sub-lattices than the pixel's, so the level itself would read them nine scattered loads a guide;
-   here they are read once, neighbours in the same cache lines. (It also packs an unpacked input.) At a step
-   of ``LATTICE_STEP`` (8) or more, given the buffers (SVGF), it writes its terms and copies of the input and
-   the guide in the step's sub-lattice-major order (:func:`lattice_index`), so that the level's tile rows are
-   dense: otherwise each of its 16-byte loads takes its own sector at those steps.
+   here they are read once, neighbours in the same cache lines (ungated from a packed input, only their Var: one
+   4-byte load each). (It also packs an unpacked input.) At a step of ``LATTICE_STEP`` (8) or more, given the
+   buffers (SVGF), it writes its terms and copies of the input and the guide in the step's sub-lattice-major order
+   (:func:`lattice_index`), so that the level's tile rows are dense: otherwise each of its 16-byte loads takes its
+   own sector at those steps.
    SVGF's first level (ungated, step 1, packed input, σ_n = 128) has no guide pass (section 68): at step 1 the 3x3
    neighbourhood of a guide point is its neighbourhood in the level's own tile, so that level (compiled with
    ``self_guide``) reads σ_z ‖∇z‖ from ``slope`` and blurs its own variance from an apron of 5 (step 1b below).
@@ -69,7 +70,8 @@ weights, sums and taps: SVGF's pool levels 1.075 → 0.76 ms. (Sparing them thei
 flags of the previous level, measured slower: section 50.) Section 61: σ_n = 128 (the default) as seven squarings,
 ~26 instructions a pair weight and no branch: 0.67 → 0.64 (Cornell), 0.72 → 0.70 (pool) on section 38's G-buffers;
 with the pair phase skipped altogether the levels still take 0.47 / 0.57 ms (what remains is that fixed part).
-Section 68: SVGF's step-1 level makes its own guide terms, one guide pass (~0.03 ms) fewer.
+Section 68: SVGF's step-1 level makes its own guide terms, one guide pass (~0.03 ms) fewer; the ungated guide
+passes read their neighbours' Var alone.
 """
 
 from __future__ import annotations
