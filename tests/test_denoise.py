@@ -795,12 +795,15 @@ def test_caustic_photon_m2_follows_a_caustic_the_differences_take_for_noise(devi
 @pytest.mark.parametrize("step,conserve,gate,lattice,sigma_normal", [
     (1, True, None, False, 32.0), (4, False, None, False, 32.0), (16, True, None, False, 32.0),
     (2, True, 0.1, False, 32.0), (8, True, None, True, 32.0), (16, False, None, True, 32.0),
-    (1, True, None, False, 128.0), (2, True, 0.1, False, 128.0), (8, False, None, True, 128.0)])
+    (1, True, None, False, 128.0), (2, True, 0.1, False, 128.0), (8, False, None, True, 128.0),
+    (1, True, None, True, 128.0), (1, False, None, True, 128.0)])
 def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, lattice, sigma_normal):
     """The tiled level (:func:`launch_atrous`, SVGF's) over several blocks: tiles of each sub-lattice (step² of them), aprons that cross tiles and
     sub-lattices, a partial last tile and image sizes no multiple of the step, against the float64 twin; with
     ``lattice`` the level reads its packed input, guide and guide-pass terms in sub-lattice-major order. σ_n = 128
-    (both denoisers' default) runs the level compiled for it (its normal term seven squarings, no logarithm)."""
+    (both denoisers' default) runs the level compiled for it (its normal term seven squarings, no logarithm); at step 1
+    from a packed input (``lattice`` at step 1: packed first, no sub-lattice order) that is SVGF's first level, which
+    blurs its own variance and has no guide pass."""
     rng = np.random.default_rng(23 + step)
     w, h = 45, 38
     g = plane(w, h)
@@ -823,7 +826,7 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, latti
     if lattice:  # pack first (a step-1 guide pass), then the level from the packed input
         from cisp_warp.denoise.kernels_atrous import lattice_size
         size = lattice_size(w, h, step)
-        assert size > w * h
+        assert size > w * h or step == 1
         packed = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(2)]
         launch_atrous(None, None, slope, w, h, 1, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
                       scratch[0], unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=packed,
@@ -831,7 +834,8 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, latti
         aux, cv_lat, guide_lat = (wp.full(size, wp.vec4(7.0), dtype=wp.vec4, device=device) for _ in range(3))
         launch_atrous(packed[0], packed[1], slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance,
                       conserve, aux, noise_target=gate, color_out=c_out, variance_out=v_out, lattice=(cv_lat, guide_lat))
-        assert not np.allclose(cv_lat.numpy(), 7.0)  # the lattice buffers were used
+        # the lattice buffers were used (step >= 8); at step 1 the level wrote its own guide terms, aux not at all
+        assert np.allclose(cv_lat.numpy(), 7.0) == (step == 1) and np.allclose(aux.numpy(), 7.0) == (step == 1)
     else:
         launch_atrous(None, None, slope, w, h, step, s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve,
                       scratch[0], noise_target=gate, color_out=c_out, variance_out=v_out,
@@ -971,6 +975,7 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False, 32.0)
     test_atrous_level_tiles_match_naive_twin("cpu", 8, True, None, True, 32.0)
     test_atrous_level_tiles_match_naive_twin("cpu", 2, True, None, False, 128.0)
+    test_atrous_level_tiles_match_naive_twin("cpu", 1, True, None, True, 128.0)  # the step-1 level's own guide terms
     test_atrous_level_signal_in_the_apron_only_is_filtered("cpu", None)  # the two barriers' flags across lanes
     test_atrous_level_signal_free_block_skips_its_weights("cpu")
     test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin("cpu", 0, None)

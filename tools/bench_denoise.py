@@ -121,13 +121,13 @@ def time_kernels(bench: Bench, frames: int, warmup: int) -> tuple[dict, dict]:
             wp.timing_begin(cuda_filter=wp.TIMING_KERNEL)
             bench.step()
             per = defaultdict(float)
-            seen = defaultdict(int)
+            levels = 0  # atrous_level* launches so far; a level's guide pass (if any) comes just before it
             for r in wp.timing_end():
                 name = r.name.replace("forward kernel ", "")
-                seen[name] += 1
                 per[name] += r.elapsed
-                if name.startswith(("atrous_level", "atrous_guide")):  # one of each a level: each level's share too
-                    per[f"  level {seen[name] - 1}"] += r.elapsed
+                if name.startswith(("atrous_level", "atrous_guide")):  # each level's share too
+                    per[f"  level {levels}"] += r.elapsed
+                    levels += name.startswith("atrous_level")
             per["total"] = sum(v for k, v in per.items() if not k.startswith("  level"))
         else:
             t0 = time.perf_counter()

@@ -11,10 +11,14 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
    per-pixel terms every pair weight takes (σ_z ‖∇z‖, the 3x3 Gaussian g3x3(Var) over pixels with a surface,
    paper eq. 5, the luminance, and on gated levels the footprint R still needed). Its 3x3 neighbourhoods lie
    on other sub-lattices than the pixel's, so the level itself would read them nine scattered loads a guide;
-   here they are read once, neighbours in the same cache lines. (It also packs an unpacked input.) At a step
-   of ``LATTICE_STEP`` (8) or more, given the buffers (SVGF), it writes its terms and copies of the input and
-   the guide in the step's sub-lattice-major order (:func:`lattice_index`), so that the level's tile rows are
-   dense: otherwise each of its 16-byte loads takes its own sector at those steps.
+   here they are read once, neighbours in the same cache lines (ungated from a packed input, only their Var: one
+   4-byte load each). (It also packs an unpacked input.) At a step of ``LATTICE_STEP`` (8) or more, given the
+   buffers (SVGF), it writes its terms and copies of the input and the guide in the step's sub-lattice-major order
+   (:func:`lattice_index`), so that the level's tile rows are dense: otherwise each of its 16-byte loads takes its
+   own sector at those steps.
+   SVGF's first level (ungated, step 1, packed input, σ_n = 128) has no guide pass (section 68): at step 1 the 3x3
+   neighbourhood of a guide point is its neighbourhood in the level's own tile, so that level (compiled with
+   ``self_guide``) reads σ_z ‖∇z‖ from ``slope`` and blurs its own variance from an apron of 5 (step 1b below).
 
 :func:`atrous_level` then gives a block of ``BLOCK_THREADS`` threads a ``TILE_Y`` x ``TILE_X`` tile of one
 sub-lattice, in shared memory (Warp shared tiles):
@@ -26,6 +30,8 @@ sub-lattice, in shared memory (Warp shared tiles):
    tile has any pixel to filter, and a second one whether the tile or its apron of 2 (the taps) has any signal
    (colour != 0 or Var > 0): without both, 2-4 are skipped and each pixel keeps its input, which is then exactly
    the filter's output (0, or the unfiltered pixel where every gate is closed);
+   1b. (``self_guide`` only, where 2-4 run) g3x3(Var) / 2 of every guide point from the Var of the region and its
+   outer ring (read in step 1 into the pair table, which 2 then overwrites), and a barrier;
 2. every w_pq = w_qp of the tile plus an apron of 2, evaluated once per unordered pair (12 forward offsets
    per pixel, a thread taking two neighbours of a row with their guides in registers and reading each q of
    their taps once for both; offsets, kernel weights and distances known to the compiler) and kept in shared
@@ -64,6 +70,8 @@ weights, sums and taps: SVGF's pool levels 1.075 → 0.76 ms. (Sparing them thei
 flags of the previous level, measured slower: section 50.) Section 61: σ_n = 128 (the default) as seven squarings,
 ~26 instructions a pair weight and no branch: 0.67 → 0.64 (Cornell), 0.72 → 0.70 (pool) on section 38's G-buffers;
 with the pair phase skipped altogether the levels still take 0.47 / 0.57 ms (what remains is that fixed part).
+Section 68: SVGF's step-1 level makes its own guide terms, one guide pass (~0.03 ms) fewer; the ungated guide
+passes read their neighbours' Var alone.
 """
 
 from __future__ import annotations
@@ -134,6 +142,15 @@ _PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
 assert GUIDE_X % RUN == 0
 _RUNS_X = wp.constant(GUIDE_X // RUN)
 _RUN_N = wp.constant(PAIR_ROWS * GUIDE_X // RUN)
+#: the step-1 level that blurs its own variance (:func:`make_atrous_level`'s ``self_guide``): the guide region and an
+#: apron of 1 more, ``RING_Y`` x ``RING_X`` (g3x3(Var) of every guide point), its Var kept in the pair table's
+#: first entries until the pair weights overwrite them; the ring outside the guide region has ``RING_N`` points
+RING_Y = GUIDE_Y + 2
+RING_X = GUIDE_X + 2
+RING_N = 2 * RING_X + 2 * GUIDE_Y
+assert RING_N <= (GUIDE_Y * GUIDE_X + 1) // 2 and RING_Y * RING_X <= FORWARD_TAPS * PAIR_ROWS * GUIDE_PITCH
+_RING_X = wp.constant(RING_X)
+_RING_N = wp.constant(RING_N)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: σ_n = 2^NORMAL_SQUARINGS (128, both denoisers' default) has a level of its own whose normal term is that many
@@ -495,6 +512,18 @@ def load_aux(aux: wp.array(dtype=wp.vec4), p: int, cv: wp.vec4, luminance_scale:
     return wp.vec4(a[0], a[1], luminance(wp.vec3(cv[0], cv[1], cv[2])) * luminance_scale, 0.0)
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __ldg(reinterpret_cast<const float*>(a.data) + 4 * p + 3);
+#else
+return reinterpret_cast<const float*>(a.data)[4 * p + 3];
+#endif
+""")
+def load_variance(a: wp.array(dtype=wp.vec4), p: int) -> float:
+    """The fourth component (Var) of entry ``p`` of a packed (colour, Var) buffer: one 4-byte load on CUDA."""
+    ...
+
+
 @wp.func
 def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: wp.array(dtype=wp.vec3),
                 variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
@@ -515,13 +544,18 @@ def gaussian_sums(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
                   width: int, height: int) -> wp.vec3:
     """(Σ k, Σ k Var, Σ k l) of the 3x3 Gaussian (1/4, 1/8, 1/16) at pixel (x, y) over the pixels with a surface.
     Neighbours are clamped into the image and read unconditionally, masked after: the nine loads are in flight
-    together (a load behind a branch on another's value waits for it)."""
+    together (a load behind a branch on another's value waits for it). ``packed`` = 2: a packed input whose
+    luminance is not needed (Σ k l = 0): only each neighbour's Var is read, a 4-byte load instead of 16."""
     sums = wp.vec3(0.0)
     for dy in range(-1, 2):
         for dx in range(-1, 2):
             qx = wp.clamp(x + dx, 0, width - 1)
             qy = wp.clamp(y + dy, 0, height - 1)
-            cv_q = read_signal(packed, color_variance, color_in, variance_in, depth, qy * width + qx)
+            cv_q = wp.vec4(0.0)
+            if packed == 2:  # a constant where it is called: no branch
+                cv_q = wp.vec4(0.0, 0.0, 0.0, load_variance(color_variance, qy * width + qx))
+            else:
+                cv_q = read_signal(packed, color_variance, color_in, variance_in, depth, qy * width + qx)
             inside = qx == x + dx and qy == y + dy and cv_q[3] >= 0.0
             kq = wp.where(inside, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
             sums += kq * wp.vec3(1.0, wp.max(cv_q[3], 0.0), luminance(wp.vec3(cv_q[0], cv_q[1], cv_q[2])))
@@ -536,7 +570,9 @@ def blur_variance(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
     pixels with a surface (paper eq. 5) and, ``gated``, the footprint R of the same Gaussian's variance and mean
     luminance (:func:`footprint_radius`, relative ``noise_target``); R = ``UNGATED_RADIUS`` otherwise."""
     sums = wp.vec3(0.0)
-    if packed != 0:  # one branch outside the unrolled loop, not one per neighbour
+    if packed != 0 and gated == 0:  # one branch outside the unrolled loop, not one per neighbour
+        sums = gaussian_sums(2, color_variance, color_in, variance_in, depth, x, y, width, height)  # Var alone
+    elif packed != 0:
         sums = gaussian_sums(1, color_variance, color_in, variance_in, depth, x, y, width, height)
     else:
         sums = gaussian_sums(0, color_variance, color_in, variance_in, depth, x, y, width, height)
@@ -658,15 +694,47 @@ def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec
     return bits
 
 
-def make_atrous_level(gated: int, squarings: int = 0):
+@wp.func
+def blur_own_variance(guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], ring: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS],
+                      lane: int, threads: int):
+    """Step 1b of the step-1 level that blurs its own variance (cooperative): g3x3(Var) / 2 of every guide point with
+    a surface into ``guide_d``'s second term, from ``ring`` (shared, the Var of the guide region and an apron of 1,
+    ``RING_Y`` x ``RING_X`` row-major; ``NO_SURFACE`` outside the image). At step 1 a point's 3x3 neighbourhood is
+    its neighbourhood in the tile: the same sums in the same order as :func:`gaussian_sums` (a neighbour outside the
+    image or without a surface weighs 0), so the same value as :func:`atrous_guide`'s."""
+    k = lane
+    while k < _GUIDE_REAL:
+        i = k // _GUIDE_X
+        j = k - i * _GUIDE_X
+        c = (i + 1) * _RING_X + j + 1
+        if read_pair(ring, c) >= 0.0:
+            sums = wp.vec3(0.0)
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    v = read_pair(ring, c + dy * _RING_X + dx)
+                    kq = wp.where(v >= 0.0, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
+                    sums += kq * wp.vec3(1.0, wp.max(v, 0.0), 0.0)
+            u = i * _PITCH + j + 2
+            gd = read_guide(guide_d, u)
+            write_guide(guide_d, u, wp.vec4(gd[0], 0.5 * (sums[1] / sums[0]), gd[2], gd[3]))
+        k += threads
+
+
+def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
     """:func:`atrous_level` compiled for one value of ``gated`` and of ``squarings`` (closure constants, folded by
     the compiler): the ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one
     (the caustics denoiser) is the same code with every gate evaluated. Same arithmetic either way (an open gate
     multiplies by 1). ``squarings`` = k > 0: the form for σ_n = 2^k, whose normal term is k multiplications
-    (:func:`pair_weight`); 0: any σ_n, through a logarithm."""
+    (:func:`pair_weight`); 0: any σ_n, through a logarithm. ``self_guide`` (ungated, step 1, a packed input not
+    in sub-lattice-major order): the level needs no guide pass; it reads σ_z ‖∇z‖ from ``slope`` and blurs its own
+    variance (:func:`blur_own_variance`) from an apron of 5 instead of 4 (the Var of its outer ring, ``RING_N``
+    loads a block more), one barrier more."""
     GATED = int(gated)
     SQUARINGS = int(squarings)
-    name = ("atrous_level_gated" if GATED else "atrous_level") + (f"_pow{SQUARINGS}" if SQUARINGS else "")
+    SELF_GUIDE = int(self_guide)
+    assert not (SELF_GUIDE and GATED)
+    name = (("atrous_level_gated" if GATED else "atrous_level") + (f"_pow{SQUARINGS}" if SQUARINGS else "")
+            + ("_self" if SELF_GUIDE else ""))
 
     @wp.kernel(name=name,
                launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
@@ -693,6 +761,7 @@ def make_atrous_level(gated: int, squarings: int = 0):
         lattice: int,
         guide_parity: wp.array(dtype=wp.int32),
         guide_row: int,
+        slope: wp.array(dtype=wp.float32),
     ):
         """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
         ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -710,6 +779,8 @@ def make_atrous_level(gated: int, squarings: int = 0):
         inputs are in the step's sub-lattice-major order (:func:`atrous_guide`'s ``lattice``), the outputs not.
         ``guide_row`` != 0: ``guide`` holds rows of that many entries and the level reads row ``1 -
         guide_parity[0]`` (SVGF's guide history, whose row this frame's :func:`.kernels_svgf.reproject` wrote).
+        ``slope`` (H*W float32 [m/pixel], ‖∇z‖): read only by the level compiled with ``self_guide`` (step 1,
+        ``lattice`` 0), which does not read ``aux`` but makes its terms itself.
         """
         block, lane = wp.tid()
         threads = wp.block_dim()
@@ -729,6 +800,8 @@ def make_atrous_level(gated: int, squarings: int = 0):
         guide_s = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (n, z)
         guide_d = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (σ_z ‖∇z‖, g3x3 Var / 2, l / σ_l, R)
         signal = wp.tile_empty(shape=_GUIDE_N, dtype=wp.vec4, storage="shared")  # (colour, Var)
+        # the forward pair weights of 2; self_guide: first the Var of the guide region and its apron of 1 (RING_Y x RING_X)
+        pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
         # TO_FILTER: this thread read a pixel of the output tile with a surface and some gate open; HAS_SIGNAL: a
         # point of the tile or its apron of 2 with a surface and a signal (a colour or a variance != 0)
         found = int(0)
@@ -752,8 +825,27 @@ def make_atrous_level(gated: int, squarings: int = 0):
             cv1 = load_vec4(color_variance, p1)
             gs0 = load_vec4(guide, guide_offset + p0)
             gs1 = load_vec4(guide, guide_offset + p1)
-            ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
-            ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
+            if wp.static(SELF_GUIDE):  # the guide pass's terms but g3x3(Var) (1b), which needs the ring's Var
+                sz0 = slope[p0]
+                sz1 = slope[p1]
+                # ring point r0 (< RING_N): the apron-5 rows 0 and RING_Y - 1, then its columns 0 and RING_X - 1
+                i5 = wp.where(r0 < _RING_X, 0, wp.where(r0 < 2 * _RING_X, RING_Y - 1, r0 - 2 * _RING_X + 1 - wp.where(
+                    r0 < 2 * _RING_X + GUIDE_Y, 0, GUIDE_Y)))
+                j5 = wp.where(r0 < 2 * _RING_X, r0 % _RING_X, wp.where(r0 < 2 * _RING_X + GUIDE_Y, 0, RING_X - 1))
+                y5 = row0 + step * (sy0 - 1 + i5)
+                x5 = col0 + step * (sx0 - 1 + j5)
+                in5 = r0 < _RING_N and y5 >= 0 and y5 < height and x5 >= 0 and x5 < width
+                cv5 = load_vec4(color_variance, wp.where(in5, y5 * width + x5, 0))
+                ax0 = wp.vec4(depth_scale * sz0, 0.0, luminance(wp.vec3(cv0[0], cv0[1], cv0[2])) * luminance_scale, 0.0)
+                ax1 = wp.vec4(depth_scale * sz1, 0.0, luminance(wp.vec3(cv1[0], cv1[1], cv1[2])) * luminance_scale, 0.0)
+                if r0 < _RING_N:
+                    write_pair(pair, i5 * _RING_X + j5, wp.where(in5, cv5[3], NO_SURFACE))
+                write_pair(pair, (i0 + 1) * _RING_X + j0 + 1, wp.where(in0, cv0[3], NO_SURFACE))
+                if r1 < _GUIDE_REAL:
+                    write_pair(pair, (i1 + 1) * _RING_X + j1 + 1, wp.where(in1, cv1[3], NO_SURFACE))
+            else:
+                ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
+                ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
             found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
             if r1 < _GUIDE_REAL:
                 found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
@@ -763,7 +855,6 @@ def make_atrous_level(gated: int, squarings: int = 0):
             store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
                         wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED)
 
-        pair = wp.tile_empty(shape=_PAIR_N, dtype=wp.float32, storage="shared")
         inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
         # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
@@ -775,6 +866,10 @@ def make_atrous_level(gated: int, squarings: int = 0):
         to_filter = block_sync_or(flag, found & TO_FILTER)
         any_signal = block_sync_or(flag, found & HAS_SIGNAL)
         run = to_filter != 0 and any_signal != 0
+        if wp.static(SELF_GUIDE):
+            if run:  # 1b, g3x3(Var) / 2 from the ring (the pair table's first entries, overwritten by 2)
+                blur_own_variance(guide_d, pair, lane, threads)
+                block_sync()
         if run:
             fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
                          normal_scale, GATED, SQUARINGS)
@@ -835,6 +930,8 @@ def make_atrous_level(gated: int, squarings: int = 0):
 #: the level by (gating, squarings): gating 0 (SVGF) and 1 (the caustics denoiser's gated levels); squarings
 #: NORMAL_SQUARINGS for σ_n = 2^NORMAL_SQUARINGS (both denoisers' default), 0 for any other σ_n
 ATROUS_LEVEL = {(g, k): make_atrous_level(g, k) for g in (0, 1) for k in (0, NORMAL_SQUARINGS)}
+#: SVGF's first level (ungated, step 1, packed input, σ_n = 2^NORMAL_SQUARINGS) without a guide pass
+ATROUS_LEVEL_SELF = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1)
 
 
 def normal_squarings(sigma_normal: float) -> int:
@@ -891,7 +988,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   lattice: tuple | None = None, unpack_from: wp.array | None = None,
                   lattice_guide_ready: bool = False, flip: wp.array | None = None,
                   guide_parity: wp.array | None = None) -> bool:
-    """One level: :func:`atrous_guide`, then :func:`atrous_level`.
+    """One level: :func:`atrous_guide`, then :func:`atrous_level` (SVGF's first level, ungated at step 1 from a
+    packed input with σ_n = 128, without the guide pass: the level compiled with ``self_guide``).
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
     (color_in, variance_in, depth, normal) and ``pack_into`` = (color_variance, guide) (H*W vec4 scratch each,
@@ -954,17 +1052,23 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         cv_lattice, guide_lattice = lattice
     else:
         cv_lattice = guide_lattice = spare["vec4"]
-    wp.launch(atrous_guide, dim=height * width, device=d,
-              inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
-                      height, int(gated), float(noise_target) if gated else 0.0, depth_scale, luminance_scale, aux,
-                      int(unpacked is not None), cv_out, guide_out, int(step) if use_lattice else 0, guide, cv_lattice,
-                      guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row])
+    # SVGF's first level (ungated, step 1, packed, σ_n = 128) makes its guide-pass terms itself: no guide pass
+    self_guide = (not gated and step == 1 and unpacked is None and not use_lattice
+                  and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
+    if not self_guide:
+        wp.launch(atrous_guide, dim=height * width, device=d,
+                  inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
+                          height, int(gated), float(noise_target) if gated else 0.0, depth_scale, luminance_scale,
+                          aux,
+                          int(unpacked is not None), cv_out, guide_out, int(step) if use_lattice else 0, guide,
+                          cv_lattice, guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row])
     if use_lattice:
         color_variance, guide, guide_row = cv_lattice, guide_lattice, 0
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
-    wp.launch_tiled(ATROUS_LEVEL[int(gated), normal_squarings(sigma_normal)], dim=blocks, block_dim=BLOCK_THREADS, device=d,
+    level = ATROUS_LEVEL_SELF if self_guide else ATROUS_LEVEL[int(gated), normal_squarings(sigma_normal)]
+    wp.launch_tiled(level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, depth_scale,
                             normal_scale, luminance_scale, int(conserve_energy),
                             int(color_variance_out is not None),
@@ -973,7 +1077,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
-                            guide_row])
+                            guide_row, slope])
     if unpack:
         wp.launch(unpack_level, dim=height * width, device=d,
                   inputs=[color_variance_out, *unpack_out, int(flip is not None),
