@@ -559,20 +559,14 @@ def test_reject_and_row_rasters_are_the_tile_raster(device, stride):
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 
-def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False, texel_maps=False,
-               bin_capacity=0):
+def _rsm_frame(ds, light, size, fused, frames, thickness=(0.03, 0.02), surface=False, texel_maps=False):
     """Every buffer of a light's RSM views after ``frames`` (light poses) drawn with the fused resolve or its twins,
     and the depth bounds of each view's opaque depth (written by the fused resolve; built by ``photons.cisp``'s
-    ``build_bounds``, the twin kernels ``depth_bounds`` + ``coarsen_bounds``, otherwise). ``bin_capacity`` > 0: every
-    view drawn by the binned raster with bins of that size (with ``fused``: drawn and resolved by
-    ``raster_bins_rsm_view``)."""
+    ``build_bounds``, the twin kernels ``depth_bounds`` + ``coarsen_bounds``, otherwise)."""
     from cisp_warp.photons.cisp import build_bounds
     from cisp_warp.photons.march import bounds_size
 
     raster = Rasterizer(ds)
-    if bin_capacity > 0:
-        raster.binned, raster.rows_max_pixels, raster.bin_capacity = True, 0, bin_capacity
-        assert raster.draws_rsm_view(size, size) == raster.fused_rsm
     lm = LightMaps(ds, frames[0], size)
     lm.fused_resolve = fused
     if surface:  # the specular layers keep their position and normal (LightMaps.keep_surface_maps)
@@ -627,42 +621,6 @@ def test_fused_rsm_resolve_is_its_twins(device, size):
     with pytest.raises(ValueError, match="bounds_size"):  # a bounds array the kernel would write past
         lm.keep_depth_bounds([wp.zeros(len(b) - 1, dtype=wp.vec2, device=device) for _ in lm.rsm], 0.03, 0.02)
         assert any((fused[f"{k}_specular_tri_id"] >= 0).any() for k in range(len([x for x in fused if x.endswith("_bounds")])))
-
-
-@pytest.mark.parametrize("size,capacity", [(48, 48), (70, 2)])
-def test_binned_rsm_view_is_its_twins(device, size, capacity):
-    """``raster_bins_rsm_view`` (the binned raster's tile pass and ``resolve_rsm_view`` in one: the keys kept in
-    registers from the bin walk to the texel's resolve) fills every buffer and bound exactly as its twins, the
-    tile raster ``raster_tiles`` then ``resolve_depth`` + ``resolve_rsm_specular`` + ``depth_bounds`` +
-    ``coarsen_bounds``, and leaves both visibility buffers clear: a spot light moved between two frames, a point
-    light's cube faces, a distant light; bins of 48 and of 2 (most tiles overflow: their pixels' keys are read from
-    the buffers the binning pass drew them into, and reset)."""
-    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
-    spots = [Light(LightKind.SPOT, "spot", intensity=3.0, position=p, direction=d, cone_angle=math.radians(40),
-                   cone_softness=0.3) for p, d in (((0.0, 0.9, 0.0), (0, -1, 0)), ((0.5, 0.6, -0.3), (-0.3, -1, 0.2)))]
-    cases = [(box_room(), spots), (box_room(), [Light(LightKind.POINT, "bulb", intensity=2.0, position=(0.1, 0.2, 0.0))]),
-             (box_room()[1:], [Light(LightKind.DISTANT, "sun", intensity=500.0, direction=(0.3, -1.0, 0.1))])]
-    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
-    overflowed = 0
-    for parts, frames in cases:
-        ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
-        for surface, texel_maps in ((False, False), (True, True)):
-            fused = _rsm_frame(ds, frames[0], size, True, frames, surface=surface, texel_maps=texel_maps,
-                               bin_capacity=capacity)
-            twins = _rsm_frame(ds, frames[0], size, False, frames, surface=surface, texel_maps=texel_maps)
-            assert fused.keys() == twins.keys()
-            for k in fused:
-                np.testing.assert_array_equal(fused[k], twins[k], err_msg=f"{frames[0].name} {k}")
-                if k.endswith("visibility"):
-                    assert (fused[k] == empty).all(), k
-            assert any((fused[f"{k}_specular_tri_id"] >= 0).any() or (fused[f"{k}_opaque_depth"] > 0).any()
-                       for k in range(len([x for x in fused if x.endswith("_bounds")])))
-        raster = Rasterizer(ds)
-        raster.binned, raster.rows_max_pixels, raster.bin_capacity = True, 0, capacity
-        lm = LightMaps(ds, frames[0], size)
-        lm.render(raster)
-        overflowed += int((raster.bin_fill.numpy() > capacity).sum())
-    assert overflowed > 0, overflowed  # the overflow path is tested (tiles past 48 too: a room's walls at 48²)
 
 
 @wp.kernel
@@ -1113,77 +1071,3 @@ def test_split_redraw_gates_in_one_launch_are_the_two_gates(device, rng):
         drawn[0] += int(twin[2].numpy()[0]["far"] > 0.0)
         drawn[1] += int(twin[2].numpy()[0]["far"] == 0.0)
     assert drawn[0] > 3 and drawn[1] > 3  # both decisions were taken
-
-
-@pytest.mark.parametrize("stride,capacity", [(64, 48), (1 << 14, 48), (1 << 14, 1), (96, 3)])
-def test_binned_raster_is_the_tile_raster(device, stride, capacity):
-    """The binned raster (``raster_bin_items`` + ``raster_bins``: items binned per screen tile, a warp per tile keeps
-    its pixels' keys in registers) fills both layers' buffers exactly as its naive twin ``raster_tiles``:
-    perspective and orthographic views, a near-clipped triangle over the whole screen (every tile), a one-pixel
-    sliver, triangles off screen and degenerate ones (culled by the set-up); grid strides with many tiles a warp or
-    one; bins that overflow (capacity 1 and 3: the items past it drawn by the binning pass) lose nothing; each draw's
-    bin counts are its own (zeroed by ``setup_triangles``, views of different sizes drawn one after another)."""
-    cam = Camera(look_at_matrix((0, 0, 0), (0, 0, -1)), fov_y=math.radians(60), near=0.05, far=50.0, width=80, height=60)
-    big = (np.array([[-50.0, -40.0, -6.0], [60.0, -30.0, -7.0], [0.0, 50.0, 2.0]]), np.array([[0, 1, 2]]), 0)
-    sliver = (np.array([[-1.0, 0.1, -2.0], [1.0, 0.13, -2.0], [1.0, 0.1, -2.0]]), np.array([[0, 1, 2]]), 1)
-    off = (np.array([[40.0, 0.0, -2.0], [41.0, 0.0, -2.0], [40.0, 1.0, -2.0]]), np.array([[0, 1, 2]]), 0)
-    flat = (np.array([[0.0, 0.0, -3.0], [0.5, 0.5, -3.0], [1.0, 1.0, -3.0]]), np.array([[0, 1, 2]]), 0)
-    ds = DeviceScene(make_scene([big, sliver, off, flat] + box_room(), cam), device)
-    raster = Rasterizer(ds)
-    raster.stride, raster.rows_max_pixels, raster.bin_capacity = stride, 0, capacity
-    views = [camera_view(cam).params()] + [camera_view(Camera(look_at_matrix(v["eye"], v["target"]), fov_y=math.radians(70),
-                                                              ortho_height=1.2, near=0.02, far=10.0, width=72, height=41,
-                                                              orthographic=v["ortho"])).params() for v in VIEWS.values()]
-    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
-    for k, vp in enumerate(views):
-        n = vp.width * vp.height
-        arr = wp.array([vp], dtype=ViewParams, device=device)
-        out = []
-        for reject, binned in ((False, False), (True, True)):  # raster_tiles, the binned raster
-            raster.reject, raster.binned = reject, binned
-            bufs = [wp.full(n, RK.EMPTY_KEY_VALUE, dtype=wp.uint64, device=device) for _ in range(2)]
-            raster.draw(arr, 0, vp.width, vp.height, LAYER_OPAQUE, bufs[0], clear=False, layer_b=LAYER_SPECULAR,
-                        visibility_b=bufs[1])
-            out.append([b.numpy().copy() for b in bufs])
-        fill = raster.bin_fill.numpy()[:raster.bins_for(vp.width, vp.height)]
-        # the counts are this draw's own (setup_triangles zeroed the previous view's): a fresh rasterizer's. (Stale
-        # counts would leave the keys right, the extra entries and overflow drawing the same fragments, so the keys
-        # alone do not tell.)
-        fresh = Rasterizer(ds)
-        fresh.stride, fresh.rows_max_pixels, fresh.bin_capacity, fresh.binned = stride, 0, capacity, True
-        fresh.draw(arr, 0, vp.width, vp.height, LAYER_OPAQUE, bufs[0], layer_b=LAYER_SPECULAR, visibility_b=bufs[1])
-        np.testing.assert_array_equal(fill, fresh.bin_fill.numpy()[:fill.shape[0]], err_msg=f"view {k}: bin counts")
-        if capacity == 1:
-            assert fill.max() > capacity, "no bin overflowed: the overflow path is not tested"
-        for naive, fast in zip(*out):
-            if not wp.get_device(device).is_cuda:
-                np.testing.assert_array_equal(fast, naive, err_msg=f"view {k}")
-                continue
-            # CUDA may contract the edge and depth products into FMAs differently in the two kernels (section 24)
-            both = (fast != empty) & (naive != empty)
-            assert ((fast != empty) != (naive != empty)).mean() <= 0.01, f"view {k}"
-            qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
-            np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}")
-        assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
-
-
-def test_probe_raster_smoke_binned_keys_are_the_twins(tmp_path):
-    """``tools/probe_raster.py --smoke`` on the flooded Cornell box (CPU): every draw of a frame replayed with each
-    variant (the reject, the row raster, the binned raster with bins of 48 and 96, bounded and a thread a pixel) leaves
-    ``raster_tiles``' keys bit for bit."""
-    import importlib.util
-    import json
-    import os
-    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools", "probe_raster.py")
-    spec = importlib.util.spec_from_file_location("probe_raster", path)
-    probe = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(probe)
-    out = tmp_path / "probe.json"
-    assert probe.main(["--device", "cpu", "--smoke", "--scenes", "cornell", "--json", str(out)]) == 0
-    rows = json.loads(out.read_text())["cornell"]
-    active = [r for r in rows if r["active"]]
-    assert active and all(r["items"] > 0 for r in active)
-    for r in rows:
-        diffs = {k: v for k, v in r.items() if k.endswith("_diff_keys")}
-        assert {"binned_diff_keys", "binned_c96_diff_keys", "binned_lb8_diff_keys", "binned_px1_diff_keys"} <= set(diffs)
-        assert not any(diffs.values()), (r["size"], diffs)

@@ -677,26 +677,21 @@ class LightMaps:
         n = r.width * r.height
         rgb = light.radiometric_rgb.astype(np.float32)
         axis = np.asarray(light.direction, dtype=np.float32)
+        raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility, clear=False,
+                    layer_b=LAYER_SPECULAR, visibility_b=r.specular.visibility)  # both layers in one pass
         sp = r.specular
         if self.fused_resolve:  # both layers, the flux and the depth bounds in one pass over the view
             th, th_rel = self._bounds_thickness
-            resolve = [s.points, s.normals, s.indices, s.triangle_material, s.roughness, s.ior, wp.vec3(*rgb),
-                       wp.vec3(*axis), int(light.kind == LightKind.SPOT), float(light.cone_angle),
-                       float(light.cone_softness), r.solid_angle, r.opaque_depth,
-                       r.opaque_tri if self.write_opaque_tri else None, sp.depth, sp.position, sp.normal,
-                       sp.roughness, sp.ior, sp.tri_id, r.shadow_depth, r.flux, th, th_rel, bounds]
-            if raster.draws_rsm_view(r.width, r.height):  # the binned raster's tile pass resolves it (section 66)
-                raster.draw_rsm_view(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility, LAYER_SPECULAR,
-                                     sp.visibility, resolve)
-                return
-            raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility, clear=False,
-                        layer_b=LAYER_SPECULAR, visibility_b=sp.visibility)  # both layers in one pass
             coarse = ((r.width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE) * ((r.height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
             wp.launch_tiled(K.resolve_rsm_view, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
-                            inputs=[views, k, r.visibility, sp.visibility] + resolve)
+                            inputs=[views, k, r.visibility, sp.visibility, s.points, s.normals, s.indices,
+                                    s.triangle_material, s.roughness, s.ior, wp.vec3(*rgb), wp.vec3(*axis),
+                                    int(light.kind == LightKind.SPOT), float(light.cone_angle),
+                                    float(light.cone_softness), r.solid_angle, r.opaque_depth,
+                                    r.opaque_tri if self.write_opaque_tri else None, sp.depth, sp.position,
+                                    sp.normal, sp.roughness, sp.ior, sp.tri_id, r.shadow_depth, r.flux, th, th_rel,
+                                    bounds])
             return
-        raster.draw(views, k, r.width, r.height, LAYER_OPAQUE, r.visibility, clear=False,
-                    layer_b=LAYER_SPECULAR, visibility_b=sp.visibility)  # both layers in one pass
         wp.launch(K.resolve_depth, dim=n, device=s.device,
                   inputs=[views, k, r.visibility, s.points, s.indices, r.opaque_depth,
                           r.opaque_tri if self.write_opaque_tri else None])

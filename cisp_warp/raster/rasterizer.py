@@ -27,11 +27,6 @@ COLUMN_BLOCKS_PER_SM = 3
 class Rasterizer:
     """Visibility-buffer rasterizer over one :class:`DeviceScene`; its scratch is allocated once."""
 
-    #: the default of :attr:`binned` for new rasterizers (a benchmark sets it before building a renderer). True since
-    #: perf_notes section 66 (the RSM views' tile pass resolves them: predicted to win on the H100, to be measured;
-    #: section 65 measured the binned raster without that slower than the reject raster)
-    BINNED = True
-
     def __init__(self, scene: DeviceScene):
         self.scene = scene
         d = scene.device
@@ -55,21 +50,6 @@ class Rasterizer:
         #: with ``reject``: views of at most this many pixels (the pilots) are drawn with ``kernels.raster_tile_rows`` (a
         #: thread per tile row: their few items fill the GPU 8x better); 0: never
         self.rows_max_pixels = 512 * 512
-        #: True: views drawn with ``reject`` that are larger than ``rows_max_pixels`` take the binned raster instead
-        #: (``kernels.raster_bin_items``: the reject's items binned per 8x8 screen tile; ``kernels.raster_bins``: a warp
-        #: per tile keeps its pixels' keys in registers and writes each covered pixel once; perf_notes section 60).
-        #: The same buffers bit for bit on the CPU
-        self.binned = Rasterizer.BINNED
-        #: sub-triangles a screen tile's bin holds; the items past it are drawn by the binning pass itself (atomic
-        #: min, as ``raster_tiles_reject``): nothing is lost
-        self.bin_capacity = 48
-        #: with ``binned``: an RSM view's draw and its fused resolve (``kernels.resolve_rsm_view``) in one pass
-        #: (:meth:`draw_rsm_view`: ``kernels.raster_bins_rsm_view``, the keys kept in registers from the bin walk to
-        #: the texel's resolve; perf_notes section 66); False: the binned draw, then the resolve (the twins). The same
-        #: maps bit for bit on the CPU
-        self.fused_rsm = True
-        self.bin_fill = wp.zeros(0, dtype=wp.int32, device=d)  # (tiles,) per screen tile: sub-triangles binned
-        self.bin_subs = wp.zeros(0, dtype=wp.int32, device=d)  # (tiles * bin_capacity,) the binned sub-triangles
         #: threads of the column raster on CUDA: one resident wave (``COLUMN_BLOCKS_PER_SM`` blocks of 256 an SM), so
         #: that its equal chunks of work end together (2^18 threads were 2.6 waves); None: ``stride``
         self.column_threads = d.sm_count * COLUMN_BLOCKS_PER_SM * 256 if d.is_cuda and d.sm_count > 0 else None
@@ -92,8 +72,7 @@ class Rasterizer:
             visibility.fill_(K.EMPTY_KEY_VALUE)
             if layer_b != 0:
                 visibility_b.fill_(K.EMPTY_KEY_VALUE)
-        binned = (not self.columns and self.reject and self.binned and width * height > self.rows_max_pixels)
-        self._setup(views, view_index, width, height, layer | layer_b, back_only=False, clear_bins=binned)
+        self._setup(views, view_index, width, height, layer | layer_b, back_only=False)
         if self.columns:
             threads = self.column_threads or self.stride
             wp.launch(K.raster_tile_columns, dim=threads, device=d,
@@ -101,9 +80,9 @@ class Rasterizer:
                               threads // K.WARP, s.triangle_layers, int(layer), visibility, int(layer_b),
                               visibility_b])
         elif self.reject and width * height <= self.rows_max_pixels:
-            self._draw_rows(views, view_index, layer, visibility, layer_b, visibility_b)
-        elif binned:
-            self._draw_binned(views, view_index, width, height, layer, visibility, layer_b, visibility_b)
+            wp.launch(K.raster_tile_rows, dim=self.stride, device=d,
+                      inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
+                              self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
         elif self.reject:
             wp.launch(K.raster_tiles_reject, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK,
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
@@ -113,87 +92,16 @@ class Rasterizer:
                       inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
                               self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
 
-    def _draw_rows(self, views, view_index, layer, visibility, layer_b, visibility_b) -> None:
-        """``kernels.raster_tile_rows`` over the set-up's items."""
-        s = self.scene
-        wp.launch(K.raster_tile_rows, dim=self.stride, device=s.device,
-                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                          self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b])
-
-    def bins_for(self, width: int, height: int) -> int:
-        """The screen tiles of a ``width`` x ``height`` view, the bins grown to hold them (on the host, from sizes the
-        host knows: the first draw of a larger view allocates, a frame that was drawn once allocates nothing; a first
-        draw inside a CUDA graph capture, as a rasterizer made by ``Renderer.set_concurrent`` after frames were
-        captured meets, allocates from Warp's stream-ordered pool, which graphs allow)."""
-        tiles = ((width + K.TILE - 1) // K.TILE) * ((height + K.TILE - 1) // K.TILE)
-        if self.bin_fill.shape[0] < tiles or self.bin_subs.shape[0] < tiles * self.bin_capacity:
-            d = self.scene.device
-            self.bin_fill = wp.zeros(tiles, dtype=wp.int32, device=d)
-            self.bin_subs = wp.zeros(tiles * self.bin_capacity, dtype=wp.int32, device=d)
-        return tiles
-
-    def _draw_binned(self, views, view_index, width, height, layer, visibility, layer_b, visibility_b) -> None:
-        """The binned raster over the set-up's items (:meth:`_setup` with ``clear_bins`` zeroed the bins' counts):
-        ``kernels.raster_bin_items`` (the items not rejected into their screen tile's bin, the overflow drawn at once),
-        ``kernels.raster_bins`` (a warp a tile)."""
-        s = self.scene
-        d = s.device
-        tiles = self.bins_for(width, height)
-        tiles_x = (width + K.TILE - 1) // K.TILE
-        fill = self.bin_fill[:tiles]
-        wp.launch(K.raster_bin_items, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK,
-                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                          self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b, tiles_x,
-                          int(self.bin_capacity), fill, self.bin_subs])
-        threads = max(K.WARP, min(self.stride, tiles * K.WARP) // K.WARP * K.WARP)  # a warp per tile, grid-stride
-        wp.launch(K.raster_bins, dim=threads, device=d, block_dim=K.BIN_BLOCK,
-                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, threads, s.triangle_layers, int(layer),
-                          visibility, int(layer_b), visibility_b, tiles_x, tiles, int(self.bin_capacity), fill,
-                          self.bin_subs])
-
-    def draws_rsm_view(self, width: int, height: int) -> bool:
-        """Whether :meth:`draw_rsm_view` takes a ``width`` x ``height`` RSM view (else the caller draws it with
-        :meth:`draw` and resolves it with ``kernels.resolve_rsm_view``)."""
-        return (self.fused_rsm and self.binned and self.reject and not self.columns
-                and width * height > self.rows_max_pixels)
-
-    def draw_rsm_view(self, views: wp.array, view_index: int, width: int, height: int, layer: int,
-                      visibility: wp.array, layer_b: int, visibility_b: wp.array, resolve_inputs: list) -> None:
-        """Draw and resolve an RSM view in one tile pass (:meth:`draws_rsm_view`): the set-up (the bins' counts
-        zeroed), ``kernels.raster_bin_items`` (items past a full bin drawn into ``visibility`` / ``visibility_b``,
-        clear on entry as a resolve leaves them), then ``kernels.raster_bins_rsm_view`` over the view's coarse cells
-        with ``resolve_inputs`` (``kernels.resolve_rsm_view``'s inputs after its two visibility buffers), which reads
-        and resets only the overflowed tiles' pixels of the buffers."""
-        s = self.scene
-        d = s.device
-        self._setup(views, view_index, width, height, layer | layer_b, back_only=False, clear_bins=True)
-        tiles = self.bins_for(width, height)
-        tiles_x = (width + K.TILE - 1) // K.TILE
-        fill = self.bin_fill[:tiles]
-        wp.launch(K.raster_bin_items, dim=self.stride, device=d, block_dim=K.RASTER_BLOCK,
-                  inputs=[views, int(view_index), self.sub_v, self.sub_bbox, self.tile_end, 2 * s.triangle_count,
-                          self.stride, s.triangle_layers, int(layer), visibility, int(layer_b), visibility_b, tiles_x,
-                          int(self.bin_capacity), fill, self.bin_subs])
-        coarse = ((width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE) * ((height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
-        wp.launch_tiled(K.raster_bins_rsm_view, dim=coarse, block_dim=K.BIN_RSM_THREADS, device=d,
-                        inputs=[views, int(view_index), self.sub_v, self.sub_bbox, s.triangle_layers, int(layer),
-                                visibility, int(layer_b), visibility_b, tiles_x, int(self.bin_capacity), fill,
-                                self.bin_subs] + list(resolve_inputs))
-
     def _setup(self, views: wp.array, view_index: int, width: int, height: int, layer_mask: int,
-               back_only: bool, clear_bins: bool = False) -> None:
+               back_only: bool) -> None:
         """Near-clip and project the triangles of ``layer_mask`` (only those facing away from the view with
-        ``back_only``) into ``sub_v`` / ``sub_bbox``, count their tiles and scan the counts into ``tile_end``.
-        ``clear_bins``: the same launch zeroes the binned raster's counts for the view's screen tiles (grown first,
-        :meth:`bins_for`), instead of a memset of their own before the binning pass."""
+        ``back_only``) into ``sub_v`` / ``sub_bbox``, count their tiles and scan the counts into ``tile_end``."""
         s = self.scene
         tiles_x = (width + K.TILE - 1) // K.TILE
         tiles_y = (height + K.TILE - 1) // K.TILE
-        bins = self.bins_for(width, height) if clear_bins else 0
         wp.launch(K.setup_triangles, dim=s.triangle_count, device=s.device,
                   inputs=[views, int(view_index), s.points, s.indices, s.triangle_layers, int(layer_mask), tiles_x,
-                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, int(back_only),
-                          self.bin_fill, bins, s.triangle_count])
+                          tiles_y, self.sub_v, self.sub_bbox, self.tile_count, s.normals, int(back_only)])
         wp.utils.array_scan(self.tile_count, self.tile_end, inclusive=True)
 
     def draw_back(self, views: wp.array, view_index: int, width: int, height: int, layer: int,
