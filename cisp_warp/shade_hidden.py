@@ -209,6 +209,36 @@ def _hidden_ray_func(naive: bool):
 _HIDDEN_RAY = {naive: _hidden_ray_func(naive) for naive in (False, True)}
 
 
+def _water_ray_func(naive: bool):
+    hidden_ray = _HIDDEN_RAY[naive]
+
+    @wp.func
+    def water_ray(k: int, p: int, bits: int, layer: OpaqueLayer, camera: ViewParams, depth: wp.array(dtype=wp.float32),
+                  position: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sky: SkyMap,
+                  occlusion: SkyOcclusion, t_max: float, x: wp.vec3, f: float, dr: wp.vec3, dt: wp.vec3, eta: float,
+                  hidden_tri: wp.array(dtype=wp.int32), hidden_uvw: wp.array(dtype=wp.vec3)):
+        """Ray ``k`` (0 refracted, 1 reflected) of water pixel ``p``, one the composite could not follow: the pixel
+        the camera sees at its hit (>= 0), or -1 and the ray's term; a hidden hit is booked (``hidden_tri``,
+        ``hidden_uvw``, its HIDDEN_* bit added to ``bits``). Returns (pixel, throughput, term, bits): what
+        :func:`trace_hidden` and :func:`trace_hidden_rays` share; they differ in where a seen pixel goes."""
+        d = dr
+        w = f
+        if k == 0:
+            d = dt
+            w = (1.0 - f) / (eta * eta)
+        pix, term, code, u, v = hidden_ray(layer, camera, depth, position, normal, sky, occlusion, t_max, x, d, w)
+        if pix < 0 and code != 0:
+            hidden_tri[2 * p + k] = code
+            hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
+            bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
+        return pix, w, term, bits
+
+    return water_ray
+
+
+_WATER_RAY = {naive: _water_ray_func(naive) for naive in (False, True)}
+
+
 def _camera_view_func(camera_ortho: int):
     """``cameras[0]`` as the trace reads it, its projection the constant ``camera_ortho`` (0 or 1; -1: read at run
     time; ``views.fixed_projection``), folded through ``water_rays`` and :func:`seen_by_camera` (the kernel compiled
@@ -240,7 +270,7 @@ def strided_todo(missed: wp.array(dtype=wp.int32), t: int, stride: int, pixels: 
 def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1, strided: bool = False):
     CAMERA_ORTHO = int(camera_ortho)
     camera_view = _camera_view_func(CAMERA_ORTHO)
-    hidden_ray = _HIDDEN_RAY[naive]
+    water_ray = _WATER_RAY[naive]
 
     @wp.func
     def trace_pixel(
@@ -271,21 +301,12 @@ def _trace_hidden_kernel(naive: bool, camera_ortho: int = -1, strided: bool = Fa
         for k in range(2):
             flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
             if (bits & flag) != 0:
-                d = dr
-                w = f
-                if k == 0:
-                    d = dt
-                    w = (1.0 - f) / (eta * eta)
-                pix, term, code, u, v = hidden_ray(layer, camera, depth, position, normal, sky, occlusion, t_max, x,
-                                                   d, w)
+                pix, w, term, bits = water_ray(k, p, bits, layer, camera, depth, position, normal, sky, occlusion,
+                                               t_max, x, f, dr, dt, eta, hidden_tri, hidden_uvw)
                 if pix >= 0:
                     l = l + radiance[pix] * w
                 else:
                     l = l + term
-                    if code != 0:
-                        hidden_tri[2 * p + k] = code
-                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
-                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
         missed[p] = bits
         final[p] = final[p] + l
 
@@ -367,7 +388,7 @@ trace_hidden_naive = _trace_hidden_kernel(True)  #: the twin: every opaque trian
 def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1, strided: bool = False):
     CAMERA_ORTHO = int(camera_ortho)
     camera_view = _camera_view_func(CAMERA_ORTHO)
-    hidden_ray = _HIDDEN_RAY[naive]
+    water_ray = _WATER_RAY[naive]
 
     @wp.func
     def trace_pixel_rays(
@@ -398,13 +419,8 @@ def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1, strided: bool
         for k in range(2):
             flag = wp.where(k == 0, MISSED_REFRACTED, MISSED_REFLECTED)
             if (bits & flag) != 0:
-                d = dr
-                w = f
-                if k == 0:
-                    d = dt
-                    w = (1.0 - f) / (eta * eta)
-                pix, term, code, u, v = hidden_ray(layer, camera, depth, position, normal, sky, occlusion, t_max, x,
-                                                   d, w)
+                pix, w, term, bits = water_ray(k, p, bits, layer, camera, depth, position, normal, sky, occlusion,
+                                               t_max, x, f, dr, dt, eta, hidden_tri, hidden_uvw)
                 if pix >= 0:
                     h = hits[p]
                     if k == 0:
@@ -414,10 +430,6 @@ def _trace_hidden_rays_kernel(naive: bool, camera_ortho: int = -1, strided: bool
                     hits[p] = h
                 else:
                     l = l + term
-                    if code != 0:
-                        hidden_tri[2 * p + k] = code
-                        hidden_uvw[2 * p + k] = wp.vec3(u, v, w)
-                        bits = bits | wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)
         missed[p] = bits
         hidden_sum[p] = l
 
