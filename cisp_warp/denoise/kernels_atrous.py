@@ -16,6 +16,10 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
    buffers (SVGF), it writes its terms and copies of the input and the guide in the step's sub-lattice-major order
    (:func:`lattice_index`), so that the level's tile rows are dense: otherwise each of its 16-byte loads takes its
    own sector at those steps.
+   SVGF's chained levels (section 71) feed it what it reads from the level before: each level but the last writes
+   its output's Var densely as well (4 bytes a pixel, ``variance_next``), which is all the next guide pass reads of
+   its input, and a level whose next one reads the sub-lattice-major order writes its packed output in that order
+   (``lattice_out``), so that the guide pass copies no input.
    SVGF's first level (ungated, step 1, packed input, σ_n = 128) has no guide pass (section 68): at step 1 the 3x3
    neighbourhood of a guide point is its neighbourhood in the level's own tile, so that level (compiled with
    ``self_guide``) reads σ_z ‖∇z‖ from ``slope`` and blurs its own variance from an apron of 5 (step 1b below).
@@ -71,7 +75,9 @@ flags of the previous level, measured slower: section 50.) Section 61: σ_n = 12
 ~26 instructions a pair weight and no branch: 0.67 → 0.64 (Cornell), 0.72 → 0.70 (pool) on section 38's G-buffers;
 with the pair phase skipped altogether the levels still take 0.47 / 0.57 ms (what remains is that fixed part).
 Section 68: SVGF's step-1 level makes its own guide terms, one guide pass (~0.03 ms) fewer; the ungated guide
-passes read their neighbours' Var alone.
+passes read their neighbours' Var alone. Section 71 (predicted, not measured): SVGF's guide passes read a dense
+float32 Var the level before wrote (24 instead of ~60-76 bytes a pixel to and from L2), the lattice levels' input
+written in their order by the level before.
 """
 
 from __future__ import annotations
