@@ -846,6 +846,102 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, latti
     np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
 
 
+def lattice_order(a, step, pad):
+    """Rows of ``a`` (H x W x ...) in the sub-lattice-major order of ``step`` (:func:`lattice_index`), padded with
+    ``pad`` to :func:`lattice_size` entries."""
+    h, w = a.shape[:2]
+    sub_h, sub_w = -(-h // step), -(-w // step)
+    out = np.full((step * step * sub_h * sub_w,) + a.shape[2:], pad, dtype=a.dtype)
+    y, x = np.mgrid[:h, :w]
+    out[(((y % step) * step + x % step) * sub_h + y // step) * sub_w + x // step] = a
+    return out
+
+
+@pytest.mark.parametrize("step,conserve", [(4, True), (8, False), (2, True)])
+def test_chained_levels_write_the_next_input(device, step, conserve):
+    """A level (SVGF's, ungated) writing its packed output in the next level's sub-lattice-major order
+    (``lattice_out``) and its Var densely (``variance_next``), and the next level taking them (``variance``: its
+    guide pass reads that Var alone; ``input_lattice``: no copy of the input), give bit for bit what the dense output
+    and the copying guide pass give, and both equal the float64 twin's two levels; at step 2 the next level (4) reads
+    the dense output and the Var copy, no sub-lattice order."""
+    from cisp_warp.denoise import kernels_atrous
+    from cisp_warp.denoise.kernels_atrous import lattice_size
+    rng = np.random.default_rng(71 + step)
+    w, h = 45, 38
+    g = plane(w, h)
+    g["depth"][10:30, 12:33] = 1.3
+    g["depth"][3:6, 3:40] = 0.0
+    n = g["normal"] + 0.05 * rng.standard_normal((h, w, 3)).astype(np.float32)
+    g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+    color = rng.exponential(2.0, (h, w, 3)).astype(np.float32)
+    color[g["depth"] <= 0] = 0.0
+    variance = rng.exponential(1.0, (h, w)).astype(np.float32)
+    variance[g["depth"] <= 0] = 0.0
+    s = SVGFSettings(sigma_luminance=2.0, conserve_energy=conserve)
+    sig = (s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve)
+    dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
+    slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
+    nxt = 2 * step
+    size = max(lattice_size(w, h, nxt), w * h)
+    aux = wp.zeros(size, dtype=wp.vec4, device=device)
+    packed = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(2)]
+    launch_atrous(None, None, slope, w, h, 1, *sig, aux, unpacked=(dev["irradiance"], var_in, dev["depth"],
+                  dev["normal"]), pack_into=packed, color_variance_out=wp.zeros(w * h, dtype=wp.vec4, device=device))
+    lat = nxt >= kernels_atrous.LATTICE_STEP
+    # the dense way: the level's packed output, the next level's guide pass copying it (and the guide) in its order
+    dense = wp.zeros(w * h, dtype=wp.vec4, device=device)
+    launch_atrous(packed[0], packed[1], slope, w, h, step, *sig, aux, color_variance_out=dense)
+    outs = [(wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device),
+             wp.full(w * h, -7.0, dtype=wp.float32, device=device)) for _ in range(2)]
+    lattice = tuple(wp.zeros(size, dtype=wp.vec4, device=device) for _ in range(2)) if lat else None
+    launch_atrous(dense, packed[1], slope, w, h, nxt, *sig, aux, color_out=outs[0][0], variance_out=outs[0][1],
+                  lattice=lattice)
+    # the chained way
+    chained = wp.full(size, wp.vec4(7.0), dtype=wp.vec4, device=device)
+    var_next = wp.full(w * h, 7.0, dtype=wp.float32, device=device)
+    launch_atrous(packed[0], packed[1], slope, w, h, step, *sig, aux, color_variance_out=chained,
+                  variance_next=var_next, lattice_out=nxt if lat else 0)
+    d = dense.numpy().reshape(h, w, 4)
+    c = chained.numpy()
+    if lat:  # every point in its place, the padding untouched
+        np.testing.assert_array_equal(c, lattice_order(d, nxt, 7.0))
+    else:
+        np.testing.assert_array_equal(c[:w * h], d.reshape(-1, 4))
+    np.testing.assert_array_equal(var_next.numpy(), d[..., 3].reshape(-1))
+    assert (d[..., 3] < 0).any() and (d[..., 3] > 0).any()  # pixels without a surface and with a variance
+    guide_lat = wp.zeros(size, dtype=wp.vec4, device=device) if lat else None
+    launch_atrous(chained, packed[1], slope, w, h, nxt, *sig, aux, color_out=outs[1][0], variance_out=outs[1][1],
+                  lattice=(None, guide_lat) if lat else None, variance=var_next, input_lattice=lat)
+    for a, b in zip(outs[0], outs[1]):
+        np.testing.assert_array_equal(a.numpy(), b.numpy())
+    c_ref, v_ref = color, variance
+    for st in (step, nxt):
+        c_ref, v_ref = atrous_level_naive(c_ref, v_ref, g["depth"], g["normal"], st, *sig)
+    np.testing.assert_allclose(outs[1][0].numpy().reshape(h, w, 3), c_ref, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(outs[1][1].numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-6)
+
+
+def test_chained_level_arguments_checked():
+    """The chained levels' arguments are checked: one clear sentence each."""
+    w, h = 20, 12
+    z = {k: wp.zeros(w * h, dtype=t, device="cpu") for k, t in (("cv", wp.vec4), ("f", wp.float32))}
+    args = (z["cv"], z["cv"], z["f"], w, h, 8, 0.5, 128.0, 4.0, True, wp.zeros(512, dtype=wp.vec4, device="cpu"))
+    big = (wp.zeros(512, dtype=wp.vec4, device="cpu"),) * 2
+    with pytest.raises(ValueError, match="ungated level with a packed input"):
+        launch_atrous(*args, noise_target=0.1, variance=z["f"])
+    with pytest.raises(ValueError, match="sub-lattice-major order needs variance"):
+        launch_atrous(*args, lattice=big, input_lattice=True)
+    with pytest.raises(ValueError, match="sub-lattice-major order needs variance"):
+        launch_atrous(*args, lattice=big, variance=z["f"])
+    with pytest.raises(ValueError, match="which is not given"):
+        launch_atrous(*args, variance_next=z["f"])
+    with pytest.raises(ValueError, match="power of two"):
+        launch_atrous(*args, color_variance_out=z["cv"], lattice_out=12)
+    with pytest.raises(ValueError, match="entries in the sub-lattice-major order"):
+        launch_atrous(*args, color_variance_out=z["cv"], lattice_out=16)
+
+
 @pytest.mark.parametrize("feedback,levels,sigma_normal", [(0, 3, 32.0), (2, 3, 32.0), (-1, 3, 32.0), (3, 5, 32.0),
                                                         (4, 6, 32.0), (3, 5, 128.0)])
 def test_svgf_levels_match_naive_twin(device, feedback, levels, sigma_normal):

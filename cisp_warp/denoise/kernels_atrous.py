@@ -16,6 +16,10 @@ A level of tap spacing ``step`` couples only pixels whose coordinates agree modu
    buffers (SVGF), it writes its terms and copies of the input and the guide in the step's sub-lattice-major order
    (:func:`lattice_index`), so that the level's tile rows are dense: otherwise each of its 16-byte loads takes its
    own sector at those steps.
+   SVGF's chained levels (section 71) feed it what it reads from the level before: each level but the last writes
+   its output's Var densely as well (4 bytes a pixel, ``variance_next``), which is all the next guide pass reads of
+   its input, and a level whose next one reads the sub-lattice-major order writes its packed output in that order
+   (``lattice_out``), so that the guide pass copies no input.
    SVGF's first level (ungated, step 1, packed input, σ_n = 128) has no guide pass (section 68): at step 1 the 3x3
    neighbourhood of a guide point is its neighbourhood in the level's own tile, so that level (compiled with
    ``self_guide``) reads σ_z ‖∇z‖ from ``slope`` and blurs its own variance from an apron of 5 (step 1b below).
@@ -71,7 +75,9 @@ flags of the previous level, measured slower: section 50.) Section 61: σ_n = 12
 ~26 instructions a pair weight and no branch: 0.67 → 0.64 (Cornell), 0.72 → 0.70 (pool) on section 38's G-buffers;
 with the pair phase skipped altogether the levels still take 0.47 / 0.57 ms (what remains is that fixed part).
 Section 68: SVGF's step-1 level makes its own guide terms, one guide pass (~0.03 ms) fewer; the ungated guide
-passes read their neighbours' Var alone.
+passes read their neighbours' Var alone. Section 71 (predicted, not measured): SVGF's guide passes read a dense
+float32 Var the level before wrote (24 instead of ~60-76 bytes a pixel to and from L2), the lattice levels' input
+written in their order by the level before.
 """
 
 from __future__ import annotations
@@ -529,7 +535,11 @@ def read_signal(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in: 
                 variance_in: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
     """(colour, Var) of pixel ``p`` from the packed input or from the unpacked one; Var = NO_SURFACE without
     a surface (depth 0), else clamped to >= 0 (as the packed input holds it). The unpacked loads do not wait
-    for the depth test (loads behind a branch on an earlier load's value are issued one after the other)."""
+    for the depth test (loads behind a branch on an earlier load's value are issued one after the other).
+    ``packed`` = 3: only Var, from ``variance_in`` (the previous level's own dense copy of its output's Var, NO_SURFACE
+    without a surface; :func:`atrous_level`'s ``variance_next``), the colour 0: one 4-byte load."""
+    if packed == 3:
+        return wp.vec4(0.0, 0.0, 0.0, variance_in[p])
     if packed != 0:
         return load_vec4(color_variance, p)
     z = depth[p]
@@ -545,7 +555,8 @@ def gaussian_sums(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
     """(Σ k, Σ k Var, Σ k l) of the 3x3 Gaussian (1/4, 1/8, 1/16) at pixel (x, y) over the pixels with a surface.
     Neighbours are clamped into the image and read unconditionally, masked after: the nine loads are in flight
     together (a load behind a branch on another's value waits for it). ``packed`` = 2: a packed input whose
-    luminance is not needed (Σ k l = 0): only each neighbour's Var is read, a 4-byte load instead of 16."""
+    luminance is not needed (Σ k l = 0): only each neighbour's Var is read, a 4-byte load instead of 16; 3: the
+    same from the dense Var copy ``variance_in`` (4 bytes a pixel, a warp's row of them one 128-byte line)."""
     sums = wp.vec3(0.0)
     for dy in range(-1, 2):
         for dx in range(-1, 2):
@@ -554,6 +565,8 @@ def gaussian_sums(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
             cv_q = wp.vec4(0.0)
             if packed == 2:  # a constant where it is called: no branch
                 cv_q = wp.vec4(0.0, 0.0, 0.0, load_variance(color_variance, qy * width + qx))
+            elif packed == 3:
+                cv_q = wp.vec4(0.0, 0.0, 0.0, variance_in[qy * width + qx])
             else:
                 cv_q = read_signal(packed, color_variance, color_in, variance_in, depth, qy * width + qx)
             inside = qx == x + dx and qy == y + dy and cv_q[3] >= 0.0
@@ -570,7 +583,9 @@ def blur_variance(packed: int, color_variance: wp.array(dtype=wp.vec4), color_in
     pixels with a surface (paper eq. 5) and, ``gated``, the footprint R of the same Gaussian's variance and mean
     luminance (:func:`footprint_radius`, relative ``noise_target``); R = ``UNGATED_RADIUS`` otherwise."""
     sums = wp.vec3(0.0)
-    if packed != 0 and gated == 0:  # one branch outside the unrolled loop, not one per neighbour
+    if packed == 3:  # ungated: the dense Var copy alone
+        sums = gaussian_sums(3, color_variance, color_in, variance_in, depth, x, y, width, height)
+    elif packed != 0 and gated == 0:  # one branch outside the unrolled loop, not one per neighbour
         sums = gaussian_sums(2, color_variance, color_in, variance_in, depth, x, y, width, height)  # Var alone
     elif packed != 0:
         sums = gaussian_sums(1, color_variance, color_in, variance_in, depth, x, y, width, height)
@@ -633,6 +648,12 @@ def atrous_guide(
     then reads instead (packed input only); the guide only with ``copy_guide`` (else ``guide_lattice`` holds it in
     that order already: SVGF's :func:`.kernels_svgf.reproject` writes it so), from ``guide_in``'s row
     ``1 - guide_parity[0]`` of ``guide_row`` entries (0: one row).
+
+    ``packed`` = 3 (ungated only): the level's input is packed but this pass reads only its Var, from
+    ``variance_in`` (H*W float32, NO_SURFACE without a surface), the dense copy the previous level wrote
+    (:func:`atrous_level`'s ``variance_next``): 4 bytes a pixel and 4 a neighbour instead of 16 and a 4-byte load at
+    +12 of each neighbour's vec4; with ``lattice`` the input is in that order already (the previous level's
+    ``lattice_out``) and is not copied.
     """
     p = wp.tid()
     y = p // width
@@ -648,7 +669,8 @@ def atrous_guide(
             store_vec4(guide_out, p, wp.vec4(0.0))
     elif lattice != 0:
         o = lattice_index(y, x, width, height, lattice)
-        store_vec4(color_variance_lattice, o, cv)
+        if packed != 3:  # else the previous level wrote its output in this order itself
+            store_vec4(color_variance_lattice, o, cv)
         if copy_guide != 0:
             store_vec4(guide_lattice, o, load_vec4(guide_in, (1 - guide_parity[0]) * guide_row + p))
     if cv[3] < 0.0:
@@ -762,6 +784,9 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
         guide_parity: wp.array(dtype=wp.int32),
         guide_row: int,
         slope: wp.array(dtype=wp.float32),
+        lattice_out: int,
+        write_variance: int,
+        variance_next: wp.array(dtype=wp.float32),
     ):
         """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
         ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -781,6 +806,9 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
         guide_parity[0]`` (SVGF's guide history, whose row this frame's :func:`.kernels_svgf.reproject` wrote).
         ``slope`` (H*W float32 [m/pixel], ‖∇z‖): read only by the level compiled with ``self_guide`` (step 1,
         ``lattice`` 0), which does not read ``aux`` but makes its terms itself.
+        ``lattice_out`` != 0 (a power of two): ``color_variance_out`` is written in that step's sub-lattice-major order
+        (the next level's, whose guide pass then copies nothing); ``write_variance``: ``variance_next`` (H*W float32)
+        gets the packed output's Var densely (NO_SURFACE without a surface), all the next guide pass reads of it.
         """
         block, lane = wp.tid()
         threads = wp.block_dim()
@@ -915,8 +943,14 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
                     a_centre = 1.0 - sum_a  # A_pp, in (0, 1]: Σ_{q≠p} A_pq <= (W_p − w_pp) / W_p
                     c_new = a_centre * c_p + sum_ac
                     v_new = sum_av + a_centre * a_centre * v_p
+                v_packed = wp.where(surface, v_new, NO_SURFACE)
                 if write_packed != 0:
-                    store_vec4(color_variance_out, p, wp.vec4(c_new[0], c_new[1], c_new[2], wp.where(surface, v_new, NO_SURFACE)))
+                    o = p
+                    if lattice_out != 0:
+                        o = lattice_index(y, x, width, height, lattice_out)
+                    store_vec4(color_variance_out, o, wp.vec4(c_new[0], c_new[1], c_new[2], v_packed))
+                if write_variance != 0:
+                    variance_next[p] = v_packed
                 if write_public != 0:
                     color_out[p] = c_new
                     variance_out[p] = v_new
@@ -987,7 +1021,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   unpacked: tuple | None = None, pack_into: tuple | None = None,
                   lattice: tuple | None = None, unpack_from: wp.array | None = None,
                   lattice_guide_ready: bool = False, flip: wp.array | None = None,
-                  guide_parity: wp.array | None = None) -> bool:
+                  guide_parity: wp.array | None = None, variance: wp.array | None = None,
+                  input_lattice: bool = False, variance_next: wp.array | None = None, lattice_out: int = 0) -> bool:
     """One level: :func:`atrous_guide`, then :func:`atrous_level` (SVGF's first level, ungated at step 1 from a
     packed input with σ_n = 128, without the guide pass: the level compiled with ``self_guide``).
 
@@ -1015,7 +1050,14 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
 
     ``flip``: the frame's parity (1 int32) to flip at the end, where :func:`unpack_level` runs (it flips it then,
     one launch fewer than :func:`.kernels_svgf.flip_parity`). Returns whether it was flipped (else the caller
-    flips it)."""
+    flips it).
+
+    Chained levels (SVGF, section 71 of docs/perf_notes.md): ``variance_next`` (H*W float32; with
+    ``color_variance_out``) gets the packed output's Var densely (NO_SURFACE without a surface) and ``lattice_out`` (a
+    power of two >= 2) writes ``color_variance_out`` in that step's sub-lattice-major order (it then needs
+    :func:`lattice_size` entries); the next level takes them as ``variance`` (ungated, packed: its guide pass reads
+    that Var alone, 4 bytes a pixel) and ``input_lattice`` (its packed input is in its own step's order already, with
+    ``variance`` and the lattice: the guide pass copies no input, ``lattice[0]`` is not used and may be None)."""
     d = slope.device
     spare = spare_outputs(d)
     blocks, tiles_x = atrous_blocks(width, height, step)
@@ -1037,6 +1079,19 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         color_variance = cv_out = pack_into[0]
         guide = guide_out = pack_into[1]
     use_lattice = lattice is not None and unpacked is None and step >= LATTICE_STEP
+    if variance is not None and (gated or unpacked is not None):
+        raise ValueError("variance (the input's Var alone) is for an ungated level with a packed input")
+    if input_lattice != (use_lattice and variance is not None):
+        raise ValueError("an input in sub-lattice-major order needs variance, the lattice buffers and a step >= "
+                         "LATTICE_STEP, and there variance needs it")
+    if (variance_next is not None or lattice_out) and color_variance_out is None:
+        raise ValueError("variance_next and lattice_out describe color_variance_out, which is not given")
+    if lattice_out:
+        if lattice_out < 2 or lattice_out & (lattice_out - 1):
+            raise ValueError(f"lattice_out must be a power of two >= 2, got {lattice_out}")
+        if color_variance_out.shape[0] < lattice_size(width, height, lattice_out):
+            raise ValueError(f"color_variance_out needs {lattice_size(width, height, lattice_out)} entries in the "
+                             f"sub-lattice-major order of step {lattice_out}")
     if guide_parity is not None and unpacked is not None:
         raise ValueError("guide_parity names a row of a packed guide; an unpacked input has none")
     guide_row = width * height if guide_parity is not None else 0
@@ -1047,9 +1102,9 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
         if step & (step - 1):
             raise ValueError(f"the sub-lattice-major order needs a step that is a power of two, got {step}")
         size = lattice_size(width, height, step)
-        if min(lattice[0].shape[0], lattice[1].shape[0], aux.shape[0]) < size:
+        cv_lattice, guide_lattice = (color_variance if input_lattice else lattice[0]), lattice[1]
+        if min(cv_lattice.shape[0], guide_lattice.shape[0], aux.shape[0]) < size:
             raise ValueError(f"the sub-lattice-major buffers and aux need {size} entries at step {step}")
-        cv_lattice, guide_lattice = lattice
     else:
         cv_lattice = guide_lattice = spare["vec4"]
     # SVGF's first level (ungated, step 1, packed, σ_n = 128) makes its guide-pass terms itself: no guide pass
@@ -1057,7 +1112,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
     if not self_guide:
         wp.launch(atrous_guide, dim=height * width, device=d,
-                  inputs=[int(unpacked is None), color_variance, color_in, variance_in, depth, normal, slope, width,
+                  inputs=[3 if variance is not None else int(unpacked is None), color_variance, color_in,
+                          variance if variance is not None else variance_in, depth, normal, slope, width,
                           height, int(gated), float(noise_target) if gated else 0.0, depth_scale, luminance_scale,
                           aux,
                           int(unpacked is not None), cv_out, guide_out, int(step) if use_lattice else 0, guide,
@@ -1077,7 +1133,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             variance_out if write_public else spare["float"], int(write_history),
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
-                            guide_row, slope])
+                            guide_row, slope, int(lattice_out), int(variance_next is not None),
+                            variance_next if variance_next is not None else spare["float"]])
     if unpack:
         wp.launch(unpack_level, dim=height * width, device=d,
                   inputs=[color_variance_out, *unpack_out, int(flip is not None),

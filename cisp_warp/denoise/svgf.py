@@ -62,12 +62,15 @@ class SVGF:
     Per frame (H*W each): ``depth_slope`` (float32 [m/pixel]), ``integrated`` (vec3 [W/m²],
     the temporal accumulation; written only where it is the output or the colour history: without levels or
     with ``feedback_level`` -1; the levels read it packed in ``color_variance[0]``), ``color_variance`` (2 x
-    vec4: colour, Var; the à-trous levels' packed input and output, ping-ponged; a last level of step >=
-    ``UNPACK_STEP`` writes its output there packed, unpacked into ``out`` densely), ``level_guides`` (vec4: a
+    vec4: colour, Var; the à-trous levels' packed input and output, ping-ponged; the input of a level of step >=
+    ``LATTICE_STEP`` in its sub-lattice-major order, written so by the level before (a little more than H*W); a
+    last level of step >= ``UNPACK_STEP`` writes its output there packed, unpacked into ``out`` densely),
+    ``level_variance`` (float32: the Var of a level's output but the last's, NO_SURFACE without a surface, what
+    the next level's guide pass reads of it; None with fewer than 2 levels), ``level_guides`` (vec4: a
     level's ‖∇z‖, g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a
     little more than H*W), ``lattice_guides`` ({step: vec4}: the guide in the sub-lattice-major order of the first
-    two such steps, written by ``reproject``), ``lattice`` (2 x vec4: those levels' input, and the guide of any
-    further step, copied in that order by their guide pass; None with fewer levels), ``filtered_variance``
+    two such steps, written by ``reproject``), ``lattice`` (2 x vec4: unused (one element), and the guide of any
+    further step, copied in that order by its guide pass; None with fewer levels), ``filtered_variance``
     (float32: luminance variance of the last level, or of the temporal accumulation without levels).
     """
 
@@ -92,15 +95,20 @@ class SVGF:
         self.parity = wp.zeros(1, dtype=wp.int32, device=d)
         self.integrated = one(wp.vec3)
         self.depth_slope = one(wp.float32)
-        self.color_variance = one(wp.vec4), one(wp.vec4)
         # levels of step >= LATTICE_STEP read their input, guide and level_guides in sub-lattice-major order; the
-        # guide of the first two such steps is written so by reproject (one buffer each), of any further step copied
-        # by its level's guide pass into lattice[1] (with the input into lattice[0])
+        # input written so by the previous level (into the ping-pong buffer, hence its size), the guide of the first
+        # two such steps by reproject (one buffer each), of any further step copied by its level's guide pass into
+        # lattice[1] (lattice[0], the input's copy, is not used: one element)
         steps = [1 << k for k in range(settings.atrous_levels) if (1 << k) >= LATTICE_STEP]
         lattice = max([lattice_size(width, height, st) for st in steps], default=0)
+        self.color_variance = (wp.zeros(max(n, lattice), dtype=wp.vec4, device=d),
+                               wp.zeros(max(n, lattice), dtype=wp.vec4, device=d))
         self.level_guides = wp.zeros(max(n, lattice), dtype=wp.vec4, device=d)
-        self.lattice = (wp.zeros(lattice, dtype=wp.vec4, device=d),
+        self.lattice = (wp.zeros(1, dtype=wp.vec4, device=d),
                         wp.zeros(lattice if len(steps) > 2 else 1, dtype=wp.vec4, device=d)) if lattice else None
+        # the Var of each level's output but the last, densely (NO_SURFACE without a surface): all the next level's
+        # guide pass reads of its input
+        self.level_variance = one(wp.float32) if settings.atrous_levels > 1 else None
         self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d)
                                for st in steps[:2]}
         self.filtered_variance = one(wp.float32)
@@ -170,6 +178,9 @@ class SVGF:
             last = level == s.atrous_levels - 1
             feedback = level == s.feedback_level
             ready = (1 << level) in self.lattice_guides
+            step = 1 << level
+            # a level's output in the next level's sub-lattice-major order where that one reads it so
+            lattice_out = 2 * step if not last and self.lattice is not None and 2 * step >= LATTICE_STEP else 0
             flipped = launch_atrous(
                 self.color_variance[level % 2], self.hist_guide, self.depth_slope, w, h, 1 << level, s.sigma_depth,
                 s.sigma_normal, s.sigma_luminance, s.conserve_energy, self.level_guides,
@@ -178,6 +189,9 @@ class SVGF:
                 hist_color=self.hist_color if feedback else None, parity=self.parity if feedback else None,
                 lattice=(self.lattice[0], self.lattice_guides[1 << level]) if ready else self.lattice,
                 unpack_from=self.color_variance[(level + 1) % 2] if last else None, lattice_guide_ready=ready,
-                flip=self.parity if last else None, guide_parity=self.parity)
+                flip=self.parity if last else None, guide_parity=self.parity,
+                variance=self.level_variance if level > 0 else None,
+                input_lattice=level > 0 and self.lattice is not None and step >= LATTICE_STEP,
+                variance_next=None if last else self.level_variance, lattice_out=lattice_out)
         if not flipped:  # the last level's unpack flips it where it runs
             wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
