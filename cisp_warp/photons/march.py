@@ -697,14 +697,14 @@ def counted_marches(back_layer: bool) -> tuple:
 
 #: edge [texels] of the super cells of :func:`super_bounds` (4x4 coarse cells): the composite's reflected rays, which
 #: mostly leave the image in front of everything, prove their way out in a few of these (docs/perf_notes.md section 72)
-BOUNDS_SUPER = 128
+BOUNDS_SUPER = wp.constant(128)
 SUPER_SHIFT = wp.constant(int(BOUNDS_SUPER).bit_length() - 1)
-assert 1 << int(SUPER_SHIFT) == BOUNDS_SUPER and BOUNDS_SUPER % int(BOUNDS_COARSE) == 0
+assert 1 << int(SUPER_SHIFT) == int(BOUNDS_SUPER) and int(BOUNDS_SUPER) % int(BOUNDS_COARSE) == 0
 
 
 def super_shape(width: int, height: int) -> tuple[int, int]:
     """(super cells across, down) of a depth buffer of ``width`` × ``height`` texels (:func:`super_bounds`)."""
-    return bounds_shape(width, height, BOUNDS_SUPER)
+    return bounds_shape(width, height, int(BOUNDS_SUPER))
 
 
 @wp.kernel
