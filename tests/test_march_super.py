@@ -101,3 +101,50 @@ def test_super_bounds_are_the_coarse_cells_min_and_max(device, rng):
             blk = coarse[j * r:(j + 1) * r, i * r:(i + 1) * r]
             assert got[j, i, 0] == blk[..., 0].min() and got[j, i, 1] == blk[..., 1].max(), (i, j)
     assert (sx, sy) == (3, 2)
+
+
+def test_the_composite_is_the_same_without_the_super_cells_proofs(monkeypatch):
+    """The pool's composite (one-stream ``composite`` and concurrent ``composite_march``) with the frame's super
+    bounds and with super bounds that prove nothing (every super cell (0, BIG_DEPTH): the two-level march plus a
+    failing test): every output bit for bit, with reflected rays found, missed and handed on."""
+    from cisp_warp import shade
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.render import Renderer, RenderSettings
+    from cisp_warp.usd import load_usd
+
+    from cisp_warp.raster.kernels import BIG_DEPTH
+
+    scene = load_usd("scenes_usd/pool.usda", width=320, height=180)  # 3 x 2 super cells
+    r = Renderer(scene, RenderSettings(rsm_size=64, method="cisp", denoiser="svgf", hidden_rays="both",
+                                       photons=PhotonSettings(photons=2000, seed=3)), device="cpu")
+    launch = wp.launch
+    checked = []
+
+    def both(kernel, dim, inputs=(), **kw):
+        if kernel not in shade.composite_kernels(bool(r.view.orthographic)):
+            return launch(kernel, dim, inputs=inputs, **kw)
+        inputs = list(inputs)
+        k = [a.label for a in kernel.adj.args].index("super_bounds")
+        assert inputs[k] is r.super_bounds
+        idx = [i for i, a in enumerate(inputs) if isinstance(a, wp.array)]
+        before = {i: inputs[i].numpy().copy() for i in idx}
+        launch(kernel, dim, inputs=inputs, **kw)
+        fast = {i: inputs[i].numpy().copy() for i in idx}
+        for i in idx:
+            inputs[i].assign(before[i])
+        inputs[k] = wp.array(np.tile(np.float32([0.0, BIG_DEPTH]), (r.super_bounds.shape[0], 1)), dtype=wp.vec2,
+                             device="cpu")
+        launch(kernel, dim, inputs=inputs, **kw)
+        for i in idx:
+            if i != k:
+                assert inputs[i].numpy().tobytes() == fast[i].tobytes(), (kernel.key, kernel.adj.args[i].label)
+                inputs[i].assign(fast[i])
+        missed = fast[[a.label for a in kernel.adj.args].index("missed")]
+        checked.append((kernel.key, int(np.count_nonzero(missed & shade.MISSED_REFLECTED))))
+
+    monkeypatch.setattr(wp, "launch", both)
+    for concurrent in (False, True):
+        r.set_concurrent(concurrent)
+        r.render_frame()
+    assert len(checked) == 2 and all(m > 0 for _, m in checked), checked
+    assert r.super_bounds.numpy()[:, 0].min() > 0.0  # built: the nearest surface of every super cell, none empty
