@@ -29,6 +29,7 @@ from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_vi
 from .scene import Camera, DeviceScene, Scene
 from .shade import (MISSED_REFLECTED, MISSED_REFRACTED, DirectLighting, composite_gather, composite_kernels,
                     surface_radiance)
+from . import shade
 from .shade_hidden import HiddenSurfaces
 from .sky import SkyLighting, sky_map
 
@@ -500,6 +501,7 @@ class Renderer:
         g, ps, cs = self.gbuffer, self.settings.photons, self.composite_split
         w = g.water
         wp.launch(composite_kernels(self.view.orthographic)[1], dim=g.width * g.height, device=self.device,
+                  block_dim=shade.COMPOSITE_BLOCK_DIM,
                   inputs=[self.inputs.cameras, g.depth, self._composite_bounds(), self.super_bounds, w.depth,
                           w.position, w.normal,
                           w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final, cs.hits,
@@ -556,6 +558,7 @@ class Renderer:
                 bounds = self._composite_bounds()
                 self._build_composite_bounds()
                 wp.launch(composite_kernels(self.view.orthographic)[0], dim=n, device=self.device,
+                          block_dim=shade.COMPOSITE_BLOCK_DIM,
                           inputs=[self.inputs.cameras, g.depth, bounds, self.super_bounds, self.surface_radiance,
                                   w.depth, w.position,
                                   w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,

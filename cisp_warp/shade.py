@@ -202,6 +202,10 @@ def surface_radiance(
 #: registers unbounded (2 blocks of 256 an SM); measured on an H100, pool 1080p: 0.617 ms unbounded, 0.463 at
 #: (256, 3), 0.401 at (256, 4), images bitwise equal (the bound changes register allocation, not arithmetic).
 COMPOSITE_LAUNCH_BOUNDS = (256, 4)
+#: threads a block :func:`composite` and :func:`composite_march` are launched with (at most the bounds' 256; at 64
+#: registers an SM holds the same 1024 threads in blocks of 64, and a block whose one water warp marches long holds
+#: 2 warps' slot instead of 8). 256 as measured so far; 64 is the probe of docs/perf_notes.md section 72
+COMPOSITE_BLOCK_DIM = 256
 
 
 MISSED_REFRACTED = wp.constant(1)  #: ``composite``'s ``missed`` bit: the refracted ray's march found nothing
