@@ -24,11 +24,12 @@ from .frame import FrameInputs, FrameLanes
 from .photons import PHOTON_METHODS, PhotonSettings, photon_pass_class
 from .photons.cisp import build_bounds
 from .photons.fit import LightViewFitter
-from .photons.march import bounds_size
+from .photons.march import bounds_size, super_bounds as march_super_bounds, super_shape
 from .raster import GBuffer, LightMaps, LightViewSettings, Rasterizer, camera_view
 from .scene import Camera, DeviceScene, Scene
 from .shade import (MISSED_REFLECTED, MISSED_REFRACTED, DirectLighting, composite_gather, composite_kernels,
                     surface_radiance)
+from . import shade
 from .shade_hidden import HiddenSurfaces
 from .sky import SkyLighting, sky_map
 
@@ -219,6 +220,9 @@ class Renderer:
         self.hidden = HiddenSurfaces(self.gpu, cam.width, cam.height, self.sky, self.device)
         self._hidden_bits = HIDDEN_RAYS[self.settings.hidden_rays]  #: composite's ``hidden_rays`` bits
         self.depth_bounds = wp.zeros(bounds_size(cam.width, cam.height), dtype=wp.vec2, device=self.device)
+        #: the composite's bounds one level above their coarse cells (``march.super_bounds``, built every frame)
+        self.super_bounds = wp.zeros(int(np.prod(super_shape(cam.width, cam.height))), dtype=wp.vec2,
+                                     device=self.device)
         self.view = camera_view(cam)
         self.view_params = self.view.params()
         self.prev_view_params = self.view_params
@@ -497,7 +501,9 @@ class Renderer:
         g, ps, cs = self.gbuffer, self.settings.photons, self.composite_split
         w = g.water
         wp.launch(composite_kernels(self.view.orthographic)[1], dim=g.width * g.height, device=self.device,
-                  inputs=[self.inputs.cameras, g.depth, self._composite_bounds(), w.depth, w.position, w.normal,
+                  block_dim=shade.COMPOSITE_BLOCK_DIM,
+                  inputs=[self.inputs.cameras, g.depth, self._composite_bounds(), self.super_bounds, w.depth,
+                          w.position, w.normal,
                           w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final, cs.hits,
                           cs.weights, self.hidden.missed, self._hidden_bits])
         if self._traces_hidden():
@@ -506,11 +512,14 @@ class Renderer:
 
     def _build_composite_bounds(self) -> None:
         """Build ``depth_bounds`` from this frame's depth where the composite marches on them
-        (:meth:`_composite_bounds`)."""
+        (:meth:`_composite_bounds`), then ``super_bounds`` from the composite's bounds (``march.super_bounds``)."""
+        g = self.gbuffer
         if self._composite_bounds() is self.depth_bounds:
-            g, ps = self.gbuffer, self.settings.photons
+            ps = self.settings.photons
             build_bounds(g.depth, g.width, g.height, ps.thickness, COMPOSITE_THICKNESS_REL, self.depth_bounds,
                          self.device)
+        wp.launch(march_super_bounds, dim=self.super_bounds.shape[0], device=self.device,
+                  inputs=[self._composite_bounds(), g.width, g.height, self.super_bounds])
 
     def _denoise_and_shade(self, stage, marched: bool = False) -> None:
         """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
@@ -549,7 +558,9 @@ class Renderer:
                 bounds = self._composite_bounds()
                 self._build_composite_bounds()
                 wp.launch(composite_kernels(self.view.orthographic)[0], dim=n, device=self.device,
-                          inputs=[self.inputs.cameras, g.depth, bounds, self.surface_radiance, w.depth, w.position,
+                          block_dim=shade.COMPOSITE_BLOCK_DIM,
+                          inputs=[self.inputs.cameras, g.depth, bounds, self.super_bounds, self.surface_radiance,
+                                  w.depth, w.position,
                                   w.normal, w.ior, self.t_max, ps.max_steps, ps.thickness, self.sky_map, self.final,
                                   self.hidden.missed, self._hidden_bits])
             if self.photons is not None and self.photons.final is not None:

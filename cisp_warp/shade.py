@@ -13,7 +13,7 @@ import numpy as np
 import warp as wp
 
 from .optics import fresnel_dielectric, reflect, refract
-from .photons.march import MARCH_HIT, screen_march_bounded_plain
+from .photons.march import MARCH_HIT, screen_march_super_plain
 from .raster.views import ViewParams, fixed_projection, pixel_ray_world, read_again, view_eye_world, world_project
 from .raster import GBuffer, LightMaps
 from .raster.kernels import spot_falloff
@@ -202,6 +202,10 @@ def surface_radiance(
 #: registers unbounded (2 blocks of 256 an SM); measured on an H100, pool 1080p: 0.617 ms unbounded, 0.463 at
 #: (256, 3), 0.401 at (256, 4), images bitwise equal (the bound changes register allocation, not arithmetic).
 COMPOSITE_LAUNCH_BOUNDS = (256, 4)
+#: threads a block :func:`composite` and :func:`composite_march` are launched with (at most the bounds' 256; at 64
+#: registers an SM holds the same 1024 threads in blocks of 64, and a block whose one water warp marches long holds
+#: 2 warps' slot instead of 8). 256 as measured so far; 64 is the probe of docs/perf_notes.md section 72
+COMPOSITE_BLOCK_DIM = 256
 
 
 MISSED_REFRACTED = wp.constant(1)  #: ``composite``'s ``missed`` bit: the refracted ray's march found nothing
@@ -254,14 +258,16 @@ def _make_composite(camera_ortho: int = -1):
 
     @wp.func
     def screen_space_hit(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
-                         depth_bounds: wp.array(dtype=wp.vec2), o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int,
-                         thickness: float) -> int:
+                         depth_bounds: wp.array(dtype=wp.vec2), super_bounds: wp.array(dtype=wp.vec2), o: wp.vec3,
+                         d: wp.vec3, t_max: float, max_steps: int, thickness: float) -> int:
         """The camera pixel (``j·W + i``) whose opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth
         buffer, or -1 when the ray leaves the image or runs out of steps (the camera ``cameras[0]``, read where the march
         needs it and again after it, ``anchor`` >= 0: see ``views.read_again``; its projection the compiled one where
-        the composite has one). Reads the G-buffer's depth only."""
-        status, t, steps = screen_march_bounded_plain(camera_view(cameras, anchor), depth, depth_bounds, o, d, t_max,
-                                                      max_steps, thickness, 0.02)  # the front depths only (H*W)
+        the composite has one). Reads the G-buffer's depth only, through its bounds' three levels (``super_bounds``:
+        ``march.super_bounds`` of ``depth_bounds``; the march ends where the naive one does, docs/perf_notes.md
+        section 72)."""
+        status, t, steps = screen_march_super_plain(camera_view(cameras, anchor), depth, depth_bounds, super_bounds, o,
+                                                    d, t_max, max_steps, thickness, 0.02)  # the front depths only (H*W)
         if status != MARCH_HIT:
             return int(-1)
         camera = camera_view(cameras, steps)
@@ -273,12 +279,13 @@ def _make_composite(camera_ortho: int = -1):
 
     @wp.func
     def screen_space_lookup(cameras: wp.array(dtype=ViewParams), anchor: int, depth: wp.array(dtype=wp.float32),
-                            depth_bounds: wp.array(dtype=wp.vec2), radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3,
-                            t_max: float, max_steps: int, thickness: float):
+                            depth_bounds: wp.array(dtype=wp.vec2), super_bounds: wp.array(dtype=wp.vec2),
+                            radiance: wp.array(dtype=wp.vec3), o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int,
+                            thickness: float):
         """Radiance of the opaque surface a ray from ``o`` along ``d`` reaches in the camera's depth buffer
         (:func:`screen_space_hit`'s pixel). Returns (found, radiance); not found when the ray leaves the image or runs
         out of steps."""
-        h = screen_space_hit(cameras, anchor, depth, depth_bounds, o, d, t_max, max_steps, thickness)
+        h = screen_space_hit(cameras, anchor, depth, depth_bounds, super_bounds, o, d, t_max, max_steps, thickness)
         if h < 0:
             return int(0), wp.vec3(0.0)
         return int(1), radiance[h]
@@ -287,6 +294,7 @@ def _make_composite(camera_ortho: int = -1):
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
         depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
         depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
+        super_bounds: wp.array(dtype=wp.vec2),  # (march.super_shape,) march.super_bounds of depth_bounds (read)
         radiance: wp.array(dtype=wp.vec3),  # (H*W,) opaque surface radiance [W/(m² sr)] (read)
         water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
         water_position: wp.array(dtype=wp.vec3),
@@ -325,8 +333,8 @@ def _make_composite(camera_ortho: int = -1):
             f, dr, dt, eta = water_rays(camera, x, water_normal[p], water_ior[p])
             l = wp.vec3(0.0)
             if f > 0.0:
-                found, lr = screen_space_lookup(cameras, p, depth, depth_bounds, radiance, x, dr, t_max, max_steps,
-                                                thickness)
+                found, lr = screen_space_lookup(cameras, p, depth, depth_bounds, super_bounds, radiance, x, dr, t_max,
+                                                max_steps, thickness)
                 if found == 0:
                     if (hidden_rays & MISSED_REFLECTED) != 0:
                         bits = bits | MISSED_REFLECTED
@@ -334,8 +342,8 @@ def _make_composite(camera_ortho: int = -1):
                         lr = sky_radiance(sky, dr)
                 l = l + lr * f
             if f < 1.0:
-                found, lt = screen_space_lookup(cameras, p + 1, depth, depth_bounds, radiance, x, dt, t_max, max_steps,
-                                                thickness)
+                found, lt = screen_space_lookup(cameras, p + 1, depth, depth_bounds, super_bounds, radiance, x, dt,
+                                                t_max, max_steps, thickness)
                 if found == 0:
                     if (hidden_rays & MISSED_REFRACTED) != 0:
                         bits = bits | MISSED_REFRACTED
@@ -349,6 +357,7 @@ def _make_composite(camera_ortho: int = -1):
         cameras: wp.array(dtype=ViewParams),  # (2,) this frame's camera first (frame.FrameInputs.cameras, read)
         depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
         depth_bounds: wp.array(dtype=wp.vec2),  # march.depth_bounds of depth with (thickness, 0.02) (read)
+        super_bounds: wp.array(dtype=wp.vec2),  # (march.super_shape,) march.super_bounds of depth_bounds (read)
         water_depth: wp.array(dtype=wp.float32),  # (H*W,) water layer depth [m], 0 = none (read)
         water_position: wp.array(dtype=wp.vec3),
         water_normal: wp.array(dtype=wp.vec3),
@@ -384,7 +393,7 @@ def _make_composite(camera_ortho: int = -1):
             ht = int(HIT_NONE)
             wt = float(0.0)
             if f > 0.0:
-                hr = screen_space_hit(cameras, p, depth, depth_bounds, x, dr, t_max, max_steps, thickness)
+                hr = screen_space_hit(cameras, p, depth, depth_bounds, super_bounds, x, dr, t_max, max_steps, thickness)
                 if hr < 0:
                     lr = wp.vec3(0.0)
                     if (hidden_rays & MISSED_REFLECTED) != 0:
@@ -394,7 +403,8 @@ def _make_composite(camera_ortho: int = -1):
                     l = l + lr * f
             if f < 1.0:
                 wt = (1.0 - f) / (eta * eta)
-                ht = screen_space_hit(cameras, p + 1, depth, depth_bounds, x, dt, t_max, max_steps, thickness)
+                ht = screen_space_hit(cameras, p + 1, depth, depth_bounds, super_bounds, x, dt, t_max, max_steps,
+                                    thickness)
                 if ht < 0:
                     if (hidden_rays & MISSED_REFRACTED) != 0:
                         bits = bits | MISSED_REFRACTED  # composite adds zero · wt: l unchanged (l is never -0)

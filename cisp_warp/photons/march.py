@@ -693,3 +693,156 @@ def counted_marches(back_layer: bool) -> tuple:
     if back_layer not in _COUNTED:
         _COUNTED[back_layer] = _make_marches(back_layer, counted=True)
     return _COUNTED[back_layer]
+
+
+#: edge [texels] of the super cells of :func:`super_bounds` (4x4 coarse cells): the composite's reflected rays, which
+#: mostly leave the image in front of everything, prove their way out in a few of these (docs/perf_notes.md section 72)
+BOUNDS_SUPER = wp.constant(128)
+SUPER_SHIFT = wp.constant(int(BOUNDS_SUPER).bit_length() - 1)
+assert 1 << int(SUPER_SHIFT) == int(BOUNDS_SUPER) and int(BOUNDS_SUPER) % int(BOUNDS_COARSE) == 0
+
+
+def super_shape(width: int, height: int) -> tuple[int, int]:
+    """(super cells across, down) of a depth buffer of ``width`` × ``height`` texels (:func:`super_bounds`)."""
+    return bounds_shape(width, height, int(BOUNDS_SUPER))
+
+
+@wp.kernel
+def super_bounds(
+    bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) :func:`depth_bounds` + :func:`coarsen_bounds` (read: coarse cells)
+    width: int,  # of the depth buffer [texels]
+    height: int,
+    supers: wp.array(dtype=wp.vec2),  # (super_shape,) per super cell (min, max) of its coarse cells' bounds (write)
+):
+    """Super cell = min and max over its (BOUNDS_SUPER / BOUNDS_COARSE)² coarse cells (:func:`coarsen_bounds`, one
+    level up): bounds of the same proofs over BOUNDS_SUPER² texels."""
+    c = wp.tid()
+    fw = (width + BOUNDS_CELL - 1) / BOUNDS_CELL
+    fh = (height + BOUNDS_CELL - 1) / BOUNDS_CELL
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    ch = (height + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    sw = (width + BOUNDS_SUPER - 1) / BOUNDS_SUPER
+    r = BOUNDS_SUPER / BOUNDS_COARSE
+    i0 = (c % sw) * r
+    j0 = (c / sw) * r
+    b = wp.vec2(BIG_DEPTH, 0.0)
+    for dj in range(r):
+        for di in range(r):
+            if i0 + di < cw and j0 + dj < ch:
+                f = bounds[fw * fh + (j0 + dj) * cw + i0 + di]
+                b = wp.vec2(wp.min(b[0], f[0]), wp.max(b[1], f[1]))
+    supers[c] = b
+
+
+def _make_super_march(counted: bool = False):
+    """:func:`screen_march_super_plain`: ``screen_march_bounded_plain`` with a third level of bounds above its coarse
+    cells (``counted``: as :func:`_make_marches`)."""
+
+    @wp.func
+    def _steps_out(i: int, work: int) -> int:
+        if wp.static(counted):
+            return work
+        return i
+
+    @wp.func
+    def screen_march_super_plain(
+        view: ViewParams,
+        depth: wp.array(dtype=wp.float32),  # (H*W,) linear depth [m], 0 = no surface (read; no back-face layer)
+        bounds: wp.array(dtype=wp.vec2),  # (bounds_size,) :func:`depth_bounds` of ``depth``, these thicknesses (read)
+        supers: wp.array(dtype=wp.vec2),  # (super_shape,) :func:`super_bounds` of ``bounds`` (read)
+        o: wp.vec3,  # world origin [m]
+        d: wp.vec3,  # world direction
+        t_max: float,
+        max_steps: int,
+        thickness: float,  # [m] absolute part of the surface thickness
+        thickness_rel: float,  # relative part (× sample depth)
+    ):
+        """``screen_march_bounded_plain`` (plain H*W depth buffer) that tries the step's super cell (BOUNDS_SUPER²
+        texels) before its coarse and fine cells: the same skips are proofs one level up, so it returns what the naive
+        march returns (status, t_end, steps taken), bit for bit. A super cell whose bounds failed is not tested again
+        (as the coarse one). Where a ray leaves the image in front of every surface (the pool's reflected rays), its
+        march proves it a super cell at a time: ~4 tests across a 1080p image instead of one a coarse cell."""
+        inside, status, n, ds_step, t1, z0, z1, k0, k1, s0, ds = _screen_segment(view, o, d, t_max, max_steps)
+        if inside == 0:
+            return MARCH_EXIT, float(0.0), int(0)
+        ortho = view.orthographic
+        fine_x = (view.width + BOUNDS_CELL - 1) >> CELL_SHIFT
+        coarse_0 = fine_x * ((view.height + BOUNDS_CELL - 1) >> CELL_SHIFT)
+        coarse_x = (view.width + BOUNDS_COARSE - 1) >> COARSE_SHIFT
+        super_x = (view.width + BOUNDS_SUPER - 1) >> SUPER_SHIFT
+        inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
+                           wp.where(ds[1] != 0.0, 1.0 / (ds[1] * ds_step), 0.0))
+        s_prev = float(0.0)
+        zr_prev = z0
+        diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+        failed_super = int(-1)  # the super cell whose bounds last failed: not tested again
+        failed_coarse = int(-1)
+        work = int(0)
+        i = int(1)
+        while i <= n:
+            tx = _texel(view, s0, ds, ds_step * float(i))
+            last = n
+            skip = False
+            if (tx[1] >> SUPER_SHIFT) * super_x + (tx[0] >> SUPER_SHIFT) != failed_super:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, SUPER_SHIFT)
+                b = supers[cj * super_x + ci]
+                if wp.static(counted):
+                    work += WORK_TESTS
+                skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
+                if not skip:
+                    failed_super = cj * super_x + ci
+            if not skip and (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, COARSE_SHIFT)
+                b = bounds[coarse_0 + cj * coarse_x + ci]
+                if wp.static(counted):
+                    work += WORK_TESTS
+                skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
+                if not skip:
+                    failed_coarse = cj * coarse_x + ci
+            if not skip:
+                last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, CELL_SHIFT)
+                b = bounds[cj * fine_x + ci]
+                if wp.static(counted):
+                    work += WORK_TESTS
+                skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
+            if skip:
+                s_prev = ds_step * float(last)
+                zr_prev = ZR_UNREAD
+                diff_prev = DIFF_UNREAD
+                i = last + 1
+                continue
+            if zr_prev < 0.0:  # ZR_UNREAD
+                zr_prev = _ray_depth(ortho, z0, z1, k0, k1, s_prev)
+            while i <= last:
+                if wp.static(counted):
+                    work += 1
+                s = ds_step * float(i)
+                sp = s0 + ds * s
+                zr = _ray_depth(ortho, z0, z1, k0, k1, s)
+                zs = _buffer_depth(view, depth, sp[0], sp[1])
+                z_far = zs + thickness + thickness_rel * zs
+                if wp.max(zr, zr_prev) >= zs and wp.min(zr, zr_prev) <= z_far:
+                    if diff_prev == DIFF_UNREAD:
+                        sp_prev = s0 + ds * s_prev
+                        diff_prev = zr_prev - _buffer_depth(view, depth, sp_prev[0], sp_prev[1])
+                    u = _crossing(ortho, zr_prev, zr, zs, diff_prev, z_far)
+                    return MARCH_HIT, _segment_t(ortho, k0, k1, t1, s_prev + (s - s_prev) * u), _steps_out(i, work)
+                s_prev = s
+                zr_prev = zr
+                diff_prev = zr - zs
+                i += 1
+        return status, _segment_t(ortho, k0, k1, t1, s_prev), _steps_out(n, work)
+
+    return screen_march_super_plain
+
+
+#: the three-level bounded march of a plain depth buffer (the composite's reflected rays)
+screen_march_super_plain = _make_super_march()
+_COUNTED_SUPER: list = []
+
+
+def counted_super_march():
+    """:func:`screen_march_super_plain` compiled ``counted`` (probes only; made on first use)."""
+    if not _COUNTED_SUPER:
+        _COUNTED_SUPER.append(_make_super_march(counted=True))
+    return _COUNTED_SUPER[0]
