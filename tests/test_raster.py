@@ -183,6 +183,45 @@ def test_distant_light_flux_is_irradiance_times_projected_area(device):
     assert (spec >= 0).mean() > 0.9  # the fit covers the water, not the floor
 
 
+@wp.kernel
+def _spot_falloffs(c: wp.array(dtype=wp.float32), cos_inner: float, cone: float, soft: float,
+                   naive: wp.array(dtype=wp.float32), proven: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    naive[i] = RK.spot_falloff(c[i], cone, soft)
+    proven[i] = RK.spot_falloff_inner(c[i], cos_inner, cone, soft)
+
+
+@pytest.mark.parametrize("cone_deg, soft", [(35.0, 0.2), (8.0, 0.0), (30.0, 0.25), (60.0, 0.9), (100.0, 0.2),
+                                            (179.0, 0.0), (20.0, 1.0), (20.0, 1.5), (0.0, 0.2), (0.01, 0.5)])
+def test_spot_falloff_inner_is_spot_falloff(device, rng, cone_deg, soft):
+    """``spot_falloff_inner`` (the emission's falloff: 1 from ``spot_inner_cosine`` on, no acos) gives
+    ``spot_falloff``'s bits for every float32 cosine within 2^14 ulps of its bound, of the inner angle's cosine and of
+    the cone's, near 1 and above it (a normalized vector's rounding), and 2^16 uniform in [-1.01, 1.01]; and the bound
+    proves almost all of the inner cone (within 2^-11 of its angle), so the skip is not left out. A zero inner angle
+    (softness >= 1, a zero cone) proves nothing."""
+    cone = math.radians(cone_deg)
+    c_star = RK.spot_inner_cosine(cone, soft)
+    inner32 = float(np.float32(cone) * (np.float32(1.0) - np.clip(np.float32(soft), np.float32(0.0), np.float32(1.0))))
+    if inner32 <= 0.0:
+        assert c_star == RK.SPOT_INNER_NONE
+    else:
+        bound = np.float32(math.cos(min(inner32 * (1.0 - 2.0 ** -11), math.pi)))
+        assert c_star <= float(np.nextafter(bound, np.float32(2.0)))  # nearly all of the inner cone proven (to float32)
+    ulps = np.arange(-(1 << 14), 1 << 14, dtype=np.int32)
+    parts = [rng.uniform(-1.01, 1.01, 1 << 16).astype(np.float32)]
+    for centre in (min(c_star, 1.0), math.cos(inner32), math.cos(cone), 1.0):
+        bits = np.array([centre], np.float32).view(np.int32)[0]
+        parts.append((bits + ulps).view(np.float32))
+    c = np.concatenate(parts).astype(np.float32)
+    c = c[np.isfinite(c)]
+    c_d = wp.array(c, dtype=wp.float32, device=device)
+    naive, proven = wp.zeros(len(c), dtype=wp.float32, device=device), wp.zeros(len(c), dtype=wp.float32, device=device)
+    wp.launch(_spot_falloffs, dim=len(c), device=device, inputs=[c_d, c_star, cone, soft, naive, proven])
+    np.testing.assert_array_equal(proven.numpy().view(np.int32), naive.numpy().view(np.int32))
+    if inner32 > 0.0:
+        assert np.count_nonzero(c >= c_star) > 1 << 14  # the proven branch ran
+
+
 def test_spot_flux_matches_cone_integral(device):
     """A spot light above a large specular plane: total flux = I · ∫ falloff dΩ over the cone."""
     cone, soft = math.radians(30.0), 0.25

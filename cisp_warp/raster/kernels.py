@@ -25,6 +25,9 @@ sections 43 and 58).
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import warp as wp
 
 from .views import ViewParams, pixel_ray_world, read_again, view_point, view_project
@@ -1083,6 +1086,38 @@ def spot_falloff(cos_angle: float, cone_angle: float, softness: float) -> float:
     return s * s * (3.0 - 2.0 * s)
 
 
+# The spot's inner cone without its acos (docs/perf_notes.md section 70): a cosine at or above ``spot_inner_cosine``
+# proves ``spot_falloff`` 1 (the angle inside ``cone_angle·(1 − softness)``, below ``cone_angle``), so its acos, its
+# branches and the smoothstep are skipped there and the value is the same bits; elsewhere ``spot_falloff`` as before.
+SPOT_INNER_MARGIN = 2.0 ** -12  #: the proof's relative margin on the inner angle: above acosf's 2 ulps (2^-22)
+SPOT_INNER_NONE = 2.0  #: a cosine bound no cosine reaches: nothing proven, ``spot_falloff`` everywhere
+
+
+def spot_inner_cosine(cone_angle: float, softness: float) -> float:
+    """The float32 cosine c* from which ``spot_falloff(c, cone_angle, softness)`` is 1, proven: the kernel's inner angle
+    ``cone_angle·(1 − clamp(softness))`` in float32 as :func:`spot_falloff` computes it, less a relative
+    ``SPOT_INNER_MARGIN``, its cosine in float64 rounded up to float32. For c >= c*, acos(c) <= that angle, and a float
+    acos within 2^-21 of it is below the inner angle, which is at most ``cone_angle``: both of ``spot_falloff``'s tests
+    give 1. ``SPOT_INNER_NONE`` where the inner angle is not positive (nothing proven)."""
+    inner = np.float32(cone_angle) * (np.float32(1.0) - np.clip(np.float32(softness), np.float32(0.0), np.float32(1.0)))
+    if not inner > 0.0:
+        return SPOT_INNER_NONE
+    c = math.cos(float(inner) * (1.0 - SPOT_INNER_MARGIN))
+    c32 = np.float32(c)
+    if float(c32) < c:
+        c32 = np.nextafter(c32, np.float32(2.0))
+    return float(c32)
+
+
+@wp.func
+def spot_falloff_inner(cos_angle: float, cos_inner: float, cone_angle: float, softness: float) -> float:
+    """:func:`spot_falloff` with its inner cone proven from the cosine: 1 where ``cos_angle >= cos_inner`` (a
+    :func:`spot_inner_cosine` of the same cone), ``spot_falloff`` elsewhere; the same bits everywhere."""
+    if cos_angle >= cos_inner:
+        return 1.0
+    return spot_falloff(cos_angle, cone_angle, softness)
+
+
 @wp.func
 def texel_flux(
     view: ViewParams,
@@ -1105,6 +1140,29 @@ def texel_flux(
     return light_rgb * scale
 
 
+@wp.func
+def texel_flux_inner(
+    view: ViewParams,
+    p: int,
+    light_rgb: wp.vec3,
+    spot_axis: wp.vec3,
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    cos_inner: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),
+) -> wp.vec3:
+    """:func:`texel_flux` (its naive twin, the resolves') with the spot's falloff through :func:`spot_falloff_inner`
+    (``cos_inner`` = ``spot_inner_cosine`` of the cone): no acos inside the inner cone, the same bits."""
+    if view.orthographic != 0:
+        return light_rgb / (view.fx * view.fy)
+    scale = texel_solid_angle[p]
+    if is_spot != 0:
+        o, d = pixel_ray_world(view, float(p % view.width) + 0.5, float(p / view.width) + 0.5)
+        scale = scale * spot_falloff_inner(wp.dot(wp.normalize(d), spot_axis), cos_inner, cone_angle, cone_softness)
+    return light_rgb * scale
+
+
 @wp.struct
 class TexelEmission:
     """What an RSM view's specular texel's flux, roughness and IOR are computed from where they are read, instead of
@@ -1116,6 +1174,7 @@ class TexelEmission:
     is_spot: int
     cone_angle: float  # [rad]
     cone_softness: float
+    cone_cos_inner: float  # spot_inner_cosine(cone_angle, cone_softness): the falloff is 1 from it (a spot must set it)
     texel_solid_angle: wp.array(dtype=wp.float32)  # (H*W,) [sr] of the view's texels, perspective views (read)
     triangle_material: wp.array(dtype=wp.int32)  # (T,) material per triangle (read)
     mat_roughness: wp.array(dtype=wp.float32)  # (M,) per material (read)
@@ -1126,8 +1185,8 @@ class TexelEmission:
 def texel_emitted_flux(e: TexelEmission, view: ViewParams, p: int) -> wp.vec3:
     """Flux [W] through specular texel ``p`` of ``view`` (its triangle >= 0): the bits the resolve's
     :func:`texel_flux` writes into a kept ``flux`` map (the same function of the same values)."""
-    return texel_flux(view, p, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
-                      e.texel_solid_angle)
+    return texel_flux_inner(view, p, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
+                            e.cone_cos_inner, e.texel_solid_angle)
 
 
 @wp.func
