@@ -184,42 +184,58 @@ def test_distant_light_flux_is_irradiance_times_projected_area(device):
 
 
 @wp.kernel
-def _spot_falloffs(c: wp.array(dtype=wp.float32), cos_inner: float, cone: float, soft: float,
+def _spot_falloffs(c: wp.array(dtype=wp.float32), cos_inner: float, cos_outer: float, cone: float, soft: float,
                    naive: wp.array(dtype=wp.float32), proven: wp.array(dtype=wp.float32)):
     i = wp.tid()
     naive[i] = RK.spot_falloff(c[i], cone, soft)
-    proven[i] = RK.spot_falloff_inner(c[i], cos_inner, cone, soft)
+    proven[i] = RK.spot_falloff_proven(c[i], cos_inner, cos_outer, cone, soft)
 
 
 @pytest.mark.parametrize("cone_deg, soft", [(35.0, 0.2), (8.0, 0.0), (30.0, 0.25), (60.0, 0.9), (100.0, 0.2),
                                             (179.0, 0.0), (20.0, 1.0), (20.0, 1.5), (0.0, 0.2), (0.01, 0.5)])
-def test_spot_falloff_inner_is_spot_falloff(device, rng, cone_deg, soft):
-    """``spot_falloff_inner`` (the emission's falloff: 1 from ``spot_inner_cosine`` on, no acos) gives
-    ``spot_falloff``'s bits for every float32 cosine within 2^14 ulps of its bound, of the inner angle's cosine and of
-    the cone's, near 1 and above it (a normalized vector's rounding), and 2^16 uniform in [-1.01, 1.01]; and the bound
-    proves almost all of the inner cone (within 2^-11 of its angle), so the skip is not left out. A zero inner angle
-    (softness >= 1, a zero cone) proves nothing."""
+def test_spot_falloff_proven_is_spot_falloff(device, rng, cone_deg, soft):
+    """``spot_falloff_proven`` (the emission's falloff: 1 from ``spot_cone_cosines``' inner bound up, 0 from its outer
+    one down, no acos there) gives ``spot_falloff``'s bits for every float32 cosine within 2^14 ulps of either bound,
+    of the inner angle's cosine and of the cone's, near 1 and above it (a normalized vector's rounding), near -1, and
+    2^16 uniform in [-1.01, 1.01]; and the bounds prove almost all of the inner cone and of what lies beyond the cone
+    (within 2^-11 of their angles, to float32), so the skips are not left out. A zero inner angle (softness >= 1, a
+    zero cone) proves no inner cone."""
     cone = math.radians(cone_deg)
-    c_star = RK.spot_inner_cosine(cone, soft)
+    c_in, c_out = RK.spot_cone_cosines(cone, soft)
+    cone32 = float(np.float32(cone))
     inner32 = float(np.float32(cone) * (np.float32(1.0) - np.clip(np.float32(soft), np.float32(0.0), np.float32(1.0))))
+
+    def f32_up(x):
+        return float(np.nextafter(np.float32(x), np.float32(2.0)))
+
+    def f32_down(x):
+        return float(np.nextafter(np.float32(x), np.float32(-2.0)))
+
     if inner32 <= 0.0:
-        assert c_star == RK.SPOT_INNER_NONE
+        assert c_in == RK.SPOT_COS_NONE
     else:
-        bound = np.float32(math.cos(min(inner32 * (1.0 - 2.0 ** -11), math.pi)))
-        assert c_star <= float(np.nextafter(bound, np.float32(2.0)))  # nearly all of the inner cone proven (to float32)
+        assert c_in <= f32_up(math.cos(inner32 * (1.0 - 2.0 ** -11)))  # nearly all of the inner cone proven
+    if cone32 <= 0.0 or cone32 * (1.0 + 2.0 ** -12) >= math.pi:
+        assert c_out == -RK.SPOT_COS_NONE
+    else:
+        assert c_out >= f32_down(math.cos(cone32 * (1.0 + 2.0 ** -11)))  # nearly all beyond the cone proven
+    assert c_out < c_in
     ulps = np.arange(-(1 << 14), 1 << 14, dtype=np.int32)
     parts = [rng.uniform(-1.01, 1.01, 1 << 16).astype(np.float32)]
-    for centre in (min(c_star, 1.0), math.cos(inner32), math.cos(cone), 1.0):
+    for centre in (np.clip(c_in, -1.0, 1.0), np.clip(c_out, -1.0, 1.0), math.cos(inner32), math.cos(cone32), 1.0,
+                   -1.0):
         bits = np.array([centre], np.float32).view(np.int32)[0]
         parts.append((bits + ulps).view(np.float32))
     c = np.concatenate(parts).astype(np.float32)
     c = c[np.isfinite(c)]
     c_d = wp.array(c, dtype=wp.float32, device=device)
     naive, proven = wp.zeros(len(c), dtype=wp.float32, device=device), wp.zeros(len(c), dtype=wp.float32, device=device)
-    wp.launch(_spot_falloffs, dim=len(c), device=device, inputs=[c_d, c_star, cone, soft, naive, proven])
+    wp.launch(_spot_falloffs, dim=len(c), device=device, inputs=[c_d, c_in, c_out, cone, soft, naive, proven])
     np.testing.assert_array_equal(proven.numpy().view(np.int32), naive.numpy().view(np.int32))
     if inner32 > 0.0:
-        assert np.count_nonzero(c >= c_star) > 1 << 14  # the proven branch ran
+        assert np.count_nonzero(c >= c_in) > 1 << 14  # the inner proof ran
+    if c_out > -1.0:
+        assert np.count_nonzero(c <= c_out) > 1 << 14  # the outer proof ran
 
 
 def test_spot_flux_matches_cone_integral(device):
