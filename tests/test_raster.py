@@ -737,11 +737,15 @@ def test_texel_surface_is_what_the_resolve_writes(device, rng):
 @wp.kernel
 def _texel_emission_of_layer(views: wp.array(dtype=ViewParams), k: int, tri_id: wp.array(dtype=wp.int32),
                              emission: RK.TexelEmission, flux_out: wp.array(dtype=wp.vec3),
-                             roughness_out: wp.array(dtype=wp.float32), ior_out: wp.array(dtype=wp.float32)):
-    p = wp.tid()
+                             roughness_out: wp.array(dtype=wp.float32), ior_out: wp.array(dtype=wp.float32),
+                             flux_at_out: wp.array(dtype=wp.vec3)):
+    j, i = wp.tid()  # the texel's row and column, as the emission has them (no division of p)
+    view = views[k]
+    p = j * view.width + i
     tri = tri_id[p]
     if tri >= 0:
-        flux_out[p] = RK.texel_emitted_flux(emission, views[k], p)
+        flux_out[p] = RK.texel_emitted_flux(emission, view, p)
+        flux_at_out[p] = RK.texel_emitted_flux_at(emission, view, p, i, j)
         roughness_out[p] = RK.texel_roughness(emission, tri)
         ior_out[p] = RK.texel_ior(emission, tri)
 
@@ -750,7 +754,9 @@ def test_texel_emission_is_what_the_resolve_writes(device, rng):
     """``TexelEmission`` (a specular texel's flux, roughness and IOR as a reader computes them from the light, its
     triangle and the materials, for RSM views that keep no such maps) gives, on every covered texel, the bits
     ``resolve_rsm_view`` writes into ``flux``, ``roughness`` and ``ior`` where they are kept, and a texel without a
-    specular surface has zero flux there (what ``max_luminance`` and ``book_outside_window`` assume): random spot,
+    specular surface has zero flux there (what ``max_luminance`` and ``book_outside_window`` assume); the emission's
+    ``texel_emitted_flux_at`` (column and row given; the spot's falloff proven from the cosine inside the inner cone
+    and beyond the cone, ``spot_falloff_proven``) the same bits as the resolve's naive ``texel_flux``: random spot,
     point and distant lights over the room with two materials on the water side (its sphere and box are specular
     too), two poses each, odd sizes; fitted views (cascades and their pilots) beside whole ones."""
     from cisp_warp.raster import LightViewSettings
@@ -785,11 +791,13 @@ def test_texel_emission_is_what_the_resolve_writes(device, rng):
                 for k, r in enumerate(maps):
                     sp = r.specular
                     f_t, r_t, i_t = wp.zeros_like(r.flux), wp.zeros_like(sp.roughness), wp.zeros_like(sp.ior)
-                    wp.launch(_texel_emission_of_layer, dim=r.width * r.height, device=device,
-                              inputs=[views, k, sp.tri_id, lm.emission(r), f_t, r_t, i_t])
+                    fa_t = wp.zeros_like(r.flux)
+                    wp.launch(_texel_emission_of_layer, dim=(r.height, r.width), device=device,
+                              inputs=[views, k, sp.tri_id, lm.emission(r), f_t, r_t, i_t, fa_t])
                     on = sp.tri_id.numpy() >= 0
                     covered += int(on.sum())
                     np.testing.assert_array_equal(_bits(f_t.numpy()[on]), _bits(r.flux.numpy()[on]))
+                    np.testing.assert_array_equal(_bits(fa_t.numpy()[on]), _bits(r.flux.numpy()[on]))
                     np.testing.assert_array_equal(_bits(r_t.numpy()[on]), _bits(sp.roughness.numpy()[on]))
                     np.testing.assert_array_equal(_bits(i_t.numpy()[on]), _bits(sp.ior.numpy()[on]))
                     assert not r.flux.numpy()[~on].any()

@@ -1159,6 +1159,8 @@ def texel_flux(
 def texel_flux_proven(
     view: ViewParams,
     p: int,
+    i: int,  # p % view.width, p / view.width: the texel's column and row, which the caller knows
+    j: int,
     light_rgb: wp.vec3,
     spot_axis: wp.vec3,
     is_spot: int,
@@ -1170,12 +1172,12 @@ def texel_flux_proven(
 ) -> wp.vec3:
     """:func:`texel_flux` (its naive twin, the resolves') with the spot's falloff through :func:`spot_falloff_proven`
     ((``cos_inner``, ``cos_outer``) = ``spot_cone_cosines`` of the cone): no acos inside the inner cone or beyond the
-    cone, the same bits."""
+    cone, the same bits; the texel's column and row given (no integer division where the caller has them)."""
     if view.orthographic != 0:
         return light_rgb / (view.fx * view.fy)
     scale = texel_solid_angle[p]
     if is_spot != 0:
-        o, d = pixel_ray_world(view, float(p % view.width) + 0.5, float(p / view.width) + 0.5)
+        o, d = pixel_ray_world(view, float(i) + 0.5, float(j) + 0.5)
         c = wp.dot(wp.normalize(d), spot_axis)
         scale = scale * spot_falloff_proven(c, cos_inner, cos_outer, cone_angle, cone_softness)
     return light_rgb * scale
@@ -1204,7 +1206,15 @@ class TexelEmission:
 def texel_emitted_flux(e: TexelEmission, view: ViewParams, p: int) -> wp.vec3:
     """Flux [W] through specular texel ``p`` of ``view`` (its triangle >= 0): the bits the resolve's
     :func:`texel_flux` writes into a kept ``flux`` map (the same function of the same values)."""
-    return texel_flux_proven(view, p, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
+    return texel_flux_proven(view, p, p % view.width, p / view.width, e.light_rgb, e.spot_axis, e.is_spot,
+                             e.cone_angle, e.cone_softness, e.cone_cos_inner, e.cone_cos_outer, e.texel_solid_angle)
+
+
+@wp.func
+def texel_emitted_flux_at(e: TexelEmission, view: ViewParams, p: int, i: int, j: int) -> wp.vec3:
+    """:func:`texel_emitted_flux` of texel ``p`` = ``j·view.width + i`` (0 <= i < width, j >= 0) where the caller has
+    its column ``i`` and row ``j``: the same bits, without their integer division (the emission's samples)."""
+    return texel_flux_proven(view, p, i, j, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
                              e.cone_cos_inner, e.cone_cos_outer, e.texel_solid_angle)
 
 
