@@ -1159,7 +1159,7 @@ def texel_flux(
 def texel_flux_proven(
     view: ViewParams,
     p: int,
-    i: int,  # p % view.width, p / view.width: the texel's column and row, which the caller knows
+    i: int,  # the texel's column and row (p = j·view.width + i), which the caller knows
     j: int,
     light_rgb: wp.vec3,
     spot_axis: wp.vec3,
@@ -1170,9 +1170,9 @@ def texel_flux_proven(
     cos_outer: float,
     texel_solid_angle: wp.array(dtype=wp.float32),
 ) -> wp.vec3:
-    """:func:`texel_flux` (its naive twin, the resolves') with the spot's falloff through :func:`spot_falloff_proven`
-    ((``cos_inner``, ``cos_outer``) = ``spot_cone_cosines`` of the cone): no acos inside the inner cone or beyond the
-    cone, the same bits; the texel's column and row given (no integer division where the caller has them)."""
+    """:func:`texel_flux` (its naive twin, the resolves') of texel ``p`` at column ``i``, row ``j`` (no integer division
+    of ``p``), with the spot's falloff through :func:`spot_falloff_proven` ((``cos_inner``, ``cos_outer``) =
+    ``spot_cone_cosines`` of the cone: no acos inside the inner cone or beyond the cone): the same bits."""
     if view.orthographic != 0:
         return light_rgb / (view.fx * view.fy)
     scale = texel_solid_angle[p]
@@ -1206,8 +1206,13 @@ class TexelEmission:
 def texel_emitted_flux(e: TexelEmission, view: ViewParams, p: int) -> wp.vec3:
     """Flux [W] through specular texel ``p`` of ``view`` (its triangle >= 0): the bits the resolve's
     :func:`texel_flux` writes into a kept ``flux`` map (the same function of the same values)."""
-    return texel_flux_proven(view, p, p % view.width, p / view.width, e.light_rgb, e.spot_axis, e.is_spot,
-                             e.cone_angle, e.cone_softness, e.cone_cos_inner, e.cone_cos_outer, e.texel_solid_angle)
+    i = int(0)
+    j = int(0)
+    if e.is_spot != 0 and view.orthographic == 0:  # only the spot's falloff reads them (a view may have no width)
+        i = p % view.width
+        j = p / view.width
+    return texel_flux_proven(view, p, i, j, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
+                             e.cone_cos_inner, e.cone_cos_outer, e.texel_solid_angle)
 
 
 @wp.func
