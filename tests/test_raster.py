@@ -183,6 +183,61 @@ def test_distant_light_flux_is_irradiance_times_projected_area(device):
     assert (spec >= 0).mean() > 0.9  # the fit covers the water, not the floor
 
 
+@wp.kernel
+def _spot_falloffs(c: wp.array(dtype=wp.float32), cos_inner: float, cos_outer: float, cone: float, soft: float,
+                   naive: wp.array(dtype=wp.float32), proven: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    naive[i] = RK.spot_falloff(c[i], cone, soft)
+    proven[i] = RK.spot_falloff_proven(c[i], cos_inner, cos_outer, cone, soft)
+
+
+@pytest.mark.parametrize("cone_deg, soft", [(35.0, 0.2), (8.0, 0.0), (30.0, 0.25), (60.0, 0.9), (100.0, 0.2),
+                                            (179.0, 0.0), (20.0, 1.0), (20.0, 1.5), (0.0, 0.2), (0.01, 0.5)])
+def test_spot_falloff_proven_is_spot_falloff(device, rng, cone_deg, soft):
+    """``spot_falloff_proven`` (the emission's falloff: 1 from ``spot_cone_cosines``' inner bound up, 0 from its outer
+    one down, no acos there) gives ``spot_falloff``'s bits for every float32 cosine within 2^14 ulps of either bound,
+    of the inner angle's cosine and of the cone's, near 1 and above it (a normalized vector's rounding), near -1, and
+    2^16 uniform in [-1.01, 1.01]; and the bounds prove almost all of the inner cone and of what lies beyond the cone
+    (within 2^-11 of their angles, to float32), so the skips are not left out. A zero inner angle (softness >= 1, a
+    zero cone) proves no inner cone."""
+    cone = math.radians(cone_deg)
+    c_in, c_out = RK.spot_cone_cosines(cone, soft)
+    cone32 = float(np.float32(cone))
+    inner32 = float(np.float32(cone) * (np.float32(1.0) - np.clip(np.float32(soft), np.float32(0.0), np.float32(1.0))))
+
+    def f32_up(x):
+        return float(np.nextafter(np.float32(x), np.float32(2.0)))
+
+    def f32_down(x):
+        return float(np.nextafter(np.float32(x), np.float32(-2.0)))
+
+    if inner32 <= 0.0:
+        assert c_in == RK.SPOT_COS_NONE
+    else:
+        assert c_in <= f32_up(math.cos(inner32 * (1.0 - 2.0 ** -11)))  # nearly all of the inner cone proven
+    if cone32 <= 0.0 or cone32 * (1.0 + 2.0 ** -12) >= math.pi:
+        assert c_out == -RK.SPOT_COS_NONE
+    else:
+        assert c_out >= f32_down(math.cos(cone32 * (1.0 + 2.0 ** -11)))  # nearly all beyond the cone proven
+    assert c_out < c_in
+    ulps = np.arange(-(1 << 14), 1 << 14, dtype=np.int32)
+    parts = [rng.uniform(-1.01, 1.01, 1 << 16).astype(np.float32)]
+    for centre in (np.clip(c_in, -1.0, 1.0), np.clip(c_out, -1.0, 1.0), math.cos(inner32), math.cos(cone32), 1.0,
+                   -1.0):
+        bits = np.array([centre], np.float32).view(np.int32)[0]
+        parts.append((bits + ulps).view(np.float32))
+    c = np.concatenate(parts).astype(np.float32)
+    c = c[np.isfinite(c)]
+    c_d = wp.array(c, dtype=wp.float32, device=device)
+    naive, proven = wp.zeros(len(c), dtype=wp.float32, device=device), wp.zeros(len(c), dtype=wp.float32, device=device)
+    wp.launch(_spot_falloffs, dim=len(c), device=device, inputs=[c_d, c_in, c_out, cone, soft, naive, proven])
+    np.testing.assert_array_equal(proven.numpy().view(np.int32), naive.numpy().view(np.int32))
+    if inner32 > 0.0:
+        assert np.count_nonzero(c >= c_in) > 1 << 14  # the inner proof ran
+    if c_out > -1.0:
+        assert np.count_nonzero(c <= c_out) > 1 << 14  # the outer proof ran
+
+
 def test_spot_flux_matches_cone_integral(device):
     """A spot light above a large specular plane: total flux = I · ∫ falloff dΩ over the cone."""
     cone, soft = math.radians(30.0), 0.25
@@ -682,11 +737,15 @@ def test_texel_surface_is_what_the_resolve_writes(device, rng):
 @wp.kernel
 def _texel_emission_of_layer(views: wp.array(dtype=ViewParams), k: int, tri_id: wp.array(dtype=wp.int32),
                              emission: RK.TexelEmission, flux_out: wp.array(dtype=wp.vec3),
-                             roughness_out: wp.array(dtype=wp.float32), ior_out: wp.array(dtype=wp.float32)):
-    p = wp.tid()
+                             roughness_out: wp.array(dtype=wp.float32), ior_out: wp.array(dtype=wp.float32),
+                             flux_at_out: wp.array(dtype=wp.vec3)):
+    j, i = wp.tid()  # the texel's row and column, as the emission has them (no division of p)
+    view = views[k]
+    p = j * view.width + i
     tri = tri_id[p]
     if tri >= 0:
-        flux_out[p] = RK.texel_emitted_flux(emission, views[k], p)
+        flux_out[p] = RK.texel_emitted_flux(emission, view, p)
+        flux_at_out[p] = RK.texel_emitted_flux_at(emission, view, p, i, j)
         roughness_out[p] = RK.texel_roughness(emission, tri)
         ior_out[p] = RK.texel_ior(emission, tri)
 
@@ -695,7 +754,9 @@ def test_texel_emission_is_what_the_resolve_writes(device, rng):
     """``TexelEmission`` (a specular texel's flux, roughness and IOR as a reader computes them from the light, its
     triangle and the materials, for RSM views that keep no such maps) gives, on every covered texel, the bits
     ``resolve_rsm_view`` writes into ``flux``, ``roughness`` and ``ior`` where they are kept, and a texel without a
-    specular surface has zero flux there (what ``max_luminance`` and ``book_outside_window`` assume): random spot,
+    specular surface has zero flux there (what ``max_luminance`` and ``book_outside_window`` assume); the emission's
+    ``texel_emitted_flux_at`` (column and row given; the spot's falloff proven from the cosine inside the inner cone
+    and beyond the cone, ``spot_falloff_proven``) the same bits as the resolve's naive ``texel_flux``: random spot,
     point and distant lights over the room with two materials on the water side (its sphere and box are specular
     too), two poses each, odd sizes; fitted views (cascades and their pilots) beside whole ones."""
     from cisp_warp.raster import LightViewSettings
@@ -730,11 +791,13 @@ def test_texel_emission_is_what_the_resolve_writes(device, rng):
                 for k, r in enumerate(maps):
                     sp = r.specular
                     f_t, r_t, i_t = wp.zeros_like(r.flux), wp.zeros_like(sp.roughness), wp.zeros_like(sp.ior)
-                    wp.launch(_texel_emission_of_layer, dim=r.width * r.height, device=device,
-                              inputs=[views, k, sp.tri_id, lm.emission(r), f_t, r_t, i_t])
+                    fa_t = wp.zeros_like(r.flux)
+                    wp.launch(_texel_emission_of_layer, dim=(r.height, r.width), device=device,
+                              inputs=[views, k, sp.tri_id, lm.emission(r), f_t, r_t, i_t, fa_t])
                     on = sp.tri_id.numpy() >= 0
                     covered += int(on.sum())
                     np.testing.assert_array_equal(_bits(f_t.numpy()[on]), _bits(r.flux.numpy()[on]))
+                    np.testing.assert_array_equal(_bits(fa_t.numpy()[on]), _bits(r.flux.numpy()[on]))
                     np.testing.assert_array_equal(_bits(r_t.numpy()[on]), _bits(sp.roughness.numpy()[on]))
                     np.testing.assert_array_equal(_bits(i_t.numpy()[on]), _bits(sp.ior.numpy()[on]))
                     assert not r.flux.numpy()[~on].any()

@@ -18,7 +18,8 @@ import warp as wp
 from ..denoise.kernels_svgf import luminance
 from ..optics import fresnel_dielectric, reflect, refract
 from ..raster.light_maps import CascadeState, cascade_photons
-from ..raster.kernels import TexelEmission, texel_emitted_flux, texel_ior, texel_roughness, texel_surface
+from ..raster.kernels import (TexelEmission, texel_emitted_flux, texel_emitted_flux_at, texel_ior, texel_roughness,
+                               texel_surface)
 from ..raster.views import ViewParams, pixel_ray_world
 from ..scene.device import SurfaceGeometry
 
@@ -507,7 +508,7 @@ def _march_group(
     # solid angle, its points and normals beside the material's roughness, IOR and opacity; the point it also gives
     # is not used, so not computed), the flux the one it would write (from the light and the solid angle)
     rough = texel_roughness(rsm_emission, tri)
-    flux = texel_emitted_flux(rsm_emission, light, texel)
+    flux = texel_emitted_flux_at(rsm_emission, light, texel, i, j)
     x_t, n = texel_surface(light, texel, tri, 0.0, geometry.points, geometry.normals, geometry.indices)
     eta = texel_ior(rsm_emission, tri)
     opacity = mat_opacity[triangle_material[tri]]
@@ -813,7 +814,7 @@ def emit_sample(
         return int(-1), zero, zero, zero, zero, int(-1)
     if sx >= skip_window[0] and sx < skip_window[2] and sy >= skip_window[1] and sy < skip_window[3]:
         return int(-1), zero, zero, zero, zero, int(-1)
-    flux = texel_emitted_flux(rsm_emission, light, texel)
+    flux = texel_emitted_flux_at(rsm_emission, light, texel, i, j)
     power = flux * (float(light.width * light.height) / float(n_photons))
     if texel_roughness(rsm_emission, tri) > roughness_cutoff:
         return int(-1), power, zero, zero, zero, L_CULLED_ROUGH

@@ -322,9 +322,10 @@ def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_s
     ci = tx[0] >> shift
     cj = tx[1] >> shift
     last_f = wp.min(_cell_exit(ci, shift, s0[0], ds[0], inv_step[0]), _cell_exit(cj, shift, s0[1], ds[1], inv_step[1]))
-    last = n
-    if last_f < float(n):
-        last = wp.max(int(wp.ceil(last_f)) - 1, i)
+    # selected, not assigned in a branch (the same value; a predicated store of ``last`` to local memory in the
+    # light march's cell loop at the trace's register bound, docs/perf_notes.md section 70); the ceiling of at most
+    # n, so the unselected conversion never leaves int's range
+    last = wp.where(last_f < float(n), wp.max(int(wp.ceil(wp.min(last_f, float(n)))) - 1, i), n)
     tl = _texel(view, s0, ds, ds_step * float(last))
     while last > i and ((tl[0] >> shift) != ci or (tl[1] >> shift) != cj):  # rounding: step back into the cell
         last -= 1

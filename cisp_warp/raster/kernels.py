@@ -25,6 +25,9 @@ sections 43 and 58).
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import warp as wp
 
 from .views import ViewParams, pixel_ray_world, read_again, view_point, view_project
@@ -1083,6 +1086,53 @@ def spot_falloff(cos_angle: float, cone_angle: float, softness: float) -> float:
     return s * s * (3.0 - 2.0 * s)
 
 
+# The spot's falloff without its acos where the cosine decides it (docs/perf_notes.md section 70): a cosine at or
+# above ``spot_cone_cosines``' inner bound proves ``spot_falloff`` 1 (the angle inside ``cone_angle·(1 − softness)``),
+# at or below its outer bound 0 (the angle beyond ``cone_angle``), so its acos, branches and smoothstep are skipped
+# there and the value is the same bits; between them (the smoothstep's band) ``spot_falloff`` as before.
+SPOT_COS_MARGIN = 2.0 ** -12  #: the proofs' relative margin on the angles: far above acosf's 2 ulps (2^-22)
+SPOT_COS_NONE = 2.0  #: a bound no cosine reaches (an outer bound is its negation): nothing proven
+
+
+def _f32_cos(angle: float, up: bool) -> float:
+    """cos(angle) in float64, rounded to float32 up (``up``) or down: a bound on the side the proof needs."""
+    c = math.cos(angle)
+    c32 = np.float32(c)
+    if (float(c32) < c) if up else (float(c32) > c):
+        c32 = np.nextafter(c32, np.float32(2.0 if up else -2.0))
+    return float(c32)
+
+
+def spot_cone_cosines(cone_angle: float, softness: float) -> tuple[float, float]:
+    """(c_in, c_out), float32 cosines with ``spot_falloff(c, cone_angle, softness)`` = 1 for c >= c_in and 0 for
+    c <= c_out, proven. The angles are the kernel's float32 ``cone_angle`` and inner angle ``cone_angle·(1 − clamp(
+    softness))`` as :func:`spot_falloff` computes it; c_in is the cosine of the inner angle less a relative
+    ``SPOT_COS_MARGIN`` rounded up, c_out that of the cone angle plus the margin rounded down. For c >= c_in,
+    acos(c) <= inner·(1 − 2^-12), and a float acos within 2^-21 of it lies below the inner angle (at most the cone
+    angle): both of ``spot_falloff``'s tests give 1. For c <= c_out, acos(clamp(c)) >= cone·(1 + 2^-12) and its float
+    above the cone angle: 0. ``SPOT_COS_NONE`` (its negation for c_out) where an angle is not positive or the outer
+    one passes π (nothing proven there)."""
+    cone = np.float32(cone_angle)
+    inner = cone * (np.float32(1.0) - np.clip(np.float32(softness), np.float32(0.0), np.float32(1.0)))
+    c_in = _f32_cos(float(inner) * (1.0 - SPOT_COS_MARGIN), up=True) if inner > 0.0 else SPOT_COS_NONE
+    outer = float(cone) * (1.0 + SPOT_COS_MARGIN)
+    c_out = _f32_cos(outer, up=False) if 0.0 < outer < math.pi else -SPOT_COS_NONE
+    return c_in, c_out
+
+
+@wp.func
+def spot_falloff_proven(cos_angle: float, cos_inner: float, cos_outer: float, cone_angle: float,
+                        softness: float) -> float:
+    """:func:`spot_falloff` (its naive twin) decided from the cosine where it can be: 1 where ``cos_angle >=
+    cos_inner``, 0 where ``cos_angle <= cos_outer`` (``spot_cone_cosines`` of the same cone), ``spot_falloff``
+    between; the same bits everywhere."""
+    if cos_angle >= cos_inner:
+        return 1.0
+    if cos_angle <= cos_outer:
+        return 0.0
+    return spot_falloff(cos_angle, cone_angle, softness)
+
+
 @wp.func
 def texel_flux(
     view: ViewParams,
@@ -1105,6 +1155,34 @@ def texel_flux(
     return light_rgb * scale
 
 
+@wp.func
+def texel_flux_proven(
+    view: ViewParams,
+    p: int,
+    i: int,  # the texel's column and row (p = j·view.width + i), which the caller knows
+    j: int,
+    light_rgb: wp.vec3,
+    spot_axis: wp.vec3,
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    cos_inner: float,
+    cos_outer: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),
+) -> wp.vec3:
+    """:func:`texel_flux` (its naive twin, the resolves') of texel ``p`` at column ``i``, row ``j`` (no integer division
+    of ``p``), with the spot's falloff through :func:`spot_falloff_proven` ((``cos_inner``, ``cos_outer``) =
+    ``spot_cone_cosines`` of the cone: no acos inside the inner cone or beyond the cone): the same bits."""
+    if view.orthographic != 0:
+        return light_rgb / (view.fx * view.fy)
+    scale = texel_solid_angle[p]
+    if is_spot != 0:
+        o, d = pixel_ray_world(view, float(i) + 0.5, float(j) + 0.5)
+        c = wp.dot(wp.normalize(d), spot_axis)
+        scale = scale * spot_falloff_proven(c, cos_inner, cos_outer, cone_angle, cone_softness)
+    return light_rgb * scale
+
+
 @wp.struct
 class TexelEmission:
     """What an RSM view's specular texel's flux, roughness and IOR are computed from where they are read, instead of
@@ -1116,6 +1194,8 @@ class TexelEmission:
     is_spot: int
     cone_angle: float  # [rad]
     cone_softness: float
+    cone_cos_inner: float  # spot_cone_cosines(cone_angle, cone_softness): the falloff is 1 from this cosine up,
+    cone_cos_outer: float  # 0 from this one down (a spot must set both: zeros prove wrong values)
     texel_solid_angle: wp.array(dtype=wp.float32)  # (H*W,) [sr] of the view's texels, perspective views (read)
     triangle_material: wp.array(dtype=wp.int32)  # (T,) material per triangle (read)
     mat_roughness: wp.array(dtype=wp.float32)  # (M,) per material (read)
@@ -1126,8 +1206,21 @@ class TexelEmission:
 def texel_emitted_flux(e: TexelEmission, view: ViewParams, p: int) -> wp.vec3:
     """Flux [W] through specular texel ``p`` of ``view`` (its triangle >= 0): the bits the resolve's
     :func:`texel_flux` writes into a kept ``flux`` map (the same function of the same values)."""
-    return texel_flux(view, p, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
-                      e.texel_solid_angle)
+    i = int(0)
+    j = int(0)
+    if e.is_spot != 0 and view.orthographic == 0:  # only the spot's falloff reads them (a view may have no width)
+        i = p % view.width
+        j = p / view.width
+    return texel_flux_proven(view, p, i, j, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
+                             e.cone_cos_inner, e.cone_cos_outer, e.texel_solid_angle)
+
+
+@wp.func
+def texel_emitted_flux_at(e: TexelEmission, view: ViewParams, p: int, i: int, j: int) -> wp.vec3:
+    """:func:`texel_emitted_flux` of texel ``p`` = ``j·view.width + i`` (0 <= i < width, j >= 0) where the caller has
+    its column ``i`` and row ``j``: the same bits, without their integer division (the emission's samples)."""
+    return texel_flux_proven(view, p, i, j, e.light_rgb, e.spot_axis, e.is_spot, e.cone_angle, e.cone_softness,
+                             e.cone_cos_inner, e.cone_cos_outer, e.texel_solid_angle)
 
 
 @wp.func

@@ -660,6 +660,7 @@ class LightMaps:
         e.is_spot = int(light.kind == LightKind.SPOT)
         e.cone_angle = float(light.cone_angle)
         e.cone_softness = float(light.cone_softness)
+        e.cone_cos_inner, e.cone_cos_outer = K.spot_cone_cosines(light.cone_angle, light.cone_softness)
         e.texel_solid_angle = r.solid_angle
         e.triangle_material = s.triangle_material
         e.mat_roughness = s.roughness
