@@ -922,6 +922,51 @@ def test_chained_levels_write_the_next_input(device, step, conserve):
     np.testing.assert_allclose(outs[1][1].numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("w,h,lattice,copy_guide", [(45, 38, 0, 0), (41, 7, 0, 0), (44, 21, 8, 1), (43, 30, 16, 0),
+                                                     (3, 5, 4, 1), (1, 2, 0, 0)])
+def test_guide_runs_equal_the_pixel_guide_pass(device, w, h, lattice, copy_guide):
+    """SVGF's chained guide pass a run of GUIDE_RUN pixels a thread (:func:`atrous_guide_run`, section 73) writes
+    what the pixel-a-thread pass (:func:`atrous_guide`, ``packed`` = 3) writes, bit for bit: the terms (0 without a
+    surface; the image's edges; widths that are no multiple of the run), in the sub-lattice-major order where asked,
+    and the guide's copy there; the rest of the buffers untouched."""
+    from cisp_warp.denoise.kernels_atrous import (atrous_guide, atrous_guide_run, lattice_size, pair_scales,
+                                                  spare_outputs)
+    rng = np.random.default_rng(73 + w + lattice)
+    var = rng.exponential(1.0, (h, w)).astype(np.float32)
+    var[rng.random((h, w)) < 0.3] = -1.0  # no surface
+    var[rng.random((h, w)) < 0.1] = 0.0
+    var[0, 0], var[-1, -1] = -1.0, 2.0
+    slope = rng.random(h * w).astype(np.float32)
+    guide = rng.standard_normal((2 * h * w, 4)).astype(np.float32)
+    size = max(lattice_size(w, h, lattice) if lattice else 0, w * h)
+    var_d = wp.array(var.reshape(-1), dtype=wp.float32, device=device)
+    slope_d = wp.array(slope, dtype=wp.float32, device=device)
+    guide_d = wp.array(guide, dtype=wp.vec4, device=device)
+    parity = wp.array([1], dtype=wp.int32, device=device)
+    depth_scale = pair_scales(0.7, 128.0, 4.0)[0]
+    spare = spare_outputs(device)
+    outs = []
+    for run in (False, True):
+        aux = wp.full(size, wp.vec4(5.0), dtype=wp.vec4, device=device)
+        guide_lat = wp.full(size, wp.vec4(9.0), dtype=wp.vec4, device=device)
+        if run:
+            wp.launch(atrous_guide_run, dim=(h, (w + 3) // 4), device=device,
+                      inputs=[var_d, slope_d, w, h, depth_scale, aux, lattice, guide_d, guide_lat, copy_guide, parity,
+                              w * h])
+        else:
+            wp.launch(atrous_guide, dim=h * w, device=device,
+                      inputs=[3, spare["vec4"], spare["vec3"], var_d, spare["float"], spare["vec3"], slope_d, w, h, 0,
+                              0.0, depth_scale, 0.0, aux, 0, spare["vec4"], spare["vec4"], lattice, guide_d,
+                              spare["vec4"], guide_lat, copy_guide, parity, w * h])
+        outs.append((aux.numpy(), guide_lat.numpy()))
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+    terms = outs[1][0].view(np.float32).reshape(-1)[:2 * size].reshape(-1, 2)
+    assert (terms[:, 1] > 0).any() and (terms == 0).all(axis=1).any()  # blurred variances, and pixels without a surface
+    if lattice and copy_guide:
+        assert (outs[1][1] != 9.0).any()
+
+
 def test_chained_level_arguments_checked():
     """The chained levels' arguments are checked: one clear sentence each."""
     w, h = 20, 12

@@ -687,6 +687,90 @@ def atrous_guide(
         store_half(aux, o, wp.vec2(depth_scale * slope[p], 0.5 * b[0]))
 
 
+#: pixels of a row an SVGF guide pass thread takes (:func:`atrous_guide_run`, section 73)
+GUIDE_RUN = 4
+#: SVGF's ungated guide passes from the previous level's dense Var (``packed`` = 3) run :func:`atrous_guide_run`
+#: (``GUIDE_RUN`` pixels a thread, the same values bit for bit); False: :func:`atrous_guide`, a pixel a thread. Read at
+#: launch (the lead's A/B: ``import cisp_warp.denoise.kernels_atrous as m; m.GUIDE_RUNS = False``)
+GUIDE_RUNS = True
+assert GUIDE_RUN == 4  # the loads below are written out for it
+_GUIDE_RUN = wp.constant(GUIDE_RUN)
+_vec6 = wp.types.vector(length=GUIDE_RUN + 2, dtype=wp.float32)
+
+
+@wp.func
+def variance_row(variance_in: wp.array(dtype=wp.float32), qy: int, x0: int, width: int) -> _vec6:
+    """The Var of row ``qy`` at the columns x0 − 1 ... x0 + GUIDE_RUN, each clamped into the image (as
+    :func:`gaussian_sums` clamps them), loads issued together."""
+    r = qy * width
+    return _vec6(variance_in[r + wp.clamp(x0 - 1, 0, width - 1)], variance_in[r + wp.min(x0, width - 1)],
+                 variance_in[r + wp.min(x0 + 1, width - 1)], variance_in[r + wp.min(x0 + 2, width - 1)],
+                 variance_in[r + wp.min(x0 + 3, width - 1)], variance_in[r + wp.min(x0 + 4, width - 1)])
+
+
+@wp.kernel
+def atrous_guide_run(
+    variance_in: wp.array(dtype=wp.float32),
+    slope: wp.array(dtype=wp.float32),
+    width: int,
+    height: int,
+    depth_scale: float,
+    aux: wp.array(dtype=wp.vec4),
+    lattice: int,
+    guide_in: wp.array(dtype=wp.vec4),
+    guide_lattice: wp.array(dtype=wp.vec4),
+    copy_guide: int,
+    guide_parity: wp.array(dtype=wp.int32),
+    guide_row: int,
+):
+    """:func:`atrous_guide` for SVGF's chained levels (ungated, ``packed`` = 3: the input's Var alone from the
+    previous level's dense copy ``variance_in``), ``GUIDE_RUN`` consecutive pixels of a row a thread, ``dim=(height,
+    ceil(width / GUIDE_RUN))``: the run's three rows of Var (GUIDE_RUN + 2 columns each) are read once for its pixels'
+    3x3 neighbourhoods (18 loads for 4 pixels instead of 4 + 32), the centre row and the slopes first, the rows
+    above and below only where the run has a surface. Writes what :func:`atrous_guide` writes there, bit for bit:
+    ``aux`` (its first half as a vec2 array, :func:`load_aux`: σ_z ‖∇z‖ ln 2, g3x3(Var) / 2; 0 without a
+    surface; ``lattice`` != 0: in that step's sub-lattice-major order) and, with ``lattice`` and ``copy_guide``,
+    ``guide_lattice`` from row ``1 - guide_parity[0]`` of ``guide_in`` (rows of ``guide_row`` entries). The sums are
+    :func:`gaussian_sums`' in its order."""
+    y, j = wp.tid()
+    x0 = j * _GUIDE_RUN
+    row = y * width
+    centre = variance_row(variance_in, y, x0, width)
+    sz = wp.vec4(slope[row + x0], slope[row + wp.min(x0 + 1, width - 1)], slope[row + wp.min(x0 + 2, width - 1)],
+                 slope[row + wp.min(x0 + 3, width - 1)])
+    any_surface = False
+    for k in range(GUIDE_RUN):
+        any_surface = any_surface or (x0 + k < width and centre[k + 1] >= 0.0)
+    above = centre
+    below = centre
+    if any_surface:
+        above = variance_row(variance_in, wp.max(y - 1, 0), x0, width)
+        below = variance_row(variance_in, wp.min(y + 1, height - 1), x0, width)
+    g_row = (1 - guide_parity[0]) * guide_row
+    for k in range(GUIDE_RUN):
+        x = x0 + k
+        if x < width:
+            p = row + x
+            o = p
+            if lattice != 0:
+                o = lattice_index(y, x, width, height, lattice)
+                if copy_guide != 0:
+                    store_vec4(guide_lattice, o, load_vec4(guide_in, g_row + p))
+            if centre[k + 1] < 0.0:
+                store_half(aux, o, wp.vec2(0.0))
+            else:
+                s0 = float(0.0)
+                s1 = float(0.0)
+                for dy in range(-1, 2):
+                    for dx in range(-1, 2):
+                        v = wp.where(dy == 0, centre[k + 1 + dx], wp.where(dy < 0, above[k + 1 + dx], below[k + 1 + dx]))
+                        inside = (y + dy >= 0 and y + dy < height and x + dx >= 0 and x + dx < width and v >= 0.0)
+                        kq = wp.where(inside, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
+                        s0 += kq * 1.0
+                        s1 += kq * wp.max(v, 0.0)
+                store_half(aux, o, wp.vec2(depth_scale * sz[k], 0.5 * (s1 / s0)))
+
+
 @wp.func
 def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                 signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
@@ -1110,7 +1194,11 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     # SVGF's first level (ungated, step 1, packed, σ_n = 128) makes its guide-pass terms itself: no guide pass
     self_guide = (not gated and step == 1 and unpacked is None and not use_lattice
                   and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
-    if not self_guide:
+    if not self_guide and GUIDE_RUNS and variance is not None:  # SVGF's chained levels (ungated, packed: checked)
+        wp.launch(atrous_guide_run, dim=(height, (width + GUIDE_RUN - 1) // GUIDE_RUN), device=d,
+                  inputs=[variance, slope, width, height, depth_scale, aux, int(step) if use_lattice else 0, guide,
+                          guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row])
+    elif not self_guide:
         wp.launch(atrous_guide, dim=height * width, device=d,
                   inputs=[3 if variance is not None else int(unpacked is None), color_variance, color_in,
                           variance if variance is not None else variance_in, depth, normal, slope, width,
