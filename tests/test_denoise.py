@@ -923,14 +923,15 @@ def test_chained_levels_write_the_next_input(device, step, conserve):
 
 
 @pytest.mark.parametrize("w,h,lattice,copy_guide", [(45, 38, 0, 0), (41, 7, 0, 0), (44, 21, 8, 1), (43, 30, 16, 0),
-                                                     (3, 5, 4, 1), (1, 2, 0, 0)])
+                                                     (3, 5, 4, 1), (1, 2, 0, 0), (48, 17, 0, 0), (4, 9, 8, 1)])
 def test_guide_runs_equal_the_pixel_guide_pass(device, w, h, lattice, copy_guide):
     """SVGF's chained guide pass a run of GUIDE_RUN pixels a thread (:func:`atrous_guide_run`, section 73) writes
     what the pixel-a-thread pass (:func:`atrous_guide`, ``packed`` = 3) writes, bit for bit: the terms (0 without a
     surface; the image's edges; widths that are no multiple of the run), in the sub-lattice-major order where asked,
-    and the guide's copy there; the rest of the buffers untouched."""
+    and the guide's copy there; the rest of the buffers untouched. Widths that are a multiple of 4 take the
+    16-byte loads (checked to be chosen)."""
     from cisp_warp.denoise.kernels_atrous import (atrous_guide, atrous_guide_run, lattice_size, pair_scales,
-                                                  spare_outputs)
+                                                  runs_aligned, spare_outputs)
     rng = np.random.default_rng(73 + w + lattice)
     var = rng.exponential(1.0, (h, w)).astype(np.float32)
     var[rng.random((h, w)) < 0.3] = -1.0  # no surface
@@ -946,13 +947,15 @@ def test_guide_runs_equal_the_pixel_guide_pass(device, w, h, lattice, copy_guide
     depth_scale = pair_scales(0.7, 128.0, 4.0)[0]
     spare = spare_outputs(device)
     outs = []
+    aligned = runs_aligned(w, var_d, slope_d)
+    assert aligned == (w % 4 == 0)
     for run in (False, True):
         aux = wp.full(size, wp.vec4(5.0), dtype=wp.vec4, device=device)
         guide_lat = wp.full(size, wp.vec4(9.0), dtype=wp.vec4, device=device)
         if run:
             wp.launch(atrous_guide_run, dim=(h, (w + 3) // 4), device=device,
                       inputs=[var_d, slope_d, w, h, depth_scale, aux, lattice, guide_d, guide_lat, copy_guide, parity,
-                              w * h])
+                              w * h, aligned])
         else:
             wp.launch(atrous_guide, dim=h * w, device=device,
                       inputs=[3, spare["vec4"], spare["vec3"], var_d, spare["float"], spare["vec3"], slope_d, w, h, 0,

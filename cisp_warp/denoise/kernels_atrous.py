@@ -698,14 +698,39 @@ _GUIDE_RUN = wp.constant(GUIDE_RUN)
 _vec6 = wp.types.vector(length=GUIDE_RUN + 2, dtype=wp.float32)
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+const float4 v = __ldg(reinterpret_cast<const float4*>(a.data + p));
+return wp::vec4(v.x, v.y, v.z, v.w);
+#else
+return wp::vec4(a.data[p], a.data[p + 1], a.data[p + 2], a.data[p + 3]);
+#endif
+""")
+def load_float4(a: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
+    """Entries ``p`` ... ``p`` + 3 of a float32 array, ``p`` a multiple of 4 and the array 16-byte aligned: one
+    16-byte load on CUDA."""
+    ...
+
+
 @wp.func
-def variance_row(variance_in: wp.array(dtype=wp.float32), qy: int, x0: int, width: int) -> _vec6:
+def variance_row(variance_in: wp.array(dtype=wp.float32), qy: int, x0: int, width: int, aligned: int) -> _vec6:
     """The Var of row ``qy`` at the columns x0 − 1 ... x0 + GUIDE_RUN, each clamped into the image (as
-    :func:`gaussian_sums` clamps them), loads issued together."""
+    :func:`gaussian_sums` clamps them), loads issued together; ``aligned`` (width a multiple of 4, the array
+    16-byte aligned): the middle four in one 16-byte load."""
     r = qy * width
-    return _vec6(variance_in[r + wp.clamp(x0 - 1, 0, width - 1)], variance_in[r + wp.min(x0, width - 1)],
-                 variance_in[r + wp.min(x0 + 1, width - 1)], variance_in[r + wp.min(x0 + 2, width - 1)],
-                 variance_in[r + wp.min(x0 + 3, width - 1)], variance_in[r + wp.min(x0 + 4, width - 1)])
+    left = variance_in[r + wp.max(x0 - 1, 0)]
+    right = variance_in[r + wp.min(x0 + 4, width - 1)]
+    if aligned != 0:
+        m = load_float4(variance_in, r + x0)
+        return _vec6(left, m[0], m[1], m[2], m[3], right)
+    return _vec6(left, variance_in[r + x0], variance_in[r + wp.min(x0 + 1, width - 1)],
+                 variance_in[r + wp.min(x0 + 2, width - 1)], variance_in[r + wp.min(x0 + 3, width - 1)], right)
+
+
+def runs_aligned(width: int, *arrays) -> int:
+    """1 where :func:`atrous_guide_run` may read four float32 of a row in one 16-byte load: ``width`` a multiple of 4
+    and every array 16-byte aligned."""
+    return int(width % 4 == 0 and all(a.ptr % 16 == 0 for a in arrays))
 
 
 @wp.kernel
@@ -722,6 +747,7 @@ def atrous_guide_run(
     copy_guide: int,
     guide_parity: wp.array(dtype=wp.int32),
     guide_row: int,
+    aligned: int,
 ):
     """:func:`atrous_guide` for SVGF's chained levels (ungated, ``packed`` = 3: the input's Var alone from the
     previous level's dense copy ``variance_in``), ``GUIDE_RUN`` consecutive pixels of a row a thread, ``dim=(height,
@@ -731,21 +757,26 @@ def atrous_guide_run(
     ``aux`` (its first half as a vec2 array, :func:`load_aux`: σ_z ‖∇z‖ ln 2, g3x3(Var) / 2; 0 without a
     surface; ``lattice`` != 0: in that step's sub-lattice-major order) and, with ``lattice`` and ``copy_guide``,
     ``guide_lattice`` from row ``1 - guide_parity[0]`` of ``guide_in`` (rows of ``guide_row`` entries). The sums are
-    :func:`gaussian_sums`' in its order."""
+    :func:`gaussian_sums`' in its order. ``aligned`` (:func:`runs_aligned`): the width is a multiple of 4 and
+    ``variance_in`` and ``slope`` are 16-byte aligned, so that a run's four Var and slopes are one 16-byte load each."""
     y, j = wp.tid()
     x0 = j * _GUIDE_RUN
     row = y * width
-    centre = variance_row(variance_in, y, x0, width)
-    sz = wp.vec4(slope[row + x0], slope[row + wp.min(x0 + 1, width - 1)], slope[row + wp.min(x0 + 2, width - 1)],
-                 slope[row + wp.min(x0 + 3, width - 1)])
+    centre = variance_row(variance_in, y, x0, width, aligned)
+    sz = wp.vec4(0.0)
+    if aligned != 0:
+        sz = load_float4(slope, row + x0)
+    else:
+        sz = wp.vec4(slope[row + x0], slope[row + wp.min(x0 + 1, width - 1)], slope[row + wp.min(x0 + 2, width - 1)],
+                     slope[row + wp.min(x0 + 3, width - 1)])
     any_surface = False
     for k in range(GUIDE_RUN):
         any_surface = any_surface or (x0 + k < width and centre[k + 1] >= 0.0)
     above = centre
     below = centre
     if any_surface:
-        above = variance_row(variance_in, wp.max(y - 1, 0), x0, width)
-        below = variance_row(variance_in, wp.min(y + 1, height - 1), x0, width)
+        above = variance_row(variance_in, wp.max(y - 1, 0), x0, width, aligned)
+        below = variance_row(variance_in, wp.min(y + 1, height - 1), x0, width, aligned)
     g_row = (1 - guide_parity[0]) * guide_row
     for k in range(GUIDE_RUN):
         x = x0 + k
@@ -1197,7 +1228,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     if not self_guide and GUIDE_RUNS and variance is not None:  # SVGF's chained levels (ungated, packed: checked)
         wp.launch(atrous_guide_run, dim=(height, (width + GUIDE_RUN - 1) // GUIDE_RUN), device=d,
                   inputs=[variance, slope, width, height, depth_scale, aux, int(step) if use_lattice else 0, guide,
-                          guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row])
+                          guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row,
+                          runs_aligned(width, variance, slope)])
     elif not self_guide:
         wp.launch(atrous_guide, dim=height * width, device=d,
                   inputs=[3 if variance is not None else int(unpacked is None), color_variance, color_in,
