@@ -846,60 +846,6 @@ def test_atrous_level_tiles_match_naive_twin(device, step, conserve, gate, latti
     np.testing.assert_allclose(v_out.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("step,lattice", [(1, True), (2, False), (8, True)])
-def test_one_rsqrt_level_matches_twin_and_the_two_root_form(device, monkeypatch, step, lattice):
-    """SVGF's levels at σ_n = 128 with one reciprocal square root a pair weight (``ONE_RSQRT``, section 73) and with
-    the reciprocal and the root apart (the flag off) both hold the float64 twin to 1e-5 (the twin test above runs
-    the default); the two differ (the flag switches the kernel) by rounding only, under 2e-6 relative."""
-    from cisp_warp.denoise import kernels_atrous
-    outs = []
-    for one in (False, True):
-        monkeypatch.setattr(kernels_atrous, "ONE_RSQRT", one)
-        outs.append(_tiled_level_128(device, step, lattice))
-    c0, v0, c_ref, v_ref = outs[0]
-    c1, v1 = outs[1][:2]
-    for c, v in ((c0, v0), (c1, v1)):
-        np.testing.assert_allclose(c, c_ref, rtol=1e-5, atol=1e-6)
-        np.testing.assert_allclose(v, v_ref, rtol=1e-5, atol=1e-7)
-    assert not np.array_equal(c0, c1)
-    np.testing.assert_allclose(c1, c0, rtol=2e-6, atol=1e-7)
-    np.testing.assert_allclose(v1, v0, rtol=2e-6, atol=1e-8)
-
-
-def _tiled_level_128(device, step, lattice):
-    """One SVGF level at σ_n = 128 from a packed input (at step 1 the level that blurs its own variance; ``lattice``
-    at step 8: in sub-lattice-major order) on a noisy plane with a depth edge, and the float64 twin's."""
-    from cisp_warp.denoise.kernels_atrous import lattice_size
-    rng = np.random.default_rng(7 + step)
-    w, h = 45, 38
-    g = plane(w, h)
-    g["depth"][10:30, 12:33] = 1.3
-    g["depth"][3:6, 3:40] = 0.0
-    n = g["normal"] + 0.05 * rng.standard_normal((h, w, 3)).astype(np.float32)
-    g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
-    color = rng.exponential(2.0, (h, w, 3)).astype(np.float32)
-    color[g["depth"] <= 0] = 0.0
-    variance = rng.exponential(1.0, (h, w)).astype(np.float32)
-    variance[g["depth"] <= 0] = 0.0
-    s = SVGFSettings(sigma_luminance=2.0, sigma_normal=128.0)
-    sig = (s.sigma_depth, s.sigma_normal, s.sigma_luminance, True)
-    dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
-    slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
-    var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
-    size = max(lattice_size(w, h, step), w * h)
-    packed = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(2)]
-    launch_atrous(None, None, slope, w, h, 1, *sig, wp.zeros(w * h, dtype=wp.vec4, device=device),
-                  unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=packed,
-                  color_variance_out=wp.zeros(w * h, dtype=wp.vec4, device=device))
-    c_out = wp.full(w * h, wp.vec3(-7.0), dtype=wp.vec3, device=device)
-    v_out = wp.full(w * h, -7.0, dtype=wp.float32, device=device)
-    lat = tuple(wp.zeros(size, dtype=wp.vec4, device=device) for _ in range(2)) if lattice else None
-    launch_atrous(packed[0], packed[1], slope, w, h, step, *sig, wp.zeros(size, dtype=wp.vec4, device=device),
-                  color_out=c_out, variance_out=v_out, lattice=lat)
-    c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], step, *sig)
-    return c_out.numpy().reshape(h, w, 3), v_out.numpy().reshape(h, w), c_ref, v_ref
-
-
 def lattice_order(a, step, pad):
     """Rows of ``a`` (H x W x ...) in the sub-lattice-major order of ``step`` (:func:`lattice_index`), padded with
     ``pad`` to :func:`lattice_size` entries."""

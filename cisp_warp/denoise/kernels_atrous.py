@@ -361,8 +361,7 @@ def forward_distance(f: int) -> float:
 
 @wp.func
 def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, log2_kernel_weight: float, dist: float,
-                two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int,
-                rsqrt1: int) -> float:
+                two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int) -> float:
     """w_pq of the module docstring, symmetric in p and q, from the guides ``gs`` = (n, z) and ``gd`` =
     (σ_z ‖∇z‖ ln 2, g3x3(Var) / 2, luminance log2(e) / σ_l, R); ``dist`` = ‖p − q‖ [pixels], ``depth_eps`` = σ_z ε_z
     ln 2, ``sigma_normal`` = 2 σ_n log2(e), ``log2_kernel_weight`` = log2(h(dx) h(dy)). p must have a surface; 0
@@ -379,10 +378,7 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, log2
     ``squarings`` = k > 0 (a compile-time constant, σ_n = 2^k, :data:`NORMAL_SQUARINGS` for the default 128):
     max(0, n_p·n_q)^σ_n is k multiplications, w_pq = c^σ_n · 2^(−|z_p − z_q| / φ_z − e_l), with no logarithm, no
     series and no branch (c^128 < 2^−128 below c = 1/2, flushed to 0 on CUDA: the twin's weight there is below
-    1e-38 of the centre's); ``sigma_normal`` is then not read. ``rsqrt1`` (a constant, with ``squarings``): 1/φ_z and
-    1/sqrt(g) from one r = 1/sqrt(φ_z² g), g = g3x3(Var)_p / 2 + ε + g3x3(Var)_q / 2: 1/sqrt(g) = φ_z r, 1/φ_z =
-    g r (φ_z r) (two special-function instructions a weight instead of three, three FMUL more; the same quantities
-    rounded differently, ~3e-7 relative)."""
+    1e-38 of the centre's); ``sigma_normal`` is then not read."""
     c = gs_p[0] * gs_q[0] + gs_p[1] * gs_q[1] + gs_p[2] * gs_q[2]
     gate = wp.where(gated != 0, wp.clamp(wp.min(gd_p[3], gd_q[3]) * two_over_step - 1.0, 0.0, 1.0), 1.0)
     phi_z = wp.max(gd_p[0], gd_q[0]) * dist + depth_eps * wp.max(gs_p[3], gs_q[3])
@@ -392,14 +388,8 @@ def pair_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, log2
         for i in range(MAX_SQUARINGS):  # unrolled; the steps at or above a constant ``squarings`` fold away
             cn = wp.where(i < squarings, cn * cn, cn)
         # two FFMA into the exponent; g3x3(Var)_p / 2 + ε is p's, shared by its taps
-        g = (gd_p[1] + VARIANCE_EPS) + gd_q[1]
-        if rsqrt1 != 0:  # a constant: 1/φ_z = g φ_z r², 1/sqrt(g) = φ_z r from one r = 1/sqrt(φ_z² g) (section 73)
-            r = fast_rsqrt(phi_z * phi_z * g)
-            t = phi_z * r
-            x = log2_kernel_weight - dz * (g * r * t)
-            return cn * fast_exp2(x - wp.abs(gd_p[2] - gd_q[2]) * t) * gate
         x = log2_kernel_weight - dz * fast_rcp(phi_z)
-        x = x - wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(g)
+        x = x - wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt((gd_p[1] + VARIANCE_EPS) + gd_q[1])
         return cn * fast_exp2(x) * gate
     e_l = wp.abs(gd_p[2] - gd_q[2]) * fast_rsqrt(gd_p[1] + gd_q[1] + VARIANCE_EPS) - log2_kernel_weight
     if c < 0.5:
@@ -419,26 +409,25 @@ def pair_scales(sigma_depth: float, sigma_normal: float, sigma_luminance: float)
 
 @wp.func
 def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: int, active: bool, s: float,
-               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int,
-               rsqrt1: int) -> float:
+               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int) -> float:
     """w(p, p + forward tap ``f``) from the loaded guides of p and q; 0 where p is not ``active`` (no surface, or
     a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold. With
     ``squarings`` (no branch in :func:`pair_weight`) the weight is evaluated either way and selected, without a
     branch (an inactive p's weight may be NaN: q without a surface either, φ_z = 0; it is never used)."""
     if squarings > 0:
         return wp.where(active, pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f),
-                                            two_over_step, depth_eps, sigma_normal, gated, squarings, rsqrt1), 0.0)
+                                            two_over_step, depth_eps, sigma_normal, gated, squarings), 0.0)
     if not active:
         return 0.0
     return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f), two_over_step, depth_eps,
-                       sigma_normal, gated, squarings, rsqrt1)
+                       sigma_normal, gated, squarings)
 
 
 @wp.func
 def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                  pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
                  lane: int, threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int,
-                 squarings: int, rsqrt1: int):
+                 squarings: int):
     """Steps 2 and 3 of :func:`atrous_level` (cooperative: every thread of the block calls it). Writes ``pair``
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
     and ``inv_weight_sum`` (shared, 1 / W_q of the tile and an apron of 2, at their guide index)."""
@@ -457,13 +446,13 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
         active_1 = gs_1[3] > 0.0 and (gated == 0 or gd_1[3] * two_over_step > 1.0)
         active_2 = gs_2[3] > 0.0 and (gated == 0 or gd_2[3] * two_over_step > 1.0)
         # row 0: taps (0, 1) and (0, 2); u + 1 is p_1's first q
-        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, rsqrt1))
+        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
         for j in range(2):  # q = u + 2 + j: p_1's tap (0, 2) (j = 0), p_2's tap (0, 1 + j)
             gs_q = read_guide(guide_s, u + 2 + j)
             gd_q = read_guide(guide_d, u + 2 + j)
             if j == 0:
-                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, rsqrt1))
-            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, rsqrt1))
+                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
         # rows 1 and 2: q = u + dy PITCH + dx, dx = -2 .. 3: p_1's tap (dy, dx) for dx <= 2 (f = 5 dy - 1 + dx),
         # p_2's tap (dy, dx - 1) for dx >= -1
         for t in range(12):
@@ -473,9 +462,9 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
             gs_q = read_guide(guide_s, v)
             gd_q = read_guide(guide_d, v)
             if dx <= 2:
-                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, rsqrt1))
+                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
             if dx >= -1:
-                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, rsqrt1))
+                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
         k += threads
     block_sync()
 
@@ -868,7 +857,7 @@ def blur_own_variance(guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], ring: wp.tile[wp.
         k += threads
 
 
-def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, rsqrt1: int = 0):
+def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
     """:func:`atrous_level` compiled for one value of ``gated`` and of ``squarings`` (closure constants, folded by
     the compiler): the ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one
     (the caustics denoiser) is the same code with every gate evaluated. Same arithmetic either way (an open gate
@@ -880,11 +869,9 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, rsqrt
     GATED = int(gated)
     SQUARINGS = int(squarings)
     SELF_GUIDE = int(self_guide)
-    RSQRT1 = int(rsqrt1)
-    assert not (RSQRT1 and (GATED or not SQUARINGS))
     assert not (SELF_GUIDE and GATED)
     name = (("atrous_level_gated" if GATED else "atrous_level") + (f"_pow{SQUARINGS}" if SQUARINGS else "")
-            + ("_self" if SELF_GUIDE else "") + ("_rsq" if RSQRT1 else ""))
+            + ("_self" if SELF_GUIDE else ""))
 
     @wp.kernel(name=name,
                launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
@@ -1028,7 +1015,7 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, rsqrt
                 block_sync()
         if run:
             fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
-                         normal_scale, GATED, SQUARINGS, RSQRT1)
+                         normal_scale, GATED, SQUARINGS)
 
         # 4. the filter of the tile's pixels
         k = lane
@@ -1094,12 +1081,6 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, rsqrt
 ATROUS_LEVEL = {(g, k): make_atrous_level(g, k) for g in (0, 1) for k in (0, NORMAL_SQUARINGS)}
 #: SVGF's first level (ungated, step 1, packed input, σ_n = 2^NORMAL_SQUARINGS) without a guide pass
 ATROUS_LEVEL_SELF = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1)
-#: SVGF's levels at σ_n = 2^NORMAL_SQUARINGS with one reciprocal square root a pair weight instead of a reciprocal and
-#: a reciprocal square root (:func:`pair_weight`'s ``rsqrt1``; section 73): ``ONE_RSQRT`` selects them at launch (the
-#: lead's A/B: ``import cisp_warp.denoise.kernels_atrous as m; m.ONE_RSQRT = False``)
-ONE_RSQRT = True
-ATROUS_LEVEL_RSQ = make_atrous_level(0, NORMAL_SQUARINGS, rsqrt1=1)
-ATROUS_LEVEL_SELF_RSQ = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1, rsqrt1=1)
 
 
 def normal_squarings(sigma_normal: float) -> int:
@@ -1263,8 +1244,6 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
     level = ATROUS_LEVEL_SELF if self_guide else ATROUS_LEVEL[int(gated), normal_squarings(sigma_normal)]
-    if ONE_RSQRT and not gated and normal_squarings(sigma_normal) == NORMAL_SQUARINGS:
-        level = ATROUS_LEVEL_SELF_RSQ if self_guide else ATROUS_LEVEL_RSQ
     wp.launch_tiled(level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, depth_scale,
                             normal_scale, luminance_scale, int(conserve_energy),
