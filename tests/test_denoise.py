@@ -922,15 +922,17 @@ def test_chained_levels_write_the_next_input(device, step, conserve):
     np.testing.assert_allclose(outs[1][1].numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("run", [4, 8])
 @pytest.mark.parametrize("w,h,lattice,copy_guide", [(45, 38, 0, 0), (41, 7, 0, 0), (44, 21, 8, 1), (43, 30, 16, 0),
-                                                     (3, 5, 4, 1), (1, 2, 0, 0), (48, 17, 0, 0), (4, 9, 8, 1)])
-def test_guide_runs_equal_the_pixel_guide_pass(device, w, h, lattice, copy_guide):
-    """SVGF's chained guide pass a run of GUIDE_RUN pixels a thread (:func:`atrous_guide_run`, section 73) writes
+                                                     (3, 5, 4, 1), (1, 2, 0, 0), (48, 17, 0, 0), (4, 9, 8, 1),
+                                                     (12, 6, 4, 0)])
+def test_guide_runs_equal_the_pixel_guide_pass(device, w, h, lattice, copy_guide, run):
+    """SVGF's chained guide pass a run of 4 or 8 pixels a thread (:func:`atrous_guide_run`, section 73) writes
     what the pixel-a-thread pass (:func:`atrous_guide`, ``packed`` = 3) writes, bit for bit: the terms (0 without a
     surface; the image's edges; widths that are no multiple of the run), in the sub-lattice-major order where asked,
     and the guide's copy there; the rest of the buffers untouched. Widths that are a multiple of 4 take the
     16-byte loads (checked to be chosen)."""
-    from cisp_warp.denoise.kernels_atrous import (atrous_guide, atrous_guide_run, lattice_size, pair_scales,
+    from cisp_warp.denoise.kernels_atrous import (ATROUS_GUIDE_RUN, atrous_guide, lattice_size, pair_scales,
                                                   runs_aligned, spare_outputs)
     rng = np.random.default_rng(73 + w + lattice)
     var = rng.exponential(1.0, (h, w)).astype(np.float32)
@@ -949,11 +951,11 @@ def test_guide_runs_equal_the_pixel_guide_pass(device, w, h, lattice, copy_guide
     outs = []
     aligned = runs_aligned(w, var_d, slope_d)
     assert aligned == (w % 4 == 0)
-    for run in (False, True):
+    for fast in (False, True):
         aux = wp.full(size, wp.vec4(5.0), dtype=wp.vec4, device=device)
         guide_lat = wp.full(size, wp.vec4(9.0), dtype=wp.vec4, device=device)
-        if run:
-            wp.launch(atrous_guide_run, dim=(h, (w + 3) // 4), device=device,
+        if fast:
+            wp.launch(ATROUS_GUIDE_RUN[run], dim=(h, (w + run - 1) // run), device=device,
                       inputs=[var_d, slope_d, w, h, depth_scale, aux, lattice, guide_d, guide_lat, copy_guide, parity,
                               w * h, aligned])
         else:

@@ -687,15 +687,12 @@ def atrous_guide(
         store_half(aux, o, wp.vec2(depth_scale * slope[p], 0.5 * b[0]))
 
 
-#: pixels of a row an SVGF guide pass thread takes (:func:`atrous_guide_run`, section 73)
+#: SVGF's ungated guide passes from the previous level's dense Var (``packed`` = 3) run :func:`atrous_guide_run` with
+#: this many pixels of a row a thread (4 or 8; the same values bit for bit), 0: :func:`atrous_guide`, a pixel a
+#: thread. Read at launch (the lead's A/B: ``import cisp_warp.denoise.kernels_atrous as m; m.GUIDE_RUN = 0``)
 GUIDE_RUN = 4
-#: SVGF's ungated guide passes from the previous level's dense Var (``packed`` = 3) run :func:`atrous_guide_run`
-#: (``GUIDE_RUN`` pixels a thread, the same values bit for bit); False: :func:`atrous_guide`, a pixel a thread. Read at
-#: launch (the lead's A/B: ``import cisp_warp.denoise.kernels_atrous as m; m.GUIDE_RUNS = False``)
-GUIDE_RUNS = True
-assert GUIDE_RUN == 4  # the loads below are written out for it
-_GUIDE_RUN = wp.constant(GUIDE_RUN)
-_vec6 = wp.types.vector(length=GUIDE_RUN + 2, dtype=wp.float32)
+_vec6 = wp.types.vector(length=6, dtype=wp.float32)
+_vec10 = wp.types.vector(length=10, dtype=wp.float32)
 
 
 @wp.func_native("""
@@ -713,18 +710,35 @@ def load_float4(a: wp.array(dtype=wp.float32), p: int) -> wp.vec4:
 
 
 @wp.func
-def variance_row(variance_in: wp.array(dtype=wp.float32), qy: int, x0: int, width: int, aligned: int) -> _vec6:
-    """The Var of row ``qy`` at the columns x0 − 1 ... x0 + GUIDE_RUN, each clamped into the image (as
-    :func:`gaussian_sums` clamps them), loads issued together; ``aligned`` (width a multiple of 4, the array
-    16-byte aligned): the middle four in one 16-byte load."""
+def load_four(a: wp.array(dtype=wp.float32), r: int, x: int, width: int, aligned: int) -> wp.vec4:
+    """Entries r + x ... r + x + 3 of a row of ``a`` that starts at ``r``, each column clamped to ``width`` − 1;
+    ``aligned`` (:func:`runs_aligned`, x a multiple of 4 < width): one 16-byte load."""
+    if aligned != 0:
+        return load_float4(a, r + x)
+    return wp.vec4(a[r + wp.min(x, width - 1)], a[r + wp.min(x + 1, width - 1)], a[r + wp.min(x + 2, width - 1)],
+                   a[r + wp.min(x + 3, width - 1)])
+
+
+@wp.func
+def variance_row4(variance_in: wp.array(dtype=wp.float32), qy: int, x0: int, width: int, aligned: int) -> _vec6:
+    """The Var of row ``qy`` at the columns x0 − 1 ... x0 + 4, each clamped into the image (as :func:`gaussian_sums`
+    clamps them), loads issued together (``aligned``: the middle four in one 16-byte load)."""
     r = qy * width
     left = variance_in[r + wp.max(x0 - 1, 0)]
     right = variance_in[r + wp.min(x0 + 4, width - 1)]
-    if aligned != 0:
-        m = load_float4(variance_in, r + x0)
-        return _vec6(left, m[0], m[1], m[2], m[3], right)
-    return _vec6(left, variance_in[r + x0], variance_in[r + wp.min(x0 + 1, width - 1)],
-                 variance_in[r + wp.min(x0 + 2, width - 1)], variance_in[r + wp.min(x0 + 3, width - 1)], right)
+    m = load_four(variance_in, r, x0, width, aligned)
+    return _vec6(left, m[0], m[1], m[2], m[3], right)
+
+
+@wp.func
+def variance_row8(variance_in: wp.array(dtype=wp.float32), qy: int, x0: int, width: int, aligned: int) -> _vec10:
+    """:func:`variance_row4` for the columns x0 − 1 ... x0 + 8."""
+    r = qy * width
+    left = variance_in[r + wp.max(x0 - 1, 0)]
+    right = variance_in[r + wp.min(x0 + 8, width - 1)]
+    m = load_four(variance_in, r, x0, width, aligned)
+    n = load_four(variance_in, r, x0 + 4, width, wp.where(x0 + 4 < width, aligned, 0))
+    return _vec10(left, m[0], m[1], m[2], m[3], n[0], n[1], n[2], n[3], right)
 
 
 def runs_aligned(width: int, *arrays) -> int:
@@ -733,73 +747,93 @@ def runs_aligned(width: int, *arrays) -> int:
     return int(width % 4 == 0 and all(a.ptr % 16 == 0 for a in arrays))
 
 
-@wp.kernel
-def atrous_guide_run(
-    variance_in: wp.array(dtype=wp.float32),
-    slope: wp.array(dtype=wp.float32),
-    width: int,
-    height: int,
-    depth_scale: float,
-    aux: wp.array(dtype=wp.vec4),
-    lattice: int,
-    guide_in: wp.array(dtype=wp.vec4),
-    guide_lattice: wp.array(dtype=wp.vec4),
-    copy_guide: int,
-    guide_parity: wp.array(dtype=wp.int32),
-    guide_row: int,
-    aligned: int,
-):
-    """:func:`atrous_guide` for SVGF's chained levels (ungated, ``packed`` = 3: the input's Var alone from the
-    previous level's dense copy ``variance_in``), ``GUIDE_RUN`` consecutive pixels of a row a thread, ``dim=(height,
-    ceil(width / GUIDE_RUN))``: the run's three rows of Var (GUIDE_RUN + 2 columns each) are read once for its pixels'
-    3x3 neighbourhoods (18 loads for 4 pixels instead of 4 + 32), the centre row and the slopes first, the rows
-    above and below only where the run has a surface. Writes what :func:`atrous_guide` writes there, bit for bit:
-    ``aux`` (its first half as a vec2 array, :func:`load_aux`: σ_z ‖∇z‖ ln 2, g3x3(Var) / 2; 0 without a
-    surface; ``lattice`` != 0: in that step's sub-lattice-major order) and, with ``lattice`` and ``copy_guide``,
-    ``guide_lattice`` from row ``1 - guide_parity[0]`` of ``guide_in`` (rows of ``guide_row`` entries). The sums are
-    :func:`gaussian_sums`' in its order. ``aligned`` (:func:`runs_aligned`): the width is a multiple of 4 and
-    ``variance_in`` and ``slope`` are 16-byte aligned, so that a run's four Var and slopes are one 16-byte load each."""
-    y, j = wp.tid()
-    x0 = j * _GUIDE_RUN
-    row = y * width
-    centre = variance_row(variance_in, y, x0, width, aligned)
-    sz = wp.vec4(0.0)
-    if aligned != 0:
-        sz = load_float4(slope, row + x0)
-    else:
-        sz = wp.vec4(slope[row + x0], slope[row + wp.min(x0 + 1, width - 1)], slope[row + wp.min(x0 + 2, width - 1)],
-                     slope[row + wp.min(x0 + 3, width - 1)])
-    any_surface = False
-    for k in range(GUIDE_RUN):
-        any_surface = any_surface or (x0 + k < width and centre[k + 1] >= 0.0)
-    above = centre
-    below = centre
-    if any_surface:
-        above = variance_row(variance_in, wp.max(y - 1, 0), x0, width, aligned)
-        below = variance_row(variance_in, wp.min(y + 1, height - 1), x0, width, aligned)
-    g_row = (1 - guide_parity[0]) * guide_row
-    for k in range(GUIDE_RUN):
-        x = x0 + k
-        if x < width:
-            p = row + x
-            o = p
-            if lattice != 0:
-                o = lattice_index(y, x, width, height, lattice)
-                if copy_guide != 0:
-                    store_vec4(guide_lattice, o, load_vec4(guide_in, g_row + p))
-            if centre[k + 1] < 0.0:
-                store_half(aux, o, wp.vec2(0.0))
+def make_guide_run(run: int):
+    """:func:`atrous_guide_run` for ``run`` (4 or 8) pixels a thread."""
+    RUN = int(run)
+    assert RUN in (4, 8)
+
+    @wp.kernel(name=f"atrous_guide_run{RUN}")
+    def atrous_guide_run(
+        variance_in: wp.array(dtype=wp.float32),
+        slope: wp.array(dtype=wp.float32),
+        width: int,
+        height: int,
+        depth_scale: float,
+        aux: wp.array(dtype=wp.vec4),
+        lattice: int,
+        guide_in: wp.array(dtype=wp.vec4),
+        guide_lattice: wp.array(dtype=wp.vec4),
+        copy_guide: int,
+        guide_parity: wp.array(dtype=wp.int32),
+        guide_row: int,
+        aligned: int,
+    ):
+        """:func:`atrous_guide` for SVGF's chained levels (ungated, ``packed`` = 3: the input's Var alone from the
+        previous level's dense copy ``variance_in``), ``RUN`` consecutive pixels of a row a thread, ``dim=(height,
+        ceil(width / RUN))``: the run's three rows of Var (RUN + 2 columns each) are read once for its pixels' 3x3
+        neighbourhoods (18 loads for 4 pixels instead of 4 + 32), the centre row and the slopes first, the rows
+        above and below only where the run has a surface. Writes what :func:`atrous_guide` writes there, bit for
+        bit: ``aux`` (its first half as a vec2 array, :func:`load_aux`: σ_z ‖∇z‖ ln 2, g3x3(Var) / 2; 0 without a
+        surface; ``lattice`` != 0: in that step's sub-lattice-major order) and, with ``lattice`` and
+        ``copy_guide``, ``guide_lattice`` from row ``1 - guide_parity[0]`` of ``guide_in`` (rows of ``guide_row``
+        entries). The sums are :func:`gaussian_sums`' in its order. ``aligned`` (:func:`runs_aligned`): the width
+        is a multiple of 4 and ``variance_in`` and ``slope`` are 16-byte aligned, so that four Var or slopes of a
+        row are one 16-byte load."""
+        y, j = wp.tid()
+        x0 = j * RUN
+        row = y * width
+        if wp.static(RUN == 4):
+            centre = variance_row4(variance_in, y, x0, width, aligned)
+        else:
+            centre = variance_row8(variance_in, y, x0, width, aligned)
+        sz = load_four(slope, row, x0, width, aligned)
+        sz8 = sz
+        if wp.static(RUN == 8):
+            sz8 = load_four(slope, row, x0 + 4, width, wp.where(x0 + 4 < width, aligned, 0))
+        any_surface = False
+        for k in range(RUN):
+            any_surface = any_surface or (x0 + k < width and centre[k + 1] >= 0.0)
+        above = centre
+        below = centre
+        if any_surface:
+            if wp.static(RUN == 4):
+                above = variance_row4(variance_in, wp.max(y - 1, 0), x0, width, aligned)
+                below = variance_row4(variance_in, wp.min(y + 1, height - 1), x0, width, aligned)
             else:
-                s0 = float(0.0)
-                s1 = float(0.0)
-                for dy in range(-1, 2):
-                    for dx in range(-1, 2):
-                        v = wp.where(dy == 0, centre[k + 1 + dx], wp.where(dy < 0, above[k + 1 + dx], below[k + 1 + dx]))
-                        inside = (y + dy >= 0 and y + dy < height and x + dx >= 0 and x + dx < width and v >= 0.0)
-                        kq = wp.where(inside, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
-                        s0 += kq * 1.0
-                        s1 += kq * wp.max(v, 0.0)
-                store_half(aux, o, wp.vec2(depth_scale * sz[k], 0.5 * (s1 / s0)))
+                above = variance_row8(variance_in, wp.max(y - 1, 0), x0, width, aligned)
+                below = variance_row8(variance_in, wp.min(y + 1, height - 1), x0, width, aligned)
+        g_row = (1 - guide_parity[0]) * guide_row
+        for k in range(RUN):
+            x = x0 + k
+            if x < width:
+                p = row + x
+                o = p
+                if lattice != 0:
+                    o = lattice_index(y, x, width, height, lattice)
+                    if copy_guide != 0:
+                        store_vec4(guide_lattice, o, load_vec4(guide_in, g_row + p))
+                if centre[k + 1] < 0.0:
+                    store_half(aux, o, wp.vec2(0.0))
+                else:
+                    s0 = float(0.0)
+                    s1 = float(0.0)
+                    for dy in range(-1, 2):
+                        for dx in range(-1, 2):
+                            v = wp.where(dy == 0, centre[k + 1 + dx],
+                                         wp.where(dy < 0, above[k + 1 + dx], below[k + 1 + dx]))
+                            inside = (y + dy >= 0 and y + dy < height and x + dx >= 0 and x + dx < width
+                                      and v >= 0.0)
+                            kq = wp.where(inside, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
+                            s0 += kq * 1.0
+                            s1 += kq * wp.max(v, 0.0)
+                    sz_k = wp.where(k < 4, sz[k % 4], sz8[k % 4])
+                    store_half(aux, o, wp.vec2(depth_scale * sz_k, 0.5 * (s1 / s0)))
+
+    return atrous_guide_run
+
+
+#: SVGF's chained guide passes by pixels a thread (:data:`GUIDE_RUN`)
+ATROUS_GUIDE_RUN = {r: make_guide_run(r) for r in (4, 8)}
 
 
 @wp.func
@@ -1225,8 +1259,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     # SVGF's first level (ungated, step 1, packed, σ_n = 128) makes its guide-pass terms itself: no guide pass
     self_guide = (not gated and step == 1 and unpacked is None and not use_lattice
                   and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
-    if not self_guide and GUIDE_RUNS and variance is not None:  # SVGF's chained levels (ungated, packed: checked)
-        wp.launch(atrous_guide_run, dim=(height, (width + GUIDE_RUN - 1) // GUIDE_RUN), device=d,
+    if not self_guide and GUIDE_RUN and variance is not None:  # SVGF's chained levels (ungated, packed: checked)
+        wp.launch(ATROUS_GUIDE_RUN[GUIDE_RUN], dim=(height, (width + GUIDE_RUN - 1) // GUIDE_RUN), device=d,
                   inputs=[variance, slope, width, height, depth_scale, aux, int(step) if use_lattice else 0, guide,
                           guide_lattice, int(not lattice_guide_ready), guide_parity, guide_row,
                           runs_aligned(width, variance, slope)])
