@@ -752,7 +752,10 @@ def make_guide_run(run: int):
     RUN = int(run)
     assert RUN in (4, 8)
 
-    @wp.kernel(name=f"atrous_guide_run{RUN}")
+    # sm_90 (tools/regcount.py): 4 pixels a thread 48 registers, 2 blocks of the module's 512 threads an SM, no stack
+    # (bounded to 3 blocks: 40 registers and a 32-byte stack frame); 8 pixels bounded to 2 blocks: 64 registers, an
+    # 8-byte frame (unbounded: 72 registers, 1 block)
+    @wp.kernel(name=f"atrous_guide_run{RUN}", launch_bounds=(BLOCK_THREADS, 2) if RUN == 8 else None)
     def atrous_guide_run(
         variance_in: wp.array(dtype=wp.float32),
         slope: wp.array(dtype=wp.float32),
