@@ -77,7 +77,9 @@ with the pair phase skipped altogether the levels still take 0.47 / 0.57 ms (wha
 Section 68: SVGF's step-1 level makes its own guide terms, one guide pass (~0.03 ms) fewer; the ungated guide
 passes read their neighbours' Var alone. Section 71 (predicted, not measured): SVGF's guide passes read a dense
 float32 Var the level before wrote (24 instead of ~60-76 bytes a pixel to and from L2), the lattice levels' input
-written in their order by the level before.
+written in their order by the level before. Section 73 (predicted, not measured): those guide passes take 4 pixels of a
+row a thread (:func:`make_guide_run`, ``GUIDE_RUN``), the same values; and why the pool's levels cost more than the
+Cornell box's (more blocks whose apron holds a signal at steps 8 and 16).
 """
 
 from __future__ import annotations
