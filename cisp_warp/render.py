@@ -444,7 +444,9 @@ class Renderer:
           :meth:`_march_composite`), SVGF's guides (``SVGF.guides``), the direct light after every light's shadow
           maps (marks);
         * main: G-buffer, the photon pass's zeroing, then (joined) denoise, the composite's gather (the surface
-          radiance read where needed), the hidden hits' direct light and caustic.
+          radiance read where needed) with the hidden hits' direct light and caustic in the same launch
+          (``HiddenSurfaces.gather``; apart, after it, with ``HiddenSurfaces.GATHERED`` False or more shadow maps or
+          lights than it takes).
 
         Each light lane draws with its own rasterizer; the shade lane with main's, whose draws (the G-buffer) all
         come before the shade lane is forked."""
@@ -524,7 +526,8 @@ class Renderer:
     def _denoise_and_shade(self, stage, marched: bool = False) -> None:
         """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
         (``marched``: the composite's marches, the hidden rays' trace and SVGF's guides ran already, on the shade
-        lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left)."""
+        lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left, one launch where
+        ``HiddenSurfaces.gather`` takes them)."""
         g = self.gbuffer
         if self.photons is not None:
             with stage("denoise"):
@@ -546,7 +549,7 @@ class Renderer:
             n = g.width * g.height
             ps = self.settings.photons
             hidden_flux = getattr(self.photons, "hidden", None)
-            hits_shaded = False  # the hidden hits' direct light and caustic added by the gather (HiddenSurfaces.gather)
+            hits_shaded = False  # the hidden hits' direct light and caustic added by the gather: HiddenSurfaces.gather
             if marched:  # the surface radiance read where the gather needs it (surface_radiance is not written)
                 cs = self.composite_split
                 if self._traces_hidden():

@@ -482,7 +482,8 @@ def gather_pixel(
     if h[0] == PIXEL_SKY:
         return int(0), wp.vec3(0.0), int(0)
     if h[0] == PIXEL_OPAQUE:
-        return int(1), surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p), int(0)
+        l = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
+        return int(1), l, int(0)
     w = weights[p]
     bits = int(0)
     if hidden != 0:
@@ -583,5 +584,5 @@ class DirectLighting:
 
 
 __all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY",
-           "composite", "composite_gather", "composite_kernels", "gather_pixel", "composite_march", "direct_at", "direct_light",
-           "direct_light_pair", "LightKind", "projected_composite", "shadow_map_args", "surface_radiance_at", "water_rays"]
+           "composite", "composite_gather", "composite_kernels", "composite_march", "direct_at", "direct_light",
+           "direct_light_pair", "gather_pixel", "LightKind", "projected_composite", "shadow_map_args", "surface_radiance_at", "water_rays"]

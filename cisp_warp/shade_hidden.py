@@ -36,7 +36,10 @@ Buffers (per pixel p; slot 2p is the refracted ray, 2p + 1 the reflected one):
 The renderer's concurrent program splits this pass round the photons (docs/perf_notes.md section 47):
 :func:`trace_hidden_rays` (after ``shade.composite_march``, beside the photon trace) traces and shades what needs no
 photons, leaving a hit the camera sees as a pixel index in ``hits`` for ``shade.composite_gather``, which adds what
-:func:`trace_hidden` adds, after the denoiser; :func:`trace_hidden` (the sequential program) is its twin.
+:func:`trace_hidden` adds, after the denoiser; :func:`trace_hidden` (the sequential program) is its twin. There the
+gather also adds what :func:`hidden_direct` and :func:`hidden_caustic` add (:func:`gather_hidden_kernel`'s
+``composite_gather_hidden``, one launch instead of one per shadow map and per light after the frame's join;
+docs/perf_notes.md section 76); ``HiddenSurfaces.GATHERED`` False launches them apart (the twin).
 """
 
 from __future__ import annotations
@@ -573,8 +576,8 @@ def direct_term(
     hidden_tri: wp.array(dtype=wp.int32),
     hidden_uvw: wp.array(dtype=wp.vec3),
 ) -> wp.vec3:
-    """What :func:`hidden_direct` adds to pixel ``p`` (its ``missed`` bits ``bits``) for one shadow map: its hidden hits'
-    albedo/π · E · throughput, summed from zero, the refracted ray's first."""
+    """What :func:`hidden_direct` adds to pixel ``p`` (its ``missed`` bits ``bits``) for one shadow map: its hidden
+    hits' albedo/π · E · throughput, summed from zero, the refracted ray's first."""
     l = wp.vec3(0.0)
     for k in range(2):
         if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
@@ -829,42 +832,63 @@ def add_landed_flux(l: wp.vec3, p: int, bits: int, f: LandedFlux, gather: int, l
     return l
 
 
-@wp.kernel
-def composite_gather_hidden(
-    depth: wp.array(dtype=wp.float32),  # (H*W,) as shade.composite_gather's (read)
-    albedo: wp.array(dtype=wp.vec3),
-    direct_irradiance: wp.array(dtype=wp.vec3),
-    caustic_irradiance: wp.array(dtype=wp.vec3),
-    sky_irradiance: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=wp.vec2i),
-    weights: wp.array(dtype=wp.vec2),
-    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* and HIDDEN_* bits (read)
-    hidden_sum: wp.array(dtype=wp.vec3),
-    lights: HiddenLights,  # the shadow maps and landed photons lighting the hidden hits
-    layer: OpaqueLayer,
-    hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read where HIDDEN)
-    hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read where HIDDEN)
-    final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
-):
-    """``shade.composite_gather`` (with its hidden rays) followed by :func:`hidden_direct` for each shadow map and
-    :func:`hidden_caustic` for each light of ``lights``, in one pass: the gather's value, then each map's and each
-    light's sum added where it is not zero, in their launches' order, so ``final`` is theirs bit for bit on the CPU.
-    The tail after the frame's join loses a launch per shadow map and per light (docs/perf_notes.md section 76)."""
-    p = wp.tid()
-    written, l, bits = gather_pixel(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, hits, weights,
-                                    missed, hidden_sum, 1, final, p)
-    if written == 0:
-        return
-    if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) != 0:
-        if lights.maps > 0:
-            l = add_shadow_map(l, p, bits, lights.map0, layer, hidden_tri, hidden_uvw)
-        if lights.maps > 1:
-            l = add_shadow_map(l, p, bits, lights.map1, layer, hidden_tri, hidden_uvw)
-        if lights.fluxes > 0:
-            l = add_landed_flux(l, p, bits, lights.flux0, lights.gather, layer, hidden_tri, hidden_uvw)
-        if lights.fluxes > 1:
-            l = add_landed_flux(l, p, bits, lights.flux1, lights.gather, layer, hidden_tri, hidden_uvw)
-    final[p] = l
+#: CUDA launch bounds of :func:`composite_gather_hidden` (threads a block, blocks an SM; None: nvcc's choice). The
+#: gather alone (``shade.composite_gather``) is 32 registers, a dense streaming pass; the hidden hits' shading folded
+#: in makes it 80 unbounded (3 blocks of 256 an SM); at (256, 4) 64 registers (4 blocks), spills only where a pixel
+#: has hidden hits (docs/perf_notes.md section 76). Read when the kernel is first made (:func:`gather_hidden_kernel`)
+GATHER_LAUNCH_BOUNDS = (256, 4)
+
+_GATHER_HIDDEN: dict = {}
+
+
+def gather_hidden_kernel(bounds=None):
+    """:func:`composite_gather_hidden` compiled with the launch bounds ``bounds`` (default
+    :data:`GATHER_LAUNCH_BOUNDS`), made on first use, a module of its own; the same float operations at any bounds."""
+    key = GATHER_LAUNCH_BOUNDS if bounds is None else bounds
+    key = None if key is None else tuple(int(v) for v in key)
+    if key in _GATHER_HIDDEN:
+        return _GATHER_HIDDEN[key]
+
+    def composite_gather_hidden(
+        depth: wp.array(dtype=wp.float32),  # (H*W,) as shade.composite_gather's (read)
+        albedo: wp.array(dtype=wp.vec3),
+        direct_irradiance: wp.array(dtype=wp.vec3),
+        caustic_irradiance: wp.array(dtype=wp.vec3),
+        sky_irradiance: wp.array(dtype=wp.vec3),
+        hits: wp.array(dtype=wp.vec2i),
+        weights: wp.array(dtype=wp.vec2),
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* and HIDDEN_* bits (read)
+        hidden_sum: wp.array(dtype=wp.vec3),
+        lights: HiddenLights,  # the shadow maps and landed photons lighting the hidden hits
+        layer: OpaqueLayer,
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read where HIDDEN)
+        final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
+    ):
+        """``shade.composite_gather`` (with its hidden rays) followed by :func:`hidden_direct` for each shadow map and
+        :func:`hidden_caustic` for each light of ``lights``, in one pass: the gather's value, then each map's and each
+        light's sum added where it is not zero, in their launches' order, so ``final`` is theirs bit for bit on the CPU.
+        The tail after the frame's join loses a launch per shadow map and per light (docs/perf_notes.md section 76)."""
+        p = wp.tid()
+        written, l, bits = gather_pixel(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, hits,
+                                        weights, missed, hidden_sum, 1, final, p)
+        if written == 0:
+            return
+        if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) != 0:
+            if lights.maps > 0:
+                l = add_shadow_map(l, p, bits, lights.map0, layer, hidden_tri, hidden_uvw)
+            if lights.maps > 1:
+                l = add_shadow_map(l, p, bits, lights.map1, layer, hidden_tri, hidden_uvw)
+            if lights.fluxes > 0:
+                l = add_landed_flux(l, p, bits, lights.flux0, lights.gather, layer, hidden_tri, hidden_uvw)
+            if lights.fluxes > 1:
+                l = add_landed_flux(l, p, bits, lights.flux1, lights.gather, layer, hidden_tri, hidden_uvw)
+        final[p] = l
+
+    composite_gather_hidden.__qualname__ = "composite_gather_hidden"
+    kernel = wp.kernel(composite_gather_hidden, module="unique", enable_backward=False, launch_bounds=key)
+    _GATHER_HIDDEN[key] = kernel
+    return kernel
 
 
 def hidden_lights(lights, hidden_flux=None) -> HiddenLights | None:
@@ -1000,9 +1024,13 @@ class HiddenSurfaces:
         packed = hidden_lights(lights, hidden_flux) if self.GATHERED else None
         if packed is None:
             return False
-        wp.launch(composite_gather_hidden, dim=gbuffer.width * gbuffer.height, device=self.device, inputs=[
-            gbuffer.depth, gbuffer.albedo, direct_irradiance, caustic_irradiance, sky_irradiance, split.hits,
-            split.weights, self.missed, split.hidden_sum, packed, self.layer, self.hidden_tri, self.hidden_uvw, final])
+        n = gbuffer.width * gbuffer.height
+        bounds = GATHER_LAUNCH_BOUNDS
+        wp.launch(gather_hidden_kernel(bounds), dim=n, device=self.device,
+                  block_dim=256 if bounds is None else int(bounds[0]), inputs=[
+                      gbuffer.depth, gbuffer.albedo, direct_irradiance, caustic_irradiance, sky_irradiance, split.hits,
+                      split.weights, self.missed, split.hidden_sum, packed, self.layer, self.hidden_tri,
+                      self.hidden_uvw, final])
         return True
 
     def shade_hits(self, gbuffer, lights, final: wp.array, hidden_flux=None) -> None:
@@ -1027,7 +1055,7 @@ class HiddenSurfaces:
 
 
 __all__ = ["GATHER_FLUXES", "GATHER_MAPS", "HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenLights", "HiddenSurfaces",
-           "LandedFlux", "OpaqueLayer", "ShadowMap", "SkyOcclusion", "composite_gather_hidden", "hidden_caustic",
+           "LandedFlux", "OpaqueLayer", "ShadowMap", "SkyOcclusion", "gather_hidden_kernel", "hidden_caustic",
            "hidden_caustic_strided", "hidden_direct", "hidden_direct_strided", "hidden_lights",
            "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "strided_hidden",
            "strided_threads", "trace_hidden", "trace_hidden_naive",

@@ -38,8 +38,8 @@ def test_the_folded_gather_equals_gather_then_hidden_kernels():
     hits = cs.hits.numpy()
     water = hits[:, 0] >= -1
     missed = h.missed.numpy() & ~HIDDEN
-    missed[water] |= rng.choice([0, int(shade_hidden.HIDDEN_REFRACTED), int(shade_hidden.HIDDEN_REFLECTED), int(HIDDEN)],
-                                int(water.sum()))
+    kinds = [0, int(shade_hidden.HIDDEN_REFRACTED), int(shade_hidden.HIDDEN_REFLECTED), int(HIDDEN)]
+    missed[water] |= rng.choice(kinds, int(water.sum()))
     h.missed.assign(missed.astype(np.int32))
     faces = h.layer.face_to_tri.numpy()
     tri = faces[rng.integers(0, len(faces), 2 * n)] + 1
@@ -73,8 +73,8 @@ def test_the_folded_gather_equals_gather_then_hidden_kernels():
     assert not (expect != twin(0, 0))[(missed & HIDDEN) == 0].any()  # and only where a hit is hidden
 
 
-@pytest.mark.parametrize("scene,method,hidden_rays", [("pool", "cisp", "both"), ("cornell_flooded", "cisp", "refracted"),
-                                                      ("pool", "none", "refracted")])
+@pytest.mark.parametrize("scene,method,hidden_rays", [
+    ("pool", "cisp", "both"), ("cornell_flooded", "cisp", "refracted"), ("pool", "none", "refracted")])
 def test_frames_with_the_folded_gather_are_the_sequential_ones(scene, method, hidden_rays, monkeypatch):
     """Whole frames (two each): the concurrent program with the folded gather, with the twin's launches
     (``GATHERED`` False), and with more shadow maps than the folded kernel takes (the twin's launches again) give the
