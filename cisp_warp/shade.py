@@ -173,6 +173,16 @@ def direct_light_pair(
 
 
 @wp.func
+def lambert_radiance_at(albedo: wp.array(dtype=wp.vec3), direct_irradiance: wp.array(dtype=wp.vec3),
+                        caustic_irradiance: wp.array(dtype=wp.vec3), sky_irradiance: wp.array(dtype=wp.vec3),
+                        p: int) -> wp.vec3:
+    """Pixel ``p``'s Lambertian radiance [W/(m² sr)] where it has an opaque surface: :func:`surface_radiance_at`
+    without its depth test, for :func:`composite_gather`'s ``PIXEL_OPAQUE`` pixels, whose depth
+    :func:`composite_march` found > 0 (the test's load, and its round trip before the four terms' loads, saved)."""
+    return wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
+
+
+@wp.func
 def surface_radiance_at(depth: wp.array(dtype=wp.float32), albedo: wp.array(dtype=wp.vec3),
                         direct_irradiance: wp.array(dtype=wp.vec3), caustic_irradiance: wp.array(dtype=wp.vec3),
                         sky_irradiance: wp.array(dtype=wp.vec3), p: int) -> wp.vec3:
@@ -180,7 +190,7 @@ def surface_radiance_at(depth: wp.array(dtype=wp.float32), albedo: wp.array(dtyp
     writes, and :func:`composite_gather` computes where it reads it."""
     l_surface = wp.vec3(0.0)
     if depth[p] > 0.0:
-        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
+        l_surface = lambert_radiance_at(albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
     return l_surface
 
 
@@ -481,9 +491,8 @@ def gather_pixel(
     h = hits[p]
     if h[0] == PIXEL_SKY:
         return int(0), wp.vec3(0.0), int(0)
-    if h[0] == PIXEL_OPAQUE:
-        l = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
-        return int(1), l, int(0)
+    if h[0] == PIXEL_OPAQUE:  # composite_march's depth[p] > 0: surface_radiance_at's value without its test
+        return int(1), lambert_radiance_at(albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p), int(0)
     w = weights[p]
     bits = int(0)
     if hidden != 0:
@@ -585,4 +594,5 @@ class DirectLighting:
 
 __all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY",
            "composite", "composite_gather", "composite_kernels", "composite_march", "direct_at", "direct_light",
-           "direct_light_pair", "gather_pixel", "LightKind", "projected_composite", "shadow_map_args", "surface_radiance_at", "water_rays"]
+           "direct_light_pair", "gather_pixel", "lambert_radiance_at", "LightKind", "projected_composite",
+           "shadow_map_args", "surface_radiance_at", "water_rays"]
