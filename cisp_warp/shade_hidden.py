@@ -832,19 +832,21 @@ def add_landed_flux(l: wp.vec3, p: int, bits: int, f: LandedFlux, gather: int, l
     return l
 
 
-#: CUDA launch bounds of :func:`composite_gather_hidden` (threads a block, blocks an SM; None: nvcc's choice). The
-#: gather alone (``shade.composite_gather``) is 32 registers, a dense streaming pass; the hidden hits' shading folded
-#: in makes it 80 unbounded (3 blocks of 256 an SM); at (256, 4) 64 registers (4 blocks), spills only where a pixel
-#: has hidden hits (docs/perf_notes.md section 76). Read when the kernel is first made (:func:`gather_hidden_kernel`)
+#: CUDA launch bounds of :func:`composite_gather_hidden` (threads a block, blocks an SM; None: none, blocks of 256).
+#: The gather alone (``shade.composite_gather``) is 32 registers, a dense streaming pass; with the hidden hits' shading
+#: folded in, at (256, 3) 80 registers and no spills (3 blocks of 256 an SM); at (256, 4) 64 registers (4 blocks) and
+#: a 48 B frame: 7 local operations on every pixel, the rest where a pixel has hidden hits (sm_90, docs/perf_notes.md
+#: section 76). Read at each launch (:meth:`HiddenSurfaces.gather`): set it before a frame is captured
 GATHER_LAUNCH_BOUNDS = (256, 4)
 
 _GATHER_HIDDEN: dict = {}
 
 
-def gather_hidden_kernel(bounds=None):
+def gather_hidden_kernel(bounds="default"):
     """:func:`composite_gather_hidden` compiled with the launch bounds ``bounds`` (default
-    :data:`GATHER_LAUNCH_BOUNDS`), made on first use, a module of its own; the same float operations at any bounds."""
-    key = GATHER_LAUNCH_BOUNDS if bounds is None else bounds
+    :data:`GATHER_LAUNCH_BOUNDS`; None: none), made on first use, a module of its own; the same float operations at
+    any bounds."""
+    key = GATHER_LAUNCH_BOUNDS if isinstance(bounds, str) else bounds
     key = None if key is None else tuple(int(v) for v in key)
     if key in _GATHER_HIDDEN:
         return _GATHER_HIDDEN[key]
