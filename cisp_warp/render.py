@@ -444,7 +444,9 @@ class Renderer:
           :meth:`_march_composite`), SVGF's guides (``SVGF.guides``), the direct light after every light's shadow
           maps (marks);
         * main: G-buffer, the photon pass's zeroing, then (joined) denoise, the composite's gather (the surface
-          radiance read where needed), the hidden hits' direct light and caustic.
+          radiance read where needed) with the hidden hits' direct light and caustic in the same launch
+          (``HiddenSurfaces.gather``; apart, after it, with ``HiddenSurfaces.GATHERED`` False or more shadow maps or
+          lights than it takes).
 
         Each light lane draws with its own rasterizer; the shade lane with main's, whose draws (the G-buffer) all
         come before the shade lane is forked."""
@@ -524,7 +526,8 @@ class Renderer:
     def _denoise_and_shade(self, stage, marched: bool = False) -> None:
         """The frame's tail, on the frame's stream: denoise the photon map, surface radiance, composite, hidden rays
         (``marched``: the composite's marches, the hidden rays' trace and SVGF's guides ran already, on the shade
-        lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left)."""
+        lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left, one launch where
+        ``HiddenSurfaces.gather`` takes them)."""
         g = self.gbuffer
         if self.photons is not None:
             with stage("denoise"):
@@ -545,12 +548,18 @@ class Renderer:
         with stage("shade"):
             n = g.width * g.height
             ps = self.settings.photons
+            hidden_flux = getattr(self.photons, "hidden", None)
+            hits_shaded = False  # the hidden hits' direct light and caustic added by the gather: HiddenSurfaces.gather
             if marched:  # the surface radiance read where the gather needs it (surface_radiance is not written)
                 cs = self.composite_split
-                wp.launch(composite_gather, dim=n, device=self.device,
-                          inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
-                                  self.sky_irradiance, cs.hits, cs.weights, self.hidden.missed, cs.hidden_sum,
-                                  int(self._traces_hidden()), self.final])
+                if self._traces_hidden():
+                    hits_shaded = self.hidden.gather(g, self.direct.irradiance, self.caustic_irradiance,
+                                                     self.sky_irradiance, cs, self.lights, self.final, hidden_flux)
+                if not hits_shaded:
+                    wp.launch(composite_gather, dim=n, device=self.device,
+                              inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                                      self.sky_irradiance, cs.hits, cs.weights, self.hidden.missed, cs.hidden_sum,
+                                      int(self._traces_hidden()), self.final])
             else:
                 wp.launch(surface_radiance, dim=n, device=self.device,
                           inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
@@ -566,9 +575,9 @@ class Renderer:
             if self.photons is not None and self.photons.final is not None:
                 wp.copy(self.final, self.photons.final)  # a method with its own final image (the reference)
             elif self._hidden_bits != 0:
-                hidden_flux = getattr(self.photons, "hidden", None)
                 if marched:
-                    self.hidden.shade_hits(g, self.lights, self.final, hidden_flux)
+                    if not hits_shaded:
+                        self.hidden.shade_hits(g, self.lights, self.final, hidden_flux)
                 else:
                     self.hidden.render(g, self.lights, self.inputs.cameras, self.surface_radiance, self.sky_map,
                                        self.t_max, self.final, hidden_flux, self.view.orthographic)

@@ -173,6 +173,16 @@ def direct_light_pair(
 
 
 @wp.func
+def lambert_radiance_at(albedo: wp.array(dtype=wp.vec3), direct_irradiance: wp.array(dtype=wp.vec3),
+                        caustic_irradiance: wp.array(dtype=wp.vec3), sky_irradiance: wp.array(dtype=wp.vec3),
+                        p: int) -> wp.vec3:
+    """Pixel ``p``'s Lambertian radiance [W/(m² sr)] where it has an opaque surface: :func:`surface_radiance_at`
+    without its depth test, for :func:`composite_gather`'s ``PIXEL_OPAQUE`` pixels, whose depth
+    :func:`composite_march` found > 0 (the test's load, and its round trip before the four terms' loads, saved)."""
+    return wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
+
+
+@wp.func
 def surface_radiance_at(depth: wp.array(dtype=wp.float32), albedo: wp.array(dtype=wp.vec3),
                         direct_irradiance: wp.array(dtype=wp.vec3), caustic_irradiance: wp.array(dtype=wp.vec3),
                         sky_irradiance: wp.array(dtype=wp.vec3), p: int) -> wp.vec3:
@@ -180,7 +190,7 @@ def surface_radiance_at(depth: wp.array(dtype=wp.float32), albedo: wp.array(dtyp
     writes, and :func:`composite_gather` computes where it reads it."""
     l_surface = wp.vec3(0.0)
     if depth[p] > 0.0:
-        l_surface = wp.cw_mul(albedo[p], direct_irradiance[p] + caustic_irradiance[p] + sky_irradiance[p]) * INV_PI
+        l_surface = lambert_radiance_at(albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
     return l_surface
 
 
@@ -459,32 +469,30 @@ def composite_kernels(orthographic: bool | None) -> tuple:
     return projected_composite(int(bool(orthographic)))
 
 
-@wp.kernel
-def composite_gather(
-    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
-    albedo: wp.array(dtype=wp.vec3),  # the opaque surface's radiance terms, as surface_radiance's (read)
-    direct_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
-    caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (the denoiser's)
-    sky_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
-    hits: wp.array(dtype=wp.vec2i),  # (H*W,) composite_march's, with shade_hidden's seen pixels where ``hidden`` (read)
-    weights: wp.array(dtype=wp.vec2),  # (H*W,) composite_march's throughputs (read)
-    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read where ``hidden``)
-    hidden_sum: wp.array(dtype=wp.vec3),  # (H*W,) shade_hidden's sum of its rays' terms that need no radiance (read)
-    hidden: int,  # 1: shade_hidden traced the missed rays (trace_hidden_rays): add what they bring
-    final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
+@wp.func
+def gather_pixel(
+    depth: wp.array(dtype=wp.float32),
+    albedo: wp.array(dtype=wp.vec3),
+    direct_irradiance: wp.array(dtype=wp.vec3),
+    caustic_irradiance: wp.array(dtype=wp.vec3),
+    sky_irradiance: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=wp.vec2i),
+    weights: wp.array(dtype=wp.vec2),
+    missed: wp.array(dtype=wp.int32),
+    hidden_sum: wp.array(dtype=wp.vec3),
+    hidden: int,
+    final: wp.array(dtype=wp.vec3),
+    p: int,
 ):
-    """:func:`composite`'s photon half, after the denoiser: the opaque radiance (:func:`surface_radiance_at`, read
-    where needed: no radiance buffer) at :func:`composite_march`'s hits, blended with its throughputs; with
-    ``hidden``, then what ``shade_hidden.trace_hidden_rays`` found for the missed rays. :func:`surface_radiance` +
-    :func:`composite` + ``shade_hidden.trace_hidden`` in one pass: the same float32 sums in the same order, so the
-    image is theirs bit for bit on the CPU."""
-    p = wp.tid()
+    """Pixel ``p`` of :func:`composite_gather`: (1, what it writes to ``final[p]``, the pixel's ``missed`` bits where
+    ``hidden``, else 0), or (0, zero, 0) for a sky pixel, whose ``final`` is :func:`composite_march`'s already (the
+    kernel that folds the hidden hits' shading into the gather, ``shade_hidden.composite_gather_hidden``, calls it
+    too)."""
     h = hits[p]
     if h[0] == PIXEL_SKY:
-        return
-    if h[0] == PIXEL_OPAQUE:
-        final[p] = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
-        return
+        return int(0), wp.vec3(0.0), int(0)
+    if h[0] == PIXEL_OPAQUE:  # composite_march's depth[p] > 0: surface_radiance_at's value without its test
+        return int(1), lambert_radiance_at(albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p), int(0)
     w = weights[p]
     bits = int(0)
     if hidden != 0:
@@ -509,7 +517,33 @@ def composite_gather(
             lr = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, h[0])
             lh = lh + lr * w[0]
         l = l + lh
-    final[p] = l
+    return int(1), l, bits
+
+
+@wp.kernel
+def composite_gather(
+    depth: wp.array(dtype=wp.float32),  # (H*W,) opaque depth [m], 0 = none (read)
+    albedo: wp.array(dtype=wp.vec3),  # the opaque surface's radiance terms, as surface_radiance's (read)
+    direct_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
+    caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (the denoiser's)
+    sky_irradiance: wp.array(dtype=wp.vec3),  # [W/m²]
+    hits: wp.array(dtype=wp.vec2i),  # (H*W,) composite_march's, with shade_hidden's seen pixels where ``hidden`` (read)
+    weights: wp.array(dtype=wp.vec2),  # (H*W,) composite_march's throughputs (read)
+    missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* bits (read where ``hidden``)
+    hidden_sum: wp.array(dtype=wp.vec3),  # (H*W,) shade_hidden's sum of its rays' terms that need no radiance (read)
+    hidden: int,  # 1: shade_hidden traced the missed rays (trace_hidden_rays): add what they bring
+    final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
+):
+    """:func:`composite`'s photon half, after the denoiser: the opaque radiance (:func:`surface_radiance_at`, read
+    where needed: no radiance buffer) at :func:`composite_march`'s hits, blended with its throughputs; with
+    ``hidden``, then what ``shade_hidden.trace_hidden_rays`` found for the missed rays. :func:`surface_radiance` +
+    :func:`composite` + ``shade_hidden.trace_hidden`` in one pass: the same float32 sums in the same order, so the
+    image is theirs bit for bit on the CPU (:func:`gather_pixel`)."""
+    p = wp.tid()
+    written, l, bits = gather_pixel(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, hits, weights,
+                                    missed, hidden_sum, hidden, final, p)
+    if written != 0:
+        final[p] = l
 
 
 def shadow_map_args(lights: list[LightMaps]) -> list[list]:
@@ -560,4 +594,5 @@ class DirectLighting:
 
 __all__ = ["DirectLighting", "HIT_NONE", "MISSED_REFLECTED", "MISSED_REFRACTED", "PIXEL_OPAQUE", "PIXEL_SKY",
            "composite", "composite_gather", "composite_kernels", "composite_march", "direct_at", "direct_light",
-           "direct_light_pair", "LightKind", "projected_composite", "shadow_map_args", "surface_radiance_at", "water_rays"]
+           "direct_light_pair", "gather_pixel", "lambert_radiance_at", "LightKind", "projected_composite",
+           "shadow_map_args", "surface_radiance_at", "water_rays"]

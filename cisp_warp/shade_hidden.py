@@ -36,7 +36,10 @@ Buffers (per pixel p; slot 2p is the refracted ray, 2p + 1 the reflected one):
 The renderer's concurrent program splits this pass round the photons (docs/perf_notes.md section 47):
 :func:`trace_hidden_rays` (after ``shade.composite_march``, beside the photon trace) traces and shades what needs no
 photons, leaving a hit the camera sees as a pixel index in ``hits`` for ``shade.composite_gather``, which adds what
-:func:`trace_hidden` adds, after the denoiser; :func:`trace_hidden` (the sequential program) is its twin.
+:func:`trace_hidden` adds, after the denoiser; :func:`trace_hidden` (the sequential program) is its twin. There the
+gather also adds what :func:`hidden_direct` and :func:`hidden_caustic` add (:func:`gather_hidden_kernel`'s
+``composite_gather_hidden``, one launch instead of one per shadow map and per light after the frame's join;
+docs/perf_notes.md section 76); ``HiddenSurfaces.GATHERED`` False launches them apart (the twin).
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ import warp as wp
 from .raster.views import ViewParams, fixed_projection, world_project
 from .photons.hidden_flux import hidden_irradiance
 from .scene.model import LAYER_OPAQUE
-from .shade import MISSED_REFLECTED, MISSED_REFRACTED, direct_at, shadow_map_args, water_rays
+from .shade import MISSED_REFLECTED, MISSED_REFRACTED, direct_at, gather_pixel, shadow_map_args, water_rays
 from .sky import SkyMap, sky_irradiance_at, sky_radiance
 
 INV_PI = wp.constant(1.0 / math.pi)
@@ -557,6 +560,35 @@ def hidden_hit(layer: OpaqueLayer, hidden_tri: wp.array(dtype=wp.int32), hidden_
 
 
 @wp.func
+def direct_term(
+    p: int,
+    bits: int,
+    shadow_view: ViewParams,
+    shadow_depth: wp.array(dtype=wp.float32),
+    exclusive: int,
+    kind: int,
+    light_rgb: wp.vec3,
+    light_pos: wp.vec3,
+    light_dir: wp.vec3,
+    cone_angle: float,
+    cone_softness: float,
+    layer: OpaqueLayer,
+    hidden_tri: wp.array(dtype=wp.int32),
+    hidden_uvw: wp.array(dtype=wp.vec3),
+) -> wp.vec3:
+    """What :func:`hidden_direct` adds to pixel ``p`` (its ``missed`` bits ``bits``) for one shadow map: its hidden
+    hits' albedo/π · E · throughput, summed from zero, the refracted ray's first."""
+    l = wp.vec3(0.0)
+    for k in range(2):
+        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
+            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
+            e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                          cone_softness, y, n)
+            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
+    return l
+
+
+@wp.func
 def direct_pixel(
     p: int,
     bits: int,
@@ -575,13 +607,8 @@ def direct_pixel(
     final: wp.array(dtype=wp.vec3),
 ):
     """Pixel ``p`` (its ``missed`` bits ``bits``, a HIDDEN one among them) of :func:`hidden_direct`."""
-    l = wp.vec3(0.0)
-    for k in range(2):
-        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
-            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
-            e = direct_at(shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
-                          cone_softness, y, n)
-            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
+    l = direct_term(p, bits, shadow_view, shadow_depth, exclusive, kind, light_rgb, light_pos, light_dir, cone_angle,
+                    cone_softness, layer, hidden_tri, hidden_uvw)
     if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
         final[p] = final[p] + l
 
@@ -646,6 +673,30 @@ def hidden_direct_strided(
 
 
 @wp.func
+def caustic_term(
+    p: int,
+    bits: int,
+    views: wp.array(dtype=ViewParams),
+    flux: wp.array(dtype=wp.vec3),
+    map_w: int,
+    map_h: int,
+    gather: int,
+    layer: OpaqueLayer,
+    hidden_tri: wp.array(dtype=wp.int32),
+    hidden_uvw: wp.array(dtype=wp.vec3),
+) -> wp.vec3:
+    """What :func:`hidden_caustic` adds to pixel ``p`` (its ``missed`` bits ``bits``) for one light: its hidden hits'
+    albedo/π · E · throughput, summed from zero, the refracted ray's first."""
+    l = wp.vec3(0.0)
+    for k in range(2):
+        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
+            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
+            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)  # |n · ray|: either side
+            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
+    return l
+
+
+@wp.func
 def caustic_pixel(
     p: int,
     bits: int,
@@ -660,12 +711,7 @@ def caustic_pixel(
     final: wp.array(dtype=wp.vec3),
 ):
     """Pixel ``p`` (its ``missed`` bits ``bits``, a HIDDEN one among them) of :func:`hidden_caustic`."""
-    l = wp.vec3(0.0)
-    for k in range(2):
-        if (bits & wp.where(k == 0, HIDDEN_REFRACTED, HIDDEN_REFLECTED)) != 0:
-            y, n, rho, w = hidden_hit(layer, hidden_tri, hidden_uvw, p, k)
-            e = hidden_irradiance(views, flux, map_w, map_h, gather, y, n)  # |n · ray|: either side
-            l = l + wp.cw_mul(rho, e) * (INV_PI * w)
+    l = caustic_term(p, bits, views, flux, map_w, map_h, gather, layer, hidden_tri, hidden_uvw)
     if l[0] != 0.0 or l[1] != 0.0 or l[2] != 0.0:
         final[p] = final[p] + l
 
@@ -717,6 +763,155 @@ def hidden_caustic_strided(
             caustic_pixel(p, missed[p], views, flux, map_w, map_h, gather, layer, hidden_tri, hidden_uvw, final)
         todo = todo >> 1
         i += 1
+
+
+#: the most shadow maps, and lights with landed photons, that :func:`composite_gather_hidden` takes (a frame with more
+#: keeps the gather and :meth:`HiddenSurfaces.shade_hits`' launches): the pool's two, the Cornell box's one
+GATHER_MAPS = 2
+GATHER_FLUXES = 2
+
+
+@wp.struct
+class ShadowMap:
+    """One shadow map of one light, as ``shade.direct_light`` takes it (``shade.shadow_map_args``' nine values)."""
+
+    view: ViewParams
+    depth: wp.array(dtype=wp.float32)
+    exclusive: int
+    kind: int
+    rgb: wp.vec3
+    pos: wp.vec3
+    dir: wp.vec3
+    cone_angle: float
+    cone_softness: float
+
+
+@wp.struct
+class LandedFlux:
+    """One light's landed-photon map, as :func:`hidden_caustic` takes it (``photons.hidden_flux.HiddenFlux``'s)."""
+
+    views: wp.array(dtype=ViewParams)
+    flux: wp.array(dtype=wp.vec3)
+    map_w: int
+    map_h: int
+
+
+@wp.struct
+class HiddenLights:
+    """What :meth:`HiddenSurfaces.shade_hits` launches :func:`hidden_direct` and :func:`hidden_caustic` with, for
+    :func:`composite_gather_hidden`: the frame's first ``maps`` shadow maps (at most GATHER_MAPS), then its first
+    ``fluxes`` lights' landed photons (at most GATHER_FLUXES), each gathered over (2 ``gather`` + 1)² texels."""
+
+    maps: int
+    map0: ShadowMap
+    map1: ShadowMap
+    fluxes: int
+    flux0: LandedFlux
+    flux1: LandedFlux
+    gather: int
+
+
+@wp.func
+def add_shadow_map(l: wp.vec3, p: int, bits: int, m: ShadowMap, layer: OpaqueLayer,
+                   hidden_tri: wp.array(dtype=wp.int32), hidden_uvw: wp.array(dtype=wp.vec3)) -> wp.vec3:
+    """``l`` plus what :func:`hidden_direct` adds to pixel ``p`` for the shadow map ``m`` (``l`` where it adds zero)."""
+    d = direct_term(p, bits, m.view, m.depth, m.exclusive, m.kind, m.rgb, m.pos, m.dir, m.cone_angle, m.cone_softness,
+                    layer, hidden_tri, hidden_uvw)
+    if d[0] != 0.0 or d[1] != 0.0 or d[2] != 0.0:
+        return l + d
+    return l
+
+
+@wp.func
+def add_landed_flux(l: wp.vec3, p: int, bits: int, f: LandedFlux, gather: int, layer: OpaqueLayer,
+                    hidden_tri: wp.array(dtype=wp.int32), hidden_uvw: wp.array(dtype=wp.vec3)) -> wp.vec3:
+    """``l`` plus what :func:`hidden_caustic` adds to pixel ``p`` for the light of ``f`` (``l`` where it adds zero)."""
+    c = caustic_term(p, bits, f.views, f.flux, f.map_w, f.map_h, gather, layer, hidden_tri, hidden_uvw)
+    if c[0] != 0.0 or c[1] != 0.0 or c[2] != 0.0:
+        return l + c
+    return l
+
+
+#: CUDA launch bounds of :func:`composite_gather_hidden` (threads a block, blocks an SM; None: none, blocks of 256).
+#: The gather alone (``shade.composite_gather``) is 32 registers, a dense streaming pass; with the hidden hits' shading
+#: folded in, at (256, 3) 80 registers and no spills (3 blocks of 256 an SM); at (256, 4) 64 registers (4 blocks) and
+#: a 48 B frame: 7 local operations on every pixel, the rest where a pixel has hidden hits (sm_90, docs/perf_notes.md
+#: section 76). Read at each launch (:meth:`HiddenSurfaces.gather`): set it before a frame is captured
+GATHER_LAUNCH_BOUNDS = (256, 4)
+
+_GATHER_HIDDEN: dict = {}
+
+
+def gather_hidden_kernel(bounds="default"):
+    """:func:`composite_gather_hidden` compiled with the launch bounds ``bounds`` (default
+    :data:`GATHER_LAUNCH_BOUNDS`; None: none), made on first use, a module of its own; the same float operations at
+    any bounds."""
+    key = GATHER_LAUNCH_BOUNDS if isinstance(bounds, str) else bounds
+    key = None if key is None else tuple(int(v) for v in key)
+    if key in _GATHER_HIDDEN:
+        return _GATHER_HIDDEN[key]
+
+    def composite_gather_hidden(
+        depth: wp.array(dtype=wp.float32),  # (H*W,) as shade.composite_gather's (read)
+        albedo: wp.array(dtype=wp.vec3),
+        direct_irradiance: wp.array(dtype=wp.vec3),
+        caustic_irradiance: wp.array(dtype=wp.vec3),
+        sky_irradiance: wp.array(dtype=wp.vec3),
+        hits: wp.array(dtype=wp.vec2i),
+        weights: wp.array(dtype=wp.vec2),
+        missed: wp.array(dtype=wp.int32),  # (H*W,) MISSED_* and HIDDEN_* bits (read)
+        hidden_sum: wp.array(dtype=wp.vec3),
+        lights: HiddenLights,  # the shadow maps and landed photons lighting the hidden hits
+        layer: OpaqueLayer,
+        hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read where HIDDEN)
+        hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read where HIDDEN)
+        final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
+    ):
+        """``shade.composite_gather`` (with its hidden rays) followed by :func:`hidden_direct` for each shadow map and
+        :func:`hidden_caustic` for each light of ``lights``, in one pass: the gather's value, then each map's and each
+        light's sum added where it is not zero, in their launches' order, so ``final`` is theirs bit for bit on the CPU.
+        The tail after the frame's join loses a launch per shadow map and per light (docs/perf_notes.md section 76)."""
+        p = wp.tid()
+        written, l, bits = gather_pixel(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, hits,
+                                        weights, missed, hidden_sum, 1, final, p)
+        if written == 0:
+            return
+        if (bits & (HIDDEN_REFRACTED | HIDDEN_REFLECTED)) != 0:
+            if lights.maps > 0:
+                l = add_shadow_map(l, p, bits, lights.map0, layer, hidden_tri, hidden_uvw)
+            if lights.maps > 1:
+                l = add_shadow_map(l, p, bits, lights.map1, layer, hidden_tri, hidden_uvw)
+            if lights.fluxes > 0:
+                l = add_landed_flux(l, p, bits, lights.flux0, lights.gather, layer, hidden_tri, hidden_uvw)
+            if lights.fluxes > 1:
+                l = add_landed_flux(l, p, bits, lights.flux1, lights.gather, layer, hidden_tri, hidden_uvw)
+        final[p] = l
+
+    composite_gather_hidden.__qualname__ = "composite_gather_hidden"
+    kernel = wp.kernel(composite_gather_hidden, module="unique", enable_backward=False, launch_bounds=key)
+    _GATHER_HIDDEN[key] = kernel
+    return kernel
+
+
+def hidden_lights(lights, hidden_flux=None) -> HiddenLights | None:
+    """The :class:`HiddenLights` of ``lights`` (the renderer's ``LightMaps``) and ``hidden_flux`` (None: no caustic),
+    or None where they hold more than GATHER_MAPS shadow maps or GATHER_FLUXES lights with landed photons."""
+    maps = shadow_map_args(lights)
+    fluxes = 0 if hidden_flux is None else len(lights)
+    if len(maps) > GATHER_MAPS or fluxes > GATHER_FLUXES:
+        return None
+    out = HiddenLights()
+    out.maps, out.fluxes, out.gather = len(maps), fluxes, 0 if hidden_flux is None else int(hidden_flux.gather)
+    for i, args in enumerate(maps):
+        m = ShadowMap()
+        (m.view, m.depth, m.exclusive, m.kind, m.rgb, m.pos, m.dir, m.cone_angle, m.cone_softness) = args
+        setattr(out, f"map{i}", m)
+    for li in range(fluxes):
+        f = LandedFlux()
+        f.views, f.flux = hidden_flux.views[li], hidden_flux.flux[li]
+        f.map_w, f.map_h = (int(v) for v in hidden_flux.shape[li])
+        setattr(out, f"flux{li}", f)
+    return out
 
 
 def opaque_layer(scene) -> OpaqueLayer:
@@ -772,6 +967,10 @@ class HiddenSurfaces:
     #: :func:`strided_hidden`'s kernels, and :func:`hidden_direct_strided`, :func:`hidden_caustic_strided`; False: a
     #: thread a pixel, :func:`projected_hidden`'s kernels, :func:`hidden_direct`, :func:`hidden_caustic` (the twins)
     STRIDED = True
+    #: the concurrent program's gather adds the hidden hits' direct light and caustic itself (:meth:`gather`,
+    #: :func:`composite_gather_hidden`, one launch after the join); False: ``shade.composite_gather``, then
+    #: :meth:`shade_hits`' launch per shadow map and per light (the twin; docs/perf_notes.md section 76)
+    GATHERED = True
 
     def _kernels(self, orthographic: bool | None) -> tuple:
         """(trace_hidden, trace_hidden_rays) to launch for a camera of that projection (None: read at run time)."""
@@ -818,6 +1017,24 @@ class HiddenSurfaces:
             cameras, w.depth, w.position, w.normal, w.ior, self.layer, gbuffer.depth, gbuffer.position, gbuffer.normal,
             sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, hits, hidden_sum])
 
+    def gather(self, gbuffer, direct_irradiance: wp.array, caustic_irradiance: wp.array, sky_irradiance: wp.array,
+               split, lights, final: wp.array, hidden_flux=None) -> bool:
+        """With :attr:`GATHERED` and at most GATHER_MAPS shadow maps and GATHER_FLUXES lights, launch
+        :func:`composite_gather_hidden` (the concurrent program's gather with :meth:`shade_hits` folded in; ``split``
+        the renderer's ``composite_split``: ``hits``, ``weights``, ``hidden_sum``) and return True; else launch
+        nothing and return False (the caller launches ``shade.composite_gather`` and :meth:`shade_hits`)."""
+        packed = hidden_lights(lights, hidden_flux) if self.GATHERED else None
+        if packed is None:
+            return False
+        n = gbuffer.width * gbuffer.height
+        bounds = GATHER_LAUNCH_BOUNDS
+        wp.launch(gather_hidden_kernel(bounds), dim=n, device=self.device,
+                  block_dim=256 if bounds is None else int(bounds[0]), inputs=[
+                      gbuffer.depth, gbuffer.albedo, direct_irradiance, caustic_irradiance, sky_irradiance, split.hits,
+                      split.weights, self.missed, split.hidden_sum, packed, self.layer, self.hidden_tri,
+                      self.hidden_uvw, final])
+        return True
+
     def shade_hits(self, gbuffer, lights, final: wp.array, hidden_flux=None) -> None:
         """Add to ``final`` the direct light (:func:`hidden_direct`, once per shadow map of every light) and the
         caustic (:func:`hidden_caustic`, once per light of ``hidden_flux``; None: none) at the hidden hits."""
@@ -839,8 +1056,9 @@ class HiddenSurfaces:
                 self.hidden_tri, self.hidden_uvw, final] + extra)
 
 
-__all__ = ["HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenSurfaces", "OpaqueLayer", "SkyOcclusion", "hidden_caustic",
-           "hidden_caustic_strided", "hidden_direct", "hidden_direct_strided",
+__all__ = ["GATHER_FLUXES", "GATHER_MAPS", "HIDDEN_REFLECTED", "HIDDEN_REFRACTED", "HiddenLights", "HiddenSurfaces",
+           "LandedFlux", "OpaqueLayer", "ShadowMap", "SkyOcclusion", "gather_hidden_kernel", "hidden_caustic",
+           "hidden_caustic_strided", "hidden_direct", "hidden_direct_strided", "hidden_lights",
            "opaque_hit", "opaque_hit_naive", "opaque_layer", "projected_hidden", "sky_occlusion", "strided_hidden",
            "strided_threads", "trace_hidden", "trace_hidden_naive",
            "trace_hidden_rays", "trace_hidden_rays_naive"]
