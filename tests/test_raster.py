@@ -1256,3 +1256,91 @@ def test_rsm_views_are_kept_only_while_their_inputs_stand_still(device):
         lm.CACHE_RSM = False
     r.render_frame()
     _assert_states_equal(waves, _rsm_state(r))
+
+
+def _camera_state(r):
+    """Every AOV of a renderer's G-buffer (both layers, the back depth) and its depth bounds, copied."""
+    g = r.gbuffer
+    out = {k: v.copy() for k, v in g.numpy().items()}
+    if g._bounds is not None:
+        out["bounds"] = g._bounds[0].numpy().copy()
+    return out
+
+
+def test_camera_gbuffer_is_kept_only_while_its_inputs_stand_still(device):
+    """``GBuffer.CACHE_VIEW``: the camera's layers are drawn only in frames where the camera, the previous frame's
+    camera, the triangles or what the resolves write changed (``kernels.redraw_gate_camera``). On the pool: a still
+    frame keeps a poisoned albedo (nothing drawn; the gate hands out far = 0); the naive path (``CACHE_VIEW`` False)
+    redraws the still G-buffer bit for bit; a counted move of the geometry, a moved camera (and the frame after it,
+    whose previous camera moved) and simulated water redraw, equal to the naive path's frame bit for bit."""
+    from dataclasses import replace
+
+    from cisp_warp.animation import WaterSimulation
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.render import Renderer, RenderSettings
+    from cisp_warp.usd import load_usd
+
+    settings = RenderSettings(method="cisp", rsm_size=40, denoiser="svgf", photons=PhotonSettings(photons=500))
+    r = Renderer(load_usd("scenes_usd/pool.usda", width=32, height=24), settings, device=device)
+    g = r.gbuffer
+    assert g.CACHE_VIEW and g.back_faces and g._bounds is not None
+
+    def poison():  # where a surface is (a pixel empty two frames running is not written, drawn or not)
+        a = g.albedo.numpy()
+        a[g.tri_id.numpy() >= 0] = 7.0
+        g.albedo.assign(a)
+
+    def poisoned():
+        return bool(np.all(g.albedo.numpy()[g.tri_id.numpy() >= 0] == 7.0))
+
+    def naive_equal(state):
+        g.CACHE_VIEW = False
+        r.render_frame()
+        g.CACHE_VIEW = True
+        now = _camera_state(r)
+        assert state.keys() == now.keys()
+        for k in state:
+            np.testing.assert_array_equal(state[k], now[k], err_msg=k)
+
+    for _ in range(2):
+        r.render_frame()
+    still = _camera_state(r)
+    assert (still["tri_id"] >= 0).any() and (still["water_tri_id"] >= 0).any() and (still["back_depth"] > 0).any()
+    poison()
+    r.render_frame()
+    assert poisoned() and g._gate.draw.numpy()["far"][0] == 0.0  # kept: nothing drawn
+    naive_equal(still)
+    poison()
+    r.gpu.begin_frame()  # a counted move (the points did not move): redrawn, the same buffers
+    r.render_frame()
+    assert not poisoned()
+    naive_equal(still)
+    # a moved camera: redrawn; the next frame (its previous camera moved) too, then kept
+    cam = r.scene.camera
+    to_world = np.array(cam.to_world, dtype=np.float64)
+    to_world[0, 3] += 0.05  # 5 cm to the side
+    r.set_camera(replace(cam, to_world=to_world))
+    poison()
+    r.render_frame()
+    assert not poisoned()
+    assert np.abs(g.motion.numpy()).max() > 0.1
+    poison()
+    r.render_frame()
+    assert not poisoned()
+    assert np.abs(g.motion.numpy()).max() < 0.01  # still (to rounding)
+    turned = _camera_state(r)
+    poison()
+    r.render_frame()
+    assert poisoned()
+    naive_equal(turned)
+    # simulated water: every frame redraws, equal to the naive path's frame
+    sim = WaterSimulation(r.gpu)
+    for t in (0.5, 0.9):
+        poison()
+        r.gpu.begin_frame()
+        sim.update(t)
+        r.render_frame()
+        assert not poisoned()
+    waves = _camera_state(r)
+    assert not np.array_equal(waves["water_depth"], turned["water_depth"])
+    naive_equal(waves)
