@@ -123,7 +123,7 @@ class _CameraGate:
     """:func:`kernels.redraw_gate_camera`'s records for one G-buffer (allocated once, at its first frame)."""
 
     def __init__(self, device):
-        n = 2 * K.CAMERA_VIEW_WORDS
+        n = K.CAMERA_GATE_WORDS
         self.draw = wp.zeros(2, dtype=K.ViewParams, device=device)  #: the cameras drawn this frame (far = 0: kept)
         self.drawn_words = wp.zeros(n, dtype=wp.uint32, device=device)  #: zeros: none, the first frame draws
         self.drawn_generation = wp.zeros(K.CAMERA_LAYER_BITS, dtype=wp.int32, device=device)
@@ -135,7 +135,7 @@ class _CameraGate:
         if views.shape[0] < 2:
             raise ValueError(f"the camera's G-buffer needs two views (this frame's and the previous), got {views.shape[0]}")
         if self._words is None or self._words.ptr != views.ptr:
-            self._words = wp.array(ptr=views.ptr, dtype=wp.uint32, shape=(2 * K.CAMERA_VIEW_WORDS,),
+            self._words = wp.array(ptr=views.ptr, dtype=wp.uint32, shape=(K.CAMERA_GATE_WORDS,),
                                    device=views.device)
         if scene.generation.shape[0] != K.CAMERA_LAYER_BITS:
             raise ValueError(f"the camera gate counts {K.CAMERA_LAYER_BITS} layers, the scene {scene.generation.shape[0]}")
@@ -269,7 +269,9 @@ class GBuffer(_Buffers):
     #: (perf_notes 36: pool 0.129 -> 0.151 ms, Cornell 0.089 -> 0.097), so it is opt-in
     fused_layers: bool = False
     _bounds: tuple | None = None  #: (bounds array, thickness, thickness_rel) of :meth:`keep_depth_bounds`
-    _gate: "_CameraGate | None" = None  #: with ``CACHE_VIEW``: :func:`kernels.redraw_gate_camera`'s records
+    #: with ``CACHE_VIEW``: :func:`kernels.redraw_gate_camera`'s records (allocated with the buffers; lazily at the
+    #: first frame of a G-buffer built otherwise)
+    _gate: "_CameraGate | None" = None
     _gate_serial: int = 0  #: counts the host's changes to what the resolves write (:meth:`keep_depth_bounds`)
     _gate_epoch: int = 0
     _gate_config: tuple | None = None
@@ -312,7 +314,7 @@ class GBuffer(_Buffers):
         return GBuffer(width, height, visibility_buffer(n, device), layers[0:n],
                        _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device),
                        _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device), _pixels(hw, wp.vec2, device),
-                       SpecularLayer.allocate(width, height, device), layers)
+                       SpecularLayer.allocate(width, height, device), layers, _gate=_CameraGate(device))
 
     def render(self, raster: Rasterizer, views, prev_view=None) -> None:
         """Fill both layers for the camera ``views[0]``; motion is measured against ``views[1]``, the previous
