@@ -1134,3 +1134,213 @@ def test_split_redraw_gates_in_one_launch_are_the_two_gates(device, rng):
         drawn[0] += int(twin[2].numpy()[0]["far"] > 0.0)
         drawn[1] += int(twin[2].numpy()[0]["far"] == 0.0)
     assert drawn[0] > 3 and drawn[1] > 3  # both decisions were taken
+
+
+def _rsm_state(r):
+    """Every RSM and pilot view's maps (``RSMView.numpy``) and depth bounds of a renderer's lights, copied."""
+    out = {}
+    for li, lm in enumerate(r.lights):
+        for kind, views in (("rsm", lm.rsm), ("pilot", lm.pilot)):
+            for k, v in enumerate(views):
+                for name, a in v.numpy().items():
+                    out[f"{li}_{kind}{k}_{name}"] = a.copy()
+        for k, b in enumerate(lm._bounds or []):
+            out[f"{li}_bounds{k}"] = b.numpy().copy()
+    return out
+
+
+def _active_rsm(r):
+    """Every view of a renderer's lights that is drawn this frame: the active cascades (their views' far > 0) and the
+    pilots (an inactive cascade keeps what it last held, drawn or not)."""
+    return [v for lm in r.lights
+            for v, rec in zip(lm.rsm + lm.pilot, list(lm.views.numpy()) + [None] * len(lm.pilot))
+            if rec is None or rec["far"] > 0.0]
+
+
+def _poison_rsm(r):
+    """Poison (-1, no depth) in every drawn RSM and pilot view's shadow depth, which every drawn texel rewrites and
+    nothing of a fitted ``cisp`` frame reads (the fit and the photons see the same frame, poisoned or not)."""
+    for v in _active_rsm(r):
+        v.shadow_depth.fill_(-1.0)
+
+
+def _rsm_poisoned(r) -> list[bool]:
+    return [bool(np.all(v.shadow_depth.numpy() == -1.0)) for v in _active_rsm(r)]
+
+
+def _assert_states_equal(a, b):
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_rsm_views_are_kept_only_while_their_inputs_stand_still(device):
+    """``LightMaps.CACHE_RSM``: an RSM view (fitted cascade) or pilot is drawn only in frames where its view, the
+    triangles it draws or what its resolve writes changed (``redraw_gate_views``). On the pool (a sun and a spot,
+    fitted): in a still frame every poisoned map stays poisoned (nothing drawn) and the gates hand out far = 0; the
+    naive path (``CACHE_RSM`` False) redraws the still maps bit for bit; a counted move of the geometry, a moved light
+    and maps kept anew (another epoch) redraw every view; with the water simulated every frame redraws, and the kept
+    maps equal the naive path's of the same frame bit for bit."""
+    from dataclasses import replace
+
+    from cisp_warp.animation import WaterSimulation
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.render import Renderer, RenderSettings
+    from cisp_warp.usd import load_usd
+
+    settings = RenderSettings(method="cisp", rsm_size=40, denoiser="none", photons=PhotonSettings(photons=500))
+    r = Renderer(load_usd("scenes_usd/pool.usda", width=32, height=24), settings, device=device)
+    assert all(lm.CACHE_RSM and lm.fitted for lm in r.lights)
+    for _ in range(2):
+        r.render_frame()
+    still = _rsm_state(r)
+    assert len(_active_rsm(r)) == 4  # two pilots, a cascade of each light
+    assert any((v > 0).any() for k, v in still.items() if k.endswith("opaque_depth"))
+    assert any((v >= 0).any() for k, v in still.items() if k.endswith("specular_tri_id"))
+    _poison_rsm(r)
+    r.render_frame()
+    assert all(_rsm_poisoned(r))  # kept: nothing drawn
+    for lm in r.lights:
+        assert (lm._rsm_gate.draw.numpy()["far"] == 0.0).all() and (lm._pilot_gate.draw.numpy()["far"] == 0.0).all()
+        lm.CACHE_RSM = False
+    r.render_frame()
+    assert not any(_rsm_poisoned(r))
+    _assert_states_equal(still, _rsm_state(r))  # the naive path draws the still maps again
+    for lm in r.lights:
+        lm.CACHE_RSM = True
+    r.render_frame()  # drawn by the naive path, not recorded by the gates: drawn (the same maps)
+    _assert_states_equal(still, _rsm_state(r))
+    _poison_rsm(r)
+    r.render_frame()
+    assert all(_rsm_poisoned(r))
+    r.gpu.begin_frame()  # a counted move (the points did not move): every view redrawn, the same maps
+    r.render_frame()
+    assert not any(_rsm_poisoned(r))
+    _assert_states_equal(still, _rsm_state(r))
+    # another epoch (the maps' flux kept from now on): redrawn, and the kept flux written
+    _poison_rsm(r)
+    for lm in r.lights:
+        lm.keep_texel_maps()
+    r.render_frame()
+    assert not any(_rsm_poisoned(r))
+    kept = _rsm_state(r)
+    assert any(k.endswith("_flux") and (v > 0).any() for k, v in kept.items())
+    # a moved light: its views only (the sun's flux; the spot's views stand still)
+    sun = r.lights[0].light
+    _poison_rsm(r)
+    r.lights[0].set_light(replace(sun, intensity=2.0 * sun.intensity))
+    r.render_frame()
+    p = _rsm_poisoned(r)
+    n0 = len([v for v in _active_rsm(r) if any(v is w for w in r.lights[0].rsm + r.lights[0].pilot)])
+    assert 0 < n0 < len(p) and not any(p[:n0]) and all(p[n0:])
+    for lm in r.lights:
+        lm.CACHE_RSM = False
+    r.render_frame()
+    lit = _rsm_state(r)
+    for k in kept:
+        if k.startswith("0_") and k.endswith("_flux"):
+            assert not np.array_equal(kept[k], lit[k]) or not (kept[k] > 0).any(), k
+    for lm in r.lights:
+        lm.CACHE_RSM = True
+    # simulated water: every frame redraws; the kept maps are the naive path's of the same frame
+    sim = WaterSimulation(r.gpu)
+    for t in (0.5, 0.9):
+        _poison_rsm(r)
+        r.gpu.begin_frame()
+        sim.update(t)
+        r.render_frame()
+        assert not any(_rsm_poisoned(r))
+    waves = _rsm_state(r)
+    assert any(not np.array_equal(waves[k], lit[k]) for k in waves if k.endswith("specular_depth"))
+    for lm in r.lights:
+        lm.CACHE_RSM = False
+    r.render_frame()
+    _assert_states_equal(waves, _rsm_state(r))
+
+
+def _camera_state(r):
+    """Every AOV of a renderer's G-buffer (both layers, the back depth) and its depth bounds, copied."""
+    g = r.gbuffer
+    out = {k: v.copy() for k, v in g.numpy().items()}
+    if g._bounds is not None:
+        out["bounds"] = g._bounds[0].numpy().copy()
+    return out
+
+
+def test_camera_gbuffer_is_kept_only_while_its_inputs_stand_still(device):
+    """``GBuffer.CACHE_VIEW``: the camera's layers are drawn only in frames where the camera, the previous frame's
+    camera, the triangles or what the resolves write changed (``kernels.redraw_gate_camera``). On the pool: a still
+    frame keeps a poisoned albedo (nothing drawn; the gate hands out far = 0); the naive path (``CACHE_VIEW`` False)
+    redraws the still G-buffer bit for bit; a counted move of the geometry, a moved camera (and the frame after it,
+    whose previous camera moved) and simulated water redraw, equal to the naive path's frame bit for bit."""
+    from dataclasses import replace
+
+    from cisp_warp.animation import WaterSimulation
+    from cisp_warp.photons import PhotonSettings
+    from cisp_warp.render import Renderer, RenderSettings
+    from cisp_warp.usd import load_usd
+
+    settings = RenderSettings(method="cisp", rsm_size=40, denoiser="svgf", photons=PhotonSettings(photons=500))
+    r = Renderer(load_usd("scenes_usd/pool.usda", width=32, height=24), settings, device=device)
+    g = r.gbuffer
+    assert g.CACHE_VIEW and g.back_faces and g._bounds is not None
+
+    def poison():  # where a surface is (a pixel empty two frames running is not written, drawn or not)
+        a = g.albedo.numpy()
+        a[g.tri_id.numpy() >= 0] = 7.0
+        g.albedo.assign(a)
+
+    def poisoned():
+        return bool(np.all(g.albedo.numpy()[g.tri_id.numpy() >= 0] == 7.0))
+
+    def naive_equal(state):
+        g.CACHE_VIEW = False
+        r.render_frame()
+        g.CACHE_VIEW = True
+        now = _camera_state(r)
+        assert state.keys() == now.keys()
+        for k in state:
+            np.testing.assert_array_equal(state[k], now[k], err_msg=k)
+
+    for _ in range(2):
+        r.render_frame()
+    still = _camera_state(r)
+    assert (still["tri_id"] >= 0).any() and (still["water_tri_id"] >= 0).any() and (still["back_depth"] > 0).any()
+    poison()
+    r.render_frame()
+    assert poisoned() and g._gate.draw.numpy()["far"][0] == 0.0  # kept: nothing drawn
+    naive_equal(still)
+    poison()
+    r.gpu.begin_frame()  # a counted move (the points did not move): redrawn, the same buffers
+    r.render_frame()
+    assert not poisoned()
+    naive_equal(still)
+    # a moved camera: redrawn; the next frame (its previous camera moved) too, then kept
+    cam = r.scene.camera
+    to_world = np.array(cam.to_world, dtype=np.float64)
+    to_world[0, 3] += 0.05  # 5 cm to the side
+    r.set_camera(replace(cam, to_world=to_world))
+    poison()
+    r.render_frame()
+    assert not poisoned()
+    assert np.abs(g.motion.numpy()).max() > 0.1
+    poison()
+    r.render_frame()
+    assert not poisoned()
+    assert np.abs(g.motion.numpy()).max() < 0.01  # still (to rounding)
+    turned = _camera_state(r)
+    poison()
+    r.render_frame()
+    assert poisoned()
+    naive_equal(turned)
+    # simulated water: every frame redraws, equal to the naive path's frame
+    sim = WaterSimulation(r.gpu)
+    for t in (0.5, 0.9):
+        poison()
+        r.gpu.begin_frame()
+        sim.update(t)
+        r.render_frame()
+        assert not poisoned()
+    waves = _camera_state(r)
+    assert not np.array_equal(waves["water_depth"], turned["water_depth"])
+    naive_equal(waves)
