@@ -153,6 +153,43 @@ def _cell_skipped(orthographic: int, z0: float, z1: float, k0: float, k1: float,
 
 
 @wp.func
+def _inv_rate(orthographic: int, z0: float, z1: float, k0: float, k1: float, ds_step: float) -> float:
+    """1 / (change of the march's linear quantity a step): depth for an orthographic view, inverse depth for a
+    perspective one (:func:`_proven_prefix`); 0 where it does not change. Once a march."""
+    rate = wp.where(orthographic != 0, z1 - z0, k1 - k0) * ds_step
+    return wp.where(rate != 0.0, 1.0 / wp.where(rate != 0.0, rate, 1.0), 0.0)
+
+
+@wp.func
+def _proven_prefix(orthographic: int, z0: float, z1: float, k0: float, k1: float, inv_rate: float, s_prev: float,
+                   ds_step: float, i: int, last: int, b: wp.vec2) -> int:
+    """The last step j in [i − 1, last − 1] such that steps i..j of a stretch whose cell test (:func:`_cell_skipped`,
+    bounds ``b``) failed are still proven hitless by ``b``: the steps before the ray's depth enters [b[0], b[1]]
+    (a ray coming down onto a floor: all its steps above the cell's nearest surface). i − 1: none.
+
+    The step where the march's linear quantity q (depth, or inverse depth for a perspective view: affine in the
+    segment parameter s) reaches the bound on the side the stretch starts from (b[0], or b[1] behind; in inverse
+    depth the bound with :func:`_cell_skipped`'s margin) is solved for with ``inv_rate`` (:func:`_inv_rate`); that
+    estimate only proposes j: :func:`_cell_skipped` over [``s_prev``, s_j] with the same bounds proves it (or
+    j − 1, a rounding's step back), else nothing is skipped. So every step skipped is one the cell test itself
+    proves hitless (the ray's depth is monotonic along the segment), and the march still ends where the naive one
+    does, bit for bit (docs/perf_notes.md section 74)."""
+    ortho = orthographic != 0
+    q0 = wp.where(ortho, z0, k0)
+    q_prev = q0 + wp.where(ortho, z1 - z0, k1 - k0) * s_prev
+    front = wp.where(ortho, q_prev < b[0], b[0] * q_prev > 1.0 + INV_DEPTH_MARGIN)
+    # the bound the stretch heads for, in q (perspective: one division, its operands selected)
+    persp_edge = wp.where(front, 1.0 + INV_DEPTH_MARGIN, 1.0 - INV_DEPTH_MARGIN) / wp.where(front, b[0], b[1])
+    edge = wp.where(ortho, wp.where(front, b[0], b[1]), persp_edge)
+    j_f = (edge - q0) * inv_rate  # steps from s = 0 to the bound (NaN or out of range: clamped to none)
+    j_f = wp.where(j_f > float(i), wp.min(j_f, float(last)), float(i))
+    j = int(wp.ceil(j_f)) - 1  # the last step before the bound: in [i - 1, last - 1]
+    ok = _cell_skipped(orthographic, z0, z1, k0, k1, s_prev, ds_step * float(j), b)
+    ok_back = _cell_skipped(orthographic, z0, z1, k0, k1, s_prev, ds_step * float(j - 1), b)
+    return wp.max(wp.where(ok, j, wp.where(ok_back, j - 1, i - 1)), i - 1)
+
+
+@wp.func
 def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, z_far: float) -> float:
     """Where along a step the ray crosses the surface, u in [0, 1], or -1 when the ray's depth over the step,
     [min, max], does not overlap the surface's [zs, z_far] (:func:`surface_far`).
@@ -397,7 +434,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
 WORK_TESTS = 65536
 
 
-def _make_marches(back_layer: bool, counted: bool = False):
+def _make_marches(back_layer: bool, counted: bool = False, partial: bool = False):
     """The three marches (:func:`screen_march_naive`, :func:`screen_march`, :func:`screen_march_bounded`) for a depth
     buffer that may carry a back-face layer (``back_layer`` True: the far side and the hidden-half test of
     :func:`surface_far` and ``MARCH_HIDDEN``, decided at run time by the array's length), or compiled for a plain
@@ -408,7 +445,12 @@ def _make_marches(back_layer: bool, counted: bool = False):
 
     ``counted`` (probes only: :func:`counted_marches`, ``tools/trace_steps.py``): :func:`screen_march_bounded`
     returns the work its loops did in place of the step index: its cell tests (coarse and fine) × ``WORK_TESTS`` +
-    its pixel steps, compiled in only then (``wp.static``); status and end point are the same."""
+    its pixel steps, compiled in only then (``wp.static``); status and end point are the same.
+
+    ``partial``: :func:`screen_march_bounded` also skips the proven prefix of a cell whose test failed
+    (:func:`_proven_prefix`: the steps before the ray's depth reaches the cell's bounds), the coarse cell's before
+    its fine cells are tested, the fine cell's before its pixel steps are walked; ``counted`` counts each such
+    prefix as a cell test. The same results bit for bit (docs/perf_notes.md section 74)."""
 
     @wp.func
     def _steps_out(i: int, work: int) -> int:
@@ -618,6 +660,9 @@ def _make_marches(back_layer: bool, counted: bool = False):
         # exits; selected, not assigned in branches (the same values, no division merged through local memory)
         inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
                            wp.where(ds[1] != 0.0, 1.0 / (ds[1] * ds_step), 0.0))
+        inv_rate = float(0.0)
+        if wp.static(partial):
+            inv_rate = _inv_rate(ortho, z0, z1, k0, k1, ds_step)
         s_prev = float(0.0)
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
@@ -629,6 +674,7 @@ def _make_marches(back_layer: bool, counted: bool = False):
             # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
             last = n
             skip = False
+            coarse_failed = False  # ``partial``: the coarse cell failed this iteration (its prefix, then its fine cells)
             if (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, COARSE_SHIFT)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
@@ -637,7 +683,9 @@ def _make_marches(back_layer: bool, counted: bool = False):
                 skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
                 if not skip:
                     failed_coarse = cj * coarse_x + ci
-            if not skip:
+                    if wp.static(partial):
+                        coarse_failed = True
+            if not skip and not coarse_failed:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, CELL_SHIFT)
                 b = bounds[cj * fine_x + ci]
                 if wp.static(counted):
@@ -650,6 +698,20 @@ def _make_marches(back_layer: bool, counted: bool = False):
                 diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
                 i = last + 1
                 continue
+            if wp.static(partial):
+                # the failed cell's proven prefix (one call site for both levels): steps i..j skipped, as a skip
+                # would (selected, not assigned in a branch: j = i - 1 leaves every value as it is); after a coarse
+                # cell's, the next iteration tests the fine cell of step j + 1
+                if wp.static(counted):
+                    work += WORK_TESTS
+                j = _proven_prefix(ortho, z0, z1, k0, k1, inv_rate, s_prev, ds_step, i, last, b)
+                moved = j >= i
+                s_prev = wp.where(moved, ds_step * float(j), s_prev)
+                zr_prev = wp.where(moved, ZR_UNREAD, zr_prev)
+                diff_prev = wp.where(moved, DIFF_UNREAD, diff_prev)
+                i = j + 1
+                if coarse_failed:
+                    continue
             if zr_prev < 0.0:  # ZR_UNREAD: the value the naive march had there (its step at s_prev)
                 zr_prev = _ray_depth(ortho, z0, z1, k0, k1, s_prev)
             while i <= last:
@@ -683,17 +745,21 @@ def _make_marches(back_layer: bool, counted: bool = False):
 screen_march_naive, screen_march, screen_march_bounded = _make_marches(True)
 #: the same marches compiled for a plain H*W depth buffer (light views, the composite, the caustics map)
 screen_march_naive_plain, screen_march_plain, screen_march_bounded_plain = _make_marches(False)
+#: :func:`screen_march_bounded` and its plain twin with the failed cells' proven prefixes skipped (``partial``)
+screen_march_bounded_partial = _make_marches(True, partial=True)[2]
+screen_march_bounded_partial_plain = _make_marches(False, partial=True)[2]
 
 
-_COUNTED: dict[bool, tuple] = {}
+_COUNTED: dict[tuple, tuple] = {}
 
 
-def counted_marches(back_layer: bool) -> tuple:
-    """The marches of :func:`_make_marches` compiled ``counted`` (made once per ``back_layer``, on first use: the
-    frame's kernels never reference them)."""
-    if back_layer not in _COUNTED:
-        _COUNTED[back_layer] = _make_marches(back_layer, counted=True)
-    return _COUNTED[back_layer]
+def counted_marches(back_layer: bool, partial: bool = False) -> tuple:
+    """The marches of :func:`_make_marches` compiled ``counted`` (made once per ``back_layer`` and ``partial``, on
+    first use: the frame's kernels never reference them)."""
+    key = (bool(back_layer), bool(partial))
+    if key not in _COUNTED:
+        _COUNTED[key] = _make_marches(key[0], counted=True, partial=key[1])
+    return _COUNTED[key]
 
 
 #: edge [texels] of the super cells of :func:`super_bounds` (4x4 coarse cells): the composite's reflected rays, which
