@@ -7,7 +7,8 @@ import pytest
 import warp as wp
 
 from cisp_warp.photons.cisp import build_bounds
-from cisp_warp.photons.march import (WORK_TESTS, _cell_skipped, _ray_depth, bounds_size, counted_marches, screen_march,
+from cisp_warp.photons.march import (WORK_TESTS, _cell_skipped, _ray_depth, bounded_march, bounds_size, counted_marches,
+                                     screen_march,
                                      screen_march_bounded, screen_march_bounded_partial,
                                      screen_march_bounded_partial_plain, screen_march_bounded_plain,
                                      screen_march_naive, screen_march_naive_plain, screen_march_plain)
@@ -248,21 +249,25 @@ def test_perspective_cell_skip_is_a_proof(device, rng):
 
 
 _counted_bounded = counted_marches(False)[2]
-_counted_partial = counted_marches(False, True)[2]
+_counted_partial = counted_marches(False, 2)[2]
+_partial_fine_plain = bounded_march(False, 1)  # the fine cells' prefixes only
 
 
 @wp.kernel
 def march_partial(view: ViewParams, depth: wp.array(dtype=wp.float32), origins: wp.array(dtype=wp.vec3),
                   dirs: wp.array(dtype=wp.vec3), max_steps: int, bounds: wp.array(dtype=wp.vec2),
-                  layered: wp.array(dtype=wp.vec3), plain: wp.array(dtype=wp.vec3), work: wp.array(dtype=wp.vec4)):
-    """The bounded marches that skip the failed cells' proven prefixes (general and plain), and the counted plain
-    marches' work without and with them."""
+                  layered: wp.array(dtype=wp.vec3), plain: wp.array(dtype=wp.vec3), fine: wp.array(dtype=wp.vec3),
+                  work: wp.array(dtype=wp.vec4)):
+    """The bounded marches that skip the failed cells' proven prefixes (general and plain; the plain one with the fine
+    cells' prefixes only), and the counted plain marches' work without and with them."""
     i = wp.tid()
     s, t, n = screen_march_bounded_partial(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     layered[i] = wp.vec3(float(s), t, float(n))
     s, t, n = screen_march_bounded_partial_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02,
                                                  0.02)
     plain[i] = wp.vec3(float(s), t, float(n))
+    s, t, n = _partial_fine_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    fine[i] = wp.vec3(float(s), t, float(n))
     s, t, w0 = _counted_bounded(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     s, t, w1 = _counted_partial(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     work[i] = wp.vec4(float(w0 / WORK_TESTS), float(w0 % WORK_TESTS), float(w1 / WORK_TESTS), float(w1 % WORK_TESTS))
@@ -296,14 +301,15 @@ def test_partial_skips_equal_the_naive_march(device, rng, orthographic, max_step
     naive, bounded = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2))
     wp.launch(march_both, dim=n, device=device,
               inputs=[view.params(), depth, *args, max_steps, bounds, naive, bounded, naive])
-    layered, plain = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2))
+    layered, plain, fine = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(3))
     work = wp.zeros(n, dtype=wp.vec4, device=device)
     wp.launch(march_partial, dim=n, device=device,
-              inputs=[view.params(), depth, *args, max_steps, bounds, layered, plain, work])
+              inputs=[view.params(), depth, *args, max_steps, bounds, layered, plain, fine, work])
     v = naive.numpy()
     compare(layered.numpy(), v, device, max_steps)
     if layers == 1:  # the plain march on a plain buffer
         compare(plain.numpy(), v, device, max_steps)
+        compare(fine.numpy(), v, device, max_steps)
     c = work.numpy()
     # pixel steps: never more, and fewer over the rays (the prefixes' steps are what it saves)
     assert np.all(c[:, 3] <= c[:, 1])

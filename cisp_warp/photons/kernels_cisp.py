@@ -18,9 +18,8 @@ from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_
                      emit_sample, entry_mask, ledger_slot, record_outcome, photon_index, specular_scatter, tally_new)
 from .caustic_flow import add_landing, flow_cell
 from .hidden_flux import store_hidden
-from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, counted_marches, screen_march_bounded,
-                    screen_march_bounded_partial, screen_march_bounded_partial_plain, screen_march_bounded_plain,
-                    surface_far)
+from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, bounded_march, counted_marches,
+                    screen_march_bounded, screen_march_bounded_plain, surface_far)
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
@@ -434,15 +433,15 @@ def write_counts(hits: wp.array(dtype=wp.vec4), k: int, work_l: int, work_0: int
 
 
 #: the projected traces (:func:`projected_trace`, the frame's) and the counted one march the light view (the camera)
-#: with the failed cells' proven prefixes skipped (``march.screen_march_bounded_partial*``; the same output bit for
-#: bit, docs/perf_notes.md section 74); False: the bounded marches as before. Read when a kernel is made (first
-#: use): set before the first frame to compare
-PARTIAL_LIGHT = True
-PARTIAL_CAMERA = False
+#: with the failed cells' proven prefixes skipped (``march._make_marches``' ``partial``: 2 the coarse and the fine
+#: cells', 1 the fine cells' only, 0 none: the bounded march as before; the same output bit for bit whatever the
+#: level, docs/perf_notes.md section 74). Read when a kernel is made (first use): set before the first frame to compare
+PARTIAL_LIGHT = 2
+PARTIAL_CAMERA = 0
 
 
 def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = -1, camera_ortho: int = -1,
-                partial: tuple = (False, False)):
+                partial: tuple = (0, 0)):
     """:func:`trace_photon` and the kernels :func:`trace_photons` (one per entry of ``flows``: with ``flow`` False
     the caustic flow's code is left out at compile time, ``trace_photons``; True: ``trace_photons_flow``, which adds
     each stored photon's landing to its flow cell where ``flow_records`` is not empty), or with ``counted`` (probes
@@ -458,11 +457,11 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
     constant equals the views' field: the same bits). Such kernels are modules of their own, compiled when first
     launched.
 
-    ``partial``: (light, camera), whether that march skips its failed cells' proven prefixes (``PARTIAL_LIGHT``,
-    ``PARTIAL_CAMERA``); the same outputs either way. A kernel with one is a module of its own."""
-    partial_light, partial_camera = bool(partial[0]), bool(partial[1])
-    camera_march = screen_march_bounded_partial if partial_camera else screen_march_bounded
-    light_march = screen_march_bounded_partial_plain if partial_light else screen_march_bounded_plain
+    ``partial``: (light, camera), the level at which that march skips its failed cells' proven prefixes
+    (``PARTIAL_LIGHT``, ``PARTIAL_CAMERA``); the same outputs at any. A kernel with one is a module of its own."""
+    partial_light, partial_camera = int(partial[0]), int(partial[1])
+    camera_march = bounded_march(True, partial_camera)
+    light_march = bounded_march(False, partial_light)
     kernel_module = "unique" if partial_light or partial_camera else None
     if counted:
         camera_march = counted_marches(True, partial_camera)[2]
@@ -734,7 +733,7 @@ def projected_trace(flow: bool, light_ortho: int, camera_ortho: int):
     module of its own: the kernel ``CISP.trace_kernel`` launches (the pool's sun is orthographic, its spot and every
     camera perspective). Named as the kernel it specialises; the same inputs, the same outputs bit for bit where
     the views have those projections (``tests/test_cisp.py``)."""
-    key = (bool(flow), int(light_ortho), int(camera_ortho), bool(PARTIAL_LIGHT), bool(PARTIAL_CAMERA))
+    key = (bool(flow), int(light_ortho), int(camera_ortho), int(PARTIAL_LIGHT), int(PARTIAL_CAMERA))
     if key not in _PROJECTED_TRACES:
         _PROJECTED_TRACES[key] = _make_trace(False, (key[0],), key[1], key[2], key[3:])[1]
     return _PROJECTED_TRACES[key]
@@ -751,7 +750,7 @@ _COUNTED_TRACE: dict = {}
 def counted_trace():
     """The ``counted`` :func:`trace_photons` (made on first use, per ``PARTIAL_LIGHT`` / ``PARTIAL_CAMERA``;
     ``tools/trace_steps.py``)."""
-    key = (bool(PARTIAL_LIGHT), bool(PARTIAL_CAMERA))
+    key = (int(PARTIAL_LIGHT), int(PARTIAL_CAMERA))
     if key not in _COUNTED_TRACE:
         # with the flow's code (run only where records exist)
         _COUNTED_TRACE[key] = _make_trace(True, (True,), partial=key)[1]

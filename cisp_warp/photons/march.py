@@ -434,7 +434,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
 WORK_TESTS = 65536
 
 
-def _make_marches(back_layer: bool, counted: bool = False, partial: bool = False):
+def _make_marches(back_layer: bool, counted: bool = False, partial: int = 0):
     """The three marches (:func:`screen_march_naive`, :func:`screen_march`, :func:`screen_march_bounded`) for a depth
     buffer that may carry a back-face layer (``back_layer`` True: the far side and the hidden-half test of
     :func:`surface_far` and ``MARCH_HIDDEN``, decided at run time by the array's length), or compiled for a plain
@@ -447,9 +447,9 @@ def _make_marches(back_layer: bool, counted: bool = False, partial: bool = False
     returns the work its loops did in place of the step index: its cell tests (coarse and fine) × ``WORK_TESTS`` +
     its pixel steps, compiled in only then (``wp.static``); status and end point are the same.
 
-    ``partial``: :func:`screen_march_bounded` also skips the proven prefix of a cell whose test failed
-    (:func:`_proven_prefix`: the steps before the ray's depth reaches the cell's bounds), the coarse cell's before
-    its fine cells are tested, the fine cell's before its pixel steps are walked; ``counted`` counts each such
+    ``partial`` (0 none): :func:`screen_march_bounded` also skips the proven prefix of a cell whose test failed
+    (:func:`_proven_prefix`: the steps before the ray's depth reaches the cell's bounds): 1 a fine cell's, before its
+    pixel steps are walked; 2 also a coarse cell's, before its fine cells are tested. ``counted`` counts each such
     prefix as a cell test. The same results bit for bit (docs/perf_notes.md section 74)."""
 
     @wp.func
@@ -661,7 +661,7 @@ def _make_marches(back_layer: bool, counted: bool = False, partial: bool = False
         inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
                            wp.where(ds[1] != 0.0, 1.0 / (ds[1] * ds_step), 0.0))
         inv_rate = float(0.0)
-        if wp.static(partial):
+        if wp.static(partial > 0):
             inv_rate = _inv_rate(ortho, z0, z1, k0, k1, ds_step)
         s_prev = float(0.0)
         zr_prev = z0
@@ -683,7 +683,7 @@ def _make_marches(back_layer: bool, counted: bool = False, partial: bool = False
                 skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
                 if not skip:
                     failed_coarse = cj * coarse_x + ci
-                    if wp.static(partial):
+                    if wp.static(partial >= 2):
                         coarse_failed = True
             if not skip and not coarse_failed:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, CELL_SHIFT)
@@ -698,7 +698,7 @@ def _make_marches(back_layer: bool, counted: bool = False, partial: bool = False
                 diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
                 i = last + 1
                 continue
-            if wp.static(partial):
+            if wp.static(partial > 0):
                 # the failed cell's proven prefix (one call site for both levels): steps i..j skipped, as a skip
                 # would (selected, not assigned in a branch: j = i - 1 leaves every value as it is); after a coarse
                 # cell's, the next iteration tests the fine cell of step j + 1
@@ -745,18 +745,30 @@ def _make_marches(back_layer: bool, counted: bool = False, partial: bool = False
 screen_march_naive, screen_march, screen_march_bounded = _make_marches(True)
 #: the same marches compiled for a plain H*W depth buffer (light views, the composite, the caustics map)
 screen_march_naive_plain, screen_march_plain, screen_march_bounded_plain = _make_marches(False)
-#: :func:`screen_march_bounded` and its plain twin with the failed cells' proven prefixes skipped (``partial``)
-screen_march_bounded_partial = _make_marches(True, partial=True)[2]
-screen_march_bounded_partial_plain = _make_marches(False, partial=True)[2]
+#: :func:`screen_march_bounded` and its plain twin with the failed cells' proven prefixes skipped, coarse and fine
+#: (``partial`` 2)
+screen_march_bounded_partial = _make_marches(True, partial=2)[2]
+screen_march_bounded_partial_plain = _make_marches(False, partial=2)[2]
+_PARTIAL: dict[tuple, object] = {(True, 2): screen_march_bounded_partial, (False, 2): screen_march_bounded_partial_plain,
+                                 (True, 0): screen_march_bounded, (False, 0): screen_march_bounded_plain}
+
+
+def bounded_march(back_layer: bool, partial: int):
+    """:func:`screen_march_bounded` (``back_layer``) or its plain twin at a level of ``partial`` (0, 1, 2:
+    :func:`_make_marches`), made on first use."""
+    key = (bool(back_layer), int(partial))
+    if key not in _PARTIAL:
+        _PARTIAL[key] = _make_marches(key[0], partial=key[1])[2]
+    return _PARTIAL[key]
 
 
 _COUNTED: dict[tuple, tuple] = {}
 
 
-def counted_marches(back_layer: bool, partial: bool = False) -> tuple:
+def counted_marches(back_layer: bool, partial: int = 0) -> tuple:
     """The marches of :func:`_make_marches` compiled ``counted`` (made once per ``back_layer`` and ``partial``, on
     first use: the frame's kernels never reference them)."""
-    key = (bool(back_layer), bool(partial))
+    key = (bool(back_layer), int(partial))
     if key not in _COUNTED:
         _COUNTED[key] = _make_marches(key[0], counted=True, partial=key[1])
     return _COUNTED[key]
