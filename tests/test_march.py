@@ -251,13 +251,14 @@ def test_perspective_cell_skip_is_a_proof(device, rng):
 _counted_bounded = counted_marches(False)[2]
 _counted_partial = counted_marches(False, 2)[2]
 _partial_fine_plain = bounded_march(False, 1)  # the fine cells' prefixes only
+_partial_pair_plain = bounded_march(False, 3)  # with the 2x2 coarse cells' level
 
 
 @wp.kernel
 def march_partial(view: ViewParams, depth: wp.array(dtype=wp.float32), origins: wp.array(dtype=wp.vec3),
                   dirs: wp.array(dtype=wp.vec3), max_steps: int, bounds: wp.array(dtype=wp.vec2),
                   layered: wp.array(dtype=wp.vec3), plain: wp.array(dtype=wp.vec3), fine: wp.array(dtype=wp.vec3),
-                  work: wp.array(dtype=wp.vec4)):
+                  pair: wp.array(dtype=wp.vec3), work: wp.array(dtype=wp.vec4)):
     """The bounded marches that skip the failed cells' proven prefixes (general and plain; the plain one with the fine
     cells' prefixes only), and the counted plain marches' work without and with them."""
     i = wp.tid()
@@ -268,6 +269,8 @@ def march_partial(view: ViewParams, depth: wp.array(dtype=wp.float32), origins: 
     plain[i] = wp.vec3(float(s), t, float(n))
     s, t, n = _partial_fine_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     fine[i] = wp.vec3(float(s), t, float(n))
+    s, t, n = _partial_pair_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    pair[i] = wp.vec3(float(s), t, float(n))
     s, t, w0 = _counted_bounded(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     s, t, w1 = _counted_partial(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
     work[i] = wp.vec4(float(w0 / WORK_TESTS), float(w0 % WORK_TESTS), float(w1 / WORK_TESTS), float(w1 % WORK_TESTS))
@@ -301,15 +304,16 @@ def test_partial_skips_equal_the_naive_march(device, rng, orthographic, max_step
     naive, bounded = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2))
     wp.launch(march_both, dim=n, device=device,
               inputs=[view.params(), depth, *args, max_steps, bounds, naive, bounded, naive])
-    layered, plain, fine = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(3))
+    layered, plain, fine, pair = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(4))
     work = wp.zeros(n, dtype=wp.vec4, device=device)
     wp.launch(march_partial, dim=n, device=device,
-              inputs=[view.params(), depth, *args, max_steps, bounds, layered, plain, fine, work])
+              inputs=[view.params(), depth, *args, max_steps, bounds, layered, plain, fine, pair, work])
     v = naive.numpy()
     compare(layered.numpy(), v, device, max_steps)
     if layers == 1:  # the plain march on a plain buffer
         compare(plain.numpy(), v, device, max_steps)
         compare(fine.numpy(), v, device, max_steps)
+        compare(pair.numpy(), v, device, max_steps)
     c = work.numpy()
     # pixel steps: never more, and fewer over the rays (the prefixes' steps are what it saves)
     assert np.all(c[:, 3] <= c[:, 1])

@@ -434,10 +434,19 @@ def write_counts(hits: wp.array(dtype=wp.vec4), k: int, work_l: int, work_0: int
 
 #: the projected traces (:func:`projected_trace`, the frame's) and the counted one march the light view (the camera)
 #: with the failed cells' proven prefixes skipped (``march._make_marches``' ``partial``: 2 the coarse and the fine
-#: cells', 1 the fine cells' only, 0 none: the bounded march as before; the same output bit for bit whatever the
-#: level, docs/perf_notes.md section 74). Read when a kernel is made (first use): set before the first frame to compare
+#: cells', 1 the fine cells' only, 0 none: the bounded march as before; 3 (experimental) as 2 with a level of 2x2
+#: coarse cells above the coarse ones; the same output bit for bit whatever the level, docs/perf_notes.md section
+#: 74). ``PARTIAL_LIGHT`` may also be a pair (perspective light's level, orthographic light's). Read when a kernel
+#: is made (first use): set before the first frame to compare
 PARTIAL_LIGHT = 2
 PARTIAL_CAMERA = 0
+
+
+def _light_level(light_ortho: int) -> int:
+    """``PARTIAL_LIGHT`` for a trace compiled for this light projection (-1, run time: the perspective one's)."""
+    if isinstance(PARTIAL_LIGHT, (tuple, list)):
+        return int(PARTIAL_LIGHT[1 if light_ortho == 1 else 0])
+    return int(PARTIAL_LIGHT)
 
 
 def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = -1, camera_ortho: int = -1,
@@ -733,7 +742,7 @@ def projected_trace(flow: bool, light_ortho: int, camera_ortho: int):
     module of its own: the kernel ``CISP.trace_kernel`` launches (the pool's sun is orthographic, its spot and every
     camera perspective). Named as the kernel it specialises; the same inputs, the same outputs bit for bit where
     the views have those projections (``tests/test_cisp.py``)."""
-    key = (bool(flow), int(light_ortho), int(camera_ortho), int(PARTIAL_LIGHT), int(PARTIAL_CAMERA))
+    key = (bool(flow), int(light_ortho), int(camera_ortho), _light_level(int(light_ortho)), int(PARTIAL_CAMERA))
     if key not in _PROJECTED_TRACES:
         _PROJECTED_TRACES[key] = _make_trace(False, (key[0],), key[1], key[2], key[3:])[1]
     return _PROJECTED_TRACES[key]
@@ -750,7 +759,7 @@ _COUNTED_TRACE: dict = {}
 def counted_trace():
     """The ``counted`` :func:`trace_photons` (made on first use, per ``PARTIAL_LIGHT`` / ``PARTIAL_CAMERA``;
     ``tools/trace_steps.py``)."""
-    key = (int(PARTIAL_LIGHT), int(PARTIAL_CAMERA))
+    key = (_light_level(-1), int(PARTIAL_CAMERA))
     if key not in _COUNTED_TRACE:
         # with the flow's code (run only where records exist)
         _COUNTED_TRACE[key] = _make_trace(True, (True,), partial=key)[1]

@@ -370,6 +370,25 @@ def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_s
     return last, ci, cj
 
 
+#: ``partial`` 3: log2 of a pair cell's edge (2x2 coarse cells, 64 texels), bounded by its coarse cells' bounds
+PAIR_SHIFT = wp.constant(int(COARSE_SHIFT) + 1)
+
+
+@wp.func
+def _pair_bounds(bounds: wp.array(dtype=wp.vec2), coarse_0: int, coarse_x: int, coarse_y: int, pi: int,
+                 pj: int) -> wp.vec2:
+    """Bounds of pair cell (pi, pj): min and max over its (up to) 2x2 coarse cells (an edge cell's repeated)."""
+    i0 = 2 * pi
+    i1 = wp.min(i0 + 1, coarse_x - 1)
+    r0 = coarse_0 + 2 * pj * coarse_x
+    r1 = coarse_0 + wp.min(2 * pj + 1, coarse_y - 1) * coarse_x
+    a = bounds[r0 + i0]
+    b = bounds[r0 + i1]
+    c = bounds[r1 + i0]
+    d = bounds[r1 + i1]
+    return wp.vec2(wp.min(wp.min(a[0], b[0]), wp.min(c[0], d[0])), wp.max(wp.max(a[1], b[1]), wp.max(c[1], d[1])))
+
+
 @wp.func
 def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int):
     """The screen segment the marches step along: the ray ``o + d·t``, t in (0, t_max], cut at the near plane,
@@ -666,6 +685,7 @@ def _make_marches(back_layer: bool, counted: bool = False, partial: int = 0):
         s_prev = float(0.0)
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+        failed_pair = int(-1)  # ``partial`` 3: the pair cell whose bounds last failed
         failed_coarse = int(-1)  # the coarse cell (index) whose bounds last failed: not tested again
         work = int(0)  # ``counted`` only: cell tests × WORK_TESTS + pixel steps
         i = int(1)
@@ -675,7 +695,18 @@ def _make_marches(back_layer: bool, counted: bool = False, partial: int = 0):
             last = n
             skip = False
             coarse_failed = False  # ``partial``: the coarse cell failed this iteration (its prefix, then its fine cells)
-            if (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
+            if wp.static(partial >= 3):  # 2x2 coarse cells first, their bounds from the coarse cells'
+                if (tx[1] >> PAIR_SHIFT) * coarse_x + (tx[0] >> PAIR_SHIFT) != failed_pair:
+                    last, pi, pj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, PAIR_SHIFT)
+                    b = _pair_bounds(bounds, coarse_0, coarse_x, (view.height + BOUNDS_COARSE - 1) >> COARSE_SHIFT, pi,
+                                     pj)
+                    if wp.static(counted):
+                        work += WORK_TESTS
+                    skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
+                    if not skip:
+                        failed_pair = pj * coarse_x + pi
+                        coarse_failed = True
+            if not skip and not coarse_failed and (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, COARSE_SHIFT)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
                 if wp.static(counted):
