@@ -7,7 +7,10 @@ import pytest
 import warp as wp
 
 from cisp_warp.photons.cisp import build_bounds
-from cisp_warp.photons.march import (_cell_skipped, _ray_depth, bounds_size, screen_march, screen_march_bounded, screen_march_bounded_plain,
+from cisp_warp.photons.march import (WORK_TESTS, _cell_skipped, _ray_depth, bounded_march, bounds_size, counted_marches,
+                                     screen_march,
+                                     screen_march_bounded, screen_march_bounded_partial,
+                                     screen_march_bounded_partial_plain, screen_march_bounded_plain,
                                      screen_march_naive, screen_march_naive_plain, screen_march_plain)
 from cisp_warp.raster.views import View, ViewParams
 
@@ -243,3 +246,75 @@ def test_perspective_cell_skip_is_a_proof(device, rng):
     w = [(k0 + (k1 - k0) * s).astype(np.float32) for s in (s_prev, s_last)]
     bare = ((near * np.minimum(*w)).astype(np.float32) > 1) | ((far * np.maximum(*w)).astype(np.float32) < 1)
     assert np.any(bare & ~depth_skip)
+
+
+_counted_bounded = counted_marches(False)[2]
+_counted_partial = counted_marches(False, 2)[2]
+_partial_fine_plain = bounded_march(False, 1)  # the fine cells' prefixes only
+_partial_pair_plain = bounded_march(False, 3)  # with the 2x2 coarse cells' level
+
+
+@wp.kernel
+def march_partial(view: ViewParams, depth: wp.array(dtype=wp.float32), origins: wp.array(dtype=wp.vec3),
+                  dirs: wp.array(dtype=wp.vec3), max_steps: int, bounds: wp.array(dtype=wp.vec2),
+                  layered: wp.array(dtype=wp.vec3), plain: wp.array(dtype=wp.vec3), fine: wp.array(dtype=wp.vec3),
+                  pair: wp.array(dtype=wp.vec3), work: wp.array(dtype=wp.vec4)):
+    """The bounded marches that skip the failed cells' proven prefixes (general and plain; the plain one with the fine
+    cells' prefixes only), and the counted plain marches' work without and with them."""
+    i = wp.tid()
+    s, t, n = screen_march_bounded_partial(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    layered[i] = wp.vec3(float(s), t, float(n))
+    s, t, n = screen_march_bounded_partial_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02,
+                                                 0.02)
+    plain[i] = wp.vec3(float(s), t, float(n))
+    s, t, n = _partial_fine_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    fine[i] = wp.vec3(float(s), t, float(n))
+    s, t, n = _partial_pair_plain(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    pair[i] = wp.vec3(float(s), t, float(n))
+    s, t, w0 = _counted_bounded(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    s, t, w1 = _counted_partial(view, depth, bounds, origins[i], dirs[i], 50.0, max_steps, 0.02, 0.02)
+    work[i] = wp.vec4(float(w0 / WORK_TESTS), float(w0 % WORK_TESTS), float(w1 / WORK_TESTS), float(w1 % WORK_TESTS))
+
+
+@pytest.mark.parametrize("orthographic", [False, True], ids=["perspective", "orthographic"])
+@pytest.mark.parametrize("max_steps", [2048, 7], ids=["steps2048", "steps7"])
+@pytest.mark.parametrize("layers", [1, 2], ids=["front", "back_layer"])
+def test_partial_skips_equal_the_naive_march(device, rng, orthographic, max_steps, layers):
+    """The bounded march that also skips the proven prefix of a cell whose test failed (``partial``,
+    docs/perf_notes.md section 74) ends every ray where the naive march ends it (status, end point, step count; bit
+    for bit on the CPU), with and without a back-face layer; and it walks fewer pixel steps than the bounded march
+    (the prefixes are skipped, not only proven)."""
+    w, h, n = 150, 100, 2000
+    view = View(np.eye(4), w, h, near=0.1, far=100.0, fx=20.0 if orthographic else 80.0,
+                fy=20.0 if orthographic else 80.0, orthographic=orthographic)
+    px, py = rng.uniform(0, w, n), rng.uniform(0, h, n)
+    z = rng.uniform(0.5, 3.0, n)
+    if orthographic:
+        o = np.stack([(px - w / 2) / view.fx, -(py - h / 2) / view.fy, -z], 1)
+    else:
+        o = np.stack([(px - w / 2) / view.fx * z, -(py - h / 2) / view.fy * z, -z], 1)
+    d = rng.normal(size=(n, 3))
+    d[:, 2] = -np.abs(d[:, 2]) * rng.choice([1.0, -0.3], n, p=[0.85, 0.15])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    args = [wp.array(a.astype(np.float32), dtype=wp.vec3, device=device) for a in (o, d)]
+    front = random_depth(rng, w, h)
+    depth = wp.array(front if layers == 1 else np.concatenate([front, back_layer(rng, front)]), device=device)
+    bounds = wp.zeros(bounds_size(w, h), dtype=wp.vec2, device=device)
+    build_bounds(depth, w, h, 0.02, 0.02, bounds, device)
+    naive, bounded = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2))
+    wp.launch(march_both, dim=n, device=device,
+              inputs=[view.params(), depth, *args, max_steps, bounds, naive, bounded, naive])
+    layered, plain, fine, pair = (wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(4))
+    work = wp.zeros(n, dtype=wp.vec4, device=device)
+    wp.launch(march_partial, dim=n, device=device,
+              inputs=[view.params(), depth, *args, max_steps, bounds, layered, plain, fine, pair, work])
+    v = naive.numpy()
+    compare(layered.numpy(), v, device, max_steps)
+    if layers == 1:  # the plain march on a plain buffer
+        compare(plain.numpy(), v, device, max_steps)
+        compare(fine.numpy(), v, device, max_steps)
+        compare(pair.numpy(), v, device, max_steps)
+    c = work.numpy()
+    # pixel steps: never more, and fewer over the rays (the prefixes' steps are what it saves)
+    assert np.all(c[:, 3] <= c[:, 1])
+    assert c[:, 3].sum() < (0.97 if max_steps > 7 else 1.0) * c[:, 1].sum()

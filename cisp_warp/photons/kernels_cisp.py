@@ -18,8 +18,8 @@ from .common import (L_ABSORBED, L_CULLED_LUM, L_CULLED_ROUGH, L_LOST_CAMERA, L_
                      emit_sample, entry_mask, ledger_slot, record_outcome, photon_index, specular_scatter, tally_new)
 from .caustic_flow import add_landing, flow_cell
 from .hidden_flux import store_hidden
-from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, counted_marches, screen_march_bounded,
-                    screen_march_bounded_plain, surface_far)
+from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, bounded_march, counted_marches,
+                    screen_march_bounded, screen_march_bounded_plain, surface_far)
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
@@ -432,7 +432,25 @@ def write_counts(hits: wp.array(dtype=wp.vec4), k: int, work_l: int, work_0: int
     hits[n + 2 * k + 1] = wp.vec4(float(work_1 / WORK_TESTS), float(work_1 % WORK_TESTS), float(phases), 1.0)
 
 
-def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = -1, camera_ortho: int = -1):
+#: the projected traces (:func:`projected_trace`, the frame's) and the counted one march the light view (the camera)
+#: with the failed cells' proven prefixes skipped (``march._make_marches``' ``partial``: 2 the coarse and the fine
+#: cells', 1 the fine cells' only, 0 none: the bounded march as before; 3 (experimental) as 2 with a level of 2x2
+#: coarse cells above the coarse ones; the same output bit for bit whatever the level, docs/perf_notes.md section
+#: 74). ``PARTIAL_LIGHT`` may also be a pair (perspective light's level, orthographic light's). Read when a kernel
+#: is made (first use): set before the first frame to compare
+PARTIAL_LIGHT = 2
+PARTIAL_CAMERA = 0
+
+
+def _light_level(light_ortho: int) -> int:
+    """``PARTIAL_LIGHT`` for a trace compiled for this light projection (-1, run time: the perspective one's)."""
+    if isinstance(PARTIAL_LIGHT, (tuple, list)):
+        return int(PARTIAL_LIGHT[1 if light_ortho == 1 else 0])
+    return int(PARTIAL_LIGHT)
+
+
+def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = -1, camera_ortho: int = -1,
+                partial: tuple = (0, 0)):
     """:func:`trace_photon` and the kernels :func:`trace_photons` (one per entry of ``flows``: with ``flow`` False
     the caustic flow's code is left out at compile time, ``trace_photons``; True: ``trace_photons_flow``, which adds
     each stored photon's landing to its flow cell where ``flow_records`` is not empty), or with ``counted`` (probes
@@ -446,13 +464,17 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
     the views are read with their ``orthographic`` field replaced by the constant, which the compiler folds, so
     the marches, reprojections and the emission carry only that projection's code (the same values wherever the
     constant equals the views' field: the same bits). Such kernels are modules of their own, compiled when first
-    launched."""
-    camera_march = screen_march_bounded
-    light_march = screen_march_bounded_plain
-    kernel_module = None
+    launched.
+
+    ``partial``: (light, camera), the level at which that march skips its failed cells' proven prefixes
+    (``PARTIAL_LIGHT``, ``PARTIAL_CAMERA``); the same outputs at any. A kernel with one is a module of its own."""
+    partial_light, partial_camera = int(partial[0]), int(partial[1])
+    camera_march = bounded_march(True, partial_camera)
+    light_march = bounded_march(False, partial_light)
+    kernel_module = "unique" if partial_light or partial_camera else None
     if counted:
-        camera_march = counted_marches(True)[2]
-        light_march = counted_marches(False)[2]
+        camera_march = counted_marches(True, partial_camera)[2]
+        light_march = counted_marches(False, partial_light)[2]
         kernel_module = "unique"
     LIGHT_ORTHO = int(light_ortho)
     CAMERA_ORTHO = int(camera_ortho)
@@ -720,9 +742,9 @@ def projected_trace(flow: bool, light_ortho: int, camera_ortho: int):
     module of its own: the kernel ``CISP.trace_kernel`` launches (the pool's sun is orthographic, its spot and every
     camera perspective). Named as the kernel it specialises; the same inputs, the same outputs bit for bit where
     the views have those projections (``tests/test_cisp.py``)."""
-    key = (bool(flow), int(light_ortho), int(camera_ortho))
+    key = (bool(flow), int(light_ortho), int(camera_ortho), _light_level(int(light_ortho)), int(PARTIAL_CAMERA))
     if key not in _PROJECTED_TRACES:
-        _PROJECTED_TRACES[key] = _make_trace(False, (key[0],), key[1], key[2])[1]
+        _PROJECTED_TRACES[key] = _make_trace(False, (key[0],), key[1], key[2], key[3:])[1]
     return _PROJECTED_TRACES[key]
 
 
@@ -731,11 +753,14 @@ def trace_kernels() -> tuple:
     return (trace_photons, trace_photons_flow, *_PROJECTED_TRACES.values())
 
 
-_COUNTED_TRACE = []
+_COUNTED_TRACE: dict = {}
 
 
 def counted_trace():
-    """The ``counted`` :func:`trace_photons` (made on first use; ``tools/trace_steps.py``)."""
-    if not _COUNTED_TRACE:
-        _COUNTED_TRACE.append(_make_trace(True, (True,))[1])  # with the flow's code (run only where records exist)
-    return _COUNTED_TRACE[0]
+    """The ``counted`` :func:`trace_photons` (made on first use, per ``PARTIAL_LIGHT`` / ``PARTIAL_CAMERA``;
+    ``tools/trace_steps.py``)."""
+    key = (_light_level(-1), int(PARTIAL_CAMERA))
+    if key not in _COUNTED_TRACE:
+        # with the flow's code (run only where records exist)
+        _COUNTED_TRACE[key] = _make_trace(True, (True,), partial=key)[1]
+    return _COUNTED_TRACE[key]

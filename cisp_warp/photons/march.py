@@ -153,6 +153,43 @@ def _cell_skipped(orthographic: int, z0: float, z1: float, k0: float, k1: float,
 
 
 @wp.func
+def _inv_rate(orthographic: int, z0: float, z1: float, k0: float, k1: float, ds_step: float) -> float:
+    """1 / (change of the march's linear quantity a step): depth for an orthographic view, inverse depth for a
+    perspective one (:func:`_proven_prefix`); 0 where it does not change. Once a march."""
+    rate = wp.where(orthographic != 0, z1 - z0, k1 - k0) * ds_step
+    return wp.where(rate != 0.0, 1.0 / wp.where(rate != 0.0, rate, 1.0), 0.0)
+
+
+@wp.func
+def _proven_prefix(orthographic: int, z0: float, z1: float, k0: float, k1: float, inv_rate: float, s_prev: float,
+                   ds_step: float, i: int, last: int, b: wp.vec2) -> int:
+    """The last step j in [i − 1, last − 1] such that steps i..j of a stretch whose cell test (:func:`_cell_skipped`,
+    bounds ``b``) failed are still proven hitless by ``b``: the steps before the ray's depth enters [b[0], b[1]]
+    (a ray coming down onto a floor: all its steps above the cell's nearest surface). i − 1: none.
+
+    The step where the march's linear quantity q (depth, or inverse depth for a perspective view: affine in the
+    segment parameter s) reaches the bound on the side the stretch starts from (b[0], or b[1] behind; in inverse
+    depth the bound with :func:`_cell_skipped`'s margin) is solved for with ``inv_rate`` (:func:`_inv_rate`); that
+    estimate only proposes j: :func:`_cell_skipped` over [``s_prev``, s_j] with the same bounds proves it (or
+    j − 1, a rounding's step back), else nothing is skipped. So every step skipped is one the cell test itself
+    proves hitless (the ray's depth is monotonic along the segment), and the march still ends where the naive one
+    does, bit for bit (docs/perf_notes.md section 74)."""
+    ortho = orthographic != 0
+    q0 = wp.where(ortho, z0, k0)
+    q_prev = q0 + wp.where(ortho, z1 - z0, k1 - k0) * s_prev
+    front = wp.where(ortho, q_prev < b[0], b[0] * q_prev > 1.0 + INV_DEPTH_MARGIN)
+    # the bound the stretch heads for, in q (perspective: one division, its operands selected)
+    persp_edge = wp.where(front, 1.0 + INV_DEPTH_MARGIN, 1.0 - INV_DEPTH_MARGIN) / wp.where(front, b[0], b[1])
+    edge = wp.where(ortho, wp.where(front, b[0], b[1]), persp_edge)
+    j_f = (edge - q0) * inv_rate  # steps from s = 0 to the bound (NaN or out of range: clamped to none)
+    j_f = wp.where(j_f > float(i), wp.min(j_f, float(last)), float(i))
+    j = int(wp.ceil(j_f)) - 1  # the last step before the bound: in [i - 1, last - 1]
+    ok = _cell_skipped(orthographic, z0, z1, k0, k1, s_prev, ds_step * float(j), b)
+    ok_back = _cell_skipped(orthographic, z0, z1, k0, k1, s_prev, ds_step * float(j - 1), b)
+    return wp.max(wp.where(ok, j, wp.where(ok_back, j - 1, i - 1)), i - 1)
+
+
+@wp.func
 def _crossing(orthographic: int, zr_prev: float, zr: float, zs: float, diff_prev: float, z_far: float) -> float:
     """Where along a step the ray crosses the surface, u in [0, 1], or -1 when the ray's depth over the step,
     [min, max], does not overlap the surface's [zs, z_far] (:func:`surface_far`).
@@ -333,6 +370,25 @@ def _cell_span(view: ViewParams, s0: wp.vec2, ds: wp.vec2, ds_step: float, inv_s
     return last, ci, cj
 
 
+#: ``partial`` 3: log2 of a pair cell's edge (2x2 coarse cells, 64 texels), bounded by its coarse cells' bounds
+PAIR_SHIFT = wp.constant(int(COARSE_SHIFT) + 1)
+
+
+@wp.func
+def _pair_bounds(bounds: wp.array(dtype=wp.vec2), coarse_0: int, coarse_x: int, coarse_y: int, pi: int,
+                 pj: int) -> wp.vec2:
+    """Bounds of pair cell (pi, pj): min and max over its (up to) 2x2 coarse cells (an edge cell's repeated)."""
+    i0 = 2 * pi
+    i1 = wp.min(i0 + 1, coarse_x - 1)
+    r0 = coarse_0 + 2 * pj * coarse_x
+    r1 = coarse_0 + wp.min(2 * pj + 1, coarse_y - 1) * coarse_x
+    a = bounds[r0 + i0]
+    b = bounds[r0 + i1]
+    c = bounds[r1 + i0]
+    d = bounds[r1 + i1]
+    return wp.vec2(wp.min(wp.min(a[0], b[0]), wp.min(c[0], d[0])), wp.max(wp.max(a[1], b[1]), wp.max(c[1], d[1])))
+
+
 @wp.func
 def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_steps: int):
     """The screen segment the marches step along: the ray ``o + d·t``, t in (0, t_max], cut at the near plane,
@@ -397,7 +453,7 @@ def _screen_segment(view: ViewParams, o: wp.vec3, d: wp.vec3, t_max: float, max_
 WORK_TESTS = 65536
 
 
-def _make_marches(back_layer: bool, counted: bool = False):
+def _make_marches(back_layer: bool, counted: bool = False, partial: int = 0):
     """The three marches (:func:`screen_march_naive`, :func:`screen_march`, :func:`screen_march_bounded`) for a depth
     buffer that may carry a back-face layer (``back_layer`` True: the far side and the hidden-half test of
     :func:`surface_far` and ``MARCH_HIDDEN``, decided at run time by the array's length), or compiled for a plain
@@ -408,7 +464,12 @@ def _make_marches(back_layer: bool, counted: bool = False):
 
     ``counted`` (probes only: :func:`counted_marches`, ``tools/trace_steps.py``): :func:`screen_march_bounded`
     returns the work its loops did in place of the step index: its cell tests (coarse and fine) × ``WORK_TESTS`` +
-    its pixel steps, compiled in only then (``wp.static``); status and end point are the same."""
+    its pixel steps, compiled in only then (``wp.static``); status and end point are the same.
+
+    ``partial`` (0 none): :func:`screen_march_bounded` also skips the proven prefix of a cell whose test failed
+    (:func:`_proven_prefix`: the steps before the ray's depth reaches the cell's bounds): 1 a fine cell's, before its
+    pixel steps are walked; 2 also a coarse cell's, before its fine cells are tested. ``counted`` counts each such
+    prefix as a cell test. The same results bit for bit (docs/perf_notes.md section 74)."""
 
     @wp.func
     def _steps_out(i: int, work: int) -> int:
@@ -618,9 +679,13 @@ def _make_marches(back_layer: bool, counted: bool = False):
         # exits; selected, not assigned in branches (the same values, no division merged through local memory)
         inv_step = wp.vec2(wp.where(ds[0] != 0.0, 1.0 / (ds[0] * ds_step), 0.0),
                            wp.where(ds[1] != 0.0, 1.0 / (ds[1] * ds_step), 0.0))
+        inv_rate = float(0.0)
+        if wp.static(partial > 0):
+            inv_rate = _inv_rate(ortho, z0, z1, k0, k1, ds_step)
         s_prev = float(0.0)
         zr_prev = z0
         diff_prev = z0 - _buffer_depth(view, depth, s0[0], s0[1])
+        failed_pair = int(-1)  # ``partial`` 3: the pair cell whose bounds last failed
         failed_coarse = int(-1)  # the coarse cell (index) whose bounds last failed: not tested again
         work = int(0)  # ``counted`` only: cell tests × WORK_TESTS + pixel steps
         i = int(1)
@@ -629,7 +694,19 @@ def _make_marches(back_layer: bool, counted: bool = False):
             # coarse cell of step i's sample, then its fine cell: skip all their steps when the bounds allow
             last = n
             skip = False
-            if (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
+            coarse_failed = False  # ``partial``: the coarse cell failed this iteration (its prefix, then its fine cells)
+            if wp.static(partial >= 3):  # 2x2 coarse cells first, their bounds from the coarse cells'
+                if (tx[1] >> PAIR_SHIFT) * coarse_x + (tx[0] >> PAIR_SHIFT) != failed_pair:
+                    last, pi, pj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, PAIR_SHIFT)
+                    b = _pair_bounds(bounds, coarse_0, coarse_x, (view.height + BOUNDS_COARSE - 1) >> COARSE_SHIFT, pi,
+                                     pj)
+                    if wp.static(counted):
+                        work += WORK_TESTS
+                    skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
+                    if not skip:
+                        failed_pair = pj * coarse_x + pi
+                        coarse_failed = True
+            if not skip and not coarse_failed and (tx[1] >> COARSE_SHIFT) * coarse_x + (tx[0] >> COARSE_SHIFT) != failed_coarse:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, n, tx, COARSE_SHIFT)
                 b = bounds[coarse_0 + cj * coarse_x + ci]
                 if wp.static(counted):
@@ -637,7 +714,9 @@ def _make_marches(back_layer: bool, counted: bool = False):
                 skip = _cell_skipped(ortho, z0, z1, k0, k1, s_prev, ds_step * float(last), b)
                 if not skip:
                     failed_coarse = cj * coarse_x + ci
-            if not skip:
+                    if wp.static(partial >= 2):
+                        coarse_failed = True
+            if not skip and not coarse_failed:
                 last, ci, cj = _cell_span(view, s0, ds, ds_step, inv_step, i, last, tx, CELL_SHIFT)
                 b = bounds[cj * fine_x + ci]
                 if wp.static(counted):
@@ -650,6 +729,20 @@ def _make_marches(back_layer: bool, counted: bool = False):
                 diff_prev = DIFF_UNREAD  # the sample at s_prev is read only if the next step crosses
                 i = last + 1
                 continue
+            if wp.static(partial > 0):
+                # the failed cell's proven prefix (one call site for both levels): steps i..j skipped, as a skip
+                # would (selected, not assigned in a branch: j = i - 1 leaves every value as it is); after a coarse
+                # cell's, the next iteration tests the fine cell of step j + 1
+                if wp.static(counted):
+                    work += WORK_TESTS
+                j = _proven_prefix(ortho, z0, z1, k0, k1, inv_rate, s_prev, ds_step, i, last, b)
+                moved = j >= i
+                s_prev = wp.where(moved, ds_step * float(j), s_prev)
+                zr_prev = wp.where(moved, ZR_UNREAD, zr_prev)
+                diff_prev = wp.where(moved, DIFF_UNREAD, diff_prev)
+                i = j + 1
+                if coarse_failed:
+                    continue
             if zr_prev < 0.0:  # ZR_UNREAD: the value the naive march had there (its step at s_prev)
                 zr_prev = _ray_depth(ortho, z0, z1, k0, k1, s_prev)
             while i <= last:
@@ -683,17 +776,33 @@ def _make_marches(back_layer: bool, counted: bool = False):
 screen_march_naive, screen_march, screen_march_bounded = _make_marches(True)
 #: the same marches compiled for a plain H*W depth buffer (light views, the composite, the caustics map)
 screen_march_naive_plain, screen_march_plain, screen_march_bounded_plain = _make_marches(False)
+#: :func:`screen_march_bounded` and its plain twin with the failed cells' proven prefixes skipped, coarse and fine
+#: (``partial`` 2)
+screen_march_bounded_partial = _make_marches(True, partial=2)[2]
+screen_march_bounded_partial_plain = _make_marches(False, partial=2)[2]
+_PARTIAL: dict[tuple, object] = {(True, 2): screen_march_bounded_partial, (False, 2): screen_march_bounded_partial_plain,
+                                 (True, 0): screen_march_bounded, (False, 0): screen_march_bounded_plain}
 
 
-_COUNTED: dict[bool, tuple] = {}
+def bounded_march(back_layer: bool, partial: int):
+    """:func:`screen_march_bounded` (``back_layer``) or its plain twin at a level of ``partial`` (0, 1, 2:
+    :func:`_make_marches`), made on first use."""
+    key = (bool(back_layer), int(partial))
+    if key not in _PARTIAL:
+        _PARTIAL[key] = _make_marches(key[0], partial=key[1])[2]
+    return _PARTIAL[key]
 
 
-def counted_marches(back_layer: bool) -> tuple:
-    """The marches of :func:`_make_marches` compiled ``counted`` (made once per ``back_layer``, on first use: the
-    frame's kernels never reference them)."""
-    if back_layer not in _COUNTED:
-        _COUNTED[back_layer] = _make_marches(back_layer, counted=True)
-    return _COUNTED[back_layer]
+_COUNTED: dict[tuple, tuple] = {}
+
+
+def counted_marches(back_layer: bool, partial: int = 0) -> tuple:
+    """The marches of :func:`_make_marches` compiled ``counted`` (made once per ``back_layer`` and ``partial``, on
+    first use: the frame's kernels never reference them)."""
+    key = (bool(back_layer), int(partial))
+    if key not in _COUNTED:
+        _COUNTED[key] = _make_marches(key[0], counted=True, partial=key[1])
+    return _COUNTED[key]
 
 
 #: edge [texels] of the super cells of :func:`super_bounds` (4x4 coarse cells): the composite's reflected rays, which
