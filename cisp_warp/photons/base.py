@@ -536,6 +536,15 @@ class PhotonPass:
         wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
         return self._order, 0, 1
 
+    #: True (default): the group partition in contiguous runs of tiles per block, its offsets from one count per
+    #: group and block summed by the scatter itself (``common.photon_group_keys_ranged`` and
+    #: ``photon_group_scatter_ranged``: two launches a view, no scan between them); False: one count per group and
+    #: tile, scanned by ``wp.utils.array_scan`` (CUB's two kernels and a temporary allocation a view), blocks over
+    #: every grid-th tile (the twin, section 63's; docs/perf_notes.md section 77). The same grouped order
+    RANGED_GROUPS = True
+    #: blocks of the ranged partition on the CPU (one thread each): each block sums every block's counts
+    RANGED_CPU_BLOCKS = 64
+
     def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
         """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
         ``use_order``): by texel (:meth:`texel_order`), then stably grouped by how each will march (refracted,
@@ -550,6 +559,19 @@ class PhotonPass:
                 n = C.SORT_GROUPS * blocks
                 self._group_views[blocks] = (self._group_counts[:n], self._group_offsets[:n])
             counts, offsets = self._group_views[blocks]
+            if self.RANGED_GROUPS:
+                grid = min(blocks, self.group_max_blocks or self.RANGED_CPU_BLOCKS)
+                wp.launch_tiled(C.photon_group_keys_ranged, dim=grid, block_dim=self.group_block, device=self.device,
+                                inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms,
+                                        stream, lm.emission(r), sp.tri_id, sc.geometry, sc.triangle_material,
+                                        sc.opacity, max_lum, float(self.settings.roughness_cutoff),
+                                        float(self.settings.luminance_cutoff), order, stride, orders, slots,
+                                        self._sort_keys, counts, grid])
+                wp.launch_tiled(C.photon_group_scatter_ranged, dim=grid, block_dim=self.group_block,
+                                device=self.device, inputs=[lm.states, view_index, self.settings.photons,
+                                                            self._sort_keys, order, stride, orders, slots, counts,
+                                                            self._grouped, grid])
+                return self._grouped
             grid = blocks if self.group_max_blocks is None else min(blocks, self.group_max_blocks)
             wp.launch_tiled(C.photon_group_keys, dim=grid, block_dim=self.group_block, device=self.device, inputs=[
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,

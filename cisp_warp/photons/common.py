@@ -660,6 +660,174 @@ def photon_group_scatter(
 
 
 @wp.func
+def _tile_range(n: int, bd: int, grid: int, block: int) -> wp.vec2i:
+    """The tiles of ``bd`` slots that block ``block`` of ``grid`` takes in the ranged partition
+    (:func:`photon_group_keys_ranged`): a contiguous run [first, end) of the tiles holding the first ``n`` slots, the
+    same length (rounded up) for every block, so blocks past the last tile take none."""
+    tiles = (n + bd - 1) / bd
+    per = (tiles + grid - 1) / grid
+    first = wp.min(block * per, tiles)
+    return wp.vec2i(first, wp.min(first + per, tiles))
+
+
+@wp.kernel(launch_bounds=(SORT_GROUP_BLOCK, SORT_GROUP_BLOCKS_PER_SM))  # as photon_group_keys: 4 blocks an SM
+def photon_group_keys_ranged(
+    views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles: the texel's normal (kernels.texel_surface, read)
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    roughness_cutoff: float,
+    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, the first n_photons from order_base (read)
+    order_stride: int,  # the light's orders per count of active views lie this far apart (0: one order)
+    orders: int,  # orders in the table
+    n_slots: int,  # N: threads launched for the view (>= its photons)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, the first n_photons)
+    totals: wp.array(dtype=wp.int32),  # (>= 3 * grid,) photons of group g in block b's tiles at [g * grid + b] (write)
+    grid: int,  # blocks launched
+):
+    """:func:`photon_group_keys` (the same group per photon, :func:`_march_group`) over contiguous runs of tiles:
+    block b takes the tiles :func:`_tile_range` gives it, of the tiles that hold the view's photons only (slots past
+    the count are neither keyed nor counted: :func:`photon_group_scatter_ranged` leaves them out without reading
+    them), and writes one count per march group for all its tiles, not one per tile. So the offsets of every block's
+    photons in the grouped order follow from ``3 * grid`` counts, which the scatter sums itself: no scan of per-tile
+    counts between the two launches (``wp.utils.array_scan``: CUB's two kernels and a temporary allocation per view
+    and frame). Each tile's photon indices are loaded one tile ahead, as in :func:`photon_group_keys`. An inactive
+    view writes nothing (its scatter returns at once)."""
+    block, lane = wp.tid()
+    bd = wp.block_dim()
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if n_photons == 0:
+        return
+    n = wp.min(n_photons, n_slots)
+    base = order_base(cascade, order_stride, orders)
+    span = _tile_range(n, bd, grid, block)
+    mask = (1 << SORT_COUNT_BITS) - 1
+    c0 = int(0)
+    c1 = int(0)
+    c2 = int(0)
+    tile = span[0]
+    k = int(0)
+    if tile < span[1] and tile * bd + lane < n:
+        k = order[base + tile * bd + lane]
+    while tile < span[1]:  # the same trip count for every thread of the block
+        t = tile * bd + lane
+        k_next = int(0)
+        if tile + 1 < span[1] and t + bd < n:
+            k_next = order[base + t + bd]
+        group = int(-1)
+        if t < n:
+            group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_emission, rsm_tri,
+                                 geometry, triangle_material, mat_opacity, max_lum, roughness_cutoff,
+                                 luminance_cutoff, k)
+            keys[t] = group
+        packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
+        if lane == 0:
+            c = packed[0]
+            c0 += c & mask
+            c1 += (c >> SORT_COUNT_BITS) & mask
+            c2 += (c >> (2 * SORT_COUNT_BITS)) & mask
+        k = k_next
+        tile += 1
+    if lane == 0:
+        totals[block] = c0
+        totals[grid + block] = c1
+        totals[2 * grid + block] = c2
+
+
+#: the three march groups' photons over every block and over the blocks before one (photon_group_scatter_ranged)
+GroupSums = wp.types.vector(length=6, dtype=wp.int32)
+
+
+@wp.kernel
+def photon_group_scatter_ranged(
+    states: wp.array(dtype=CascadeState),  # (V,) the light's views (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons (cascade_photons)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group per thread (photon_group_keys_ranged, read)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, from order_base (read)
+    order_stride: int,  # as photon_group_keys_ranged'
+    orders: int,
+    n_slots: int,  # N
+    totals: wp.array(dtype=wp.int32),  # (>= 3 * grid,) per group and block (photon_group_keys_ranged, read)
+    grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first n_photons)
+    grid: int,  # blocks launched: the keys' grid (block b takes the same tiles, _tile_range)
+):
+    """:func:`photon_group_scatter` after :func:`photon_group_keys_ranged`: the same stable partition of the photons
+    by march group. Each block first sums the ``3 * grid`` block counts (every group's size, and each group's photons
+    in the blocks before its own: where its first photon of each group goes; one block sum of six counts), then
+    walks its contiguous tiles keeping each group's running count, a photon's place in its tile from an inclusive
+    tile scan of packed counts (its last element the tile's counts). No per-tile offsets are read; each tile's groups
+    and photon indices are loaded one tile ahead, in flight during the previous tile's scan. Slots past the view's
+    photon count are not written (no kernel reads them); an inactive view writes nothing."""
+    block, lane = wp.tid()
+    bd = wp.block_dim()
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if n_photons == 0:
+        return
+    n = wp.min(n_photons, n_slots)
+    base = order_base(cascade, order_stride, orders)
+    span = _tile_range(n, bd, grid, block)
+    mask = (1 << SORT_COUNT_BITS) - 1
+    s = GroupSums()
+    i = lane
+    while i < grid:
+        a0 = totals[i]
+        a1 = totals[grid + i]
+        a2 = totals[2 * grid + i]
+        s[0] = s[0] + a0
+        s[1] = s[1] + a1
+        s[2] = s[2] + a2
+        if i < block:
+            s[3] = s[3] + a0
+            s[4] = s[4] + a1
+            s[5] = s[5] + a2
+        i += bd
+    sums = wp.tile_extract(wp.tile_sum(wp.tile(s, preserve_type=True)), 0)
+    # where this block's next photon of each group goes: the groups before it, then its own group's earlier blocks
+    next0 = sums[3]
+    next1 = sums[0] + sums[4]
+    next2 = sums[0] + sums[1] + sums[5]
+    tile = span[0]
+    group = int(-1)
+    k = int(0)
+    if tile < span[1] and tile * bd + lane < n:
+        group = keys[tile * bd + lane]
+        k = order[base + tile * bd + lane]
+    while tile < span[1]:  # the same trip count for every thread of the block
+        t = tile * bd + lane
+        group_next = int(-1)
+        k_next = int(0)
+        if tile + 1 < span[1] and t + bd < n:
+            group_next = keys[t + bd]
+            k_next = order[base + t + bd]
+        own = _group_count_bit(group)
+        scan = wp.tile_scan_inclusive(wp.tile(own))
+        before = wp.untile(scan) - own
+        counts = wp.tile_extract(scan, bd - 1)
+        if group >= 0:
+            rank = (before >> (SORT_COUNT_BITS * group)) & mask
+            start = wp.where(group == 0, next0, wp.where(group == 1, next1, next2))
+            grouped[start + rank] = k
+        next0 += counts & mask
+        next1 += (counts >> SORT_COUNT_BITS) & mask
+        next2 += (counts >> (2 * SORT_COUNT_BITS)) & mask
+        group = group_next
+        k = k_next
+        tile += 1
+
+
+@wp.func
 def photon_index(order: wp.array(dtype=wp.int32), use_order: int, tid: int) -> int:
     """The photon a thread traces: ``order[tid]`` when photons are sorted, else ``tid``."""
     if use_order != 0:
