@@ -58,13 +58,16 @@ def test_emission_reduction_of_whole_warps(device, block, monkeypatch):
     assert many.closure() < 1e-12
 
 
+@pytest.mark.parametrize("fast", [1, 0])
 @pytest.mark.parametrize("runs", ["several", "one"])
-def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs):
+def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
     """ledger_add_outcomes against numpy: records of every final entry (and codes outside the mask, which it must
     leave out), summed by 3 blocks of 32 threads into 4 stripes, then folded: float64 sums to 1e-12. The records
     come in two runs of slots (and a partial third) of which the last 5 of each lie past the view's photon count
     (stale records of a fixed-size launch): those must be left out too; or in one run (the records no more than a
-    run's slots: the pass then skips the division by the run), its last 5 past the count."""
+    run's slots: the pass then skips the division by the run), its last 5 past the count. Both block sums: the warp
+    reduce-scatter (``fast``, CUDA; the CPU keeps the tiles) and the two tile sums (the twin); an inactive view adds
+    nothing."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     n = 3 * 32 * 7 + 13
     finals = [e for e in range(C.LEDGER_ENTRIES) if (int(C.FINAL_ENTRIES) >> e) & 1]
@@ -81,7 +84,11 @@ def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs):
     blocks = 3
     wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=device,
                     inputs=[wp.array(records, dtype=wp.vec4, device=device), n, blocks * block, mask, stripes, states, 0,
-                            run - 5, run])
+                            run - 5, run, fast])
+    inactive = wp.array([_state(False, 1)], dtype=CascadeState, device=device)
+    wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=device,
+                    inputs=[wp.array(records, dtype=wp.vec4, device=device), n, blocks * block, mask, stripes, inactive,
+                            0, run - 5, run, fast])
     wp.launch_tiled(C.ledger_fold, dim=C.LEDGER_ENTRIES, block_dim=4 if wp.get_device(device).is_cuda else 1,
                     device=device, inputs=[stripes, ledger])
     expect = np.zeros((C.LEDGER_ENTRIES, 3))

@@ -464,6 +464,11 @@ class PhotonPass:
         blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
         wp.launch_tiled(kernel, dim=blocks, block_dim=self.ledger_block, device=self.device, inputs=inputs)
 
+    #: True (default): the outcome pass of an inactive view returns at once, and on CUDA each block sums its records
+    #: by a warp reduce-scatter (``common._outcome_reduce``, one barrier, 30 float64 atomics); False: every block
+    #: sums with two tile sums (the twin; docs/perf_notes.md section 77). The CPU's sums are the twin's either way
+    FAST_OUTCOMES = True
+
     def add_outcomes(self, outcome: wp.array, batch: RSMBatch, runs: int, entries: int) -> None:
         """Add the final entries of ``runs`` runs of ``batch.slots`` outcome records (written by the trace kernel
         with ``record_outcome``) to the ledger (:func:`~.common.ledger_add_outcomes`): on CUDA at most
@@ -477,7 +482,8 @@ class PhotonPass:
             blocks = min(blocks, self.outcome_max_blocks)
         wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=self.device,
                         inputs=[outcome, n, blocks * block, entries, self.ledger_rows, batch.lights.states,
-                                batch.view_index, batch.light_photons, max(1, batch.slots)])
+                                batch.view_index, batch.light_photons, max(1, batch.slots),
+                                int(self.FAST_OUTCOMES)])
 
     def fold_ledger(self) -> None:
         """Sum the striped ledger into ``ledger`` and zero the stripes (one small launch; idempotent)."""

@@ -265,6 +265,71 @@ def _outcome_rows_add(ledger: wp.array(dtype=wp.vec3d), block: int, entries: int
             wp.atomic_add(ledger, ledger_slot(ledger, block, e), sums[i])
 
 
+#: CUDA only (blocks of whole warps): the block's sums of a thread's two OutcomeSums (30 doubles: row r of ``sa`` is
+#: value 3r..3r+2, row r of ``sb`` value 15+3r..) by a reduce-scatter in each warp, as ``kernels_cisp._EMISSION_REDUCE``
+#: does the emission's 18 (docs/perf_notes.md sections 64 and 77): padded to 32 values, rounds of 16, 8, 4, 2 and 1
+#: shuffles at lane distances 16..1, a lane keeping the half of its values its bit selects and adding its partner's copy
+#: of that half (31 shuffled doubles instead of Warp's two tile sums of 15 doubles, 5 x 30), so lane i holds value i's
+#: warp sum; written to shared memory; one barrier; thread i < 30 adds the warps' sums of value i in warp order and,
+#: where value i's entry is in ``entries``, adds it to the ledger (one float64 atomic a thread). On the CPU (or blocks
+#: of a partial warp) it returns 0 and ledger_add_outcomes sums with Warp's tiles.
+_OUTCOME_REDUCE = """
+#if defined(__CUDA_ARCH__) && (WP_TILE_BLOCK_DIM % 32 == 0)
+constexpr int NW = WP_TILE_BLOCK_DIM / 32;
+__shared__ double outcome_partials[NW][32];
+const unsigned FULL = 0xffffffffu;
+const int lane = threadIdx.x & 31;
+const int warp = threadIdx.x >> 5;
+double v[32];
+#pragma unroll
+for (int i = 0; i < 15; ++i) {
+    v[i] = sa.data[i / 3][i % 3];
+    v[15 + i] = sb.data[i / 3][i % 3];
+}
+v[30] = 0.0;
+v[31] = 0.0;
+ROUNDS
+outcome_partials[warp][lane] = v[0];
+__syncthreads();
+if (threadIdx.x < 30) {
+    const int i = threadIdx.x;
+    double s = outcome_partials[0][i];
+    #pragma unroll
+    for (int w = 1; w < NW; ++w)
+        s += outcome_partials[w][i];
+    const int r = i / 3;
+    const int entry = ENTRY_OF_ROW;
+    if ((entries >> entry) & 1) {
+        double* p = reinterpret_cast<double*>(wp::address(ledger, stripe + entry));
+        atomicAdd(p + (i - 3 * r), s);
+    }
+}
+return 1;
+#else
+return 0;
+#endif
+""".replace("ROUNDS", "".join(f"""{{
+    const bool h = (lane & {w}) != 0;
+    #pragma unroll
+    for (int i = 0; i < {w}; ++i) {{
+        const double send = h ? v[i] : v[i + {w}];
+        const double keep = h ? v[i + {w}] : v[i];
+        v[i] = keep + __shfl_xor_sync(FULL, send, {w});
+    }}
+}}
+""" for w in (16, 8, 4, 2, 1))).replace("ENTRY_OF_ROW", " : ".join(f"r == {i} ? {e}" for i, e in enumerate(OUTCOME_ROWS[0] + OUTCOME_ROWS[1][:-1]))
+            + f" : {OUTCOME_ROWS[1][-1]}")
+
+
+@wp.func_native(_OUTCOME_REDUCE)
+def _outcome_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, entries: int, sa: OutcomeSums,
+                    sb: OutcomeSums) -> int:
+    """On CUDA (blocks of whole warps): the block's sums of ``sa`` and ``sb`` (OUTCOME_ROWS) added to the entries of
+    ``entries`` in the ledger's row ``stripe`` (see ``_OUTCOME_REDUCE``); returns 1. Elsewhere it does nothing and
+    returns 0."""
+    ...
+
+
 @wp.kernel
 def ledger_add_outcomes(
     outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
@@ -276,6 +341,7 @@ def ledger_add_outcomes(
     view_index: int,  # the view whose photons wrote the records
     light_photons: int,  # the light's photons (cascade_photons)
     run: int,  # records per run (the trace's slots): record r is photon slot r % run of its run
+    fast: int,  # 1: an inactive view returns at once, the block sums by _outcome_reduce on CUDA; 0: the twin (tiles)
 ):
     """The final entries of ``count`` outcome records: each thread sums its records per entry in registers, the
     block sums every entry at once (two tiles of 5×3 matrices, OUTCOME_ROWS) and lane 0 adds each entry of
@@ -285,6 +351,8 @@ def ledger_add_outcomes(
     a fitted cascade can get; never written this frame) are skipped."""
     block, lane = wp.tid()
     n_photons = cascade_photons(states[view_index], light_photons)
+    if fast != 0 and n_photons == 0:  # an inactive view wrote no records (uniform over the launch)
+        return
     t = block * wp.block_dim() + lane
     sa = OutcomeSums()
     sb = OutcomeSums()
@@ -305,11 +373,15 @@ def ledger_add_outcomes(
         r += 4 * threads
     # the block's sums of all entries in two tile sums instead of ten (H100, in the frame against main's kernel in the
     # same call: -16% / -9% with ten, -20% / -18% with two; docs/perf_notes.md section 40), added by lane 0 in order
-    ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
-    tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
-    if lane == 0:
-        _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
-        _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+    reduced = int(0)
+    if fast != 0:
+        reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
+    if reduced == 0:
+        ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
+        tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
+        if lane == 0:
+            _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
+            _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
 
 
 @wp.kernel
@@ -670,6 +742,10 @@ def _tile_range(n: int, bd: int, grid: int, block: int) -> wp.vec2i:
     return wp.vec2i(first, wp.min(first + per, tiles))
 
 
+#: bits of a thread's count of one march group in photon_group_keys_ranged (three in an int64: up to 2M tiles a block)
+GROUP_TOTAL_BITS = wp.constant(21)
+
+
 @wp.kernel(launch_bounds=(SORT_GROUP_BLOCK, SORT_GROUP_BLOCKS_PER_SM))  # as photon_group_keys: 4 blocks an SM
 def photon_group_keys_ranged(
     views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
@@ -697,7 +773,9 @@ def photon_group_keys_ranged(
     """:func:`photon_group_keys` (the same group per photon, :func:`_march_group`) over contiguous runs of tiles:
     block b takes the tiles :func:`_tile_range` gives it, of the tiles that hold the view's photons only (slots past
     the count are neither keyed nor counted: :func:`photon_group_scatter_ranged` leaves them out without reading
-    them), and writes one count per march group for all its tiles, not one per tile. So the offsets of every block's
+    them), and writes one count per march group for all its tiles, not one per tile (each thread counts its own
+    photons; one block sum after the loop, none inside it: a block's warps run their tiles' chains of loads without
+    waiting for each other at a barrier per tile). So the offsets of every block's
     photons in the grouped order follow from ``3 * grid`` counts, which the scatter sums itself: no scan of per-tile
     counts between the two launches (``wp.utils.array_scan``: CUB's two kernels and a temporary allocation per view
     and frame). Each tile's photon indices are loaded one tile ahead, as in :func:`photon_group_keys`. An inactive
@@ -711,37 +789,33 @@ def photon_group_keys_ranged(
     n = wp.min(n_photons, n_slots)
     base = order_base(cascade, order_stride, orders)
     span = _tile_range(n, bd, grid, block)
-    mask = (1 << SORT_COUNT_BITS) - 1
-    c0 = int(0)
-    c1 = int(0)
-    c2 = int(0)
+    # this thread's photons per group over all its tiles, in 21-bit fields of one int64 (no tile's counts are needed,
+    # so no block reduction inside the loop: one after it)
+    mine = wp.int64(0)
+    s1 = wp.int64(GROUP_TOTAL_BITS)
     tile = span[0]
+    t = tile * bd + lane
     k = int(0)
-    if tile < span[1] and tile * bd + lane < n:
-        k = order[base + tile * bd + lane]
-    while tile < span[1]:  # the same trip count for every thread of the block
-        t = tile * bd + lane
+    if tile < span[1] and t < n:
+        k = order[base + t]
+    while tile < span[1] and t < n:
         k_next = int(0)
         if tile + 1 < span[1] and t + bd < n:
             k_next = order[base + t + bd]
-        group = int(-1)
-        if t < n:
-            group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_emission, rsm_tri,
-                                 geometry, triangle_material, mat_opacity, max_lum, roughness_cutoff,
-                                 luminance_cutoff, k)
-            keys[t] = group
-        packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
-        if lane == 0:
-            c = packed[0]
-            c0 += c & mask
-            c1 += (c >> SORT_COUNT_BITS) & mask
-            c2 += (c >> (2 * SORT_COUNT_BITS)) & mask
+        group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_emission, rsm_tri, geometry,
+                             triangle_material, mat_opacity, max_lum, roughness_cutoff, luminance_cutoff, k)
+        keys[t] = group
+        mine += wp.int64(1) << (wp.int64(group) * s1)
         k = k_next
         tile += 1
+        t += bd
+    field = (wp.int64(1) << s1) - wp.int64(1)
+    c = wp.vec3i(int(mine & field), int((mine >> s1) & field), int((mine >> (s1 + s1)) & field))
+    sums = wp.tile_extract(wp.tile_sum(wp.tile(c, preserve_type=True)), 0)
     if lane == 0:
-        totals[block] = c0
-        totals[grid + block] = c1
-        totals[2 * grid + block] = c2
+        totals[block] = sums[0]
+        totals[grid + block] = sums[1]
+        totals[2 * grid + block] = sums[2]
 
 
 #: the three march groups' photons over every block and over the blocks before one (photon_group_scatter_ranged)
