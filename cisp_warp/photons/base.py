@@ -217,6 +217,8 @@ class PhotonPass:
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self._clear_key = None  #: the arrays ``_clear_words_cache`` aliases (:meth:`_clear_words`)
         self._clear_words_cache: list[wp.array] = []
+        self._clear_wide_key = None  #: the arrays ``_clear_wide_cache`` aliases (:meth:`_clear_wide`)
+        self._clear_wide_cache = None
         #: (H*W,) float32: the camera pixels' exact solid angles [sr] (:meth:`set_camera_view` when the camera's
         #: intrinsics change)
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -402,7 +404,10 @@ class PhotonPass:
     def begin(self) -> None:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
-        if self.FUSED_CLEAR:
+        if self.WIDE_CLEAR:
+            args, threads = self._clear_wide()
+            wp.launch(C.clear_frame_wide, dim=threads, device=self.device, inputs=[*args, threads])
+        elif self.FUSED_CLEAR:
             words = self._clear_words()
             wp.launch(C.clear_frame, dim=max(1, max(a.shape[0] for a in words)), device=self.device, inputs=words)
         else:
@@ -419,6 +424,37 @@ class PhotonPass:
     #: a fitted light's pilots in one launch each (``common.pilot_texel_pass``: the brightest texel and the power outside
     #: the fitted views from one flux per texel); False: ``max_luminance`` then ``book_outside_window`` (the twins)
     FUSED_PILOT_PASS = True
+
+    #: True (default): the frame's accumulators zeroed by one launch of 16-byte stores (``common.clear_frame_wide``,
+    #: docs/perf_notes.md section 77); False: as FUSED_CLEAR says (its default: one memset an array, the twin)
+    WIDE_CLEAR = True
+    #: most threads of ``clear_frame_wide`` (each zeroes every ``threads``-th 16-byte word): 8 blocks of 256 an SM
+    WIDE_CLEAR_THREADS_PER_SM = 2048
+
+    def _clear_wide(self) -> tuple[list[wp.array], int]:
+        """(vec4 aliases of the 16-byte words of the arrays :func:`~.common.clear_frame_wide` zeroes (photon map,
+        Σ e², hidden flux, accumulators; empty where the pass keeps none), then float32 aliases of each one's 4-byte
+        words past them; the threads to launch), made once per set of arrays (they are allocated at set-up)."""
+        arrays = (self.photon_map, self.photon_m2, self.hidden.all_flux if self.hidden is not None else None,
+                  self._accumulators)
+        key = ("wide",) + tuple(None if a is None else (a.ptr, a.capacity) for a in arrays)
+        if self._clear_wide_key != key:
+            bodies, tails = [], []
+            for a in arrays:
+                nbytes = 0 if a is None else a.capacity
+                n16, n4 = nbytes // 16, (nbytes % 16) // 4
+                body = wp.array(ptr=a.ptr if n16 else 0, dtype=wp.vec4, shape=(n16,), device=self.device)
+                tail = wp.array(ptr=a.ptr + 16 * n16 if n4 else 0, dtype=wp.float32, shape=(n4,), device=self.device)
+                for alias in (body, tail):
+                    if a is not None:
+                        alias._owner = a
+                bodies.append(body)
+                tails.append(tail)
+            longest = max(1, max(b.shape[0] for b in bodies))
+            per_sm = self.WIDE_CLEAR_THREADS_PER_SM * (self.device.sm_count if self.device.is_cuda else 1)
+            threads = max(4, min(longest, per_sm))
+            self._clear_wide_key, self._clear_wide_cache = key, (bodies + tails, threads)
+        return self._clear_wide_cache
 
     def _clear_words(self) -> list[wp.array]:
         """float32 aliases of the arrays :func:`~.common.clear_frame` zeroes (photon map, Σ e², hidden flux,

@@ -405,6 +405,67 @@ def clear_frame(
         accumulators[t] = 0.0
 
 
+#: the whole frame's clear in 16-byte stores: CUDA's st.global.v4 (Warp's vec4 is 4-byte aligned, so its stores may
+#: be split into four 4-byte ones: section 63's clear_frame, which lost to the memsets), elsewhere a vec4 store
+_ZERO16 = """
+#if defined(__CUDA_ARCH__)
+float4 z;
+z.x = 0.0f;
+z.y = 0.0f;
+z.z = 0.0f;
+z.w = 0.0f;
+reinterpret_cast<float4*>(a.data)[i] = z;
+#else
+a.data[i] = wp::vec_t<4, float>();
+#endif
+"""
+
+
+@wp.func_native(_ZERO16)
+def _zero16(a: wp.array(dtype=wp.vec4), i: int):
+    """a[i] = 0 in one 16-byte store (``a``'s memory is 16-byte aligned: an allocation's start)."""
+    ...
+
+
+@wp.func
+def _zero_strided(a: wp.array(dtype=wp.vec4), t: int, threads: int):
+    i = t
+    while i < a.shape[0]:
+        _zero16(a, i)
+        i += threads
+
+
+@wp.kernel
+def clear_frame_wide(
+    photon_map: wp.array(dtype=wp.vec4),  # the photon map's 16-byte words (a vec4 alias, write: zero)
+    photon_m2: wp.array(dtype=wp.vec4),  # Σ luminance(e)²'s, or empty
+    hidden: wp.array(dtype=wp.vec4),  # every light's hidden flux map's (HiddenFlux.all_flux), or empty
+    accumulators: wp.array(dtype=wp.vec4),  # the striped ledger's, ledger's and lights' maxima's
+    photon_map_tail: wp.array(dtype=wp.float32),  # each array's 4-byte words past its last whole 16-byte word (0-3)
+    photon_m2_tail: wp.array(dtype=wp.float32),
+    hidden_tail: wp.array(dtype=wp.float32),
+    accumulators_tail: wp.array(dtype=wp.float32),
+    threads: int,  # threads launched: thread t zeroes 16-byte words t, t + threads, ... of each array
+):
+    """The photon pass's per-frame accumulators zeroed in one launch of 16-byte stores (``PhotonPass.WIDE_CLEAR``):
+    each thread zeroes every ``threads``-th 16-byte word of each array (a warp's stores one contiguous 512-byte run),
+    then the first threads the 4-byte words left past each array's last 16-byte word: what ``PhotonPass.begin``'s
+    memsets do (the twin), in one launch instead of four."""
+    t = wp.tid()
+    _zero_strided(photon_map, t, threads)
+    _zero_strided(photon_m2, t, threads)
+    _zero_strided(hidden, t, threads)
+    _zero_strided(accumulators, t, threads)
+    if t < photon_map_tail.shape[0]:
+        photon_map_tail[t] = 0.0
+    if t < photon_m2_tail.shape[0]:
+        photon_m2_tail[t] = 0.0
+    if t < hidden_tail.shape[0]:
+        hidden_tail[t] = 0.0
+    if t < accumulators_tail.shape[0]:
+        accumulators_tail[t] = 0.0
+
+
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
 
 
