@@ -1264,7 +1264,8 @@ def pilot_texel_pass(
     computed once for both :func:`max_luminance` (the block's maximum as a tile, one ``atomic_max`` a block) and
     :func:`book_outside_window` (its area outside the coarsest window booked, tallied and added once per block). The
     same maximum and bookings as those two launches (their twin), in one launch spread over the whole GPU: 16k texels
-    of a 128² pilot are 128 blocks, where ``max_luminance``'s 16 texels a thread made 4 blocks on 4 SMs."""
+    of a 128² pilot are 128 blocks, where ``max_luminance``'s 16 texels a thread made 4 blocks on 4 SMs. Its two
+    entries (sampled, outside) hold the same value: one block sum for both (section 77)."""
     window = windows[view_index]
     angle = angles[view_index]
     block, lane = wp.tid()
@@ -1277,9 +1278,14 @@ def pilot_texel_pass(
             m = wp.max(m, luminance(f))
         _book_outside(tally, f, _outside_fraction(p, width, window, angle, centre, aspect))
     block_max = wp.tile_max(wp.tile(m))
+    # the two entries it books are the same value (_book_outside): summed once, added to both (ledger_add sums each
+    # apart: the same sums, one block reduction more)
+    sampled = wp.vec3d(tally.sampled[0], tally.sampled[1], tally.sampled[2])
+    booked = wp.tile_extract(wp.tile_sum(wp.tile(sampled, preserve_type=True)), 0)
     if lane == 0:
         wp.atomic_max(max_lum, 0, block_max[0])
-    ledger_add(ledger, tally, block, OUTSIDE_ENTRIES)
+        wp.atomic_add(ledger, ledger_slot(ledger, block, L_SAMPLED), booked)
+        wp.atomic_add(ledger, ledger_slot(ledger, block, L_OUTSIDE), booked)
 
 
 @wp.func
