@@ -914,6 +914,13 @@ def photon_group_scatter_ranged(
     base = order_base(cascade, order_stride, orders)
     span = _tile_range(n, bd, grid, block)
     mask = (1 << SORT_COUNT_BITS) - 1
+    # the first tile's groups and photon indices in flight while the block sums the counts
+    tile = span[0]
+    group = int(-1)
+    k = int(0)
+    if tile < span[1] and tile * bd + lane < n:
+        group = keys[tile * bd + lane]
+        k = order[base + tile * bd + lane]
     s = GroupSums()
     i = lane
     while i < grid:
@@ -933,12 +940,6 @@ def photon_group_scatter_ranged(
     next0 = sums[3]
     next1 = sums[0] + sums[4]
     next2 = sums[0] + sums[1] + sums[5]
-    tile = span[0]
-    group = int(-1)
-    k = int(0)
-    if tile < span[1] and tile * bd + lane < n:
-        group = keys[tile * bd + lane]
-        k = order[base + tile * bd + lane]
     while tile < span[1]:  # the same trip count for every thread of the block
         t = tile * bd + lane
         group_next = int(-1)
