@@ -58,13 +58,16 @@ def test_emission_reduction_of_whole_warps(device, block, monkeypatch):
     assert many.closure() < 1e-12
 
 
+@pytest.mark.parametrize("fast", [1, 0])
 @pytest.mark.parametrize("runs", ["several", "one"])
-def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs):
+def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
     """ledger_add_outcomes against numpy: records of every final entry (and codes outside the mask, which it must
     leave out), summed by 3 blocks of 32 threads into 4 stripes, then folded: float64 sums to 1e-12. The records
     come in two runs of slots (and a partial third) of which the last 5 of each lie past the view's photon count
     (stale records of a fixed-size launch): those must be left out too; or in one run (the records no more than a
-    run's slots: the pass then skips the division by the run), its last 5 past the count."""
+    run's slots: the pass then skips the division by the run), its last 5 past the count. Both block sums: the warp
+    reduce-scatter (``fast``, CUDA; the CPU keeps the tiles) and the two tile sums (the twin); an inactive view adds
+    nothing."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     n = 3 * 32 * 7 + 13
     finals = [e for e in range(C.LEDGER_ENTRIES) if (int(C.FINAL_ENTRIES) >> e) & 1]
@@ -81,7 +84,11 @@ def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs):
     blocks = 3
     wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=device,
                     inputs=[wp.array(records, dtype=wp.vec4, device=device), n, blocks * block, mask, stripes, states, 0,
-                            run - 5, run])
+                            run - 5, run, fast])
+    inactive = wp.array([_state(False, 1)], dtype=CascadeState, device=device)
+    wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=device,
+                    inputs=[wp.array(records, dtype=wp.vec4, device=device), n, blocks * block, mask, stripes, inactive,
+                            0, run - 5, run, fast])
     wp.launch_tiled(C.ledger_fold, dim=C.LEDGER_ENTRIES, block_dim=4 if wp.get_device(device).is_cuda else 1,
                     device=device, inputs=[stripes, ledger])
     expect = np.zeros((C.LEDGER_ENTRIES, 3))
@@ -205,6 +212,47 @@ def test_clear_frame_zeroes_every_accumulator(device):
         assert not arr.numpy().any()
 
 
+def test_wide_clear_zeroes_every_accumulator(device):
+    """``clear_frame_wide`` zeroes each array it is given whole, in 16-byte words and the 4-byte words past them (0-3),
+    over arrays of unequal lengths with and without tails, an empty one and a view into a longer one (16-byte aligned
+    as an allocation is), and nothing else; with fewer threads than words (strided). The pass's aliases
+    (``PhotonPass._clear_wide``) cover every byte of its arrays, and ``begin`` clears with them."""
+    whole = wp.full(64, 9.0, dtype=wp.float32, device=device)
+    arrays = [wp.full(37, 1.5, dtype=wp.float32, device=device), wp.full(40, -1.0, dtype=wp.float32, device=device),
+              wp.zeros(0, dtype=wp.float32, device=device), whole[8:19]]
+    args = []
+    for a in arrays:
+        n16, n4 = a.capacity // 16, (a.capacity % 16) // 4
+        args.append(wp.array(ptr=a.ptr if n16 else 0, dtype=wp.vec4, shape=(n16,), device=device))
+    for a in arrays:
+        n16, n4 = a.capacity // 16, (a.capacity % 16) // 4
+        args.append(wp.array(ptr=a.ptr + 16 * n16 if n4 else 0, dtype=wp.float32, shape=(n4,), device=device))
+    assert [x.shape[0] for x in args] == [9, 10, 0, 2, 1, 0, 0, 3]
+    for threads in (4, 3 * 32):
+        for a in arrays[:2]:
+            a.fill_(2.5)
+        whole.fill_(9.0)
+        wp.launch(C.clear_frame_wide, dim=threads, device=device, inputs=[*args, threads])
+        for a in arrays[:2]:
+            assert not a.numpy().any() and not np.signbit(a.numpy()).any()
+        w = whole.numpy()
+        assert not w[8:19].any() and (w[:8] == 9.0).all() and (w[19:] == 9.0).all()
+    settings = RenderSettings(rsm_size=32, method="cisp", denoiser="none", photons=PhotonSettings(photons=500, seed=7))
+    p = Renderer(wavy_water(width=15, height=11), settings, device=device).photons  # 165 pixels: tails
+    aliases, threads = p._clear_wide()
+    arrays = (p.photon_map, p.photon_m2, p.hidden.all_flux, p._accumulators)
+    for body, tail, arr in zip(aliases[:4], aliases[4:], arrays):
+        assert body.ptr == arr.ptr and 16 * body.shape[0] + 4 * tail.shape[0] == arr.capacity
+        assert tail.shape[0] == 0 or tail.ptr == arr.ptr + 16 * body.shape[0]
+    assert any(t.shape[0] for t in aliases[4:])
+    assert p._clear_wide() is p._clear_wide()  # made once
+    for arr in arrays:
+        arr.fill_(3)
+    p.begin()  # clears, then books the light's brightest texel and the power outside its fitted views
+    for arr in arrays[:3]:
+        assert not arr.numpy().any()
+
+
 def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
     """Two frames of the shipped pool (a fitted sun and a fitted spot, split shadow maps) at 48×27 with the launch
     folds of perf_notes section 63 on or off (their twins): the ledger and every AOV."""
@@ -215,7 +263,7 @@ def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
     from cisp_warp.raster.light_maps import LightMaps, _ShadowView
     from cisp_warp.usd import load_usd
 
-    for cls, name in ((PhotonPass, "FUSED_PILOT_PASS"), (PhotonPass, "FUSED_CLEAR"), (_ShadowView, "FUSED_GATES"),
+    for cls, name in ((PhotonPass, "FUSED_PILOT_PASS"), (PhotonPass, "WIDE_CLEAR"), (_ShadowView, "FUSED_GATES"),
                       (LightMaps, "FUSED_SOLID_ANGLES")):
         monkeypatch.setattr(cls, name, fused)
     path = Path(__file__).resolve().parents[1] / "scenes_usd" / "pool.usda"

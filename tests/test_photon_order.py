@@ -216,3 +216,67 @@ def test_morton_sort_takes_an_even_number_of_passes():
         passes = -(-(end - begin) // SORT_PASS_BITS)
         assert passes == 1 or passes % 2 == 0
         assert begin <= SORT_PASS_BITS and (end > 2 * SORT_PASS_BITS or begin == 0)
+
+
+@pytest.mark.parametrize("block, grid", [(1, 7), (32, 2), (32, 4), (32, 40)])
+def test_ranged_partition_is_a_stable_sort(device, rng, monkeypatch, block, grid):
+    """photon_group_scatter_ranged after per-block counts (as photon_group_keys_ranged writes them for contiguous runs
+    of tiles, _tile_range) gives the stable sort of the photons by group (numpy's stable argsort): blocks of one
+    thread and CPU blocks of 32, a partial last tile, fewer blocks than tiles and more (blocks with no tile), slots
+    past the photon count neither read (their keys are garbage here) nor written; an inactive view writes nothing."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    n = 5 * 32 + 11
+    slots = n + 40
+    groups = rng.integers(0, int(C.SORT_GROUP_LAST), n).astype(np.int32)
+    order_in = rng.permutation(slots).astype(np.int32)
+    tiles = -(-n // block)
+    per = -(-tiles // grid)
+    totals = np.zeros((3, grid), np.int32)
+    for b in range(grid):
+        lo, hi = min(b * per, tiles) * block, min(min(b * per, tiles) + per, tiles) * block
+        totals[:, b] = np.bincount(groups[lo:min(hi, n)], minlength=3)
+    assert totals.sum() == n
+    keys = wp.array(np.concatenate([groups, np.full(slots - n, 99, np.int32)]), dtype=wp.int32, device=device)
+    order = wp.array(order_in, dtype=wp.int32, device=device)
+    states = np.zeros(2, dtype=CascadeState.numpy_dtype())
+    states["active"] = (1, 0)
+    states["active_views"] = 1
+    states = wp.array(states, dtype=CascadeState, device=device)
+    out = wp.full(slots + 7, -1, dtype=wp.int32, device=device)
+    t = wp.array(totals.reshape(-1), dtype=wp.int32, device=device)
+    wp.launch_tiled(C.photon_group_scatter_ranged, dim=grid, block_dim=block, device=device,
+                    inputs=[states, 0, n, keys, order, 0, 1, slots, t, out, grid])
+    want = order_in[:n][np.argsort(groups, kind="stable")]
+    np.testing.assert_array_equal(out.numpy()[:n], want)
+    assert np.all(out.numpy()[n:] == -1)
+    out.fill_(-1)
+    wp.launch_tiled(C.photon_group_scatter_ranged, dim=grid, block_dim=block, device=device,
+                    inputs=[states, 1, n, keys, order, 0, 1, slots, t, out, grid])
+    assert np.all(out.numpy() == -1)
+
+
+@pytest.mark.parametrize("blocks", [None, 3])
+def test_ranged_partition_is_the_tiled_twin(device, monkeypatch, blocks):
+    """The ranged partition (photon_group_keys_ranged + photon_group_scatter_ranged, no scan) writes the same keys
+    and grouped order as the twin (per-tile counts, array_scan, photon_group_scatter), for every view of a frame,
+    with the CPU's default blocks and with 3 blocks over many tiles."""
+    monkeypatch.setattr(PhotonPass, "RANGED_GROUPS", False)
+    r = frame(device, "cisp", True)
+    p = r.photons
+    if blocks is not None:
+        p.group_max_blocks = blocks
+    for want_ranged in (False, True):
+        monkeypatch.setattr(PhotonPass, "RANGED_GROUPS", want_ranged)
+        got = []
+        for b in p.rsm_batches(r.frame - 1):
+            n = p.photons_per_view(b.lights)  # an inactive view's (CUDA) are written by neither: -7 both
+            got.append((p._grouped.numpy()[:n].copy(), p._sort_keys.numpy()[:n].copy()))
+            p._grouped.fill_(-7)
+            p._sort_keys.fill_(-7)
+        if not want_ranged:
+            twin = got
+    assert len(got) == len(twin) > 0
+    for (g, k), (g0, k0) in zip(got, twin):
+        np.testing.assert_array_equal(g, g0)
+        np.testing.assert_array_equal(k, k0)
+        assert (k == int(C.SORT_REFRACTED)).any() and (k == int(C.SORT_NOT_TRACED)).any()

@@ -16,7 +16,13 @@ Warp's CUDA activity timing (kernel execution only; L2 flushed before each launc
   without the position (the light ray's direction, as in the frame); and main's reads with the per-frame order;
 * ``photon_group_scatter``: as in the frame; ``per-frame order`` (the keys and order of the per-frame variant);
 * ``ledger_add_outcomes``: as in the frame (four records a step, two block sums of five entries each); ``one
-  record a step`` (main's kernel, a copy here: one block sum per entry); ``no block sums`` (the loop only).
+  record a step`` (main's kernel, a copy here: one block sum per entry); ``no block sums`` (the loop only);
+  ``fast`` and ``tile sums``: ``PhotonPass.FAST_OUTCOMES`` on and off (section 77);
+* the ranged partition (section 77: ``photon_group_keys_ranged``, ``photon_group_scatter_ranged``, no scan), from a
+  second frame rendered with it;
+* on CUDA, ``[graph]`` rows: each view's order chain captured and replayed as a CUDA graph (warm L2, no flush), so
+  that the twin's ``wp.utils.array_scan`` (CUB's kernels and temporary allocation, which Warp's timing does not
+  see) is counted: keys + scan + scatter against the ranged keys + scatter; the outcome pass fast and not.
 
 The variants are timings only: the replays rewrite the frame's scratch (keys, counts, grouped order) and add into the
 frame's ledger stripes, which nothing reads afterwards.
@@ -38,6 +44,7 @@ from _scene_bench import SCENES, scene_bench_main  # noqa: E402
 from cisp_warp.denoise.kernels_svgf import luminance  # noqa: E402
 from cisp_warp.optics import fresnel_dielectric  # noqa: E402
 from cisp_warp.photons import common as C  # noqa: E402
+from cisp_warp.photons.base import PhotonPass  # noqa: E402
 from cisp_warp.raster.light_maps import CascadeState, cascade_photons  # noqa: E402
 from cisp_warp.raster.views import ViewParams, pixel_ray_world  # noqa: E402
 
@@ -198,6 +205,26 @@ def timed(device, calls, reps: int, flush=None) -> float:
     return float(np.median(times))
 
 
+def graph_ms(device, calls, reps: int, replays: int = 20) -> float:
+    """Median over ``reps`` of the GPU time of one replay of ``calls`` captured as a CUDA graph (one after another
+    on one stream, no host gaps, warm L2; CUDA events around ``replays`` replays): launches Warp does not time (CUB's
+    scan kernels, its temporary allocation) are in it."""
+    with wp.ScopedCapture(device=device, force_module_load=False) as cap:
+        for c in calls:
+            c()
+    wp.capture_launch(cap.graph)
+    times = []
+    start, end = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
+    for _ in range(reps):
+        wp.record_event(start)
+        for _ in range(replays):
+            wp.capture_launch(cap.graph)
+        wp.record_event(end)
+        wp.synchronize_device(device)
+        times.append(wp.get_event_elapsed_time(start, end) / replays)
+    return float(np.median(times))
+
+
 def run_scene(name: str, args, device) -> None:
     from cisp_warp.photons import PhotonSettings
     from cisp_warp.photons.base import morton_sort_bits
@@ -219,25 +246,47 @@ def run_scene(name: str, args, device) -> None:
     P = r.photons
     kept = []
     launch_tiled = wp.launch_tiled
+    scan = wp.utils.array_scan
+    order_kernels = (C.photon_group_keys, C.photon_group_scatter, C.ledger_add_outcomes, C.photon_group_keys_ranged,
+                     C.photon_group_scatter_ranged)
 
     def keep(kernel, dim, block_dim, device, inputs):
         launch_tiled(kernel, dim=dim, block_dim=block_dim, device=device, inputs=inputs)
-        if kernel in (C.photon_group_keys, C.photon_group_scatter, C.ledger_add_outcomes):
+        if kernel in order_kernels:
             kept.append((kernel, dim, block_dim, list(inputs)))
 
-    wp.launch_tiled = keep
+    def keep_scan(a, b, inclusive=True):
+        scan(a, b, inclusive=inclusive)
+        kept.append(("scan", a, b, inclusive))
+
+    # one frame with the twin's partition (per-tile counts, array_scan, photon_group_scatter: the variants below copy
+    # its launches), then one with the ranged partition (photon_group_keys_ranged + photon_group_scatter_ranged)
+    ranged = PhotonPass.RANGED_GROUPS
+    wp.launch_tiled, wp.utils.array_scan = keep, keep_scan
     try:
+        PhotonPass.RANGED_GROUPS = False
+        r.render_frame()
+        PhotonPass.RANGED_GROUPS = True
         r.render_frame()
     finally:
-        wp.launch_tiled = launch_tiled
+        wp.launch_tiled, wp.utils.array_scan = launch_tiled, scan
+        PhotonPass.RANGED_GROUPS = ranged
     wp.synchronize_device(device)
+    # the group counts' scans: the one after each photon_group_keys (the frame scans other arrays too)
+    scans = [kept[i + 1] for i, k in enumerate(kept[:-1]) if k[0] is C.photon_group_keys and kept[i + 1][0] == "scan"]
+    kept = [k for k in kept if k[0] != "scan"]
+    rk = [k for k in kept if k[0] is C.photon_group_keys_ranged]
+    rs = [k for k in kept if k[0] is C.photon_group_scatter_ranged]
+
     keys_args = [a.label for a in C.photon_group_keys.adj.args]
     at = {n: i for i, n in enumerate(keys_args)}
     views = []  # per view: (group_keys, scatter, outcome) launches, in the frame's order
     gk = [k for k in kept if k[0] is C.photon_group_keys]
     sc = [k for k in kept if k[0] is C.photon_group_scatter]
-    oc = [k for k in kept if k[0] is C.ledger_add_outcomes]
-    for g, s, o in zip(gk, sc, oc):
+    second = next(i for i, k in enumerate(kept) if k[0] is C.photon_group_keys_ranged)  # the ranged frame's first
+    oc = [k for k in kept[:second] if k[0] is C.ledger_add_outcomes]
+    ro = [k for k in kept[second:] if k[0] is C.ledger_add_outcomes]
+    for g, s, o, sn, kr, sr, orr in zip(gk, sc, oc, scans, rk, rs, ro):
         states, vi, stream, slots = (g[3][at[a]] for a in ("states", "view_index", "stream", "n_slots"))
         lm = next(lm for lm in P.lights if lm.states.ptr == states.ptr)
         rv = lm.rsm[vi]
@@ -264,8 +313,13 @@ def run_scene(name: str, args, device) -> None:
         scatter_frame = list(s[3])
         scatter_frame[4:7] = [morder, 0, 1]
         tiles = gi[at["block_counts"]].shape[0] // C.SORT_GROUPS
+        slow_outcome = list(o[3])
+        slow_outcome[-1] = 0  # FAST_OUTCOMES off: the two tile sums, an inactive view's blocks run
+        fast_outcome = list(o[3])
+        fast_outcome[-1] = 1
         views.append({"vi": vi, "light": P.lights.index(lm), "tiles": tiles, "g": g, "s": s, "o": o, "frame_order": frame_order,
-                      "chained": chained, "chained_nopos": chained_nopos, "chained_frame": chained_frame, "scatter_frame": scatter_frame})
+                      "chained": chained, "chained_nopos": chained_nopos, "chained_frame": chained_frame, "scatter_frame": scatter_frame,
+                      "scan": sn, "gr": kr, "sr": sr, "o_slow": slow_outcome, "o_fast": fast_outcome})
 
     def L(kernel, dim, bd, inputs):
         return lambda: launch_tiled(kernel, dim=dim, block_dim=bd, device=device, inputs=inputs)
@@ -288,9 +342,23 @@ def run_scene(name: str, args, device) -> None:
     variant("scatter: frame (after its keys)", lambda v: [L(*v["g"][:3], v["g"][3]), L(*v["s"][:3], v["s"][3])])
     variant("scatter: per-frame order (after its keys)",
             lambda v: [L(*v["g"][:3], v["frame_order"]), L(*v["s"][:3], v["scatter_frame"])])
-    variant("outcomes: frame", lambda v: [L(*v["o"][:3], v["o"][3])])
-    variant("outcomes: one record a step (main)", lambda v: [L(outcomes_one_a_step, *v["o"][1:3], v["o"][3])])
-    variant("outcomes: no block sums", lambda v: [L(outcomes_no_block_sums, *v["o"][1:3], v["o"][3])])
+    variant("ranged keys (section 77)", lambda v: [L(*v["gr"][:3], v["gr"][3])])
+    variant("ranged scatter (after its keys)", lambda v: [L(*v["gr"][:3], v["gr"][3]), L(*v["sr"][:3], v["sr"][3])])
+    variant("outcomes: fast (section 77)", lambda v: [L(*v["o"][:3], v["o_fast"])])
+    variant("outcomes: tile sums (section 40/63)", lambda v: [L(*v["o"][:3], v["o_slow"])])
+    variant("outcomes: one record a step (main)", lambda v: [L(outcomes_one_a_step, *v["o"][1:3], v["o"][3][:-1])])
+    variant("outcomes: no block sums", lambda v: [L(outcomes_no_block_sums, *v["o"][1:3], v["o"][3][:-1])])
+    if device.is_cuda:  # the chains as the frame's graph replays them: CUB's scan kernels and allocation included
+        for label, per_view in (
+                ("chain: keys + array_scan + scatter (twin)", lambda v: [L(*v["g"][:3], v["g"][3]),
+                                                                        lambda v=v: scan(*v["scan"][1:]),
+                                                                        L(*v["s"][:3], v["s"][3])]),
+                ("chain: ranged keys + scatter", lambda v: [L(*v["gr"][:3], v["gr"][3]), L(*v["sr"][:3], v["sr"][3])]),
+                ("chain: outcomes, tile sums", lambda v: [L(*v["o"][:3], v["o_slow"])]),
+                ("chain: outcomes, fast", lambda v: [L(*v["o"][:3], v["o_fast"])])):
+            total = graph_ms(device, [c for v in views for c in per_view(v)], args.reps)
+            each = [graph_ms(device, per_view(v), args.reps) for v in views]
+            rows[label + " [graph]"] = (total, each)
     print(f"{name} {args.width}x{args.height}, RSM {args.rsm}², {args.n_photons:,} photons per light, {device}: "
           f"ms per frame, median of {args.reps} (per view: light/view)")
     head = "  ".join(f"{v['light']}/{v['vi']:<6}" for v in views)

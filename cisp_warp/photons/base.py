@@ -217,6 +217,8 @@ class PhotonPass:
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
         self._clear_key = None  #: the arrays ``_clear_words_cache`` aliases (:meth:`_clear_words`)
         self._clear_words_cache: list[wp.array] = []
+        self._clear_wide_key = None  #: the arrays ``_clear_wide_cache`` aliases (:meth:`_clear_wide`)
+        self._clear_wide_cache = None
         #: (H*W,) float32: the camera pixels' exact solid angles [sr] (:meth:`set_camera_view` when the camera's
         #: intrinsics change)
         self.solid_angle = wp.array(camera_pixel_solid_angle(camera_view), dtype=wp.float32, device=self.device)
@@ -402,7 +404,10 @@ class PhotonPass:
     def begin(self) -> None:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
-        if self.FUSED_CLEAR:
+        if self.WIDE_CLEAR:
+            args, threads = self._clear_wide()
+            wp.launch(C.clear_frame_wide, dim=threads, device=self.device, inputs=[*args, threads])
+        elif self.FUSED_CLEAR:
             words = self._clear_words()
             wp.launch(C.clear_frame, dim=max(1, max(a.shape[0] for a in words)), device=self.device, inputs=words)
         else:
@@ -419,6 +424,37 @@ class PhotonPass:
     #: a fitted light's pilots in one launch each (``common.pilot_texel_pass``: the brightest texel and the power outside
     #: the fitted views from one flux per texel); False: ``max_luminance`` then ``book_outside_window`` (the twins)
     FUSED_PILOT_PASS = True
+
+    #: True (default): the frame's accumulators zeroed by one launch of 16-byte stores (``common.clear_frame_wide``,
+    #: docs/perf_notes.md section 77); False: as FUSED_CLEAR says (its default: one memset an array, the twin)
+    WIDE_CLEAR = True
+    #: most threads of ``clear_frame_wide`` (each zeroes every ``threads``-th 16-byte word): 8 blocks of 256 an SM
+    WIDE_CLEAR_THREADS_PER_SM = 2048
+
+    def _clear_wide(self) -> tuple[list[wp.array], int]:
+        """(vec4 aliases of the 16-byte words of the arrays :func:`~.common.clear_frame_wide` zeroes (photon map,
+        Σ e², hidden flux, accumulators; empty where the pass keeps none), then float32 aliases of each one's 4-byte
+        words past them; the threads to launch), made once per set of arrays (they are allocated at set-up)."""
+        arrays = (self.photon_map, self.photon_m2, self.hidden.all_flux if self.hidden is not None else None,
+                  self._accumulators)
+        key = ("wide",) + tuple(None if a is None else (a.ptr, a.capacity) for a in arrays)
+        if self._clear_wide_key != key:
+            bodies, tails = [], []
+            for a in arrays:
+                nbytes = 0 if a is None else a.capacity
+                n16, n4 = nbytes // 16, (nbytes % 16) // 4
+                body = wp.array(ptr=a.ptr if n16 else 0, dtype=wp.vec4, shape=(n16,), device=self.device)
+                tail = wp.array(ptr=a.ptr + 16 * n16 if n4 else 0, dtype=wp.float32, shape=(n4,), device=self.device)
+                for alias in (body, tail):
+                    if a is not None:
+                        alias._owner = a
+                bodies.append(body)
+                tails.append(tail)
+            longest = max(1, max(b.shape[0] for b in bodies))
+            per_sm = self.WIDE_CLEAR_THREADS_PER_SM * (self.device.sm_count if self.device.is_cuda else 1)
+            threads = max(4, min(longest, per_sm))
+            self._clear_wide_key, self._clear_wide_cache = key, (bodies + tails, threads)
+        return self._clear_wide_cache
 
     def _clear_words(self) -> list[wp.array]:
         """float32 aliases of the arrays :func:`~.common.clear_frame` zeroes (photon map, Σ e², hidden flux,
@@ -464,6 +500,11 @@ class PhotonPass:
         blocks = max(1, (n + self.ledger_block - 1) // self.ledger_block)
         wp.launch_tiled(kernel, dim=blocks, block_dim=self.ledger_block, device=self.device, inputs=inputs)
 
+    #: True (default): the outcome pass of an inactive view returns at once, and on CUDA each block sums its records
+    #: by a warp reduce-scatter (``common._outcome_reduce``, one barrier, 30 float64 atomics); False: every block
+    #: sums with two tile sums (the twin; docs/perf_notes.md section 77). The CPU's sums are the twin's either way
+    FAST_OUTCOMES = True
+
     def add_outcomes(self, outcome: wp.array, batch: RSMBatch, runs: int, entries: int) -> None:
         """Add the final entries of ``runs`` runs of ``batch.slots`` outcome records (written by the trace kernel
         with ``record_outcome``) to the ledger (:func:`~.common.ledger_add_outcomes`): on CUDA at most
@@ -477,7 +518,8 @@ class PhotonPass:
             blocks = min(blocks, self.outcome_max_blocks)
         wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=self.device,
                         inputs=[outcome, n, blocks * block, entries, self.ledger_rows, batch.lights.states,
-                                batch.view_index, batch.light_photons, max(1, batch.slots)])
+                                batch.view_index, batch.light_photons, max(1, batch.slots),
+                                int(self.FAST_OUTCOMES)])
 
     def fold_ledger(self) -> None:
         """Sum the striped ledger into ``ledger`` and zero the stripes (one small launch; idempotent)."""
@@ -536,12 +578,24 @@ class PhotonPass:
         wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
         return self._order, 0, 1
 
+    #: True (default): the group partition in contiguous runs of tiles per block, its offsets from one count per
+    #: group and block summed by the scatter itself (``common.photon_group_keys_ranged`` and
+    #: ``photon_group_scatter_ranged``: two launches a view, no scan between them); False: one count per group and
+    #: tile, scanned by ``wp.utils.array_scan`` (CUB's two kernels and a temporary allocation a view), blocks over
+    #: every grid-th tile (the twin, section 63's; docs/perf_notes.md section 77). The same grouped order
+    RANGED_GROUPS = True
+    #: blocks of the ranged partition on the CPU (one thread each): each block sums every block's counts
+    RANGED_CPU_BLOCKS = 64
+
     def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
         """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
         ``use_order``): by texel (:meth:`texel_order`), then stably grouped by how each will march (refracted,
-        reflected, not traced; :func:`~.common.photon_group_keys` counts each group per block, a scan of the counts
-        places the blocks, :func:`~.common.photon_group_scatter` writes the grouped order into ``_grouped``: no
-        second sort, no device copies); slots past the view's photon count (on the device) are not written."""
+        reflected, not traced; :func:`~.common.photon_group_keys_ranged` counts each group per block over its run of
+        tiles, :func:`~.common.photon_group_scatter_ranged` sums those counts and writes the grouped order into
+        ``_grouped``: no sort, no scan, no device copies; with :attr:`RANGED_GROUPS` off, the twin:
+        :func:`~.common.photon_group_keys` counts per tile, a scan of the counts places the tiles,
+        :func:`~.common.photon_group_scatter` writes); slots past the view's photon count (on the device) are not
+        written."""
         if self.use_order and slots > 0:
             order, stride, orders = self.texel_order(lm, view_index, r, slots, stream)
             sp, sc = r.specular, lm.scene
@@ -550,6 +604,19 @@ class PhotonPass:
                 n = C.SORT_GROUPS * blocks
                 self._group_views[blocks] = (self._group_counts[:n], self._group_offsets[:n])
             counts, offsets = self._group_views[blocks]
+            if self.RANGED_GROUPS:
+                grid = min(blocks, self.group_max_blocks or self.RANGED_CPU_BLOCKS)
+                wp.launch_tiled(C.photon_group_keys_ranged, dim=grid, block_dim=self.group_block, device=self.device,
+                                inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms,
+                                        stream, lm.emission(r), sp.tri_id, sc.geometry, sc.triangle_material,
+                                        sc.opacity, max_lum, float(self.settings.roughness_cutoff),
+                                        float(self.settings.luminance_cutoff), order, stride, orders, slots,
+                                        self._sort_keys, counts, grid])
+                wp.launch_tiled(C.photon_group_scatter_ranged, dim=grid, block_dim=self.group_block,
+                                device=self.device, inputs=[lm.states, view_index, self.settings.photons,
+                                                            self._sort_keys, order, stride, orders, slots, counts,
+                                                            self._grouped, grid])
+                return self._grouped
             grid = blocks if self.group_max_blocks is None else min(blocks, self.group_max_blocks)
             wp.launch_tiled(C.photon_group_keys, dim=grid, block_dim=self.group_block, device=self.device, inputs=[
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,

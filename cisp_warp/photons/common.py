@@ -265,6 +265,71 @@ def _outcome_rows_add(ledger: wp.array(dtype=wp.vec3d), block: int, entries: int
             wp.atomic_add(ledger, ledger_slot(ledger, block, e), sums[i])
 
 
+#: CUDA only (blocks of whole warps): the block's sums of a thread's two OutcomeSums (30 doubles: row r of ``sa`` is
+#: value 3r..3r+2, row r of ``sb`` value 15+3r..) by a reduce-scatter in each warp, as ``kernels_cisp._EMISSION_REDUCE``
+#: does the emission's 18 (docs/perf_notes.md sections 64 and 77): padded to 32 values, rounds of 16, 8, 4, 2 and 1
+#: shuffles at lane distances 16..1, a lane keeping the half of its values its bit selects and adding its partner's copy
+#: of that half (31 shuffled doubles instead of Warp's two tile sums of 15 doubles, 5 x 30), so lane i holds value i's
+#: warp sum; written to shared memory; one barrier; thread i < 30 adds the warps' sums of value i in warp order and,
+#: where value i's entry is in ``entries``, adds it to the ledger (one float64 atomic a thread). On the CPU (or blocks
+#: of a partial warp) it returns 0 and ledger_add_outcomes sums with Warp's tiles.
+_OUTCOME_REDUCE = """
+#if defined(__CUDA_ARCH__) && (WP_TILE_BLOCK_DIM % 32 == 0)
+constexpr int NW = WP_TILE_BLOCK_DIM / 32;
+__shared__ double outcome_partials[NW][32];
+const unsigned FULL = 0xffffffffu;
+const int lane = threadIdx.x & 31;
+const int warp = threadIdx.x >> 5;
+double v[32];
+#pragma unroll
+for (int i = 0; i < 15; ++i) {
+    v[i] = sa.data[i / 3][i % 3];
+    v[15 + i] = sb.data[i / 3][i % 3];
+}
+v[30] = 0.0;
+v[31] = 0.0;
+ROUNDS
+outcome_partials[warp][lane] = v[0];
+__syncthreads();
+if (threadIdx.x < 30) {
+    const int i = threadIdx.x;
+    double s = outcome_partials[0][i];
+    #pragma unroll
+    for (int w = 1; w < NW; ++w)
+        s += outcome_partials[w][i];
+    const int r = i / 3;
+    const int entry = ENTRY_OF_ROW;
+    if ((entries >> entry) & 1) {
+        double* p = reinterpret_cast<double*>(wp::address(ledger, stripe + entry));
+        atomicAdd(p + (i - 3 * r), s);
+    }
+}
+return 1;
+#else
+return 0;
+#endif
+""".replace("ROUNDS", "".join(f"""{{
+    const bool h = (lane & {w}) != 0;
+    #pragma unroll
+    for (int i = 0; i < {w}; ++i) {{
+        const double send = h ? v[i] : v[i + {w}];
+        const double keep = h ? v[i + {w}] : v[i];
+        v[i] = keep + __shfl_xor_sync(FULL, send, {w});
+    }}
+}}
+""" for w in (16, 8, 4, 2, 1))).replace("ENTRY_OF_ROW", " : ".join(f"r == {i} ? {e}" for i, e in enumerate(OUTCOME_ROWS[0] + OUTCOME_ROWS[1][:-1]))
+            + f" : {OUTCOME_ROWS[1][-1]}")
+
+
+@wp.func_native(_OUTCOME_REDUCE)
+def _outcome_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, entries: int, sa: OutcomeSums,
+                    sb: OutcomeSums) -> int:
+    """On CUDA (blocks of whole warps): the block's sums of ``sa`` and ``sb`` (OUTCOME_ROWS) added to the entries of
+    ``entries`` in the ledger's row ``stripe`` (see ``_OUTCOME_REDUCE``); returns 1. Elsewhere it does nothing and
+    returns 0."""
+    ...
+
+
 @wp.kernel
 def ledger_add_outcomes(
     outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
@@ -276,6 +341,7 @@ def ledger_add_outcomes(
     view_index: int,  # the view whose photons wrote the records
     light_photons: int,  # the light's photons (cascade_photons)
     run: int,  # records per run (the trace's slots): record r is photon slot r % run of its run
+    fast: int,  # 1: an inactive view returns at once, the block sums by _outcome_reduce on CUDA; 0: the twin (tiles)
 ):
     """The final entries of ``count`` outcome records: each thread sums its records per entry in registers, the
     block sums every entry at once (two tiles of 5×3 matrices, OUTCOME_ROWS) and lane 0 adds each entry of
@@ -285,6 +351,8 @@ def ledger_add_outcomes(
     a fitted cascade can get; never written this frame) are skipped."""
     block, lane = wp.tid()
     n_photons = cascade_photons(states[view_index], light_photons)
+    if fast != 0 and n_photons == 0:  # an inactive view wrote no records (uniform over the launch)
+        return
     t = block * wp.block_dim() + lane
     sa = OutcomeSums()
     sb = OutcomeSums()
@@ -305,11 +373,15 @@ def ledger_add_outcomes(
         r += 4 * threads
     # the block's sums of all entries in two tile sums instead of ten (H100, in the frame against main's kernel in the
     # same call: -16% / -9% with ten, -20% / -18% with two; docs/perf_notes.md section 40), added by lane 0 in order
-    ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
-    tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
-    if lane == 0:
-        _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
-        _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+    reduced = int(0)
+    if fast != 0:
+        reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
+    if reduced == 0:
+        ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
+        tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
+        if lane == 0:
+            _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
+            _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
 
 
 @wp.kernel
@@ -331,6 +403,67 @@ def clear_frame(
         hidden[t] = 0.0
     if t < accumulators.shape[0]:
         accumulators[t] = 0.0
+
+
+#: the whole frame's clear in 16-byte stores: CUDA's st.global.v4 (Warp's vec4 is 4-byte aligned, so its stores may
+#: be split into four 4-byte ones: section 63's clear_frame, which lost to the memsets), elsewhere a vec4 store
+_ZERO16 = """
+#if defined(__CUDA_ARCH__)
+float4 z;
+z.x = 0.0f;
+z.y = 0.0f;
+z.z = 0.0f;
+z.w = 0.0f;
+reinterpret_cast<float4*>(a.data)[i] = z;
+#else
+a.data[i] = wp::vec_t<4, float>();
+#endif
+"""
+
+
+@wp.func_native(_ZERO16)
+def _zero16(a: wp.array(dtype=wp.vec4), i: int):
+    """a[i] = 0 in one 16-byte store (``a``'s memory is 16-byte aligned: an allocation's start)."""
+    ...
+
+
+@wp.func
+def _zero_strided(a: wp.array(dtype=wp.vec4), t: int, threads: int):
+    i = t
+    while i < a.shape[0]:
+        _zero16(a, i)
+        i += threads
+
+
+@wp.kernel
+def clear_frame_wide(
+    photon_map: wp.array(dtype=wp.vec4),  # the photon map's 16-byte words (a vec4 alias, write: zero)
+    photon_m2: wp.array(dtype=wp.vec4),  # Σ luminance(e)²'s, or empty
+    hidden: wp.array(dtype=wp.vec4),  # every light's hidden flux map's (HiddenFlux.all_flux), or empty
+    accumulators: wp.array(dtype=wp.vec4),  # the striped ledger's, ledger's and lights' maxima's
+    photon_map_tail: wp.array(dtype=wp.float32),  # each array's 4-byte words past its last whole 16-byte word (0-3)
+    photon_m2_tail: wp.array(dtype=wp.float32),
+    hidden_tail: wp.array(dtype=wp.float32),
+    accumulators_tail: wp.array(dtype=wp.float32),
+    threads: int,  # threads launched: thread t zeroes 16-byte words t, t + threads, ... of each array
+):
+    """The photon pass's per-frame accumulators zeroed in one launch of 16-byte stores (``PhotonPass.WIDE_CLEAR``):
+    each thread zeroes every ``threads``-th 16-byte word of each array (a warp's stores one contiguous 512-byte run),
+    then the first threads the 4-byte words left past each array's last 16-byte word: what ``PhotonPass.begin``'s
+    memsets do (the twin), in one launch instead of four."""
+    t = wp.tid()
+    _zero_strided(photon_map, t, threads)
+    _zero_strided(photon_m2, t, threads)
+    _zero_strided(hidden, t, threads)
+    _zero_strided(accumulators, t, threads)
+    if t < photon_map_tail.shape[0]:
+        photon_map_tail[t] = 0.0
+    if t < photon_m2_tail.shape[0]:
+        photon_m2_tail[t] = 0.0
+    if t < hidden_tail.shape[0]:
+        hidden_tail[t] = 0.0
+    if t < accumulators_tail.shape[0]:
+        accumulators_tail[t] = 0.0
 
 
 MAX_LUM_TEXELS = 16  #: texels each thread of ``max_luminance`` reads
@@ -660,6 +793,177 @@ def photon_group_scatter(
 
 
 @wp.func
+def _tile_range(n: int, bd: int, grid: int, block: int) -> wp.vec2i:
+    """The tiles of ``bd`` slots that block ``block`` of ``grid`` takes in the ranged partition
+    (:func:`photon_group_keys_ranged`): a contiguous run [first, end) of the tiles holding the first ``n`` slots, the
+    same length (rounded up) for every block, so blocks past the last tile take none."""
+    tiles = (n + bd - 1) / bd
+    per = (tiles + grid - 1) / grid
+    first = wp.min(block * per, tiles)
+    return wp.vec2i(first, wp.min(first + per, tiles))
+
+
+#: bits of a thread's count of one march group in photon_group_keys_ranged (three in an int64: up to 2M tiles a block)
+GROUP_TOTAL_BITS = wp.constant(21)
+
+
+@wp.kernel(launch_bounds=(SORT_GROUP_BLOCK, SORT_GROUP_BLOCKS_PER_SM))  # as photon_group_keys: 4 blocks an SM
+def photon_group_keys_ranged(
+    views: wp.array(dtype=ViewParams),  # (V,) the light's RSM views (LightMaps.views, read)
+    states: wp.array(dtype=CascadeState),  # (V,) (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons, split over its active views (cascade_photons)
+    randoms: wp.array(dtype=wp.vec3i),  # (S,) per stream: R2 scramble (x, y) and seed (frame.FrameInputs, read)
+    stream: int,  # this (light, view)'s stream (the same as the trace kernel's)
+    rsm_emission: TexelEmission,  # its specular texels' flux, roughness and IOR from the light and materials (read)
+    rsm_tri: wp.array(dtype=wp.int32),
+    geometry: SurfaceGeometry,  # the scene's triangles: the texel's normal (kernels.texel_surface, read)
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_opacity: wp.array(dtype=wp.float32),
+    max_lum: wp.array(dtype=wp.float32),  # (1,) brightest texel luminance of this light [W]
+    roughness_cutoff: float,
+    luminance_cutoff: float,  # relative to max_lum, per whole-view texel (scaled by the view's texel_scale)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, the first n_photons from order_base (read)
+    order_stride: int,  # the light's orders per count of active views lie this far apart (0: one order)
+    orders: int,  # orders in the table
+    n_slots: int,  # N: threads launched for the view (>= its photons)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, the first n_photons)
+    totals: wp.array(dtype=wp.int32),  # (>= 3 * grid,) photons of group g in block b's tiles at [g * grid + b] (write)
+    grid: int,  # blocks launched
+):
+    """:func:`photon_group_keys` (the same group per photon, :func:`_march_group`) over contiguous runs of tiles:
+    block b takes the tiles :func:`_tile_range` gives it, of the tiles that hold the view's photons only (slots past
+    the count are neither keyed nor counted: :func:`photon_group_scatter_ranged` leaves them out without reading
+    them), and writes one count per march group for all its tiles, not one per tile (each thread counts its own
+    photons; one block sum after the loop, none inside it: a block's warps run their tiles' chains of loads without
+    waiting for each other at a barrier per tile). So the offsets of every block's
+    photons in the grouped order follow from ``3 * grid`` counts, which the scatter sums itself: no scan of per-tile
+    counts between the two launches (``wp.utils.array_scan``: CUB's two kernels and a temporary allocation per view
+    and frame). Each tile's photon indices are loaded one tile ahead, as in :func:`photon_group_keys`. An inactive
+    view writes nothing (its scatter returns at once)."""
+    block, lane = wp.tid()
+    bd = wp.block_dim()
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if n_photons == 0:
+        return
+    n = wp.min(n_photons, n_slots)
+    base = order_base(cascade, order_stride, orders)
+    span = _tile_range(n, bd, grid, block)
+    # this thread's photons per group over all its tiles, in 21-bit fields of one int64 (no tile's counts are needed,
+    # so no block reduction inside the loop: one after it)
+    mine = wp.int64(0)
+    s1 = wp.int64(GROUP_TOTAL_BITS)
+    tile = span[0]
+    t = tile * bd + lane
+    k = int(0)
+    if tile < span[1] and t < n:
+        k = order[base + t]
+    while tile < span[1] and t < n:
+        k_next = int(0)
+        if tile + 1 < span[1] and t + bd < n:
+            k_next = order[base + t + bd]
+        group = _march_group(views, states, view_index, n_photons, randoms, stream, rsm_emission, rsm_tri, geometry,
+                             triangle_material, mat_opacity, max_lum, roughness_cutoff, luminance_cutoff, k)
+        keys[t] = group
+        mine += wp.int64(1) << (wp.int64(group) * s1)
+        k = k_next
+        tile += 1
+        t += bd
+    field = (wp.int64(1) << s1) - wp.int64(1)
+    c = wp.vec3i(int(mine & field), int((mine >> s1) & field), int((mine >> (s1 + s1)) & field))
+    sums = wp.tile_extract(wp.tile_sum(wp.tile(c, preserve_type=True)), 0)
+    if lane == 0:
+        totals[block] = sums[0]
+        totals[grid + block] = sums[1]
+        totals[2 * grid + block] = sums[2]
+
+
+#: the three march groups' photons over every block and over the blocks before one (photon_group_scatter_ranged)
+GroupSums = wp.types.vector(length=6, dtype=wp.int32)
+
+
+@wp.kernel
+def photon_group_scatter_ranged(
+    states: wp.array(dtype=CascadeState),  # (V,) the light's views (LightMaps.states, read)
+    view_index: int,
+    light_photons: int,  # the light's photons (cascade_photons)
+    keys: wp.array(dtype=wp.int32),  # (>= N,) march group per thread (photon_group_keys_ranged, read)
+    order: wp.array(dtype=wp.int32),  # photon index per thread in texel order, from order_base (read)
+    order_stride: int,  # as photon_group_keys_ranged'
+    orders: int,
+    n_slots: int,  # N
+    totals: wp.array(dtype=wp.int32),  # (>= 3 * grid,) per group and block (photon_group_keys_ranged, read)
+    grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first n_photons)
+    grid: int,  # blocks launched: the keys' grid (block b takes the same tiles, _tile_range)
+):
+    """:func:`photon_group_scatter` after :func:`photon_group_keys_ranged`: the same stable partition of the photons
+    by march group. Each block first sums the ``3 * grid`` block counts (every group's size, and each group's photons
+    in the blocks before its own: where its first photon of each group goes; one block sum of six counts), then
+    walks its contiguous tiles keeping each group's running count, a photon's place in its tile from an inclusive
+    tile scan of packed counts (its last element the tile's counts). No per-tile offsets are read; each tile's groups
+    and photon indices are loaded one tile ahead, in flight during the previous tile's scan. Slots past the view's
+    photon count are not written (no kernel reads them); an inactive view writes nothing."""
+    block, lane = wp.tid()
+    bd = wp.block_dim()
+    cascade = states[view_index]
+    n_photons = cascade_photons(cascade, light_photons)
+    if n_photons == 0:
+        return
+    n = wp.min(n_photons, n_slots)
+    base = order_base(cascade, order_stride, orders)
+    span = _tile_range(n, bd, grid, block)
+    mask = (1 << SORT_COUNT_BITS) - 1
+    # the first tile's groups and photon indices in flight while the block sums the counts
+    tile = span[0]
+    group = int(-1)
+    k = int(0)
+    if tile < span[1] and tile * bd + lane < n:
+        group = keys[tile * bd + lane]
+        k = order[base + tile * bd + lane]
+    s = GroupSums()
+    i = lane
+    while i < grid:
+        a0 = totals[i]
+        a1 = totals[grid + i]
+        a2 = totals[2 * grid + i]
+        s[0] = s[0] + a0
+        s[1] = s[1] + a1
+        s[2] = s[2] + a2
+        if i < block:
+            s[3] = s[3] + a0
+            s[4] = s[4] + a1
+            s[5] = s[5] + a2
+        i += bd
+    sums = wp.tile_extract(wp.tile_sum(wp.tile(s, preserve_type=True)), 0)
+    # where this block's next photon of each group goes: the groups before it, then its own group's earlier blocks
+    next0 = sums[3]
+    next1 = sums[0] + sums[4]
+    next2 = sums[0] + sums[1] + sums[5]
+    while tile < span[1]:  # the same trip count for every thread of the block
+        t = tile * bd + lane
+        group_next = int(-1)
+        k_next = int(0)
+        if tile + 1 < span[1] and t + bd < n:
+            group_next = keys[t + bd]
+            k_next = order[base + t + bd]
+        own = _group_count_bit(group)
+        scan = wp.tile_scan_inclusive(wp.tile(own))
+        before = wp.untile(scan) - own
+        counts = wp.tile_extract(scan, bd - 1)
+        if group >= 0:
+            rank = (before >> (SORT_COUNT_BITS * group)) & mask
+            start = wp.where(group == 0, next0, wp.where(group == 1, next1, next2))
+            grouped[start + rank] = k
+        next0 += counts & mask
+        next1 += (counts >> SORT_COUNT_BITS) & mask
+        next2 += (counts >> (2 * SORT_COUNT_BITS)) & mask
+        group = group_next
+        k = k_next
+        tile += 1
+
+
+@wp.func
 def photon_index(order: wp.array(dtype=wp.int32), use_order: int, tid: int) -> int:
     """The photon a thread traces: ``order[tid]`` when photons are sorted, else ``tid``."""
     if use_order != 0:
@@ -961,7 +1265,8 @@ def pilot_texel_pass(
     computed once for both :func:`max_luminance` (the block's maximum as a tile, one ``atomic_max`` a block) and
     :func:`book_outside_window` (its area outside the coarsest window booked, tallied and added once per block). The
     same maximum and bookings as those two launches (their twin), in one launch spread over the whole GPU: 16k texels
-    of a 128² pilot are 128 blocks, where ``max_luminance``'s 16 texels a thread made 4 blocks on 4 SMs."""
+    of a 128² pilot are 128 blocks, where ``max_luminance``'s 16 texels a thread made 4 blocks on 4 SMs. Its two
+    entries (sampled, outside) hold the same value: one block sum for both (section 77)."""
     window = windows[view_index]
     angle = angles[view_index]
     block, lane = wp.tid()
@@ -974,9 +1279,14 @@ def pilot_texel_pass(
             m = wp.max(m, luminance(f))
         _book_outside(tally, f, _outside_fraction(p, width, window, angle, centre, aspect))
     block_max = wp.tile_max(wp.tile(m))
+    # the two entries it books are the same value (_book_outside): summed once, added to both (ledger_add sums each
+    # apart: the same sums, one block reduction more)
+    sampled = wp.vec3d(tally.sampled[0], tally.sampled[1], tally.sampled[2])
+    booked = wp.tile_extract(wp.tile_sum(wp.tile(sampled, preserve_type=True)), 0)
     if lane == 0:
         wp.atomic_max(max_lum, 0, block_max[0])
-    ledger_add(ledger, tally, block, OUTSIDE_ENTRIES)
+        wp.atomic_add(ledger, ledger_slot(ledger, block, L_SAMPLED), booked)
+        wp.atomic_add(ledger, ledger_slot(ledger, block, L_OUTSIDE), booked)
 
 
 @wp.func
