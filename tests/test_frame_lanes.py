@@ -102,9 +102,12 @@ def test_cpu_joins_reach_only_lanes_branched_in_the_frame():
 @pytest.mark.parametrize("method,denoiser", [("cisp", "svgf"), ("sspm", "svgf"), ("cisp", "caustic")])
 def test_cuda_concurrent_graph_matches_sequential(method, denoiser):
     """The pool's frames replayed from the concurrent graph (two lights and the sky on their own streams) match the
-    sequential graph's: the ledger to 1e-9 relative, the photon map to 1e-6 of its maximum, the final image to 1e-5
+    sequential graph's: the ledger to 1e-9 relative, the photon map to 3e-5 of its maximum, the final image to 1e-5
     of its mean on average and 1e-3 of its maximum anywhere (the float atomics add in another order, and SVGF's
-    variance-driven weights pass that on)."""
+    variance-driven weights pass that on). The photon map's bound: a pixel's float32 sum of n deposits taken in two
+    orders differs by at most 2(n-1)·2^-24 of its value; at this size the brightest pixels gather 70-220 deposits
+    (n_eff = (Σe)²/Σe² from ``photon_m2``, CPU), a bound of up to 2.6e-5. The H100 measured 2.0e-6 (session 13, where
+    1e-6 had been asked); one photon more or less moves its pixel by ~1/n of its value, far above the bound."""
     out = {}
     for on in (False, True):
         r = _pool("cuda:0", method, denoiser=denoiser, photons=200_000, rsm=256, width=96, height=64)
@@ -124,7 +127,7 @@ def test_cuda_concurrent_graph_matches_sequential(method, denoiser):
     for (fa, pa, la), (fb, pb, lb) in zip(out[False], out[True]):
         assert pa.max() > 0
         np.testing.assert_allclose(lb, la, rtol=1e-9, atol=1e-9 * np.abs(la).max())
-        np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-6 * pa.max())
+        np.testing.assert_allclose(pb, pa, rtol=0, atol=3e-5 * pa.max())
         diff = np.abs(fb - fa)
         assert diff.mean() <= 1e-5 * np.abs(fa).mean() and diff.max() <= 1e-3 * fa.max(), (diff.mean(), diff.max())
 
