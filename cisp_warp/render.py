@@ -180,9 +180,10 @@ DENOISERS = ("caustic", "svgf", "gather", "none")
 class Renderer:
     """Renders frames of one scene on one device. Every buffer is allocated here, once."""
 
-    #: the concurrent program's gather reads SVGF's last level's output in place (``SVGF.packed_color``: no
-    #: ``unpack_level`` launch in the frame; the gather flips SVGF's parity; :attr:`caustic_irradiance` unpacks it on
-    #: demand); False: SVGF unpacks it into ``caustic_irradiance`` every frame, which the gather reads (the twin)
+    #: the composite's gather (the sequential program's ``surface_radiance``) reads SVGF's last level's output in place
+    #: (``SVGF.packed_color``: no ``unpack_level`` launch in the frame; that launch flips SVGF's parity;
+    #: :attr:`caustic_irradiance` and ``SVGF.variance`` unpack it on demand); False: SVGF unpacks it into
+    #: ``caustic_irradiance`` every frame, which the gather reads (the twin)
     GATHER_PACKED = True
 
     def __init__(self, scene: Scene, settings: RenderSettings | None = None, device=None):
@@ -292,15 +293,15 @@ class Renderer:
 
     @property
     def caustic_irradiance(self) -> wp.array:
-        """The frame's caustic irradiance [W/m²], H*W vec3 (the denoiser's output): where the concurrent program's
-        gather read SVGF's last level's output packed in place (:attr:`GATHER_PACKED`), it is unpacked here, once, the
+        """The frame's caustic irradiance [W/m²], H*W vec3 (the denoiser's output): where the frame's gather read SVGF's
+        last level's output packed in place (:attr:`GATHER_PACKED`), it is unpacked here, once, the
         first time it is read after the frame (``SVGF.unpack``; a launch, not for use inside a frame)."""
         if isinstance(self.denoiser, SVGF):
             self.denoiser.unpack()
         return self._caustic
 
     def _gathers_packed(self) -> bool:
-        """Whether the concurrent program's tail leaves SVGF's output packed for its gather (:attr:`GATHER_PACKED`)."""
+        """Whether the frame's tail leaves SVGF's output packed for its gather (:attr:`GATHER_PACKED`)."""
         return (self.GATHER_PACKED and self.photons is not None and self.photons.denoise
                 and isinstance(self.denoiser, SVGF) and self.denoiser.defers)
 
@@ -554,7 +555,7 @@ class Renderer:
         lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left, one launch where
         ``HiddenSurfaces.gather`` takes them)."""
         g = self.gbuffer
-        packed = False  # SVGF's output left packed: the gather reads it in place and flips SVGF's parity
+        packed = False  # SVGF's output left packed: the gather (surface_radiance) reads it in place, flips the parity
         if self.photons is not None:
             with stage("denoise"):
                 if not self.photons.denoise:
@@ -564,10 +565,10 @@ class Renderer:
                                           self._caustic, self.photons.photon_m2,
                                           None if self.photons.flow is None else self.photons.flow.flow)
                 elif isinstance(self.denoiser, SVGF):
-                    # the concurrent program's gather reads the last level's output packed and flips the parity
+                    # the gather (the sequential program's surface_radiance) reads the last level's output packed
                     packed = self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
                                                    self._caustic, guides_written=marched,
-                                                   defer=marched and self._gathers_packed())
+                                                   defer=self._gathers_packed())
                 elif isinstance(self.denoiser, GaussianGather):
                     self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self._caustic)
                 else:
@@ -578,10 +579,10 @@ class Renderer:
             ps = self.settings.photons
             hidden_flux = getattr(self.photons, "hidden", None)
             hits_shaded = False  # the hidden hits' direct light and caustic added by the gather: HiddenSurfaces.gather
+            caustic = self.denoiser.packed_color if packed else self._caustic
+            parity = self.denoiser.parity if packed else None
             if marched:  # the surface radiance read where the gather needs it (surface_radiance is not written)
                 cs = self.composite_split
-                caustic = self.denoiser.packed_color if packed else self._caustic
-                parity = self.denoiser.parity if packed else None
                 if self._traces_hidden():
                     hits_shaded = self.hidden.gather(g, self.direct.irradiance, caustic, self.sky_irradiance, cs,
                                                      self.lights, self.final, hidden_flux, parity)
@@ -593,8 +594,8 @@ class Renderer:
                                       parity if packed else self.hidden.no_parity])
             else:
                 wp.launch(surface_radiance, dim=n, device=self.device,
-                          inputs=[g.depth, g.albedo, self.direct.irradiance, self._caustic,
-                                  self.sky_irradiance, self.surface_radiance])
+                          inputs=[g.depth, g.albedo, self.direct.irradiance, caustic, self.sky_irradiance,
+                                  self.surface_radiance, int(packed), parity if packed else self.hidden.no_parity])
                 bounds = self._composite_bounds()
                 self._build_composite_bounds()
                 wp.launch(composite_kernels(self.view.orthographic)[0], dim=n, device=self.device,

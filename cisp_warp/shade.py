@@ -202,8 +202,14 @@ def surface_radiance(
     caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
     sky_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] from the dome light, occluded (read)
     radiance: wp.array(dtype=wp.vec3),  # (H*W,) Lambertian radiance of the opaque surface [W/(m² sr)] (write)
+    flip: int,  # as composite_gather's: 1: parity[0] = 1 - parity[0] (SVGF's deferred frame ends here)
+    parity: wp.array(dtype=wp.int32),
 ):
+    """The sequential program's surface radiance (``caustic_irradiance`` possibly SVGF's packed output in place, as
+    :func:`composite_gather`'s)."""
     p = wp.tid()
+    if flip != 0 and p == 0:
+        parity[0] = 1 - parity[0]
     radiance[p] = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
 
 
