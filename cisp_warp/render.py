@@ -293,9 +293,9 @@ class Renderer:
 
     @property
     def caustic_irradiance(self) -> wp.array:
-        """The frame's caustic irradiance [W/m²], H*W vec3 (the denoiser's output): where the frame's gather read SVGF's
-        last level's output packed in place (:attr:`GATHER_PACKED`), it is unpacked here, once, the
-        first time it is read after the frame (``SVGF.unpack``; a launch, not for use inside a frame)."""
+        """The frame's caustic irradiance [W/m²], H*W vec3 (the denoiser's output): where the frame's gather read
+        SVGF's last level's output packed in place (:attr:`GATHER_PACKED`), it is unpacked here, once, the first time
+        it is read after the frame (``SVGF.unpack``; a launch, not for use inside a frame)."""
         if isinstance(self.denoiser, SVGF):
             self.denoiser.unpack()
         return self._caustic

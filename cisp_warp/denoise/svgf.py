@@ -77,7 +77,8 @@ class SVGF:
     Deferred output (:meth:`denoise` with ``defer``, where :attr:`defers` holds): the last level's output stays
     packed in ``color_variance[atrous_levels % 2]``, its colour read in place through :attr:`packed_color` (an H*W
     vec3 view of it) by the caller, which also flips ``parity``; ``out`` and ``filtered_variance`` are written by
-    :meth:`unpack` on demand (``deferred`` names the packed output and the ``out`` waiting for it; :attr:`variance` unpacks first).
+    :meth:`unpack` on demand (``deferred`` names the packed output and the ``out`` waiting for it; :attr:`variance`
+    unpacks first).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
