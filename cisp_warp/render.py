@@ -180,6 +180,12 @@ DENOISERS = ("caustic", "svgf", "gather", "none")
 class Renderer:
     """Renders frames of one scene on one device. Every buffer is allocated here, once."""
 
+    #: the composite's gather (the sequential program's ``surface_radiance``) reads SVGF's last level's output in place
+    #: (``SVGF.packed_color``: no ``unpack_level`` launch in the frame; that launch flips SVGF's parity;
+    #: :attr:`caustic_irradiance` and ``SVGF.variance`` unpack it on demand); False: SVGF unpacks it into
+    #: ``caustic_irradiance`` every frame, which the gather reads (the twin)
+    GATHER_PACKED = True
+
     def __init__(self, scene: Scene, settings: RenderSettings | None = None, device=None):
         self.settings = settings or RenderSettings()
         self.settings.validate()
@@ -211,7 +217,8 @@ class Renderer:
                                    self.settings.sky_map_size)
         self.sky_map = self.sky.map if self.sky is not None else sky_map(None, self.device)
         self.sky_irradiance = self.sky.irradiance if self.sky is not None else wp.zeros(n, dtype=wp.vec3, device=self.device)
-        self.caustic_irradiance = wp.zeros(n, dtype=wp.vec3, device=self.device)  # [W/m²], filled by a photon method
+        #: [W/m²], filled by a photon method; read through :attr:`caustic_irradiance` outside the frame
+        self._caustic = wp.zeros(n, dtype=wp.vec3, device=self.device)
         #: the opaque surface's radiance [W/(m² sr)] (the sequential program's; the concurrent one computes it where
         #: it reads it, ``shade.composite_gather``)
         self.surface_radiance = wp.zeros(n, dtype=wp.vec3, device=self.device)
@@ -268,6 +275,7 @@ class Renderer:
         self.use_graph: bool | None = None
         self._graph = None
         self._graph_key = None
+        self._graph_deferred = None  #: the captured frame's ``SVGF.deferred`` (its output left packed), else None
         #: launch the next frame from Python, not captured: it loads the kernels compiled for a camera projection
         #: seen for the first time (``set_camera``) before a capture needs them, as frame 0 does for the first
         self._launch_next = False
@@ -282,6 +290,20 @@ class Renderer:
         #: hidden rays' terms that need no radiance (``shade_hidden.trace_hidden_rays``); 28 B a pixel, made once
         self.composite_split = None
         self.set_concurrent(CONCURRENT and self.graph_capable)
+
+    @property
+    def caustic_irradiance(self) -> wp.array:
+        """The frame's caustic irradiance [W/m²], H*W vec3 (the denoiser's output): where the frame's gather read
+        SVGF's last level's output packed in place (:attr:`GATHER_PACKED`), it is unpacked here, once, the first time
+        it is read after the frame (``SVGF.unpack``; a launch, not for use inside a frame)."""
+        if isinstance(self.denoiser, SVGF):
+            self.denoiser.unpack()
+        return self._caustic
+
+    def _gathers_packed(self) -> bool:
+        """Whether the frame's tail leaves SVGF's output packed for its gather (:attr:`GATHER_PACKED`)."""
+        return (self.GATHER_PACKED and self.photons is not None and self.photons.denoise
+                and isinstance(self.denoiser, SVGF) and self.denoiser.defers)
 
     def set_concurrent(self, on: bool) -> None:
         """Run the frame's independent work concurrently (``on``; the CUDA default where ``graph_capable``): each
@@ -373,7 +395,8 @@ class Renderer:
         projection (the trace is compiled for it)."""
         sky = None if self.sky is None else (self.sky.dynamic, self.sky._drawn)
         return tuple((id(lm.light), lm.cache_shadows) for lm in self.lights) + (sky, self.lanes is not None,
-                                                                                bool(self.view.orthographic))
+                                                                                bool(self.view.orthographic),
+                                                                                self._gathers_packed())
 
     def render_frame(self, timer=None, graph: bool | None = None) -> None:
         """Raster, light, trace photons, denoise and composite one frame; everything stays on the device.
@@ -400,8 +423,11 @@ class Renderer:
                 finally:
                     self._graph = wp.capture_end(device=self.device)
                 self._graph_key = key
+                self._graph_deferred = self.denoiser.deferred if isinstance(self.denoiser, SVGF) else None
                 self.graph_captures += 1
             wp.capture_launch(self._graph)
+            if self._graph_deferred is not None:  # each replay leaves SVGF's output packed again: unpacked on demand
+                self.denoiser.deferred = self._graph_deferred
         self.prev_view_params = self.view_params
         self.frame += 1
 
@@ -529,41 +555,47 @@ class Renderer:
         lane: only their gather, ``shade.composite_gather``, and the hidden hits' shading are left, one launch where
         ``HiddenSurfaces.gather`` takes them)."""
         g = self.gbuffer
+        packed = False  # SVGF's output left packed: the gather (surface_radiance) reads it in place, flips the parity
         if self.photons is not None:
             with stage("denoise"):
                 if not self.photons.denoise:
-                    wp.copy(self.caustic_irradiance, self.photons.photon_map)
+                    wp.copy(self._caustic, self.photons.photon_map)
                 elif isinstance(self.denoiser, CausticDenoiser):
                     self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
-                                          self.caustic_irradiance, self.photons.photon_m2,
+                                          self._caustic, self.photons.photon_m2,
                                           None if self.photons.flow is None else self.photons.flow.flow)
                 elif isinstance(self.denoiser, SVGF):
-                    self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
-                                          self.caustic_irradiance, guides_written=marched)
+                    # the gather (the sequential program's surface_radiance) reads the last level's output packed
+                    packed = self.denoiser.denoise(self.photons.photon_map, g.depth, g.normal, g.motion, g.tri_id,
+                                                   self._caustic, guides_written=marched,
+                                                   defer=self._gathers_packed())
                 elif isinstance(self.denoiser, GaussianGather):
-                    self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self.caustic_irradiance)
+                    self.denoiser.apply(self.photons.photon_map, g.depth, g.normal, g.tri_id, self._caustic)
                 else:
-                    wp.copy(self.caustic_irradiance, self.photons.photon_map)
+                    wp.copy(self._caustic, self.photons.photon_map)
         w = g.water
         with stage("shade"):
             n = g.width * g.height
             ps = self.settings.photons
             hidden_flux = getattr(self.photons, "hidden", None)
             hits_shaded = False  # the hidden hits' direct light and caustic added by the gather: HiddenSurfaces.gather
+            caustic = self.denoiser.packed_color if packed else self._caustic
+            parity = self.denoiser.parity if packed else None
             if marched:  # the surface radiance read where the gather needs it (surface_radiance is not written)
                 cs = self.composite_split
                 if self._traces_hidden():
-                    hits_shaded = self.hidden.gather(g, self.direct.irradiance, self.caustic_irradiance,
-                                                     self.sky_irradiance, cs, self.lights, self.final, hidden_flux)
+                    hits_shaded = self.hidden.gather(g, self.direct.irradiance, caustic, self.sky_irradiance, cs,
+                                                     self.lights, self.final, hidden_flux, parity)
                 if not hits_shaded:
                     wp.launch(composite_gather, dim=n, device=self.device,
-                              inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
+                              inputs=[g.depth, g.albedo, self.direct.irradiance, caustic,
                                       self.sky_irradiance, cs.hits, cs.weights, self.hidden.missed, cs.hidden_sum,
-                                      int(self._traces_hidden()), self.final])
+                                      int(self._traces_hidden()), self.final, int(packed),
+                                      parity if packed else self.hidden.no_parity])
             else:
                 wp.launch(surface_radiance, dim=n, device=self.device,
-                          inputs=[g.depth, g.albedo, self.direct.irradiance, self.caustic_irradiance,
-                                  self.sky_irradiance, self.surface_radiance])
+                          inputs=[g.depth, g.albedo, self.direct.irradiance, caustic, self.sky_irradiance,
+                                  self.surface_radiance, int(packed), parity if packed else self.hidden.no_parity])
                 bounds = self._composite_bounds()
                 self._build_composite_bounds()
                 wp.launch(composite_kernels(self.view.orthographic)[0], dim=n, device=self.device,

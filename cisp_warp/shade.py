@@ -202,8 +202,14 @@ def surface_radiance(
     caustic_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] (read)
     sky_irradiance: wp.array(dtype=wp.vec3),  # [W/m²] from the dome light, occluded (read)
     radiance: wp.array(dtype=wp.vec3),  # (H*W,) Lambertian radiance of the opaque surface [W/(m² sr)] (write)
+    flip: int,  # as composite_gather's: 1: parity[0] = 1 - parity[0] (SVGF's deferred frame ends here)
+    parity: wp.array(dtype=wp.int32),
 ):
+    """The sequential program's surface radiance (``caustic_irradiance`` possibly SVGF's packed output in place, as
+    :func:`composite_gather`'s)."""
     p = wp.tid()
+    if flip != 0 and p == 0:
+        parity[0] = 1 - parity[0]
     radiance[p] = surface_radiance_at(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, p)
 
 
@@ -533,13 +539,19 @@ def composite_gather(
     hidden_sum: wp.array(dtype=wp.vec3),  # (H*W,) shade_hidden's sum of its rays' terms that need no radiance (read)
     hidden: int,  # 1: shade_hidden traced the missed rays (trace_hidden_rays): add what they bring
     final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
+    flip: int,  # 1: end SVGF's frame here, parity[0] = 1 - parity[0] (its deferred output: SVGF.denoise's ``defer``)
+    parity: wp.array(dtype=wp.int32),  # (1,) SVGF's parity (written where ``flip``)
 ):
     """:func:`composite`'s photon half, after the denoiser: the opaque radiance (:func:`surface_radiance_at`, read
     where needed: no radiance buffer) at :func:`composite_march`'s hits, blended with its throughputs; with
     ``hidden``, then what ``shade_hidden.trace_hidden_rays`` found for the missed rays. :func:`surface_radiance` +
     :func:`composite` + ``shade_hidden.trace_hidden`` in one pass: the same float32 sums in the same order, so the
-    image is theirs bit for bit on the CPU (:func:`gather_pixel`)."""
+    image is theirs bit for bit on the CPU (:func:`gather_pixel`). ``caustic_irradiance`` may be SVGF's packed output
+    read in place (``SVGF.packed_color``, a strided view), ``flip`` then ending SVGF's frame (no launch reads the
+    parity after this one in the frame)."""
     p = wp.tid()
+    if flip != 0 and p == 0:
+        parity[0] = 1 - parity[0]
     written, l, bits = gather_pixel(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, hits, weights,
                                     missed, hidden_sum, hidden, final, p)
     if written != 0:

@@ -866,12 +866,16 @@ def gather_hidden_kernel(bounds="default"):
         hidden_tri: wp.array(dtype=wp.int32),  # (2*H*W,) (read where HIDDEN)
         hidden_uvw: wp.array(dtype=wp.vec3),  # (2*H*W,) (read where HIDDEN)
         final: wp.array(dtype=wp.vec3),  # (H*W,) composite_march's partial sums (read); the HDR image (write)
+        flip: int,  # as shade.composite_gather's: 1: parity[0] = 1 - parity[0] (SVGF's deferred frame ends here)
+        parity: wp.array(dtype=wp.int32),
     ):
         """``shade.composite_gather`` (with its hidden rays) followed by :func:`hidden_direct` for each shadow map and
         :func:`hidden_caustic` for each light of ``lights``, in one pass: the gather's value, then each map's and each
         light's sum added where it is not zero, in their launches' order, so ``final`` is theirs bit for bit on the CPU.
         The tail after the frame's join loses a launch per shadow map and per light (docs/perf_notes.md section 76)."""
         p = wp.tid()
+        if flip != 0 and p == 0:
+            parity[0] = 1 - parity[0]
         written, l, bits = gather_pixel(depth, albedo, direct_irradiance, caustic_irradiance, sky_irradiance, hits,
                                         weights, missed, hidden_sum, 1, final, p)
         if written == 0:
@@ -958,6 +962,7 @@ class HiddenSurfaces:
         self.missed = wp.zeros(n, dtype=wp.int32, device=self.device)
         self.hidden_tri = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
         self.hidden_uvw = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
+        self.no_parity = wp.zeros(1, dtype=wp.int32, device=self.device)  #: the gathers' parity where they flip none
         self.naive = False  #: trace with :data:`trace_hidden_naive` (every triangle, no BVH): the twin, for tests
 
     #: trace with the kernels compiled for the camera's projection (:func:`projected_hidden`) where the caller gives
@@ -1018,11 +1023,12 @@ class HiddenSurfaces:
             sky_map, self.occlusion, float(t_max), self.missed, self.hidden_tri, self.hidden_uvw, hits, hidden_sum])
 
     def gather(self, gbuffer, direct_irradiance: wp.array, caustic_irradiance: wp.array, sky_irradiance: wp.array,
-               split, lights, final: wp.array, hidden_flux=None) -> bool:
+               split, lights, final: wp.array, hidden_flux=None, parity: wp.array | None = None) -> bool:
         """With :attr:`GATHERED` and at most GATHER_MAPS shadow maps and GATHER_FLUXES lights, launch
         :func:`composite_gather_hidden` (the concurrent program's gather with :meth:`shade_hits` folded in; ``split``
         the renderer's ``composite_split``: ``hits``, ``weights``, ``hidden_sum``) and return True; else launch
-        nothing and return False (the caller launches ``shade.composite_gather`` and :meth:`shade_hits`)."""
+        nothing and return False (the caller launches ``shade.composite_gather`` and :meth:`shade_hits`). ``parity``
+        (1 int32, SVGF's): flipped by the launch (``shade.composite_gather``'s ``flip``); None: none."""
         packed = hidden_lights(lights, hidden_flux) if self.GATHERED else None
         if packed is None:
             return False
@@ -1032,7 +1038,8 @@ class HiddenSurfaces:
                   block_dim=256 if bounds is None else int(bounds[0]), inputs=[
                       gbuffer.depth, gbuffer.albedo, direct_irradiance, caustic_irradiance, sky_irradiance, split.hits,
                       split.weights, self.missed, split.hidden_sum, packed, self.layer, self.hidden_tri,
-                      self.hidden_uvw, final])
+                      self.hidden_uvw, final, int(parity is not None),
+                      parity if parity is not None else self.no_parity])
         return True
 
     def shade_hits(self, gbuffer, lights, final: wp.array, hidden_flux=None) -> None:

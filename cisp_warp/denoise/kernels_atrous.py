@@ -1176,7 +1176,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   lattice: tuple | None = None, unpack_from: wp.array | None = None,
                   lattice_guide_ready: bool = False, flip: wp.array | None = None,
                   guide_parity: wp.array | None = None, variance: wp.array | None = None,
-                  input_lattice: bool = False, variance_next: wp.array | None = None, lattice_out: int = 0) -> bool:
+                  input_lattice: bool = False, variance_next: wp.array | None = None, lattice_out: int = 0,
+                  defer_unpack: bool = False) -> bool:
     """One level: :func:`atrous_guide`, then :func:`atrous_level` (SVGF's first level, ungated at step 1 from a
     packed input with σ_n = 128, without the guide pass: the level compiled with ``self_guide``).
 
@@ -1197,7 +1198,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
 
     ``unpack_from`` (H*W vec4 scratch, aliasing no input; only with ``color_out`` and no ``color_variance_out``): at
     a step of ``UNPACK_STEP`` or more the level writes its output packed there and :func:`unpack_level` writes
-    ``color_out`` and ``variance_out`` densely (the same values).
+    ``color_out`` and ``variance_out`` densely (the same values); ``defer_unpack``: not launched (the caller reads
+    the packed output itself, :func:`packed_color_view`, and launches :func:`unpack_level` when it needs them).
 
     ``guide_parity`` (1 int32; packed input only): ``guide`` holds two rows of H*W (row r at r*H*W, SVGF's guide
     history) and the level reads row ``1 - guide_parity[0]``.
@@ -1294,8 +1296,20 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
                             guide_row, slope, int(lattice_out), int(variance_next is not None),
                             variance_next if variance_next is not None else spare["float"]])
-    if unpack:
+    if unpack and not defer_unpack:
         wp.launch(unpack_level, dim=height * width, device=d,
                   inputs=[color_variance_out, *unpack_out, int(flip is not None),
                           flip if flip is not None else spare["parity"]])
-    return unpack and flip is not None
+    return unpack and not defer_unpack and flip is not None
+
+
+def packed_color_view(color_variance: wp.array, n: int) -> wp.array:
+    """The colour of a last level's packed output (``launch_atrous``'s ``unpack_from``: vec4 colour [W/m²], Var, in
+    pixel order, the colour 0 without a surface) as an H*W vec3 array, a view with a 16-byte stride on the same
+    memory: what :func:`unpack_level` writes to ``color_out``, read in place (a kernel's ``x[p]`` on it loads the
+    same three floats)."""
+    if color_variance.dtype != wp.vec4 or color_variance.ndim != 1 or color_variance.shape[0] < n:
+        raise ValueError(f"the packed output is a vec4 array of at least {n} entries")
+    view = wp.array(ptr=color_variance.ptr, dtype=wp.vec3, shape=(n,), strides=(16,), device=color_variance.device)
+    view._ref = color_variance  # keeps the buffer alive as long as the view
+    return view

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import warp as wp
 
 from . import kernels_svgf as K
-from .kernels_atrous import LATTICE_STEP, lattice_size, launch_atrous, spare_outputs
+from .kernels_atrous import LATTICE_STEP, UNPACK_STEP, lattice_size, launch_atrous, packed_color_view, spare_outputs,\
+    unpack_level
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,12 @@ class SVGF:
     two such steps, written by ``reproject``), ``lattice`` (2 x vec4: unused (one element), and the guide of any
     further step, copied in that order by its guide pass; None with fewer levels), ``filtered_variance``
     (float32: luminance variance of the last level, or of the temporal accumulation without levels).
+
+    Deferred output (:meth:`denoise` with ``defer``, where :attr:`defers` holds): the last level's output stays
+    packed in ``color_variance[atrous_levels % 2]``, its colour read in place through :attr:`packed_color` (an H*W
+    vec3 view of it) by the caller, which also flips ``parity``; ``out`` and ``filtered_variance`` are written by
+    :meth:`unpack` on demand (``deferred`` names the packed output and the ``out`` waiting for it; :attr:`variance`
+    unpacks first).
     """
 
     def __init__(self, width: int, height: int, device, settings: SVGFSettings = SVGFSettings()):
@@ -112,6 +119,10 @@ class SVGF:
         self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d)
                                for st in steps[:2]}
         self.filtered_variance = one(wp.float32)
+        self._packed_colors = tuple(packed_color_view(cv, n) for cv in self.color_variance)  # their colour, H*W vec3
+        #: (packed output, ``out``) of the last deferred frame, until :meth:`unpack` writes it (and
+        #: ``filtered_variance``); else None
+        self.deferred: tuple | None = None
         spare_outputs(d)  # allocated here, not inside a frame that may be captured as a CUDA graph
 
     @property
@@ -121,9 +132,38 @@ class SVGF:
         return self.hist_length[int(self.parity.numpy()[0])]
 
     @property
+    def defers(self) -> bool:
+        """Whether :meth:`denoise` with ``defer`` leaves the output packed: the last level's step >= ``UNPACK_STEP``."""
+        levels = self.settings.atrous_levels
+        return levels > 0 and (1 << (levels - 1)) >= UNPACK_STEP
+
+    @property
+    def packed_output(self) -> wp.array:
+        """The last level's packed output (``color_variance[atrous_levels % 2]``, vec4: colour [W/m²], Var, pixel
+        order; where :attr:`defers`)."""
+        return self.color_variance[self.settings.atrous_levels % 2]
+
+    @property
+    def packed_color(self) -> wp.array:
+        """The colour of :attr:`packed_output`, an H*W vec3 view of it (16-byte stride): ``out``'s values in place."""
+        return self._packed_colors[self.settings.atrous_levels % 2]
+
+    @property
     def variance(self) -> wp.array:
-        """Luminance variance after the last à-trous level of the last frame, H*W float32."""
+        """Luminance variance after the last à-trous level of the last frame, H*W float32 (unpacked first where the
+        frame was deferred, :meth:`unpack`)."""
+        self.unpack()
         return self.filtered_variance
+
+    def unpack(self) -> None:
+        """Where the last frame was deferred (``deferred`` is not None): write its output, packed by the last level,
+        densely into that ``out`` and ``filtered_variance`` (:func:`.kernels_atrous.unpack_level`, without the parity
+        flip, which the caller did), once; else nothing. Outside a frame: where a reader needs them."""
+        if self.deferred is None:
+            return
+        (packed, out), self.deferred = self.deferred, None
+        wp.launch(unpack_level, dim=self.width * self.height, device=self.device,
+                  inputs=[packed, out, self.filtered_variance, 0, spare_outputs(self.device)["parity"]])
 
     def reset(self) -> None:
         """Forget all history: the next frame is treated as disoccluded everywhere."""
@@ -140,7 +180,7 @@ class SVGF:
                   outputs=[self.hist_guide, self.depth_slope, lg[0][1], lg[1][1]])
 
     def denoise(self, irradiance_in: wp.array, depth: wp.array, normal: wp.array, motion: wp.array,
-                tri_id: wp.array, out: wp.array, guides_written: bool = False) -> None:
+                tri_id: wp.array, out: wp.array, guides_written: bool = False, defer: bool = False) -> bool:
         """Denoise one frame.
 
         Reads ``irradiance_in`` (H*W vec3 [W/m²], the noisy photon map) and the camera G-buffer:
@@ -149,12 +189,18 @@ class SVGF:
         (H*W vec3 [W/m²]; 0 where there is no surface). Nothing is allocated, read back or swapped on
         the host: the same launches with the same arguments every frame (CUDA-graph capturable).
         ``guides_written``: :meth:`guides` ran for this frame's G-buffer (``reproject`` does not write them again).
+        ``defer`` (where :attr:`defers`): the last level's output stays packed, :attr:`packed_color` holds its colour,
+        ``out`` and ``filtered_variance`` are not written (:meth:`unpack` writes them) and ``parity`` is not flipped:
+        the caller flips it once after its last read of it in this frame (the composite's gather does). Returns
+        whether it deferred.
         """
         s = self.settings
         w, h = self.width, self.height
         dim = (h, w)
         d = self.device
         temporal_only = s.atrous_levels == 0
+        deferred = bool(defer) and self.defers
+        self.deferred = (self.packed_output, out) if deferred else None  # an earlier one's is overwritten below
         lg = list(self.lattice_guides.items()) + [(0, spare_outputs(d)["vec4"])] * 2
         wp.launch(K.reproject, dim=dim, device=d,
                   inputs=[irradiance_in, depth, normal, motion, tri_id,
@@ -192,6 +238,8 @@ class SVGF:
                 flip=self.parity if last else None, guide_parity=self.parity,
                 variance=self.level_variance if level > 0 else None,
                 input_lattice=level > 0 and self.lattice is not None and step >= LATTICE_STEP,
-                variance_next=None if last else self.level_variance, lattice_out=lattice_out)
-        if not flipped:  # the last level's unpack flips it where it runs
+                variance_next=None if last else self.level_variance, lattice_out=lattice_out,
+                defer_unpack=deferred and last)
+        if not flipped and not deferred:  # the last level's unpack flips it where it runs; deferred: the caller
             wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
+        return deferred
