@@ -163,20 +163,11 @@ def main(argv=None) -> int:
     p.add_argument("--lanes", default="on", choices=["on", "off", "both"],
                    help="the frame's lights, sky and direct light on CUDA streams of their own (on, the default), "
                         "one stream (off), or both graphs timed alternately (with --graph)")
-    p.add_argument("--keep-still-views", action="store_true",
-                   help="let a still frame keep its RSM views and G-buffer from the frame before (the redraw gates, "
-                        "LightMaps.CACHE_RSM and GBuffer.CACHE_VIEW: a paused scene's cost). Default: every view is "
-                        "drawn and resolved each frame, as when the water moves")
     p.add_argument("--json", default=None, help="write every figure to this file")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, 2 frames")
     args = p.parse_args(argv)
     if args.smoke:
         args.width, args.height, args.rsm_size, args.photons, args.frames = 64, 36, 64, "2k", 2
-    from cisp_warp.raster.light_maps import LightMaps
-    from cisp_warp.raster.rasterizer import GBuffer
-
-    # the still frame as an animated one draws it, unless asked otherwise (the gates skip only unchanged views)
-    LightMaps.CACHE_RSM = GBuffer.CACHE_VIEW = bool(args.keep_still_views)
     wp.config.log_level = wp.LOG_WARNING  # no init banner or module-load lines
     wp.init()
 
@@ -187,7 +178,7 @@ def main(argv=None) -> int:
     dev = f"{device.alias} ({device.name})"
     report = {"device": dev, "warp": wp.config.version, "width": args.width, "height": args.height,
               "rsm_size": args.rsm_size, "denoiser": args.denoiser, "frames": args.frames, "animate": args.animate,
-              "keep_still_views": bool(args.keep_still_views), "runs": []}
+              "runs": []}
     for scene_path in scenes:
         sname = os.path.splitext(os.path.basename(scene_path))[0]
         results = {}
@@ -203,8 +194,7 @@ def main(argv=None) -> int:
             if splat and args.splat == "wavefront":
                 splat += f" over the {args.wavefront_grid} grid"
             print(f"{sname}, {method}: device {dev}; {args.width}x{args.height}, RSM {args.rsm_size}², "
-                  f"denoiser {args.denoiser}{splat}; {'water simulated every frame' if args.animate else 'still'}"
-                  f"{', still views kept' if args.keep_still_views else ', every view drawn'}; "
+                  f"denoiser {args.denoiser}{splat}; {'water simulated every frame' if args.animate else 'still'}; "
                   f"median ms over {args.frames} frames")
             print(f"{'stage':<14}" + "".join(f"{row['photons']:>14,}" for row in rows))
             for s in stages:
