@@ -904,11 +904,8 @@ def resolve_opaque(
     motion: wp.array(dtype=wp.vec2),  # (H*W,) pixel offset to where this surface point was last frame (write)
 ):
     """Opaque G-buffer: every attribute of the nearest opaque surface per pixel (visibility reset as it is read). With
-    ``resolve_specular`` after it, the naive twin of :func:`resolve_camera`. A view with ``far`` = 0 (inactive, or
-    kept by :func:`redraw_gate_camera`) returns at once: nothing drawn, the buffers keep their values."""
+    ``resolve_specular`` after it, the naive twin of :func:`resolve_camera`."""
     view = views[view_index]
-    if view.far <= 0.0:
-        return
     prev_view = views[prev_view_index]
     p = wp.tid()
     opaque_texel(view, prev_view, p, take_key(visibility, p), points, prev_points, normals, indices,
@@ -948,11 +945,8 @@ def resolve_camera(
 ):
     """The camera's opaque G-buffer and its water layer in one pass (``GBuffer.fused_resolve``): both keys read
     together, then ``resolve_opaque``'s pixel and ``resolve_specular``'s with the opaque depth from a register
-    instead of read back; the same buffers bit for bit as those twins one after the other. A view with ``far`` = 0
-    returns at once, as :func:`resolve_opaque`."""
+    instead of read back; the same buffers bit for bit as those twins one after the other."""
     view = views[view_index]
-    if view.far <= 0.0:
-        return
     prev_view = views[prev_view_index]
     p = wp.tid()
     key = visibility[p]
@@ -1568,49 +1562,3 @@ def resolve_back_view(
     if not want_bounds:
         return
     _block_bounds(zs, zb, True, lane, threads, block, width, height, thickness, thickness_rel, bounds)
-
-
-#: 32-bit words of one ViewParams (``light_maps.VIEW_WORDS``)
-CAMERA_VIEW_WORDS = wp.constant(wp.types.type_size_in_bytes(ViewParams) // 4)
-#: the camera gate's words: this frame's camera and the previous one's
-CAMERA_GATE_WORDS = wp.constant(2 * (wp.types.type_size_in_bytes(ViewParams) // 4))
-#: layer bits of ``DeviceScene.generation`` (``scene.device.LAYER_BITS``)
-CAMERA_LAYER_BITS = wp.constant(2)
-
-
-#: a module of its own, its word loops unrolled: the words' loads issued together, not one L2 round trip after the
-#: other (section 36: ``redraw_gate``'s 41 serial loads ~5.5 µs)
-@wp.kernel(module="unique", module_options={"max_unroll": 128, "enable_backward": False})
-def redraw_gate_camera(
-    views: wp.array(dtype=ViewParams),  # (2,) the camera this frame and the previous frame's (read)
-    words: wp.array(dtype=wp.uint32),  # (CAMERA_GATE_WORDS,) the same memory as uint32 words (read)
-    generation: wp.array(dtype=wp.int32),  # (CAMERA_LAYER_BITS,) DeviceScene.generation (read)
-    epoch: int,  # the host's count of changes to what the camera's resolves write (``GBuffer._epoch``)
-    drawn_words: wp.array(dtype=wp.uint32),  # (CAMERA_GATE_WORDS,) the two views last drawn for (read, write)
-    drawn_generation: wp.array(dtype=wp.int32),  # (CAMERA_LAYER_BITS,) the generations then (read, write)
-    drawn_epoch: wp.array(dtype=wp.int32),  # (1,) the epoch then (read, write)
-    draw: wp.array(dtype=ViewParams),  # (2,) the camera to draw (far = 0: kept) and the previous one (write)
-):
-    """One thread: whether the camera's G-buffer must be drawn this frame. Its layers are a function of the camera,
-    of the previous frame's camera (motion), of the points and the previous frame's points (both change only with a
-    counted move of the triangles, ``DeviceScene.begin_frame`` / ``geometry_moved``) and of what the host set the
-    resolves to write (``epoch``): when all are, bit for bit, those it was last drawn for, ``draw[0]`` gets the
-    camera with ``far`` = 0, which the raster and the resolves draw nothing for; else the camera, recorded."""
-    same = drawn_epoch[0] == epoch
-    for i in range(CAMERA_GATE_WORDS):
-        if words[i] != drawn_words[i]:
-            same = False
-    for b in range(CAMERA_LAYER_BITS):
-        if generation[b] != drawn_generation[b]:
-            same = False
-    view = views[0]
-    if same:
-        view.far = 0.0
-    elif view.far > 0.0:
-        for i in range(CAMERA_GATE_WORDS):
-            drawn_words[i] = words[i]
-        for b in range(CAMERA_LAYER_BITS):
-            drawn_generation[b] = generation[b]
-        drawn_epoch[0] = epoch
-    draw[0] = view
-    draw[1] = views[1]

@@ -232,67 +232,6 @@ def redraw_gate_split(
                            drawn_opaque_generation)
 
 
-#: a module of its own, its word loops unrolled: the words' loads issued together, not one L2 round trip after the
-#: other (section 36: ``redraw_gate``'s 41 serial loads ~5.5 µs)
-@wp.kernel(module="unique", module_options={"max_unroll": 128, "enable_backward": False})
-def redraw_gate_views(
-    views: wp.array(dtype=ViewParams),  # (V,) views (read)
-    words: wp.array(dtype=wp.uint32),  # (V·VIEW_WORDS,) ``view_words(views)`` (read)
-    generation: wp.array(dtype=wp.int32),  # (LAYER_BITS,) DeviceScene.generation (read)
-    layers: int,  # layer bits every view draws
-    epoch: int,  # the host's count of changes to what the resolves write (``LightMaps._gate_epoch``)
-    drawn_words: wp.array(dtype=wp.uint32),  # (V·VIEW_WORDS,) the views the maps were last drawn for (read, write)
-    drawn_generation: wp.array(dtype=wp.int32),  # (V·LAYER_BITS,) the layers' generations then (read, write)
-    drawn_epoch: wp.array(dtype=wp.int32),  # (V,) the epoch then (read, write)
-    draw: wp.array(dtype=ViewParams),  # (V,) the view to draw this frame (write)
-):
-    """:func:`redraw_gate` for every view of an array, thread k for ``views[k]`` (an RSM view's maps, like a shadow
-    map's, are a function of the view's parameters, of the triangles of ``layers`` and of what the host set the
-    resolves to write, counted by ``epoch``): ``draw[k]`` is the view with ``far`` = INACTIVE_FAR when all three
-    are, bit for bit, those it was last drawn for, else the view itself, recorded as drawn (an inactive view draws
-    and records nothing)."""
-    k = wp.tid()
-    view = views[k]
-    same = drawn_epoch[k] == epoch
-    base = k * VIEW_WORDS
-    for i in range(VIEW_WORDS):
-        if words[base + i] != drawn_words[base + i]:
-            same = False
-    gb = k * LAYER_BITS
-    for b in range(LAYER_BITS):
-        if ((layers >> b) & 1) != 0 and generation[b] != drawn_generation[gb + b]:
-            same = False
-    if same:
-        view.far = INACTIVE_FAR
-    elif view.far > INACTIVE_FAR:
-        for i in range(VIEW_WORDS):
-            drawn_words[base + i] = words[base + i]
-        for b in range(LAYER_BITS):
-            drawn_generation[gb + b] = generation[b]
-        drawn_epoch[k] = epoch
-    draw[k] = view
-
-
-class _ViewGate:
-    """The records of :func:`redraw_gate_views` for one device array of views (a light's RSM views or its pilots)."""
-
-    def __init__(self, views: wp.array, device):
-        v = views.shape[0]
-        self.views = views
-        self.words = view_words(views)
-        self.draw = wp.zeros(v, dtype=ViewParams, device=device)  #: the views drawn this frame (far = 0: kept)
-        self.drawn_words = wp.zeros(v * VIEW_WORDS, dtype=wp.uint32, device=device)  #: zeros: none, the first draws
-        self.drawn_generation = wp.zeros(v * LAYER_BITS, dtype=wp.int32, device=device)
-        self.drawn_epoch = wp.full(v, -1, dtype=wp.int32, device=device)
-
-    def launch(self, scene: DeviceScene, n: int, epoch: int) -> wp.array:
-        """Gate the first ``n`` views for this frame; the array of views to draw."""
-        wp.launch(redraw_gate_views, dim=n, device=scene.device,
-                  inputs=[self.views, self.words, scene.generation, LAYER_OPAQUE | LAYER_SPECULAR, int(epoch),
-                          self.drawn_words, self.drawn_generation, self.drawn_epoch, self.draw])
-        return self.draw
-
-
 def _same_params(a: ViewParams, rec) -> bool:
     """Whether host view ``a`` is the record ``rec`` of ``views.numpy()``, field for field (float32)."""
     return (np.array_equal(np.asarray(a.world_to_view, np.float32).reshape(4, 4), np.asarray(rec["world_to_view"], np.float32))
@@ -506,28 +445,6 @@ class LightMaps:
         #: True (default): a shadow map is drawn only in frames where its view or the triangles it draws moved
         #: (``redraw_gate``, decided on the device); False: every frame (the naive path). The same maps bit for bit
         self.cache_shadows = True
-        #: with ``CACHE_RSM``: the RSM views' and the pilots' gates (``redraw_gate_views``)
-        self._rsm_gate = _ViewGate(self.views, d)
-        self._pilot_gate = _ViewGate(self.pilot_views, d) if self.pilot else None
-        self._gate_serial = 0  #: counts the host's changes to what the resolves write (light, kept maps, bounds)
-        self._gate_epoch = 0
-        self._gate_config = None
-
-    #: True (default): an RSM view (a fitted cascade, a whole view) or a pilot is drawn and resolved only in frames
-    #: where its view, the triangles it draws or what its resolve writes changed (``redraw_gate_views``, decided on the
-    #: device, as the shadow maps' ``redraw_gate``): a still frame keeps its maps (perf_notes section 75); False:
-    #: every view drawn every frame (the twin). The same maps bit for bit
-    CACHE_RSM = True
-
-    def _epoch(self) -> int:
-        """The gates' epoch: counts the changes, seen on the host, to what the resolves write; a view drawn under
-        another epoch is drawn again."""
-        cfg = (self._gate_serial, bool(self.write_opaque_tri), bool(self.fused_resolve), self._bounds_thickness,
-               tuple((r.has_texel_maps, r.specular.has_surface, r.specular.has_material) for r in self.rsm + self.pilot))
-        if cfg != self._gate_config:
-            self._gate_config = cfg
-            self._gate_epoch += 1
-        return self._gate_epoch
 
     # ---- host views of the device state (tests, tools: each is a device->host copy)
 
@@ -624,7 +541,6 @@ class LightMaps:
         self.views.assign(self.params)
         self._make_shadows(light, whole)  # the new light's (a sun's shadow view kept the old one's before)
         self.light = light
-        self._gate_serial += 1  # the flux the resolves write (kept texel maps) is the light's
 
     def _refresh_solid_angles(self, views: list[RSMView]) -> None:
         for r in views:
@@ -717,7 +633,6 @@ class LightMaps:
                              f"march.bounds_size of its view")
         self._bounds = list(bounds)
         self._bounds_thickness = (float(thickness), float(thickness_rel))
-        self._gate_serial += 1  # new bounds arrays: written at the next draw of every view
 
     def keep_surface_maps(self) -> None:
         """Have every RSM view's specular layer keep its per-texel ``position`` and ``normal`` (allocated here and
@@ -725,7 +640,6 @@ class LightMaps:
         consumer that reads the arrays (``photons.wavefront``); pilot views are left without (the fit computes them)."""
         for r in self.rsm:
             r.specular.keep_surface()
-        self._gate_serial += 1
 
     def keep_texel_maps(self) -> None:
         """Have every RSM and pilot view keep its per-texel ``flux`` and its specular layer's ``roughness`` and ``ior``
@@ -733,7 +647,6 @@ class LightMaps:
         them from the texel's triangle with :meth:`emission`), for tests and tools that read the arrays."""
         for r in self.rsm + self.pilot:
             r.keep_texel_maps()
-        self._gate_serial += 1
 
     def emission(self, r: RSMView) -> K.TexelEmission:
         """What RSM (or pilot) view ``r``'s texels' flux, roughness and IOR are computed from where they are read
@@ -792,22 +705,16 @@ class LightMaps:
 
     def render_pilot(self, raster: Rasterizer) -> None:
         """Draw the pilot views (before the fit); nothing when the views are not fitted."""
-        views = self.pilot_views
-        if self.CACHE_RSM and self.pilot:
-            views = self._pilot_gate.launch(self.scene, len(self.pilot), self._epoch())
         for k, r in enumerate(self.pilot):
-            self._render_rsm(raster, views, k, r)
+            self._render_rsm(raster, self.pilot_views, k, r)
 
     def render(self, raster: Rasterizer) -> None:
         """Draw the RSM views and the shadow maps. On CUDA every fitted cascade is launched (an inactive one,
         ``far`` = 0, draws and resolves nothing: its maps keep the values of the frame it was last active, which
         nothing reads while it emits no photons): the host never waits for the fit."""
         active = self.host_active()
-        views = self.views
-        if self.CACHE_RSM:
-            views = self._rsm_gate.launch(self.scene, len(self.rsm), self._epoch())
         for k, r in enumerate(self.rsm):
             if active is None or active[k]:
-                self._render_rsm(raster, views, k, r, self._bounds[k] if self._bounds is not None else None)
+                self._render_rsm(raster, self.views, k, r, self._bounds[k] if self._bounds is not None else None)
         for sv in self._shadows:
             sv.render(raster, self.cache_shadows)

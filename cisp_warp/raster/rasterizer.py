@@ -119,32 +119,6 @@ class Rasterizer:
                           self.stride, front_depth, visibility])
 
 
-class _CameraGate:
-    """:func:`kernels.redraw_gate_camera`'s records for one G-buffer (allocated once, at its first frame)."""
-
-    def __init__(self, device):
-        n = K.CAMERA_GATE_WORDS
-        self.draw = wp.zeros(2, dtype=K.ViewParams, device=device)  #: the cameras drawn this frame (far = 0: kept)
-        self.drawn_words = wp.zeros(n, dtype=wp.uint32, device=device)  #: zeros: none, the first frame draws
-        self.drawn_generation = wp.zeros(K.CAMERA_LAYER_BITS, dtype=wp.int32, device=device)
-        self.drawn_epoch = wp.full(1, -1, dtype=wp.int32, device=device)
-        self._words = None
-
-    def launch(self, scene: DeviceScene, views: wp.array, epoch: int) -> wp.array:
-        """Gate ``views`` (2,: this frame's camera, the previous) for this frame; the (2,) views to draw."""
-        if views.shape[0] < 2:
-            raise ValueError(f"the camera's G-buffer needs two views (this frame's and the previous), got {views.shape[0]}")
-        if self._words is None or self._words.ptr != views.ptr:
-            self._words = wp.array(ptr=views.ptr, dtype=wp.uint32, shape=(K.CAMERA_GATE_WORDS,),
-                                   device=views.device)
-        if scene.generation.shape[0] != K.CAMERA_LAYER_BITS:
-            raise ValueError(f"the camera gate counts {K.CAMERA_LAYER_BITS} layers, the scene {scene.generation.shape[0]}")
-        wp.launch(K.redraw_gate_camera, dim=1, device=scene.device,
-                  inputs=[views, self._words, scene.generation, int(epoch), self.drawn_words, self.drawn_generation,
-                          self.drawn_epoch, self.draw])
-        return self.draw
-
-
 def view_array(views, device) -> wp.array:
     """A device array of :class:`ViewParams` from host views (``View`` or ``ViewParams``), for kernels that read
     their view from an array (set-up and tests; the frame loop keeps its arrays)."""
@@ -269,27 +243,6 @@ class GBuffer(_Buffers):
     #: (perf_notes 36: pool 0.129 -> 0.151 ms, Cornell 0.089 -> 0.097), so it is opt-in
     fused_layers: bool = False
     _bounds: tuple | None = None  #: (bounds array, thickness, thickness_rel) of :meth:`keep_depth_bounds`
-    #: with ``CACHE_VIEW``: :func:`kernels.redraw_gate_camera`'s records (allocated with the buffers; lazily at the
-    #: first frame of a G-buffer built otherwise)
-    _gate: "_CameraGate | None" = None
-    _gate_serial: int = 0  #: counts the host's changes to what the resolves write (:meth:`keep_depth_bounds`)
-    _gate_epoch: int = 0
-    _gate_config: tuple | None = None
-
-    #: True (default): the camera's layers (both fronts, the back faces, the depth bounds) are drawn and resolved only
-    #: in frames where the camera, the previous frame's camera, the triangles or what the resolves write changed
-    #: (``kernels.redraw_gate_camera``, decided on the device, as the light maps' gates): a still frame keeps its
-    #: G-buffer (perf_notes section 75); False: drawn every frame (the twin). The same buffers bit for bit
-    CACHE_VIEW = True
-
-    def _epoch(self) -> int:
-        """The camera gate's epoch: counts the changes, seen on the host, to what the resolves write."""
-        cfg = (self._gate_serial, bool(self.back_faces), bool(self.fused_resolve), bool(self.fused_layers),
-               self.water.has_surface, self.water.has_material)
-        if cfg != self._gate_config:
-            self._gate_config = cfg
-            self._gate_epoch += 1
-        return self._gate_epoch
 
     def keep_depth_bounds(self, bounds: wp.array, thickness: float, thickness_rel: float) -> None:
         """Have the back-face resolve write the depth bounds of ``depth_layers`` (``photons.march.depth_bounds`` and
@@ -299,7 +252,6 @@ class GBuffer(_Buffers):
             raise ValueError(f"keep_depth_bounds needs march.bounds_size({self.width}, {self.height}) = "
                              f"{K.bounds_size(self.width, self.height)} bounds, got {bounds.shape[0]}")
         self._bounds = (bounds, float(thickness), float(thickness_rel))
-        self._gate_serial += 1  # new bounds: written at the next draw
 
     def builds_depth_bounds(self, bounds: wp.array) -> bool:
         """Whether :meth:`render` writes ``bounds`` (:meth:`keep_depth_bounds`'s) each frame."""
@@ -314,7 +266,7 @@ class GBuffer(_Buffers):
         return GBuffer(width, height, visibility_buffer(n, device), layers[0:n],
                        _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device), _pixels(hw, wp.vec3, device),
                        _pixels(hw, wp.float32, device), _pixels(hw, wp.int32, device), _pixels(hw, wp.vec2, device),
-                       SpecularLayer.allocate(width, height, device), layers, _gate=_CameraGate(device))
+                       SpecularLayer.allocate(width, height, device), layers)
 
     def render(self, raster: Rasterizer, views, prev_view=None) -> None:
         """Fill both layers for the camera ``views[0]``; motion is measured against ``views[1]``, the previous
@@ -323,10 +275,6 @@ class GBuffer(_Buffers):
         s = raster.scene
         if not isinstance(views, wp.array):
             views = view_array([views, views if prev_view is None else prev_view], s.device)
-        if self.CACHE_VIEW:
-            if self._gate is None:
-                self._gate = _CameraGate(s.device)
-            views = self._gate.launch(s, views, self._epoch())
         raster.draw(views, 0, self.width, self.height, LAYER_OPAQUE, self.visibility, clear=False,
                     layer_b=LAYER_SPECULAR, visibility_b=self.water.visibility)  # both layers in one pass
         if self.fused_layers:  # both layers in one pass
