@@ -578,12 +578,13 @@ class PhotonPass:
         wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
         return self._order, 0, 1
 
-    #: True (default): the group partition in contiguous runs of tiles per block, its offsets from one count per
-    #: group and block summed by the scatter itself (``common.photon_group_keys_ranged`` and
-    #: ``photon_group_scatter_ranged``: two launches a view, no scan between them); False: one count per group and
-    #: tile, scanned by ``wp.utils.array_scan`` (CUB's two kernels and a temporary allocation a view), blocks over
-    #: every grid-th tile (the twin, section 63's; docs/perf_notes.md section 77). The same grouped order
-    RANGED_GROUPS = True
+    #: True: the group partition in contiguous runs of tiles per block, its offsets from one count per group and
+    #: block summed by the scatter itself (``common.photon_group_keys_ranged`` and ``photon_group_scatter_ranged``:
+    #: two launches a view, no scan between them); False (default): one count per group and tile, scanned by
+    #: ``wp.utils.array_scan`` (CUB's two kernels and a temporary allocation a view), blocks over every grid-th tile
+    #: (section 63's; docs/perf_notes.md section 77). Off: its CUDA twin test (``test_ranged_partition_is_the_tiled_twin``)
+    #: failed on the H100 in session 13 while it passes on the CPU, and it measured no faster (keys 0.197 -> 0.20 ms)
+    RANGED_GROUPS = False
     #: blocks of the ranged partition on the CPU (one thread each): each block sums every block's counts
     RANGED_CPU_BLOCKS = 64
 
