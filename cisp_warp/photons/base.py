@@ -504,6 +504,11 @@ class PhotonPass:
     #: by a warp reduce-scatter (``common._outcome_reduce``, one barrier, 30 float64 atomics); False: every block
     #: sums with two tile sums (the twin; docs/perf_notes.md section 77). The CPU's sums are the twin's either way
     FAST_OUTCOMES = True
+    #: True (default): the trace kernel adds its photons' final entries to the ledger itself, in its epilogue, by one
+    #: block reduction (``kernels_cisp.final_add``: the emission's reduce-scatter over six entries), writing no outcome
+    #: records and launching no outcome pass; False: each photon's outcome record, added by ``add_outcomes`` after
+    #: the trace (the twin; docs/perf_notes.md section 79). CISP's trace only (SSPM's keeps the outcome pass)
+    FOLDED_OUTCOMES = True
 
     def add_outcomes(self, outcome: wp.array, batch: RSMBatch, runs: int, entries: int) -> None:
         """Add the final entries of ``runs`` runs of ``batch.slots`` outcome records (written by the trace kernel
