@@ -176,16 +176,54 @@ def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry:
             _add_entry(ledger, block, L_REFRACTED, s, 5)
 
 
-#: the same reduce-scatter over the block (``_EMISSION_REDUCE``) for the trace's epilogue, its shared array its own:
-#: a warp that reaches the epilogue early must not overwrite the emission's partials while warp 0 still sums them
-_FINAL_REDUCE = _EMISSION_REDUCE.replace("emission_partials", "final_partials")
+#: CUDA only: the block's sums of the trace's final entries, ``_EMISSION_REDUCE``'s reduce-scatter with its first round
+#: on the records themselves: a thread holds one final entry (``slot`` 0..5 of the six contiguous entries from
+#: ``e0``; anything else: none) and its power (float32 RGB), so at lane distance 16 a lane exchanges its record with
+#: its partner (4 shuffled words instead of 9 doubles) and makes the 9 values its lane bit keeps (entries 3h..3h+2)
+#: as its own share plus its partner's, converted to float64: the same sums, added in the same order, as the
+#: 18-double round (own value + partner's), without the 18 doubles held before it. Then rounds 8..1 and the warps'
+#: sums as ``_EMISSION_REDUCE`` (its own shared partials: a warp that reaches the epilogue early must not overwrite
+#: the emission's while warp 0 still sums them), thread i < 18 adding value i to entry e0 + i / 3.
+_FIRST_ROUND = """double a[10];
+{
+    const bool h = (lane & 16) != 0;
+    #pragma unroll
+    for (int i = 0; i < 9; ++i) {
+        const double send = h ? v.c[i] : v.c[i + 9];
+        const double keep = h ? v.c[i + 9] : v.c[i];
+        a[i] = keep + __shfl_xor_sync(FULL, send, 16);
+    }
+    a[9] = 0.0;
+}"""
+_FIRST_ROUND_RECORDS = """double a[10];
+{
+    const int base = (lane & 16) != 0 ? 3 : 0;
+    const int slot_o = __shfl_xor_sync(FULL, slot, 16);
+    float p_o[3];
+    #pragma unroll
+    for (int c = 0; c < 3; ++c)
+        p_o[c] = __shfl_xor_sync(FULL, p.c[c], 16);
+    #pragma unroll
+    for (int k = 0; k < 3; ++k) {
+        #pragma unroll
+        for (int c = 0; c < 3; ++c)
+            a[3 * k + c] = (slot == base + k ? (double)p.c[c] : 0.0) + (slot_o == base + k ? (double)p_o[c] : 0.0);
+    }
+    a[9] = 0.0;
+}"""
+_ENTRY_OF_VALUE = "const int entry = q == 0 ? e0 : q == 1 ? e1 : q == 2 ? e2 : q == 3 ? e3 : q == 4 ? e4 : e5;"
+assert _EMISSION_REDUCE.count(_FIRST_ROUND) == 1 and _EMISSION_REDUCE.count(_ENTRY_OF_VALUE) == 1
+_FINAL_REDUCE = (_EMISSION_REDUCE.replace("emission_partials", "final_partials").replace(_FIRST_ROUND, _FIRST_ROUND_RECORDS)
+                 .replace(_ENTRY_OF_VALUE, "const int entry = e0 + q;"))
+# the six final entries are contiguous (_final_reduce and final_add number them from L_LOST_LIGHT)
+assert CISP_FINAL_ENTRIES == entry_mask(*range(int(L_LOST_LIGHT), int(L_STORED) + 1))
 
 
 @wp.func_native(_FINAL_REDUCE)
-def _final_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, v: vec18d, e0: int, e1: int, e2: int, e3: int,
-                  e4: int, e5: int) -> int:
-    """:func:`_emission_reduce` with its own shared partials (``_FINAL_REDUCE``): the block's sums of ``v`` added
-    to entries ``e0``..``e5`` of the ledger's row ``stripe`` on CUDA (returns 1); elsewhere nothing (returns 0)."""
+def _final_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, slot: int, p: wp.vec3, e0: int) -> int:
+    """On CUDA (blocks of whole warps): the block's sums of each thread's power ``p`` under its entry ``e0 + slot``
+    (``slot`` 0..5; anything else adds nothing) added to entries ``e0``..``e0 + 5`` of the ledger's row ``stripe``
+    (see ``_FINAL_REDUCE``); returns 1. Elsewhere it does nothing and returns 0."""
     ...
 
 
@@ -200,19 +238,18 @@ def final_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry: in
     four registers. On the CPU (blocks of one thread) each photon's entry is added in photon order, as the outcome
     pass added its record: the same adds bit for bit. Every thread of the block calls it (no early return before
     it)."""
-    zero = wp.vec3(0.0)
-    a = wp.where(entry == L_LOST_LIGHT, power, zero)
-    b = wp.where(entry == L_LOST_CAMERA, power, zero)
-    c = wp.where(entry == L_OCCLUDED, power, zero)
-    d = wp.where(entry == L_REJECTED, power, zero)
-    f = wp.where(entry == L_STEPS, power, zero)
-    g = wp.where(entry == L_STORED, power, zero)
-    v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
-               wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
-               wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
-               wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
-    if _final_reduce(ledger, ledger_slot(ledger, block, 0), v, L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED,
-                     L_REJECTED, L_STEPS, L_STORED) == 0:
+    if _final_reduce(ledger, ledger_slot(ledger, block, 0), entry - L_LOST_LIGHT, power, L_LOST_LIGHT) == 0:
+        zero = wp.vec3(0.0)
+        a = wp.where(entry == L_LOST_LIGHT, power, zero)
+        b = wp.where(entry == L_LOST_CAMERA, power, zero)
+        c = wp.where(entry == L_OCCLUDED, power, zero)
+        d = wp.where(entry == L_REJECTED, power, zero)
+        f = wp.where(entry == L_STEPS, power, zero)
+        g = wp.where(entry == L_STORED, power, zero)
+        v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
+                   wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
+                   wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
+                   wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
         s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
         if lane == 0:
             _add_entry(ledger, block, L_LOST_LIGHT, s, 0)
