@@ -258,9 +258,10 @@ class PhotonPass:
         self.inputs = FrameInputs(lights, settings.seed, self.device)
         self._no_hidden = wp.zeros(0, dtype=wp.vec3, device=self.device)  #: the empty hidden map (hidden_args)
         #: the renderer's ``frame.FrameLanes``: in a concurrent frame each light's luminance maximum and outside
-        #: booking run on its light lane, each RSM view's photon order, trace and outcome pass on its view lane with
-        #: a scratch bank of its own (:meth:`keep_lanes`); None: every view in turn on the current stream with the
-        #: pass's own arrays (the sequential twin). ``hits`` (``record_hits``, tests) stays one array: the last view's
+        #: booking run on its light lane, each RSM view's photon order, trace and outcome pass (SSPM; CISP's with
+        #: ``FOLDED_OUTCOMES`` off) on its view lane with a scratch bank of its own (:meth:`keep_lanes`); None: every
+        #: view in turn on the current stream with the pass's own arrays (the sequential twin). ``hits``
+        #: (``record_hits``, tests) stays one array: the last view's
         self.lanes = None
         self._banks: list[dict] = []  #: per RSM view (lights in turn): its ``LANE_SCRATCH``; 0: the pass's own
         if sort and n_max > 0 and self.fixed_order and self.device.is_cuda:

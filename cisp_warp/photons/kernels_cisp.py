@@ -213,8 +213,8 @@ _FIRST_ROUND_RECORDS = """double a[10];
 }"""
 _ENTRY_OF_VALUE = "const int entry = q == 0 ? e0 : q == 1 ? e1 : q == 2 ? e2 : q == 3 ? e3 : q == 4 ? e4 : e5;"
 assert _EMISSION_REDUCE.count(_FIRST_ROUND) == 1 and _EMISSION_REDUCE.count(_ENTRY_OF_VALUE) == 1
-_FINAL_REDUCE = (_EMISSION_REDUCE.replace("emission_partials", "final_partials").replace(_FIRST_ROUND, _FIRST_ROUND_RECORDS)
-                 .replace(_ENTRY_OF_VALUE, "const int entry = e0 + q;"))
+_FINAL_REDUCE = (_EMISSION_REDUCE.replace("emission_partials", "final_partials")
+                 .replace(_FIRST_ROUND, _FIRST_ROUND_RECORDS).replace(_ENTRY_OF_VALUE, "const int entry = e0 + q;"))
 # the six final entries are contiguous (_final_reduce and final_add number them from L_LOST_LIGHT)
 assert CISP_FINAL_ENTRIES == entry_mask(*range(int(L_LOST_LIGHT), int(L_STORED) + 1))
 
