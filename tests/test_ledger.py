@@ -58,6 +58,48 @@ def test_emission_reduction_of_whole_warps(device, block, monkeypatch):
     assert many.closure() < 1e-12
 
 
+def _cisp_frame(device, block: int, folded: bool, monkeypatch):
+    """One ``cisp`` frame of the wavy water with photon blocks of ``block`` threads (3 ledger stripes) and the
+    trace's final entries added by its epilogue (``folded``) or by the outcome pass: the ledger, the photon map and
+    the outcome records (written with ``record_outcomes`` either way)."""
+    from cisp_warp.photons.base import PhotonPass
+
+    monkeypatch.setattr(PhotonPass, "FOLDED_OUTCOMES", folded)
+    settings = RenderSettings(rsm_size=64, method="cisp", denoiser="none",
+                              photons=PhotonSettings(photons=5_000, seed=7, sort_photons=False))
+    r = Renderer(wavy_water(width=32, height=24), settings, device=device)
+    r.set_concurrent(False)  # the records of one program's views (the concurrent one keeps them per lane)
+    p = r.photons
+    p.record_outcomes = True
+    p.ledger_block = block
+    p.ledger_stripes = 3
+    p.ledger_rows = wp.zeros(3 * C.LEDGER_ROW, dtype=wp.vec3d, device=p.device)
+    r.render_frame()
+    return p.read_ledger(), p.photon_map.numpy(), p.outcome.numpy()[: p.photons_per_view(p.lights[0])]
+
+
+@pytest.mark.parametrize("block", [1, 32, 128])
+def test_folded_outcomes_are_the_outcome_pass(device, block, monkeypatch):
+    """``cisp``'s final entries added by the trace's epilogue (``kernels_cisp.final_add``: on CUDA the emission's
+    reduce-scatter over six entries, 18 doubles; elsewhere a tile sum) against the twin, the outcome records added
+    by ``ledger_add_outcomes`` after the trace: every entry to 1e-12 (only the order of the adds differs; on the CPU
+    with blocks of one thread, the same adds in the same order: bit for bit), closing, with power in every entry a
+    photon reaches here; the photon map and the records bit for bit the same (the trace is the same)."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    folded, map_f, rec_f = _cisp_frame(device, block, True, monkeypatch)
+    twin, map_t, rec_t = _cisp_frame(device, block, False, monkeypatch)
+    assert twin["stored"].sum() > 0 and twin["lost_camera_view"].sum() + twin["occluded"].sum() > 0
+    np.testing.assert_allclose(folded.values, twin.values, rtol=1e-12, atol=1e-12 * twin["sampled"].max())
+    if wp.get_device(device).is_cpu and block == 1:
+        assert folded.values.tobytes() == twin.values.tobytes()
+    assert folded.closure() < 1e-12
+    np.testing.assert_array_equal(rec_f, rec_t)
+    if wp.get_device(device).is_cpu:
+        np.testing.assert_array_equal(map_f, map_t)
+    else:  # the photon map's float32 atomics add in any order
+        np.testing.assert_allclose(map_f, map_t, rtol=1e-5, atol=1e-6 * map_t.max())
+
+
 @pytest.mark.parametrize("fast", [1, 0])
 @pytest.mark.parametrize("runs", ["several", "one"])
 def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
@@ -264,7 +306,7 @@ def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
     from cisp_warp.usd import load_usd
 
     for cls, name in ((PhotonPass, "FUSED_PILOT_PASS"), (PhotonPass, "WIDE_CLEAR"), (_ShadowView, "FUSED_GATES"),
-                      (LightMaps, "FUSED_SOLID_ANGLES")):
+                      (LightMaps, "FUSED_SOLID_ANGLES"), (PhotonPass, "FOLDED_OUTCOMES")):
         monkeypatch.setattr(cls, name, fused)
     path = Path(__file__).resolve().parents[1] / "scenes_usd" / "pool.usda"
     with warnings.catch_warnings():
@@ -281,7 +323,7 @@ def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
 
 def test_folded_launches_render_the_twins_frames(device, monkeypatch):
     """The frame with the folded launches (``pilot_texel_pass``, ``clear_frame``, ``redraw_gate_split``,
-    ``cascade_solid_angles_all``) against the one with their twins: on the CPU every AOV and the ledger bit for bit
+    ``cascade_solid_angles_all``, the trace's final entries without the outcome pass) against the one with their twins: on the CPU every AOV and the ledger bit for bit
     (the same sums in the same order); on a GPU, whose atomics add in any order, the ledger to 1e-9 and the maps to
     1e-5 of their maximum."""
     fused = _pool_frames(device, True, monkeypatch)

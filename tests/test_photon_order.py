@@ -8,6 +8,7 @@ import warp as wp
 from cisp_warp.photons import PhotonSettings
 from cisp_warp.photons import common as C
 from cisp_warp.photons.base import SORT_PASS_BITS, PhotonPass, morton_sort_bits
+from cisp_warp.photons.cisp import CISP
 from cisp_warp.raster.light_maps import CascadeState
 from cisp_warp.render import Renderer, RenderSettings
 from cisp_warp.stability_scenes import wavy_water
@@ -41,6 +42,7 @@ def test_sort_groups_predict_the_trace(device, monkeypatch, fixed):
     groups predict the trace: every photon keyed 'not traced' is not traced (no outcome record), every other is.
     Both texel orders: fixed (Morton codes of the points before the frame's rotation, sorted once) and per frame."""
     monkeypatch.setattr(PhotonPass, "FIXED_ORDER", fixed)
+    monkeypatch.setattr(CISP, "record_outcomes", True)  # FOLDED_OUTCOMES writes the records only if asked
     r = frame(device, "cisp", True)
     p = r.photons
     n = p.photons_per_view(p.lights[0])

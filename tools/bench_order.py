@@ -238,6 +238,7 @@ def run_scene(name: str, args, device) -> None:
                               photons=PhotonSettings(photons=args.n_photons, sort_photons=True))
     r = Renderer(scene, settings, device=device)
     r.use_graph = False
+    r.photons.FOLDED_OUTCOMES = False  # the outcome pass launched (and replayed below): the trace writes the records
     for lm in r.lights:  # main's copies below read the RSM's position, normal, flux, roughness and IOR, which the
         lm.keep_surface_maps()  # views no longer keep (perf_notes sections 43 and 58)
         lm.keep_texel_maps()

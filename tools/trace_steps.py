@@ -153,6 +153,7 @@ def run_scene(name: str, args) -> dict:
     if spec.prepare is not None:
         spec.prepare(r)
     photons = r.photons
+    photons.record_outcomes = True  # --check compares the outcome records (FOLDED_OUTCOMES writes them only if asked)
     counted = K.counted_trace()
     walk_kernel = make_walk_kernel()
     launch = photons.launch_photons

@@ -258,9 +258,10 @@ class PhotonPass:
         self.inputs = FrameInputs(lights, settings.seed, self.device)
         self._no_hidden = wp.zeros(0, dtype=wp.vec3, device=self.device)  #: the empty hidden map (hidden_args)
         #: the renderer's ``frame.FrameLanes``: in a concurrent frame each light's luminance maximum and outside
-        #: booking run on its light lane, each RSM view's photon order, trace and outcome pass on its view lane with
-        #: a scratch bank of its own (:meth:`keep_lanes`); None: every view in turn on the current stream with the
-        #: pass's own arrays (the sequential twin). ``hits`` (``record_hits``, tests) stays one array: the last view's
+        #: booking run on its light lane, each RSM view's photon order, trace and outcome pass (SSPM; CISP's with
+        #: ``FOLDED_OUTCOMES`` off) on its view lane with a scratch bank of its own (:meth:`keep_lanes`); None: every
+        #: view in turn on the current stream with the pass's own arrays (the sequential twin). ``hits``
+        #: (``record_hits``, tests) stays one array: the last view's
         self.lanes = None
         self._banks: list[dict] = []  #: per RSM view (lights in turn): its ``LANE_SCRATCH``; 0: the pass's own
         if sort and n_max > 0 and self.fixed_order and self.device.is_cuda:
@@ -504,6 +505,11 @@ class PhotonPass:
     #: by a warp reduce-scatter (``common._outcome_reduce``, one barrier, 30 float64 atomics); False: every block
     #: sums with two tile sums (the twin; docs/perf_notes.md section 77). The CPU's sums are the twin's either way
     FAST_OUTCOMES = True
+    #: True (default): the trace kernel adds its photons' final entries to the ledger itself, in its epilogue, by one
+    #: block reduction (``kernels_cisp.final_add``: the emission's reduce-scatter over six entries), writing no outcome
+    #: records and launching no outcome pass; False: each photon's outcome record, added by ``add_outcomes`` after
+    #: the trace (the twin; docs/perf_notes.md section 79). CISP's trace only (SSPM's keeps the outcome pass)
+    FOLDED_OUTCOMES = True
 
     def add_outcomes(self, outcome: wp.array, batch: RSMBatch, runs: int, entries: int) -> None:
         """Add the final entries of ``runs`` runs of ``batch.slots`` outcome records (written by the trace kernel

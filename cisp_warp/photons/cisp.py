@@ -33,6 +33,9 @@ class CISP(PhotonPass):
     """The photon pass of seed 000: allocates once, ``trace`` fills ``photon_map`` each frame."""
 
     name = "cisp"
+    #: with ``FOLDED_OUTCOMES``: write each photon's outcome record as well (tests that read them; ``record_hits``
+    #: writes them too)
+    record_outcomes = False
 
     def __init__(self, scene: DeviceScene, gbuffer: GBuffer, camera_view: View, lights: list[LightMaps],
                  settings: PhotonSettings, device, t_max: float):
@@ -43,7 +46,9 @@ class CISP(PhotonPass):
         #: while ``record_hits`` is set (tests, statistics): the frame loop does not pay 16 B a photon for them
         self.hits = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
         self.record_hits = False
-        #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_photons)
+        #: (N,) each photon's final entry and power, added to the ledger after the trace (K.trace_photons) by the outcome
+        #: pass (``FOLDED_OUTCOMES`` False, the twin); with ``FOLDED_OUTCOMES`` the trace adds them itself and writes
+        #: these records only while ``record_hits`` or ``record_outcomes`` is set (tests)
         self.outcome = wp.zeros(n_hits, dtype=wp.vec4, device=self.device)
         self.wavefront = None
         # the trace's flow inputs while no caustic flow is kept (flow_args): allocated here, not in a captured frame
@@ -139,6 +144,7 @@ class CISP(PhotonPass):
             self.wavefront.cam.view = camera
             self.wavefront.trace(frame, "cisp")
             return
+        fold = int(self.FOLDED_OUTCOMES)
         for b in self.rsm_batches(frame):
             r, sc = b.rsm, b.lights.scene
             sp = r.specular
@@ -151,9 +157,11 @@ class CISP(PhotonPass):
                 b.light_photons, b.slots, self.inputs.randoms, b.stream, b.order, self.use_order,
                 float(s.roughness_cutoff), b.luminance_cutoff, int(s.max_steps),
                 float(s.thickness), float(s.thickness_rel), self.t_max, self.footprint_mode, int(s.cascade),
-                self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None, self.outcome,
+                self.photon_map, self.photon_m2, self.ledger_rows, self.hits if self.record_hits else None,
+                self.outcome if not fold or self.record_hits or self.record_outcomes else None, fold,
                 *self.hidden_args(b), *self.flow_args(b)])
-            self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)
+            if not fold:
+                self.add_outcomes(self.outcome, b, 1, K.CISP_FINAL_ENTRIES)
         if self.flow is not None:
             self.join_lights()  # the flow's cells hold every light's landings
             self.flow.finish()

@@ -23,8 +23,8 @@ from .march import (MARCH_HIDDEN, MARCH_HIT, MARCH_STEPS, WORK_TESTS, bounded_ma
 
 wp.set_module_options({"enable_backward": False})  # forward only (the ledger's tallies are passed by reference)
 
-#: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else): written to its outcome
-#: record by trace_photons, added to the ledger by ledger_add_outcomes
+#: the ways a CISP photon ends after its bounce (trace_photon and deposit book nothing else): added per block by
+#: trace_photons' epilogue (final_add), or (the twin) written to its outcome record and added by ledger_add_outcomes
 CISP_FINAL_ENTRIES = entry_mask(L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED, L_REJECTED, L_STEPS, L_STORED)
 
 #: the emission's six entries (EMISSION_ENTRIES: sampled, culled by roughness, by luminance, absorbed, reflected,
@@ -174,6 +174,90 @@ def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry:
             _add_entry(ledger, block, L_ABSORBED, s, 3)
             _add_entry(ledger, block, L_REFLECTED, s, 4)
             _add_entry(ledger, block, L_REFRACTED, s, 5)
+
+
+#: CUDA only: the block's sums of the trace's final entries, ``_EMISSION_REDUCE``'s reduce-scatter with its first round
+#: on the records themselves: a thread holds one final entry (``slot`` 0..5 of the six contiguous entries from
+#: ``e0``; anything else: none) and its power (float32 RGB), so at lane distance 16 a lane exchanges its record with
+#: its partner (4 shuffled words instead of 9 doubles) and makes the 9 values its lane bit keeps (entries 3h..3h+2)
+#: as its own share plus its partner's, converted to float64: the same sums, added in the same order, as the
+#: 18-double round (own value + partner's), without the 18 doubles held before it. Then rounds 8..1 and the warps'
+#: sums as ``_EMISSION_REDUCE`` (its own shared partials: a warp that reaches the epilogue early must not overwrite
+#: the emission's while warp 0 still sums them), thread i < 18 adding value i to entry e0 + i / 3.
+_FIRST_ROUND = """double a[10];
+{
+    const bool h = (lane & 16) != 0;
+    #pragma unroll
+    for (int i = 0; i < 9; ++i) {
+        const double send = h ? v.c[i] : v.c[i + 9];
+        const double keep = h ? v.c[i + 9] : v.c[i];
+        a[i] = keep + __shfl_xor_sync(FULL, send, 16);
+    }
+    a[9] = 0.0;
+}"""
+_FIRST_ROUND_RECORDS = """double a[10];
+{
+    const int base = (lane & 16) != 0 ? 3 : 0;
+    const int slot_o = __shfl_xor_sync(FULL, slot, 16);
+    float p_o[3];
+    #pragma unroll
+    for (int c = 0; c < 3; ++c)
+        p_o[c] = __shfl_xor_sync(FULL, p.c[c], 16);
+    #pragma unroll
+    for (int k = 0; k < 3; ++k) {
+        #pragma unroll
+        for (int c = 0; c < 3; ++c)
+            a[3 * k + c] = (slot == base + k ? (double)p.c[c] : 0.0) + (slot_o == base + k ? (double)p_o[c] : 0.0);
+    }
+    a[9] = 0.0;
+}"""
+_ENTRY_OF_VALUE = "const int entry = q == 0 ? e0 : q == 1 ? e1 : q == 2 ? e2 : q == 3 ? e3 : q == 4 ? e4 : e5;"
+assert _EMISSION_REDUCE.count(_FIRST_ROUND) == 1 and _EMISSION_REDUCE.count(_ENTRY_OF_VALUE) == 1
+_FINAL_REDUCE = (_EMISSION_REDUCE.replace("emission_partials", "final_partials")
+                 .replace(_FIRST_ROUND, _FIRST_ROUND_RECORDS).replace(_ENTRY_OF_VALUE, "const int entry = e0 + q;"))
+# the six final entries are contiguous (_final_reduce and final_add number them from L_LOST_LIGHT)
+assert CISP_FINAL_ENTRIES == entry_mask(*range(int(L_LOST_LIGHT), int(L_STORED) + 1))
+
+
+@wp.func_native(_FINAL_REDUCE)
+def _final_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, slot: int, p: wp.vec3, e0: int) -> int:
+    """On CUDA (blocks of whole warps): the block's sums of each thread's power ``p`` under its entry ``e0 + slot``
+    (``slot`` 0..5; anything else adds nothing) added to entries ``e0``..``e0 + 5`` of the ledger's row ``stripe``
+    (see ``_FINAL_REDUCE``); returns 1. Elsewhere it does nothing and returns 0."""
+    ...
+
+
+@wp.func
+def final_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry: int, power: wp.vec3):
+    """The block's final entries (``CISP_FINAL_ENTRIES``: lost from the light view, from the camera view,
+    occluded, rejected, out of steps, stored) from each thread's one final entry and its power (the tally's
+    ``entry``, -1 none, and ``power``): six entries × RGB summed in float64 over the block in one reduction and
+    added once a block, as :func:`emission_add` adds the emission's, in the trace's epilogue instead of an outcome
+    record a photon and ``ledger_add_outcomes`` after the trace (``PhotonPass.FOLDED_OUTCOMES``, docs/perf_notes.md
+    section 79). The trace's one photon a thread holds nothing across a loop: the 18 doubles are made here from
+    four registers. On the CPU (blocks of one thread) each photon's entry is added in photon order, as the outcome
+    pass added its record: the same adds bit for bit. Every thread of the block calls it (no early return before
+    it)."""
+    if _final_reduce(ledger, ledger_slot(ledger, block, 0), entry - L_LOST_LIGHT, power, L_LOST_LIGHT) == 0:
+        zero = wp.vec3(0.0)
+        a = wp.where(entry == L_LOST_LIGHT, power, zero)
+        b = wp.where(entry == L_LOST_CAMERA, power, zero)
+        c = wp.where(entry == L_OCCLUDED, power, zero)
+        d = wp.where(entry == L_REJECTED, power, zero)
+        f = wp.where(entry == L_STEPS, power, zero)
+        g = wp.where(entry == L_STORED, power, zero)
+        v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
+                   wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
+                   wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
+                   wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
+        s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
+        if lane == 0:
+            _add_entry(ledger, block, L_LOST_LIGHT, s, 0)
+            _add_entry(ledger, block, L_LOST_CAMERA, s, 1)
+            _add_entry(ledger, block, L_OCCLUDED, s, 2)
+            _add_entry(ledger, block, L_REJECTED, s, 3)
+            _add_entry(ledger, block, L_STEPS, s, 4)
+            _add_entry(ledger, block, L_STORED, s, 5)
 
 
 @wp.func
@@ -647,7 +731,9 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
             ledger: wp.array(dtype=wp.vec3d),  # (LEDGER_ENTRIES,) power [W] per entry, RGB (accumulate)
             hits: wp.array(dtype=wp.vec4),  # (>= n_slots,) world hit point and pixel index (-1 none), tests and stats
             # (write; an empty array: not recorded, as in the frame loop)
-            outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write)
+            outcome: wp.array(dtype=wp.vec4),  # (>= n_slots,) per thread: final power [W] and entry (write; empty
+            # with fold: none written)
+            fold: int,  # 1: the final entries added by the block's epilogue (final_add); 0: by the outcome pass
             hidden_views: wp.array(dtype=ViewParams),  # the light's whole views, of its landed-photon map (read)
             hidden_flux: wp.array(dtype=wp.vec3),  # that map, power [W] per texel (hidden_flux.py; add; empty: none)
             hidden_w: int,  # its texels per whole view, across
@@ -663,9 +749,10 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
         ):
             """One thread per photon, ``wp.launch_tiled`` in blocks (:meth:`~.base.PhotonPass.launch_photons`).
             The ledger is added per block after emission and bounce (sampled, culled, absorbed, reflected/refracted),
-            so that no float64 sum is held in registers through the march; each photon's final entry goes to its
-            outcome record, added per block by ``ledger_add_outcomes`` after this kernel (no block reductions after
-            the march)."""
+            so that no float64 sum is held in registers through the march; each photon's final entry is added per
+            block at the end (``fold`` 1: :func:`final_add`, one reduction after the march), or (``fold`` 0, the
+            twin) goes to its outcome record, added per block by ``ledger_add_outcomes`` after this kernel. With
+            ``fold`` 1 the records are written only where ``outcome`` is not empty (tests)."""
             block, lane = wp.tid()
             t = block * wp.block_dim() + lane
             light = light_view(light_views, view_index)
@@ -716,7 +803,9 @@ def _make_trace(counted: bool, flows: tuple = (False, True), light_ortho: int = 
                         add_landing(flow_cells, flow_parity, flow_records, flow_offset + t,
                                     wp.where(cell >= 0, cell + flow_base, -1), pix, world_project(camera, x_end),
                                     camera.width, camera.height)
-            if t < n_slots:
+            if fold != 0:  # uniform over the launch: every thread of the block reaches the reduction
+                final_add(ledger, block, lane, tally.entry, tally.power)
+            if t < n_slots and (fold == 0 or outcome.shape[0] > 0):
                 record_outcome(outcome, t, tally)
 
         # named as a kernel at module level (the per-kernel tables, tools/regcount.py), the counted one apart, and
