@@ -220,40 +220,6 @@ def test_pilot_texel_pass_is_max_luminance_and_book_outside_window(device, rng, 
     np.testing.assert_allclose(outside[2], flux_total, rtol=1e-5)  # an empty window: everything outside
 
 
-def test_clear_frame_zeroes_every_accumulator(device):
-    """``clear_frame`` zeroes each array it is given over its whole length (arrays of unequal lengths, a view into a
-    longer one, an empty one), as the memsets it replaces do, and nothing else; the pass's float32 aliases of its
-    accumulators (``PhotonPass._clear_words``) cover every byte of them."""
-    a = wp.full(37, 1.5, dtype=wp.float32, device=device)
-    h = wp.full(53, -1.0, dtype=wp.float32, device=device)
-    acc = wp.full(90, 5.0, dtype=wp.float32, device=device)
-    whole = wp.full(60, 9.0, dtype=wp.float32, device=device)
-    part = whole[10:21]  # a view: its neighbours must keep their values
-    wp.launch(C.clear_frame, dim=90, device=device, inputs=[a, part, h, acc])
-    for arr in (a, h, acc):
-        assert not arr.numpy().any() and not np.signbit(arr.numpy()).any()
-    w = whole.numpy()
-    assert not w[10:21].any() and (w[:10] == 9.0).all() and (w[21:] == 9.0).all()
-    wp.launch(C.clear_frame, dim=37, device=device, inputs=[a, None, None, acc[:0]])  # absent arrays
-    settings = RenderSettings(rsm_size=32, method="cisp", denoiser="none", photons=PhotonSettings(photons=500, seed=7))
-    p = Renderer(wavy_water(width=16, height=12), settings, device=device).photons
-    words = p._clear_words()
-    arrays = (p.photon_map, p.photon_m2, p.hidden.all_flux, p._accumulators)
-    for w, arr in zip(words, arrays):
-        assert w.ptr == arr.ptr and 4 * w.shape[0] == arr.capacity
-    assert p._clear_words() is words  # made once
-    for arr in arrays:
-        arr.fill_(3)
-    wp.launch(C.clear_frame, dim=max(w.shape[0] for w in words), device=device, inputs=words)
-    for arr in arrays:
-        assert not arr.numpy().any()
-    for arr in arrays:
-        arr.fill_(3)
-    p.begin()  # clears, then books the light's brightest texel and the power outside its fitted views
-    for arr in arrays[:3]:
-        assert not arr.numpy().any()
-
-
 def test_wide_clear_zeroes_every_accumulator(device):
     """``clear_frame_wide`` zeroes each array it is given whole, in 16-byte words and the 4-byte words past them (0-3),
     over arrays of unequal lengths with and without tails, an empty one and a view into a longer one (16-byte aligned
@@ -322,7 +288,7 @@ def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
 
 
 def test_folded_launches_render_the_twins_frames(device, monkeypatch):
-    """The frame with the folded launches (``pilot_texel_pass``, ``clear_frame``, ``redraw_gate_split``,
+    """The frame with the folded launches (``pilot_texel_pass``, ``clear_frame_wide``, ``redraw_gate_split``,
     ``cascade_solid_angles_all``, the trace's final entries without the outcome pass) against the one with their twins: on the CPU every AOV and the ledger bit for bit
     (the same sums in the same order); on a GPU, whose atomics add in any order, the ledger to 1e-9 and the maps to
     1e-5 of their maximum."""

@@ -215,8 +215,6 @@ class PhotonPass:
         for alias in (self.ledger_rows, self.ledger, self._ledger_entries, self.max_lum):
             alias._owner = self._accumulators  # views of it (host copies via numpy() too) keep the memory alive
         self._max_lum_of = [self.max_lum[i : i + 1] for i in range(len(lights))]  # per-light views, made once
-        self._clear_key = None  #: the arrays ``_clear_words_cache`` aliases (:meth:`_clear_words`)
-        self._clear_words_cache: list[wp.array] = []
         self._clear_wide_key = None  #: the arrays ``_clear_wide_cache`` aliases (:meth:`_clear_wide`)
         self._clear_wide_cache = None
         #: (H*W,) float32: the camera pixels' exact solid angles [sr] (:meth:`set_camera_view` when the camera's
@@ -397,20 +395,12 @@ class PhotonPass:
         n = max(1, self.settings.photons // max(1, sum(active)))
         return [n if a else 0 for a in active]
 
-    #: True: zero the frame's accumulators (photon map, its Σ e², hidden flux, ledger, maxima) in one kernel
-    #: (``common.clear_frame``); False (default): one memset each. The kernel's 4-byte stores measured slower than the
-    #: memsets on the H100 (Cornell 0.026 -> 0.034 ms, pool 0.030 -> 0.032; docs/perf_notes.md section 63)
-    FUSED_CLEAR = False
-
     def begin(self) -> None:
         """Zero the photon map and the ledger, find each light's brightest texel of its whole views (the
         luminance cutoff), and book the power outside every view fitted to the camera."""
         if self.WIDE_CLEAR:
             args, threads = self._clear_wide()
             wp.launch(C.clear_frame_wide, dim=threads, device=self.device, inputs=[*args, threads])
-        elif self.FUSED_CLEAR:
-            words = self._clear_words()
-            wp.launch(C.clear_frame, dim=max(1, max(a.shape[0] for a in words)), device=self.device, inputs=words)
         else:
             self.photon_map.zero_()
             if self.hidden is not None:
@@ -427,7 +417,8 @@ class PhotonPass:
     FUSED_PILOT_PASS = True
 
     #: True (default): the frame's accumulators zeroed by one launch of 16-byte stores (``common.clear_frame_wide``,
-    #: docs/perf_notes.md section 77); False: as FUSED_CLEAR says (its default: one memset an array, the twin)
+    #: docs/perf_notes.md section 77); False: one memset an array (the twin; section 63's one kernel of 4-byte
+    #: stores, slower than the memsets on the H100, is gone)
     WIDE_CLEAR = True
     #: most threads of ``clear_frame_wide`` (each zeroes every ``threads``-th 16-byte word): 8 blocks of 256 an SM
     WIDE_CLEAR_THREADS_PER_SM = 2048
@@ -456,23 +447,6 @@ class PhotonPass:
             threads = max(4, min(longest, per_sm))
             self._clear_wide_key, self._clear_wide_cache = key, (bodies + tails, threads)
         return self._clear_wide_cache
-
-    def _clear_words(self) -> list[wp.array]:
-        """float32 aliases of the arrays :func:`~.common.clear_frame` zeroes (photon map, Σ e², hidden flux,
-        accumulators; empty where the pass keeps none), made once per set of arrays (they are allocated at set-up)."""
-        arrays = (self.photon_map, self.photon_m2, self.hidden.all_flux if self.hidden is not None else None,
-                  self._accumulators)
-        key = tuple(None if a is None else (a.ptr, a.capacity) for a in arrays)
-        if self._clear_key != key:
-            words = []
-            for a in arrays:
-                n = 0 if a is None else a.capacity // 4
-                w = wp.array(ptr=a.ptr if n else 0, dtype=wp.float32, shape=(n,), device=self.device)
-                if a is not None:
-                    w._owner = a
-                words.append(w)
-            self._clear_key, self._clear_words_cache = key, words
-        return self._clear_words_cache
 
     def begin_light(self, li: int, lm: LightMaps) -> None:
         """Light ``li``'s part of :meth:`begin`: its brightest whole-view texel, and the power outside its fitted

@@ -384,29 +384,8 @@ def ledger_add_outcomes(
             _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
 
 
-@wp.kernel
-def clear_frame(
-    photon_map: wp.array(dtype=wp.float32),  # (3*H*W,) the photon map's words (a float32 alias, write: zero)
-    photon_m2: wp.array(dtype=wp.float32),  # (H*W,) or empty: Σ luminance(e)² (write: zero)
-    hidden: wp.array(dtype=wp.float32),  # every light's hidden flux map's words (HiddenFlux.all_flux) or empty
-    accumulators: wp.array(dtype=wp.float32),  # the striped ledger, ledger and lights' maxima's words (write: zero)
-):
-    """The photon pass's per-frame accumulators zeroed in one launch, thread t zeroing word t of each array that has
-    one (launched over the longest; 4-byte words, so a warp's stores are one contiguous run): what
-    ``PhotonPass.begin`` did in one memset per array (the twin)."""
-    t = wp.tid()
-    if t < photon_map.shape[0]:
-        photon_map[t] = 0.0
-    if t < photon_m2.shape[0]:
-        photon_m2[t] = 0.0
-    if t < hidden.shape[0]:
-        hidden[t] = 0.0
-    if t < accumulators.shape[0]:
-        accumulators[t] = 0.0
-
-
 #: the whole frame's clear in 16-byte stores: CUDA's st.global.v4 (Warp's vec4 is 4-byte aligned, so its stores may
-#: be split into four 4-byte ones: section 63's clear_frame, which lost to the memsets), elsewhere a vec4 store
+#: be split into four 4-byte ones: section 63's 4-byte clear, which lost to the memsets and is gone), elsewhere a vec4 store
 _ZERO16 = """
 #if defined(__CUDA_ARCH__)
 float4 z;

@@ -140,7 +140,7 @@ class HiddenFlux:
             self.shape.append((w, h))
             sizes.append(n_views * w * h)
         #: every light's map in one allocation, ``flux[light]`` a slice of it: a frame clears them with one write
-        #: (:meth:`zero`, or ``common.clear_frame`` with the photon pass's other accumulators)
+        #: (:meth:`zero`, or ``common.clear_frame_wide`` with the photon pass's other accumulators)
         self.all_flux = wp.zeros(max(1, sum(sizes)), dtype=wp.vec3, device=self.device)
         start = 0
         for n in sizes:
