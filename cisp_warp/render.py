@@ -591,11 +591,11 @@ class Renderer:
                               inputs=[g.depth, g.albedo, self.direct.irradiance, caustic,
                                       self.sky_irradiance, cs.hits, cs.weights, self.hidden.missed, cs.hidden_sum,
                                       int(self._traces_hidden()), self.final, int(packed),
-                                      parity if packed else self.hidden.no_parity])
+                                      parity])
             else:
                 wp.launch(surface_radiance, dim=n, device=self.device,
                           inputs=[g.depth, g.albedo, self.direct.irradiance, caustic, self.sky_irradiance,
-                                  self.surface_radiance, int(packed), parity if packed else self.hidden.no_parity])
+                                  self.surface_radiance, int(packed), parity])
                 bounds = self._composite_bounds()
                 self._build_composite_bounds()
                 wp.launch(composite_kernels(self.view.orthographic)[0], dim=n, device=self.device,

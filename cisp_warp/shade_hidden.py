@@ -962,7 +962,6 @@ class HiddenSurfaces:
         self.missed = wp.zeros(n, dtype=wp.int32, device=self.device)
         self.hidden_tri = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
         self.hidden_uvw = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
-        self.no_parity = wp.zeros(1, dtype=wp.int32, device=self.device)  #: the gathers' parity where they flip none
         self.naive = False  #: trace with :data:`trace_hidden_naive` (every triangle, no BVH): the twin, for tests
 
     #: trace with the kernels compiled for the camera's projection (:func:`projected_hidden`) where the caller gives
@@ -1038,8 +1037,7 @@ class HiddenSurfaces:
                   block_dim=256 if bounds is None else int(bounds[0]), inputs=[
                       gbuffer.depth, gbuffer.albedo, direct_irradiance, caustic_irradiance, sky_irradiance, split.hits,
                       split.weights, self.missed, split.hidden_sum, packed, self.layer, self.hidden_tri,
-                      self.hidden_uvw, final, int(parity is not None),
-                      parity if parity is not None else self.no_parity])
+                      self.hidden_uvw, final, int(parity is not None), parity])
         return True
 
     def shade_hits(self, gbuffer, lights, final: wp.array, hidden_flux=None) -> None:

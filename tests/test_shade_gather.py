@@ -55,7 +55,7 @@ def test_the_folded_gather_equals_gather_then_hidden_kernels():
 
     def twin(n_maps=2, n_lights=2):
         final = wp.array(partial, dtype=wp.vec3, device="cpu")
-        wp.launch(shade.composite_gather, dim=n, device="cpu", inputs=gather + [1, final, 0, h.no_parity])
+        wp.launch(shade.composite_gather, dim=n, device="cpu", inputs=gather + [1, final, 0, None])
         for args in maps[:n_maps]:
             wp.launch(shade_hidden.hidden_direct, dim=n, device="cpu", inputs=args + [h.layer] + tail + [final])
         for li in range(n_lights):

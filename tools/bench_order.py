@@ -18,11 +18,9 @@ Warp's CUDA activity timing (kernel execution only; L2 flushed before each launc
 * ``ledger_add_outcomes``: as in the frame (four records a step, two block sums of five entries each); ``one
   record a step`` (main's kernel, a copy here: one block sum per entry); ``no block sums`` (the loop only);
   ``fast`` and ``tile sums``: ``PhotonPass.FAST_OUTCOMES`` on and off (section 77);
-* the ranged partition (section 77: ``photon_group_keys_ranged``, ``photon_group_scatter_ranged``, no scan), from a
-  second frame rendered with it;
 * on CUDA, ``[graph]`` rows: each view's order chain captured and replayed as a CUDA graph (warm L2, no flush), so
-  that the twin's ``wp.utils.array_scan`` (CUB's kernels and temporary allocation, which Warp's timing does not
-  see) is counted: keys + scan + scatter against the ranged keys + scatter; the outcome pass fast and not.
+  that ``wp.utils.array_scan`` (CUB's kernels and temporary allocation, which Warp's timing does not see) is
+  counted: keys + scan + scatter; the outcome pass fast and not.
 
 The variants are timings only: the replays rewrite the frame's scratch (keys, counts, grouped order) and add into the
 frame's ledger stripes, which nothing reads afterwards.
@@ -44,7 +42,6 @@ from _scene_bench import SCENES, scene_bench_main  # noqa: E402
 from cisp_warp.denoise.kernels_svgf import luminance  # noqa: E402
 from cisp_warp.optics import fresnel_dielectric  # noqa: E402
 from cisp_warp.photons import common as C  # noqa: E402
-from cisp_warp.photons.base import PhotonPass  # noqa: E402
 from cisp_warp.raster.light_maps import CascadeState, cascade_photons  # noqa: E402
 from cisp_warp.raster.views import ViewParams, pixel_ray_world  # noqa: E402
 
@@ -248,8 +245,7 @@ def run_scene(name: str, args, device) -> None:
     kept = []
     launch_tiled = wp.launch_tiled
     scan = wp.utils.array_scan
-    order_kernels = (C.photon_group_keys, C.photon_group_scatter, C.ledger_add_outcomes, C.photon_group_keys_ranged,
-                     C.photon_group_scatter_ranged)
+    order_kernels = (C.photon_group_keys, C.photon_group_scatter, C.ledger_add_outcomes)
 
     def keep(kernel, dim, block_dim, device, inputs):
         launch_tiled(kernel, dim=dim, block_dim=block_dim, device=device, inputs=inputs)
@@ -260,34 +256,23 @@ def run_scene(name: str, args, device) -> None:
         scan(a, b, inclusive=inclusive)
         kept.append(("scan", a, b, inclusive))
 
-    # one frame with the twin's partition (per-tile counts, array_scan, photon_group_scatter: the variants below copy
-    # its launches), then one with the ranged partition (photon_group_keys_ranged + photon_group_scatter_ranged)
-    ranged = PhotonPass.RANGED_GROUPS
     wp.launch_tiled, wp.utils.array_scan = keep, keep_scan
     try:
-        PhotonPass.RANGED_GROUPS = False
-        r.render_frame()
-        PhotonPass.RANGED_GROUPS = True
         r.render_frame()
     finally:
         wp.launch_tiled, wp.utils.array_scan = launch_tiled, scan
-        PhotonPass.RANGED_GROUPS = ranged
     wp.synchronize_device(device)
     # the group counts' scans: the one after each photon_group_keys (the frame scans other arrays too)
     scans = [kept[i + 1] for i, k in enumerate(kept[:-1]) if k[0] is C.photon_group_keys and kept[i + 1][0] == "scan"]
     kept = [k for k in kept if k[0] != "scan"]
-    rk = [k for k in kept if k[0] is C.photon_group_keys_ranged]
-    rs = [k for k in kept if k[0] is C.photon_group_scatter_ranged]
 
     keys_args = [a.label for a in C.photon_group_keys.adj.args]
     at = {n: i for i, n in enumerate(keys_args)}
     views = []  # per view: (group_keys, scatter, outcome) launches, in the frame's order
     gk = [k for k in kept if k[0] is C.photon_group_keys]
     sc = [k for k in kept if k[0] is C.photon_group_scatter]
-    second = next(i for i, k in enumerate(kept) if k[0] is C.photon_group_keys_ranged)  # the ranged frame's first
-    oc = [k for k in kept[:second] if k[0] is C.ledger_add_outcomes]
-    ro = [k for k in kept[second:] if k[0] is C.ledger_add_outcomes]
-    for g, s, o, sn, kr, sr, orr in zip(gk, sc, oc, scans, rk, rs, ro):
+    oc = [k for k in kept if k[0] is C.ledger_add_outcomes]
+    for g, s, o, sn in zip(gk, sc, oc, scans):
         states, vi, stream, slots = (g[3][at[a]] for a in ("states", "view_index", "stream", "n_slots"))
         lm = next(lm for lm in P.lights if lm.states.ptr == states.ptr)
         rv = lm.rsm[vi]
@@ -320,7 +305,7 @@ def run_scene(name: str, args, device) -> None:
         fast_outcome[-1] = 1
         views.append({"vi": vi, "light": P.lights.index(lm), "tiles": tiles, "g": g, "s": s, "o": o, "frame_order": frame_order,
                       "chained": chained, "chained_nopos": chained_nopos, "chained_frame": chained_frame, "scatter_frame": scatter_frame,
-                      "scan": sn, "gr": kr, "sr": sr, "o_slow": slow_outcome, "o_fast": fast_outcome})
+                      "scan": sn, "o_slow": slow_outcome, "o_fast": fast_outcome})
 
     def L(kernel, dim, bd, inputs):
         return lambda: launch_tiled(kernel, dim=dim, block_dim=bd, device=device, inputs=inputs)
@@ -343,18 +328,15 @@ def run_scene(name: str, args, device) -> None:
     variant("scatter: frame (after its keys)", lambda v: [L(*v["g"][:3], v["g"][3]), L(*v["s"][:3], v["s"][3])])
     variant("scatter: per-frame order (after its keys)",
             lambda v: [L(*v["g"][:3], v["frame_order"]), L(*v["s"][:3], v["scatter_frame"])])
-    variant("ranged keys (section 77)", lambda v: [L(*v["gr"][:3], v["gr"][3])])
-    variant("ranged scatter (after its keys)", lambda v: [L(*v["gr"][:3], v["gr"][3]), L(*v["sr"][:3], v["sr"][3])])
     variant("outcomes: fast (section 77)", lambda v: [L(*v["o"][:3], v["o_fast"])])
     variant("outcomes: tile sums (section 40/63)", lambda v: [L(*v["o"][:3], v["o_slow"])])
     variant("outcomes: one record a step (main)", lambda v: [L(outcomes_one_a_step, *v["o"][1:3], v["o"][3][:-1])])
     variant("outcomes: no block sums", lambda v: [L(outcomes_no_block_sums, *v["o"][1:3], v["o"][3][:-1])])
     if device.is_cuda:  # the chains as the frame's graph replays them: CUB's scan kernels and allocation included
         for label, per_view in (
-                ("chain: keys + array_scan + scatter (twin)", lambda v: [L(*v["g"][:3], v["g"][3]),
+                ("chain: keys + array_scan + scatter", lambda v: [L(*v["g"][:3], v["g"][3]),
                                                                         lambda v=v: scan(*v["scan"][1:]),
                                                                         L(*v["s"][:3], v["s"][3])]),
-                ("chain: ranged keys + scatter", lambda v: [L(*v["gr"][:3], v["gr"][3]), L(*v["sr"][:3], v["sr"][3])]),
                 ("chain: outcomes, tile sums", lambda v: [L(*v["o"][:3], v["o_slow"])]),
                 ("chain: outcomes, fast", lambda v: [L(*v["o"][:3], v["o_fast"])])):
             total = graph_ms(device, [c for v in views for c in per_view(v)], args.reps)

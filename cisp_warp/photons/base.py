@@ -558,25 +558,12 @@ class PhotonPass:
         wp.utils.radix_sort_pairs(self._sort_keys, self._order, slots, begin_bit=begin, end_bit=end)
         return self._order, 0, 1
 
-    #: True: the group partition in contiguous runs of tiles per block, its offsets from one count per group and
-    #: block summed by the scatter itself (``common.photon_group_keys_ranged`` and ``photon_group_scatter_ranged``:
-    #: two launches a view, no scan between them); False (default): one count per group and tile, scanned by
-    #: ``wp.utils.array_scan`` (CUB's two kernels and a temporary allocation a view), blocks over every grid-th tile
-    #: (section 63's; docs/perf_notes.md section 77). Off: its CUDA twin test (``test_ranged_partition_is_the_tiled_twin``)
-    #: failed on the H100 in session 13 while it passes on the CPU, and it measured no faster (keys 0.197 -> 0.20 ms)
-    RANGED_GROUPS = False
-    #: blocks of the ranged partition on the CPU (one thread each): each block sums every block's counts
-    RANGED_CPU_BLOCKS = 64
-
     def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
         """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
         ``use_order``): by texel (:meth:`texel_order`), then stably grouped by how each will march (refracted,
-        reflected, not traced; :func:`~.common.photon_group_keys_ranged` counts each group per block over its run of
-        tiles, :func:`~.common.photon_group_scatter_ranged` sums those counts and writes the grouped order into
-        ``_grouped``: no sort, no scan, no device copies; with :attr:`RANGED_GROUPS` off, the twin:
-        :func:`~.common.photon_group_keys` counts per tile, a scan of the counts places the tiles,
-        :func:`~.common.photon_group_scatter` writes); slots past the view's photon count (on the device) are not
-        written."""
+        reflected, not traced; :func:`~.common.photon_group_keys` counts each group per block, a scan of the counts
+        places the blocks, :func:`~.common.photon_group_scatter` writes the grouped order into ``_grouped``: no
+        second sort, no device copies); slots past the view's photon count (on the device) are not written."""
         if self.use_order and slots > 0:
             order, stride, orders = self.texel_order(lm, view_index, r, slots, stream)
             sp, sc = r.specular, lm.scene
@@ -585,19 +572,6 @@ class PhotonPass:
                 n = C.SORT_GROUPS * blocks
                 self._group_views[blocks] = (self._group_counts[:n], self._group_offsets[:n])
             counts, offsets = self._group_views[blocks]
-            if self.RANGED_GROUPS:
-                grid = min(blocks, self.group_max_blocks or self.RANGED_CPU_BLOCKS)
-                wp.launch_tiled(C.photon_group_keys_ranged, dim=grid, block_dim=self.group_block, device=self.device,
-                                inputs=[lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms,
-                                        stream, lm.emission(r), sp.tri_id, sc.geometry, sc.triangle_material,
-                                        sc.opacity, max_lum, float(self.settings.roughness_cutoff),
-                                        float(self.settings.luminance_cutoff), order, stride, orders, slots,
-                                        self._sort_keys, counts, grid])
-                wp.launch_tiled(C.photon_group_scatter_ranged, dim=grid, block_dim=self.group_block,
-                                device=self.device, inputs=[lm.states, view_index, self.settings.photons,
-                                                            self._sort_keys, order, stride, orders, slots, counts,
-                                                            self._grouped, grid])
-                return self._grouped
             grid = blocks if self.group_max_blocks is None else min(blocks, self.group_max_blocks)
             wp.launch_tiled(C.photon_group_keys, dim=grid, block_dim=self.group_block, device=self.device, inputs=[
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,

@@ -140,6 +140,30 @@ def _emission_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, v: vec18d, e
 
 
 @wp.func
+def _vec18(a: wp.vec3, b: wp.vec3, c: wp.vec3, d: wp.vec3, f: wp.vec3, g: wp.vec3) -> vec18d:
+    """Six RGB values in float64, in order: what :func:`emission_add` and :func:`final_add` reduce."""
+    return vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
+                  wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
+                  wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
+                  wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
+
+
+@wp.func
+def _tile_add18(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, v: vec18d, e0: int, e1: int, e2: int,
+                e3: int, e4: int, e5: int):
+    """Where the warp reduce-scatter does not run (the CPU, blocks of a partial warp): ``v`` summed over the block
+    with Warp's tiles and added by its first thread to entries ``e0``..``e5`` (three values each), in that order."""
+    s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
+    if lane == 0:
+        _add_entry(ledger, block, e0, s, 0)
+        _add_entry(ledger, block, e1, s, 1)
+        _add_entry(ledger, block, e2, s, 2)
+        _add_entry(ledger, block, e3, s, 3)
+        _add_entry(ledger, block, e4, s, 4)
+        _add_entry(ledger, block, e5, s, 5)
+
+
+@wp.func
 def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry: int, sampled: wp.vec3,
                  absorbed: wp.vec3, power: wp.vec3, refracted: int):
     """The emission's ledger entries (``EMISSION_ENTRIES``) of the block's photons from what each thread kept of
@@ -160,20 +184,11 @@ def emission_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry:
     emitted = entry == L_SAMPLED
     f = wp.where(emitted and refracted == 0, power, zero)
     g = wp.where(emitted and refracted != 0, power, zero)
-    v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
-               wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
-               wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
-               wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
+    v = _vec18(a, b, c, d, f, g)
     if _emission_reduce(ledger, ledger_slot(ledger, block, 0), v, L_SAMPLED, L_CULLED_ROUGH, L_CULLED_LUM,
                         L_ABSORBED, L_REFLECTED, L_REFRACTED) == 0:
-        s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
-        if lane == 0:
-            _add_entry(ledger, block, L_SAMPLED, s, 0)
-            _add_entry(ledger, block, L_CULLED_ROUGH, s, 1)
-            _add_entry(ledger, block, L_CULLED_LUM, s, 2)
-            _add_entry(ledger, block, L_ABSORBED, s, 3)
-            _add_entry(ledger, block, L_REFLECTED, s, 4)
-            _add_entry(ledger, block, L_REFRACTED, s, 5)
+        _tile_add18(ledger, block, lane, v, L_SAMPLED, L_CULLED_ROUGH, L_CULLED_LUM, L_ABSORBED, L_REFLECTED,
+                    L_REFRACTED)
 
 
 #: CUDA only: the block's sums of the trace's final entries, ``_EMISSION_REDUCE``'s reduce-scatter with its first round
@@ -246,18 +261,8 @@ def final_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entry: in
         d = wp.where(entry == L_REJECTED, power, zero)
         f = wp.where(entry == L_STEPS, power, zero)
         g = wp.where(entry == L_STORED, power, zero)
-        v = vec18d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]), wp.float64(b[0]), wp.float64(b[1]),
-                   wp.float64(b[2]), wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]), wp.float64(d[0]),
-                   wp.float64(d[1]), wp.float64(d[2]), wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2]),
-                   wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]))
-        s = wp.tile_extract(wp.tile_sum(wp.tile(v, preserve_type=True)), 0)
-        if lane == 0:
-            _add_entry(ledger, block, L_LOST_LIGHT, s, 0)
-            _add_entry(ledger, block, L_LOST_CAMERA, s, 1)
-            _add_entry(ledger, block, L_OCCLUDED, s, 2)
-            _add_entry(ledger, block, L_REJECTED, s, 3)
-            _add_entry(ledger, block, L_STEPS, s, 4)
-            _add_entry(ledger, block, L_STORED, s, 5)
+        _tile_add18(ledger, block, lane, _vec18(a, b, c, d, f, g), L_LOST_LIGHT, L_LOST_CAMERA, L_OCCLUDED,
+                    L_REJECTED, L_STEPS, L_STORED)
 
 
 @wp.func
