@@ -1407,3 +1407,29 @@ def test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin(device, 
     if gate is None:  # gated, those pixels' own gates are closed (their 3x3 neighbourhoods hold little signal)
         live = c_ref[last][(g["depth"][last] > 0)]
         assert live.max() > 0.0 and c[last][(g["depth"][last] > 0)].max() > 0.0
+
+
+def test_pair_items_cover_the_pair_rows_and_spread_over_the_banks():
+    """The pair phase's items in :func:`kernels_atrous.fill_weights`' order (``ODD_PITCH``, section 83; mirrored here
+    in Python: the twin tests above check the kernel's values): every item of the pair rows once, and each 8 lanes'
+    first points in 8 different 16-byte banks (``u`` mod 8), which with the even pitch's row-major items they are
+    not (every other bank twice)."""
+    from cisp_warp.denoise import kernels_atrous as ka
+
+    def items(odd):
+        pitch, runs = ka.GUIDE_X + (5 if odd else 4), ka.GUIDE_X // ka.RUN
+        out = []
+        for k in range(ka.PAIR_ROWS * runs):
+            i, m = divmod(k, runs)
+            if odd:
+                pair_row, r = divmod(k, 2 * runs)
+                i, m = 2 * pair_row + (r // 4) % 2, 4 * (r // 8) + r % 4
+            out.append(i * pitch + 2 * m + 2)
+        return pitch, out
+
+    for odd in (False, True):
+        pitch, us = items(odd)
+        assert sorted(us) == sorted(i * pitch + 2 * m + 2 for i in range(ka.PAIR_ROWS) for m in range(ka.GUIDE_X // 2))
+        groups = [len({u % 8 for u in us[g:g + 8]}) for g in range(0, len(us), 8)]
+        assert (min(groups) == 8) == odd and max(groups) == (8 if odd else 4)
+    assert ka.GUIDE_PITCH == ka.GUIDE_X + (5 if ka.ODD_PITCH else 4)

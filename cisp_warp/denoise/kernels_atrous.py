@@ -79,10 +79,15 @@ passes read their neighbours' Var alone. Section 71 (predicted, not measured): S
 float32 Var the level before wrote (24 instead of ~60-76 bytes a pixel to and from L2), the lattice levels' input
 written in their order by the level before. Section 73 (predicted, not measured): those guide passes take 4 pixels of a
 row a thread (:func:`make_guide_run`, ``GUIDE_RUN``), the same values; and why the pool's levels cost more than the
-Cornell box's (more blocks whose apron holds a signal at steps 8 and 16).
+Cornell box's (more blocks whose apron holds a signal at steps 8 and 16). Section 83 (predicted, not measured): the
+shared tables' rows an odd number of entries apart and the pair phase's items given to lanes by row pairs
+(``ODD_PITCH``), so that its 16-byte guide reads and pair writes take no bank conflicts (half the shared-memory
+cycles of that phase), the same values.
 """
 
 from __future__ import annotations
+
+import os
 
 import warp as wp
 
@@ -104,9 +109,17 @@ BLOCK_THREADS = TILE_Y * TILE_X
 #: guide region: the tile and an apron of 4 (taps of 2 whose weight sums reach 2 further)
 GUIDE_Y = TILE_Y + 8
 GUIDE_X = TILE_X + 8
+#: the shared tables' rows an odd number of entries apart, and the pair phase's items given to lanes so that each
+#: group of 8 lanes takes 4 items of one row and 4 of the next (section 83): its 16-byte guide reads and 4-byte pair
+#: writes then spread over every bank (a warp's reads of items 2 entries apart along one row, as with an even pitch,
+#: hit every bank twice as often: twice the cycles). The same values bit for bit. Read at import, from the
+#: environment (the lead's A/B, before the module is imported: ``os.environ["CISP_ATROUS_ODD_PITCH"] = "0"``: the
+#: even pitch and row-major items, as before)
+ODD_PITCH = os.environ.get("CISP_ATROUS_ODD_PITCH", "1") != "0"
 #: row pitch of the shared guide and pair tables: the guide region's columns and 2 empty (no surface) columns
-#: on either side, so that no tap of a guide leaves its row and no pair needs a column test
-GUIDE_PITCH = GUIDE_X + 4
+#: on either side, so that no tap of a guide leaves its row and no pair needs a column test; with ``ODD_PITCH`` one
+#: more column, never written nor read
+GUIDE_PITCH = GUIDE_X + (5 if ODD_PITCH else 4)
 GUIDE_PIXELS = GUIDE_Y * GUIDE_PITCH
 #: rows of the region whose forward pair weights are kept: tile rows − 4 ... tile rows + 1 (all guide columns)
 PAIR_ROWS = TILE_Y + 6
@@ -147,7 +160,7 @@ _GUIDE_HALF = wp.constant((GUIDE_Y * GUIDE_X + 1) // 2)
 _EMPTY_N = wp.constant(GUIDE_Y * 4)
 _PAIR_PIXELS = wp.constant(PAIR_PIXELS)
 _PAIR_N = wp.constant(FORWARD_TAPS * PAIR_PIXELS)
-assert GUIDE_X % RUN == 0
+assert GUIDE_X % RUN == 0 and (GUIDE_X // RUN) % 4 == 0 and PAIR_ROWS % 2 == 0
 _RUNS_X = wp.constant(GUIDE_X // RUN)
 _RUN_N = wp.constant(PAIR_ROWS * GUIDE_X // RUN)
 #: the step-1 level that blurs its own variance (:func:`make_atrous_level`'s ``self_guide``): the guide region and an
@@ -440,7 +453,15 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
     k = lane
     while k < _RUN_N:
         i = k // _RUNS_X
-        u = i * _PITCH + 2 * (k - i * _RUNS_X) + 2
+        m = k - i * _RUNS_X  # item m of row i: points 2m, 2m + 1 of the guide region's row
+        if wp.static(ODD_PITCH):
+            # items 8r .. 8r + 7 of a row pair: 4 consecutive of its first row, then the same 4 of its second
+            # (rows an odd pitch apart: the 8 lanes' first points lie in 8 different 16-byte banks)
+            pair_row = k // (2 * _RUNS_X)
+            r = k - pair_row * (2 * _RUNS_X)
+            i = 2 * pair_row + (r // 4) % 2
+            m = 4 * (r // 8) + r % 4
+        u = i * _PITCH + 2 * m + 2
         gs_1 = read_guide(guide_s, u)
         gd_1 = read_guide(guide_d, u)
         gs_2 = read_guide(guide_s, u + 1)
