@@ -479,11 +479,14 @@ class PhotonPass:
     #: by a warp reduce-scatter (``common._outcome_reduce``, one barrier, 30 float64 atomics); False: every block
     #: sums with two tile sums (the twin; docs/perf_notes.md section 77). The CPU's sums are the twin's either way
     FAST_OUTCOMES = True
-    #: True (default): the trace kernel adds its photons' final entries to the ledger itself, in its epilogue, by one
-    #: block reduction (``kernels_cisp.final_add``: the emission's reduce-scatter over six entries), writing no outcome
-    #: records and launching no outcome pass; False: each photon's outcome record, added by ``add_outcomes`` after
-    #: the trace (the twin; docs/perf_notes.md section 79). CISP's trace only (SSPM's keeps the outcome pass)
-    FOLDED_OUTCOMES = True
+    #: True: the trace kernel adds its photons' final entries to the ledger itself, in its epilogue, by one block
+    #: reduction (``kernels_cisp.final_add``: the emission's reduce-scatter over six entries), writing no outcome
+    #: records and launching no outcome pass; False (default): each photon's outcome record, added by
+    #: ``add_outcomes`` after the trace. CISP's trace only (SSPM's keeps the outcome pass). Off because it measured
+    #: slower on the H100: the epilogue made the trace kernels ~0.03 ms longer than the pass it saves (pool 4.638
+    #: against 4.619 ms, and 4.626 / 4.622 against 4.604 / 4.599 in another machine's call; docs/perf_notes.md
+    #: sections 79, 81 and 84)
+    FOLDED_OUTCOMES = False
 
     def add_outcomes(self, outcome: wp.array, batch: RSMBatch, runs: int, entries: int) -> None:
         """Add the final entries of ``runs`` runs of ``batch.slots`` outcome records (written by the trace kernel
