@@ -196,3 +196,43 @@ def test_prefetched_resolve_pool_frames(device, monkeypatch):
         else:
             scale = max(float(np.abs(got[False][k]).max()), 1e-30)
             np.testing.assert_allclose(got[True][k], got[False][k], rtol=0, atol=1e-5 * scale, err_msg=k)
+
+
+@pytest.mark.parametrize("size", [(48, 32), (70, 45)])
+def test_prefetched_back_resolve_is_its_twin(device, size, monkeypatch):
+    """``resolve_back_view_prefetch`` against ``resolve_back_view`` (``kernels.RESOLVE_BACK_PREFETCH``): the camera's
+    ``depth_layers`` (front and back), the depth bounds of both layers and the back-face visibility buffer left clear,
+    bit for bit, from two cameras in a closed room and an open one, on images that are not a multiple of a coarse
+    cell."""
+    import math
+
+    from cisp_warp.photons.march import bounds_size
+    from cisp_warp.raster import GBuffer, Rasterizer, camera_view
+    from cisp_warp.raster import kernels as RK
+    from cisp_warp.scene import Camera, DeviceScene
+    from cisp_warp.scene.model import look_at_matrix
+    from test_raster import box_room, make_scene
+
+    w, h = size
+    cams = [Camera(look_at_matrix(e, t), fov_y=math.radians(70), near=0.02, far=10.0, width=w, height=h)
+            for e, t in (((-0.7, 0.8, 0.6), (0.0, -0.5, 0.0)), ((0.3, -0.3, 0.75), (0.3, -0.5, 0.1)))]
+    for parts in (box_room(), box_room()[1:]):
+        ds = DeviceScene(make_scene(parts, cams[0]), device)
+        raster = Rasterizer(ds)
+        out = []
+        for prefetch in (True, False):
+            monkeypatch.setattr(RK, "RESOLVE_BACK_PREFETCH", prefetch)
+            g = GBuffer.allocate(w, h, device)
+            bounds = wp.full(bounds_size(w, h), wp.vec2(-1.0, -1.0), dtype=wp.vec2, device=device)
+            g.keep_depth_bounds(bounds, 0.03, 0.02)
+            prev = camera_view(cams[0]).params()
+            for cam in cams:
+                v = camera_view(cam).params()
+                g.render(raster, v, prev)
+                prev = v
+            assert g.builds_depth_bounds(bounds)
+            out.append((g.depth_layers.numpy(), bounds.numpy(), g.visibility.numpy()))
+        for a, b in zip(out[0], out[1]):
+            np.testing.assert_array_equal(a, b)
+        assert (out[0][0][w * h:] > 0).any() and (out[0][1][:, 1] > 0).all()
+        assert (out[0][2] == RK.EMPTY_KEY_VALUE).all()
