@@ -90,6 +90,8 @@ class MeshWavefrontSplat:
         self.cam = cam
         d = photon_pass.device
         sc = photon_pass.scene
+        for lm in photon_pass.lights:  # mesh_cells reads each RSM view's shadow depth (fitted views keep none else)
+            lm.keep_shadow_depth()
         specular = np.flatnonzero(sc.scene.triangle_layers() & LAYER_SPECULAR).astype(np.int32)
         tris, bary = grid_triangles(sc.scene.points, sc.scene.indices, specular, photon_pass.settings.photons)
         self.grid = K.MeshGrid()

@@ -834,6 +834,26 @@ def back_texel(view: ViewParams, p: int, visibility: wp.array(dtype=wp.uint64), 
 
 
 @wp.func
+def back_texel_key(view: ViewParams, p: int, key: wp.uint64, ft: int, z_front: float,
+                   visibility: wp.array(dtype=wp.uint64), points: wp.array(dtype=wp.vec3),
+                   normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32),
+                   depth_layers: wp.array(dtype=wp.float32)) -> float:
+    """:func:`back_texel` with the pixel's key ``key``, front triangle ``ft`` and front depth ``z_front`` [m] loaded
+    already by the caller (``visibility[p]``, ``front_tri[p]``, ``depth_layers[p]``): the same values, the same bits;
+    the key is reset here as :func:`take_key` does."""
+    if key != EMPTY_KEY:
+        visibility[p] = EMPTY_KEY
+    n = view.width * view.height
+    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
+    zb = float(0.0)
+    if tri >= 0 and ft >= 0:
+        if not faces_away(view, ft, points, normals, indices):
+            zb = wp.max(t, z_front)
+    depth_layers[n + p] = zb
+    return zb
+
+
+@wp.func
 def opaque_texel(
     view: ViewParams,
     prev_view: ViewParams,
@@ -1494,6 +1514,218 @@ def resolve_rsm_view(
                 if tri == -1 and keep_flux:
                     flux[p] = wp.vec3(0.0)
                 elif tri >= 0 and keep_flux:  # (-2: empty as before, its flux is zero already)
+                    flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
+                                         texel_solid_angle)
+                if m == 0:
+                    od0 = od
+                elif m == 1:
+                    od1 = od
+                elif m == 2:
+                    od2 = od
+                else:
+                    od3 = od
+        if want_bounds:
+            _scatter_texel(zs, c0, 0, threads, lane, x0, y0, width, height, od0)
+            _scatter_texel(zs, c0, 1, threads, lane, x0, y0, width, height, od1)
+            _scatter_texel(zs, c0, 2, threads, lane, x0, y0, width, height, od2)
+            _scatter_texel(zs, c0, 3, threads, lane, x0, y0, width, height, od3)
+    if not want_bounds:
+        return
+    _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
+
+
+#: True (default): ``GBuffer`` resolves the camera's back faces with :func:`resolve_back_view_prefetch` (the next
+#: pixel's key, front triangle and front depth loaded before the current pixel is resolved; perf_notes section 87);
+#: False: :func:`resolve_back_view` (main's, its twin). The same buffers bit for bit. Read at launch
+RESOLVE_BACK_PREFETCH = True
+#: blocks of :func:`resolve_back_view_prefetch` resident per SM, its launch bound (sm_90, ``tools/regcount.py --local``)
+RESOLVE_BACK_PREFETCH_BLOCKS_PER_SM = 3
+
+
+@wp.func
+def _back_inputs(visibility: wp.array(dtype=wp.uint64), front_tri: wp.array(dtype=wp.int32),
+                 depth_layers: wp.array(dtype=wp.float32), k: int, x0: int, y0: int, width: int, height: int):
+    """Pixel ``k`` of the block's coarse cell: its back-face key, front triangle and front depth [m] (EMPTY_KEY, -1,
+    0 off the view or past the cell): loads only, issued ahead of their use."""
+    x = x0 + k % BOUNDS_COARSE
+    y = y0 + k / BOUNDS_COARSE
+    key = EMPTY_KEY
+    ft = int(-1)
+    z_front = float(0.0)
+    if k < RESOLVE_TEXELS and x < width and y < height:
+        p = y * width + x
+        key = visibility[p]
+        ft = front_tri[p]
+        z_front = depth_layers[p]
+    return key, ft, z_front
+
+
+@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_BACK_PREFETCH_BLOCKS_PER_SM))
+def resolve_back_view_prefetch(
+    views: wp.array(dtype=ViewParams),
+    view_index: int,
+    visibility: wp.array(dtype=wp.uint64),
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    front_tri: wp.array(dtype=wp.int32),
+    depth_layers: wp.array(dtype=wp.float32),
+    thickness: float,
+    thickness_rel: float,
+    bounds: wp.array(dtype=wp.vec2),
+):
+    """:func:`resolve_back_view` (its twin; the same arguments and bits) with its loads software-pipelined: a thread
+    loads its next pixel's key, front triangle and front depth before it resolves the current one (whose triangle
+    reads and the block's barrier then overlap them; section 87)."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    want_bounds = bounds.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    zb = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    next_key, next_ft, next_z = _back_inputs(visibility, front_tri, depth_layers, lane, x0, y0, width, height)
+    for k0 in range(0, RESOLVE_TEXELS, threads):
+        k = k0 + lane
+        key = next_key
+        ft = next_ft
+        z_front = next_z
+        next_key, next_ft, next_z = _back_inputs(visibility, front_tri, depth_layers, k + threads, x0, y0, width,
+                                                 height)
+        x = x0 + k % BOUNDS_COARSE
+        y = y0 + k / BOUNDS_COARSE
+        inside = k < RESOLVE_TEXELS and x < width and y < height
+        z_back = float(0.0)
+        if inside:
+            view = read_again(views, view_index, k)
+            p = y * width + x
+            z_back = back_texel_key(view, p, key, ft, z_front, visibility, points, normals, indices, depth_layers)
+        else:
+            z_front = float(0.0)
+        if want_bounds:
+            wp.tile_scatter_masked(zs, k, z_front, inside)
+            wp.tile_scatter_masked(zb, k, z_back, inside)
+    if not want_bounds:
+        return
+    _block_bounds(zs, zb, True, lane, threads, block, width, height, thickness, thickness_rel, bounds)
+
+
+#: True (default): ``LightMaps`` resolves an RSM view with :func:`resolve_rsm_view_prefetch` (the next texel's keys
+#: loaded before the current texel is resolved; perf_notes section 87); False: :func:`resolve_rsm_view` (main's,
+#: its twin). The same buffers bit for bit. Read at launch
+RESOLVE_RSM_PREFETCH = True
+#: blocks of :func:`resolve_rsm_view_prefetch` resident per SM, its launch bound: 80 registers and 16 B of stack
+#: (4 local loads and stores, none in a loop; sm_90, ``tools/regcount.py --local``), the twin's occupancy
+RESOLVE_RSM_PREFETCH_BLOCKS_PER_SM = 3
+
+
+@wp.func
+def _round_keys(opaque_visibility: wp.array(dtype=wp.uint64), specular_visibility: wp.array(dtype=wp.uint64),
+                c0: int, m: int, threads: int, lane: int, x0: int, y0: int, width: int, height: int):
+    """Both layers' keys of texel ``c0 + m·threads + lane`` of the block's coarse cell (EMPTY_KEY off the view or past
+    the cell): loads only, issued ahead of their use."""
+    k = c0 + m * threads + lane
+    x = x0 + k % BOUNDS_COARSE
+    y = y0 + k / BOUNDS_COARSE
+    key_o = EMPTY_KEY
+    key_s = EMPTY_KEY
+    if k < RESOLVE_TEXELS and x < width and y < height:
+        p = y * width + x
+        key_o = opaque_visibility[p]
+        key_s = specular_visibility[p]
+    return key_o, key_s
+
+
+@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_RSM_PREFETCH_BLOCKS_PER_SM))
+def resolve_rsm_view_prefetch(
+    views: wp.array(dtype=ViewParams),
+    view_index: int,
+    opaque_visibility: wp.array(dtype=wp.uint64),
+    specular_visibility: wp.array(dtype=wp.uint64),
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    triangle_material: wp.array(dtype=wp.int32),
+    mat_roughness: wp.array(dtype=wp.float32),
+    mat_ior: wp.array(dtype=wp.float32),
+    light_rgb: wp.vec3,
+    spot_axis: wp.vec3,
+    is_spot: int,
+    cone_angle: float,
+    cone_softness: float,
+    texel_solid_angle: wp.array(dtype=wp.float32),
+    opaque_depth: wp.array(dtype=wp.float32),
+    opaque_tri: wp.array(dtype=wp.int32),
+    depth: wp.array(dtype=wp.float32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    roughness: wp.array(dtype=wp.float32),
+    ior: wp.array(dtype=wp.float32),
+    tri_id: wp.array(dtype=wp.int32),
+    nearest_depth: wp.array(dtype=wp.float32),
+    flux: wp.array(dtype=wp.vec3),
+    thickness: float,
+    thickness_rel: float,
+    bounds: wp.array(dtype=wp.vec2),
+):
+    """:func:`resolve_rsm_view` (its twin; the same arguments, the same texel functions, the same bits) with the
+    keys software-pipelined: a thread loads its next texel's two keys before it resolves the current one. A texel is a
+    chain of dependent loads (its keys from DRAM, then the triangles' indices, then their points, L2) and the twin's
+    loop could not start the next keys' loads before the current texel's stores (the compiler cannot prove they do
+    not alias), so only two DRAM loads were in flight a thread, and none during the triangle reads; here the next
+    keys' latency hides under the current texel's work (section 87)."""
+    block, lane = wp.tid()
+    view = views[view_index]
+    if view.far <= 0.0:  # an inactive view (light_maps.INACTIVE_FAR): nothing drawn; its maps and bounds are kept
+        return
+    threads = wp.block_dim()
+    width = view.width
+    height = view.height
+    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
+    x0 = (block % cw) * BOUNDS_COARSE
+    y0 = (block / cw) * BOUNDS_COARSE
+    want_bounds = bounds.shape[0] > 0
+    keep_flux = flux.shape[0] > 0
+    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
+    # the thread's first texel's keys; each texel loads the next one's (the next round's first after a round's last:
+    # texel m + 1 of a round is texel 0 of the next) before it is resolved
+    next_o, next_s = _round_keys(opaque_visibility, specular_visibility, 0, 0, threads, lane, x0, y0, width, height)
+    for c0 in range(0, RESOLVE_TEXELS, threads * RESOLVE_TEXELS_PER_THREAD):
+        od0 = float(0.0)
+        od1 = float(0.0)
+        od2 = float(0.0)
+        od3 = float(0.0)
+        for m in range(wp.min(RESOLVE_TEXELS_PER_THREAD, threads * RESOLVE_TEXELS_PER_THREAD)):  # kept rolled
+            key_o = next_o
+            key_s = next_s
+            next_o, next_s = _round_keys(opaque_visibility, specular_visibility, c0, m + 1, threads, lane, x0, y0,
+                                         width, height)
+            k = c0 + m * threads + lane
+            x = x0 + k % BOUNDS_COARSE
+            y = y0 + k / BOUNDS_COARSE
+            if k < RESOLVE_TEXELS and x < width and y < height:
+                view = read_again(views, view_index, k)  # read per texel (L1 hits), not kept in registers
+                p = y * width + x
+                if key_o != EMPTY_KEY:
+                    opaque_visibility[p] = EMPTY_KEY
+                if key_s != EMPTY_KEY:
+                    specular_visibility[p] = EMPTY_KEY
+                tri_o, od, x_o, bary_o, d_o = triangle_hit(view, key_o, p, points, indices)
+                opaque_depth[p] = od
+                if opaque_tri.shape[0] > 0:
+                    opaque_tri[p] = tri_o
+                tri = specular_texel_key(view, p, key_s, od, points, normals, indices, triangle_material,
+                                         mat_roughness, mat_ior, depth, position, normal, roughness, ior, tri_id,
+                                         nearest_depth)
+                if tri == -1 and keep_flux:
+                    flux[p] = wp.vec3(0.0)
+                elif tri >= 0 and keep_flux:
                     flux[p] = texel_flux(view, p, light_rgb, spot_axis, is_spot, cone_angle, cone_softness,
                                          texel_solid_angle)
                 if m == 0:

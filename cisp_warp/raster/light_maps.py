@@ -387,6 +387,12 @@ class LightMaps:
     ============  =======================================  ================================================
     """
 
+    #: True (default): the fitted views (cascades and pilots) keep no ``shadow_depth`` (4 B a texel the resolves do
+    #: not write; nothing of the frame reads it: perf_notes section 87); whole views keep theirs (``shadow_maps``
+    #: reads it where the light has no shadow map of its own). False: every view keeps and writes it (main's path
+    #: before section 87). Read when a ``LightMaps`` is made
+    SKIP_UNREAD_SHADOW_DEPTH = True
+
     def __init__(self, scene: DeviceScene, light: Light, rsm_size: int,
                  view_settings: LightViewSettings | None = None):
         vs = view_settings or LightViewSettings(fit="scene")
@@ -399,10 +405,14 @@ class LightMaps:
         whole = light_views(scene.scene, light, rsm_size)
         d = scene.device
         if self.fitted:
-            self.pilot = [RSMView.allocate(resized_view(v, vs.pilot_size, f"pilot_{v.name[4:]}"), d, False, False)
-                          for v in whole]
+            # a fitted cascade's and a pilot's shadow depth is read by nothing of the frame (the direct light's shadow
+            # lookups read the light's own shadow maps, ``_shadows``; the fit reads the pilots' two layers): not
+            # allocated, not written, unless a reader asks (:meth:`keep_shadow_depth`; perf_notes section 87)
+            shadow = not self.SKIP_UNREAD_SHADOW_DEPTH
+            self.pilot = [RSMView.allocate(resized_view(v, vs.pilot_size, f"pilot_{v.name[4:]}"), d, False, False,
+                                           shadow) for v in whole]
             self.rsm = [RSMView.allocate(window_view(v, (0, 0, v.width, v.height), rsm_size, f"{v.name}_c{c}"), d,
-                                         False, False) for v in whole for c in range(vs.cascades)]
+                                         False, False, shadow) for v in whole for c in range(vs.cascades)]
             self.cascades = vs.cascades
             # the cascades' texel solid angles in one array, each view's ``solid_angle`` a slice of it (in view order):
             # the fit rewrites the moved ones in one launch (refresh_cascade_solid_angles)
@@ -614,6 +624,7 @@ class LightMaps:
         """(view, depth of nearest surface of any layer) pairs that together cover what the light reaches."""
         if self._shadows:
             return [(s.params, s.depth) for s in self._shadows]
+        assert all(r.has_shadow_depth for r in self.rsm), "whole views keep their shadow depth"
         return [(p, r.shadow_depth) for p, r in zip(self.params, self.rsm)]  # whole views: host-known
 
     @property
@@ -640,6 +651,13 @@ class LightMaps:
         consumer that reads the arrays (``photons.wavefront``); pilot views are left without (the fit computes them)."""
         for r in self.rsm:
             r.specular.keep_surface()
+
+    def keep_shadow_depth(self) -> None:
+        """Have every RSM view keep its ``shadow_depth`` (allocated here and written by each resolve from the next on;
+        fitted views keep none by default: :attr:`SKIP_UNREAD_SHADOW_DEPTH`), for a consumer that reads the array
+        (``photons.meshgrid``'s ``mesh_cells``, tests); pilot views are left without."""
+        for r in self.rsm:
+            r.keep_shadow_depth()
 
     def keep_texel_maps(self) -> None:
         """Have every RSM and pilot view keep its per-texel ``flux`` and its specular layer's ``roughness`` and ``ior``
@@ -684,7 +702,8 @@ class LightMaps:
         if self.fused_resolve:  # both layers, the flux and the depth bounds in one pass over the view
             th, th_rel = self._bounds_thickness
             coarse = ((r.width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE) * ((r.height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
-            wp.launch_tiled(K.resolve_rsm_view, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
+            resolve = K.resolve_rsm_view_prefetch if K.RESOLVE_RSM_PREFETCH else K.resolve_rsm_view
+            wp.launch_tiled(resolve, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
                             inputs=[views, k, r.visibility, sp.visibility, s.points, s.normals, s.indices,
                                     s.triangle_material, s.roughness, s.ior, wp.vec3(*rgb), wp.vec3(*axis),
                                     int(light.kind == LightKind.SPOT), float(light.cone_angle),

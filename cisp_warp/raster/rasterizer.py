@@ -299,7 +299,8 @@ class GBuffer(_Buffers):
                 bounds, th, th_rel = self._bounds or (None, 0.0, 0.0)
                 coarse = (((self.width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
                           * ((self.height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE))
-                wp.launch_tiled(K.resolve_back_view, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
+                resolve = K.resolve_back_view_prefetch if K.RESOLVE_BACK_PREFETCH else K.resolve_back_view
+                wp.launch_tiled(resolve, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
                                 inputs=[views, 0, self.visibility, s.points, s.normals, s.indices, self.tri_id,
                                         self.depth_layers, th, th_rel, bounds])
             else:
@@ -327,25 +328,28 @@ class RSMView(_Buffers):
     visibility: wp.array  #: (H*W,) uint64 (scratch)
     opaque_depth: wp.array  #: (H*W,) float32 linear depth of the nearest opaque surface [m]; 0 = none
     opaque_tri: wp.array  #: (H*W,) int32
-    shadow_depth: wp.array  #: (H*W,) float32 depth of the nearest surface of any kind [m]; 0 = none
+    shadow_depth: wp.array  #: (H*W,) float32 depth of the nearest surface of any kind [m]; 0 = none (empty, not
+    #: written by the resolves, unless kept: :meth:`keep_shadow_depth`; ``LightMaps`` says which views keep it)
     specular: SpecularLayer
     flux: wp.array  #: (H*W,) vec3 [W]: power the light sends through the texel onto its specular surface (empty
     #: unless kept, :meth:`keep_texel_maps`; ``LightMaps.emission`` gives it where it is read)
     solid_angle: wp.array  #: (H*W,) float32 [sr] per texel (perspective views; zeros for orthographic)
 
     @staticmethod
-    def allocate(view: View, device, surface: bool = True, texel_maps: bool = True) -> "RSMView":
+    def allocate(view: View, device, surface: bool = True, texel_maps: bool = True,
+                 shadow_depth: bool = True) -> "RSMView":
         """``surface``: whether the specular layer keeps ``position`` and ``normal`` (:meth:`SpecularLayer.allocate`);
         ``texel_maps``: whether the view keeps ``flux`` and its layer ``roughness`` and ``ior`` (else they are empty,
         not written by the resolves: a reader computes them from ``tri_id`` with ``kernels.TexelEmission``) until
-        :meth:`keep_texel_maps`."""
+        :meth:`keep_texel_maps`; ``shadow_depth``: whether it keeps ``shadow_depth`` (else empty and not written:
+        nothing reads a fitted cascade's or a pilot's) until :meth:`keep_shadow_depth`."""
         w, h = view.width, view.height
-        check_memory(w * h * (52 + (24 if surface else 0) + (20 if texel_maps else 0)),
+        check_memory(w * h * (48 + (4 if shadow_depth else 0) + (24 if surface else 0) + (20 if texel_maps else 0)),
                      f"a {w}x{h} reflective shadow map", device)
         hw = (h, w)
         sa = view.texel_solid_angle().astype(np.float32).reshape(-1) if not view.orthographic else np.zeros(w * h, np.float32)
         return RSMView(view, w, h, visibility_buffer(w * h, device), _pixels(hw, wp.float32, device),
-                       _pixels(hw, wp.int32, device), _pixels(hw, wp.float32, device),
+                       _pixels(hw, wp.int32, device), _pixels(hw if shadow_depth else (0, 0), wp.float32, device),
                        SpecularLayer.allocate(w, h, device, surface, texel_maps),
                        _pixels(hw if texel_maps else (0, 0), wp.vec3, device),
                        wp.array(sa, dtype=wp.float32, device=device))
@@ -354,6 +358,17 @@ class RSMView(_Buffers):
     def has_texel_maps(self) -> bool:
         """Whether the resolves write ``flux`` and the layer's ``roughness`` and ``ior``."""
         return self.flux.shape[0] == self.width * self.height
+
+    @property
+    def has_shadow_depth(self) -> bool:
+        """Whether the resolves write ``shadow_depth``."""
+        return self.shadow_depth.shape[0] == self.width * self.height
+
+    def keep_shadow_depth(self) -> None:
+        """Allocate ``shadow_depth`` (zero), so the resolves write it from the next one on (a reader of the array:
+        ``LightMaps.shadow_maps`` of whole views, the mesh wavefront's ``mesh_cells``, tests)."""
+        if not self.has_shadow_depth:
+            self.shadow_depth = _pixels((self.height, self.width), wp.float32, self.opaque_depth.device)
 
     def keep_texel_maps(self) -> None:
         """Allocate ``flux`` and the layer's ``roughness`` and ``ior`` (zero), so the resolves write them from the
