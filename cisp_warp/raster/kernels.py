@@ -834,26 +834,6 @@ def back_texel(view: ViewParams, p: int, visibility: wp.array(dtype=wp.uint64), 
 
 
 @wp.func
-def back_texel_key(view: ViewParams, p: int, key: wp.uint64, ft: int, z_front: float,
-                   visibility: wp.array(dtype=wp.uint64), points: wp.array(dtype=wp.vec3),
-                   normals: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32),
-                   depth_layers: wp.array(dtype=wp.float32)) -> float:
-    """:func:`back_texel` with the pixel's key ``key``, front triangle ``ft`` and front depth ``z_front`` [m] loaded
-    already by the caller (``visibility[p]``, ``front_tri[p]``, ``depth_layers[p]``): the same values, the same bits;
-    the key is reset here as :func:`take_key` does."""
-    if key != EMPTY_KEY:
-        visibility[p] = EMPTY_KEY
-    n = view.width * view.height
-    tri, t, x, bary, d = triangle_hit(view, key, p, points, indices)
-    zb = float(0.0)
-    if tri >= 0 and ft >= 0:
-        if not faces_away(view, ft, points, normals, indices):
-            zb = wp.max(t, z_front)
-    depth_layers[n + p] = zb
-    return zb
-
-
-@wp.func
 def opaque_texel(
     view: ViewParams,
     prev_view: ViewParams,
@@ -1532,88 +1512,6 @@ def resolve_rsm_view(
     if not want_bounds:
         return
     _block_bounds(zs, zs, False, lane, threads, block, width, height, thickness, thickness_rel, bounds)
-
-
-#: True (default): ``GBuffer`` resolves the camera's back faces with :func:`resolve_back_view_prefetch` (the next
-#: pixel's key, front triangle and front depth loaded before the current pixel is resolved; perf_notes section 87);
-#: False: :func:`resolve_back_view` (main's, its twin). The same buffers bit for bit. Read at launch
-RESOLVE_BACK_PREFETCH = True
-#: blocks of :func:`resolve_back_view_prefetch` resident per SM, its launch bound (sm_90, ``tools/regcount.py --local``)
-RESOLVE_BACK_PREFETCH_BLOCKS_PER_SM = 3
-
-
-@wp.func
-def _back_inputs(visibility: wp.array(dtype=wp.uint64), front_tri: wp.array(dtype=wp.int32),
-                 depth_layers: wp.array(dtype=wp.float32), k: int, x0: int, y0: int, width: int, height: int):
-    """Pixel ``k`` of the block's coarse cell: its back-face key, front triangle and front depth [m] (EMPTY_KEY, -1,
-    0 off the view or past the cell): loads only, issued ahead of their use."""
-    x = x0 + k % BOUNDS_COARSE
-    y = y0 + k / BOUNDS_COARSE
-    key = EMPTY_KEY
-    ft = int(-1)
-    z_front = float(0.0)
-    if k < RESOLVE_TEXELS and x < width and y < height:
-        p = y * width + x
-        key = visibility[p]
-        ft = front_tri[p]
-        z_front = depth_layers[p]
-    return key, ft, z_front
-
-
-@wp.kernel(launch_bounds=(RESOLVE_THREADS, RESOLVE_BACK_PREFETCH_BLOCKS_PER_SM))
-def resolve_back_view_prefetch(
-    views: wp.array(dtype=ViewParams),
-    view_index: int,
-    visibility: wp.array(dtype=wp.uint64),
-    points: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
-    front_tri: wp.array(dtype=wp.int32),
-    depth_layers: wp.array(dtype=wp.float32),
-    thickness: float,
-    thickness_rel: float,
-    bounds: wp.array(dtype=wp.vec2),
-):
-    """:func:`resolve_back_view` (its twin; the same arguments and bits) with its loads software-pipelined: a thread
-    loads its next pixel's key, front triangle and front depth before it resolves the current one (whose triangle
-    reads and the block's barrier then overlap them; section 87)."""
-    block, lane = wp.tid()
-    view = views[view_index]
-    if view.far <= 0.0:
-        return
-    threads = wp.block_dim()
-    width = view.width
-    height = view.height
-    cw = (width + BOUNDS_COARSE - 1) / BOUNDS_COARSE
-    x0 = (block % cw) * BOUNDS_COARSE
-    y0 = (block / cw) * BOUNDS_COARSE
-    want_bounds = bounds.shape[0] > 0
-    zs = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
-    zb = wp.tile_empty(shape=RESOLVE_TEXELS, dtype=wp.float32, storage="shared")
-    next_key, next_ft, next_z = _back_inputs(visibility, front_tri, depth_layers, lane, x0, y0, width, height)
-    for k0 in range(0, RESOLVE_TEXELS, threads):
-        k = k0 + lane
-        key = next_key
-        ft = next_ft
-        z_front = next_z
-        next_key, next_ft, next_z = _back_inputs(visibility, front_tri, depth_layers, k + threads, x0, y0, width,
-                                                 height)
-        x = x0 + k % BOUNDS_COARSE
-        y = y0 + k / BOUNDS_COARSE
-        inside = k < RESOLVE_TEXELS and x < width and y < height
-        z_back = float(0.0)
-        if inside:
-            view = read_again(views, view_index, k)
-            p = y * width + x
-            z_back = back_texel_key(view, p, key, ft, z_front, visibility, points, normals, indices, depth_layers)
-        else:
-            z_front = float(0.0)
-        if want_bounds:
-            wp.tile_scatter_masked(zs, k, z_front, inside)
-            wp.tile_scatter_masked(zb, k, z_back, inside)
-    if not want_bounds:
-        return
-    _block_bounds(zs, zb, True, lane, threads, block, width, height, thickness, thickness_rel, bounds)
 
 
 #: True (default): ``LightMaps`` resolves an RSM view with :func:`resolve_rsm_view_prefetch` (the next texel's keys

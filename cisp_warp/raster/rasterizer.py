@@ -299,8 +299,7 @@ class GBuffer(_Buffers):
                 bounds, th, th_rel = self._bounds or (None, 0.0, 0.0)
                 coarse = (((self.width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
                           * ((self.height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE))
-                resolve = K.resolve_back_view_prefetch if K.RESOLVE_BACK_PREFETCH else K.resolve_back_view
-                wp.launch_tiled(resolve, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
+                wp.launch_tiled(K.resolve_back_view, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
                                 inputs=[views, 0, self.visibility, s.points, s.normals, s.indices, self.tri_id,
                                         self.depth_layers, th, th_rel, bounds])
             else:
