@@ -702,8 +702,7 @@ class LightMaps:
         if self.fused_resolve:  # both layers, the flux and the depth bounds in one pass over the view
             th, th_rel = self._bounds_thickness
             coarse = ((r.width + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE) * ((r.height + K.BOUNDS_COARSE - 1) // K.BOUNDS_COARSE)
-            resolve = K.resolve_rsm_view_prefetch if K.RESOLVE_RSM_PREFETCH else K.resolve_rsm_view
-            wp.launch_tiled(resolve, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
+            wp.launch_tiled(K.resolve_rsm_view, dim=coarse, block_dim=K.RESOLVE_THREADS, device=s.device,
                             inputs=[views, k, r.visibility, sp.visibility, s.points, s.normals, s.indices,
                                     s.triangle_material, s.roughness, s.ior, wp.vec3(*rgb), wp.vec3(*axis),
                                     int(light.kind == LightKind.SPOT), float(light.cone_angle),

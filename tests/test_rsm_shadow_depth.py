@@ -1,8 +1,6 @@
-"""perf_notes section 87. The fitted RSM views (cascades and pilots) keep no shadow depth: nothing of a frame reads it,
+"""The fitted RSM views (cascades and pilots) keep no shadow depth (perf_notes section 87): nothing of a frame reads it,
 so its resolves skip the 4 B a texel (``LightMaps.SKIP_UNREAD_SHADOW_DEPTH``). The tests prove the skip changes
-nothing (every other map, AOV and the ledger bit for bit) and fail as soon as some code reads a skipped map. And
-``resolve_rsm_view_prefetch`` (a round's keys loaded up front, ``kernels.RESOLVE_RSM_PREFETCH``) against its twin
-``resolve_rsm_view``: every buffer bit for bit."""
+nothing (every other map, AOV and the ledger bit for bit) and fail as soon as some code reads a skipped map."""
 import sys
 import warnings
 from pathlib import Path
@@ -145,54 +143,3 @@ def test_keep_shadow_depth_writes_the_nearer_layer(device):
             np.testing.assert_array_equal(v.shadow_depth.numpy(), np.where(spec > 0, spec, opaque))
             checked += int((spec > 0).any() and ((spec == 0) & (opaque > 0)).any())
     assert checked >= 1
-
-
-@pytest.mark.parametrize("size", [48, 70])
-def test_prefetched_rsm_resolve_is_its_twin(device, size, monkeypatch):
-    """``resolve_rsm_view_prefetch`` against ``resolve_rsm_view`` (both fused, the same light poses): every buffer of
-    every view (both layers' maps, shadow depth, opaque triangle, the depth bounds, and both visibility buffers left
-    clear) bit for bit, with and without the kept surface and texel maps: a spot moved between two frames, a point
-    light's six faces, a distant light, views that are not a multiple of a coarse cell (70)."""
-    import math
-
-    from cisp_warp.raster import kernels as RK
-    from cisp_warp.scene import Camera, DeviceScene, Light, LightKind
-    from cisp_warp.scene.model import look_at_matrix
-    from test_raster import _rsm_frame, box_room, make_scene
-
-    cam = Camera(look_at_matrix((0.2, 0.3, 0.9), (0.0, -0.5, 0.0)), width=16, height=16)
-    spots = [Light(LightKind.SPOT, "spot", intensity=3.0, position=p, direction=d, cone_angle=math.radians(40),
-                   cone_softness=0.3) for p, d in (((0.0, 0.9, 0.0), (0, -1, 0)), ((0.5, 0.6, -0.3), (-0.3, -1, 0.2)))]
-    cases = [(box_room(), spots), (box_room(), [Light(LightKind.POINT, "bulb", intensity=2.0, position=(0.1, 0.2, 0.0))]),
-             (box_room()[1:], [Light(LightKind.DISTANT, "sun", intensity=500.0, direction=(0.3, -1.0, 0.1))])]
-    for parts, frames in cases:
-        ds = DeviceScene(make_scene(parts, cam, frames[:1]), device)
-        for surface, texel_maps in ((False, False), (True, True)):
-            got = {}
-            for prefetch in (True, False):
-                monkeypatch.setattr(RK, "RESOLVE_RSM_PREFETCH", prefetch)
-                got[prefetch] = _rsm_frame(ds, frames[0], size, True, frames, surface=surface, texel_maps=texel_maps)
-            assert got[True].keys() == got[False].keys()
-            for k in got[True]:
-                np.testing.assert_array_equal(got[True][k], got[False][k], err_msg=f"{frames[0].name} {k}")
-            assert (got[True]["0_specular_tri_id"] >= 0).any() and (got[True]["0_opaque_depth"] > 0).any()
-            assert all((v == RK.EMPTY_KEY_VALUE).all() for k, v in got[True].items() if k.endswith("visibility"))
-
-
-def test_prefetched_resolve_pool_frames(device, monkeypatch):
-    """Two pool frames (fitted views, every default) with the prefetching resolve and with its twin: every AOV, pilot
-    map and the ledger bit for bit on the CPU (to 1e-5 of their maximum on a GPU)."""
-    from cisp_warp.raster import kernels as RK
-
-    got = {}
-    for prefetch in (True, False):
-        monkeypatch.setattr(RK, "RESOLVE_RSM_PREFETCH", prefetch)
-        got[prefetch] = _frames(device, True, monkeypatch, "cisp")
-    assert got[True].keys() == got[False].keys()
-    exact = wp.get_device(device).is_cpu
-    for k in got[True]:
-        if exact:
-            np.testing.assert_array_equal(got[True][k], got[False][k], err_msg=k)
-        else:
-            scale = max(float(np.abs(got[False][k]).max()), 1e-30)
-            np.testing.assert_allclose(got[True][k], got[False][k], rtol=0, atol=1e-5 * scale, err_msg=k)
