@@ -1031,6 +1031,50 @@ def test_svgf_levels_match_naive_twin(device, feedback, levels, sigma_normal):
     np.testing.assert_allclose(svgf.variance.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("conserve", [True, False])
+def test_select_free_levels_equal_the_select_levels(device, monkeypatch, conserve):
+    """Section 85: SVGF's σ_n = 128 levels without the pair weights' select on p's surface (``SELECT_FREE``, the
+    default: a point without a surface gets the dead guide, whose weights come out 0 from their own arithmetic) give
+    every output of SVGF's frame bit for bit as the levels with the select (its twin, ``SELECT_FREE = False``): 5
+    levels (step 1 self-guided, 2 and 4 dense, 8 and 16 in sub-lattice-major order), three frames with motion off, a
+    hole, a region without a surface between surfaces (every pair kind: both without, one without), a depth step,
+    noisy normals, blocks without signal and blocks whose apron alone holds it. Fails if ``DEAD_SLOPE`` is 0 (the
+    pairs of two points without a surface turn NaN and spread through W_q)."""
+    from cisp_warp.denoise import kernels_atrous as ka
+    rng = np.random.default_rng(85)
+    w, h = 83, 51
+    g = plane(w, h)
+    g["depth"][20:35, 30:50] = 1.25  # a depth step
+    g["depth"][5:12, 40:70] = 0.0  # no surface between surfaces
+    g["tri_id"][5:12, 40:70] = -1
+    n = g["normal"] + 0.05 * rng.standard_normal((h, w, 3)).astype(np.float32)
+    g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+    maps = []
+    for t in range(3):
+        e = photon_map(rng, h, w, 0.25, [4.0, 2.0, 1.0])
+        e[:, 56:] = 0.0  # a region without signal: its blocks skip (or filter only for their aprons)
+        maps.append(e)
+    s = SVGFSettings(sigma_luminance=2.0, conserve_energy=conserve, atrous_levels=5, feedback_level=1)
+    assert ka.normal_squarings(s.sigma_normal) == ka.NORMAL_SQUARINGS  # the default σ_n runs the compiled pow form
+    outputs = {}
+    for free in (True, False):
+        monkeypatch.setattr(ka, "SELECT_FREE", free)
+        assert (ka.level_kernel(0, ka.NORMAL_SQUARINGS, 1, free) is ka.ATROUS_LEVEL_SELF_FREE) == free
+        assert (ka.level_kernel(0, ka.NORMAL_SQUARINGS, 0, free) is ka.ATROUS_LEVEL_FREE) == free
+        svgf = SVGF(w, h, device, s)
+        out = wp.zeros(w * h, dtype=wp.vec3, device=device)
+        seq = []
+        for e in maps:
+            seq.append(run_frame(svgf, g, e, out).copy())
+            seq.append(svgf.variance.numpy().copy())
+            seq.append(svgf.hist_color.numpy().copy())
+        outputs[free] = seq
+    assert any(np.any(a != 0) for a in outputs[True])
+    for a, b in zip(outputs[True], outputs[False]):
+        assert np.all(np.isfinite(a))
+        np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))  # bit for bit, zeros' signs included
+
+
 def test_atrous_fast_math_helpers(device):
     """The pair weight's ln cos (series above 0.5), atanh series and its CUDA intrinsics against numpy in float64."""
     from cisp_warp.denoise.kernels_atrous import (atanh_series, fast_div, fast_exp, fast_exp2, fast_rcp, fast_rsqrt,

@@ -178,6 +178,14 @@ _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: multiplications (:func:`pair_weight`); MAX_SQUARINGS bounds the unrolled loop that takes them
 NORMAL_SQUARINGS = 7
 MAX_SQUARINGS = wp.constant(8)
+#: Section 85: SVGF's ungated σ_n = 128 levels (steps 1-16) give a point without a surface the guide terms (n, z) = 0
+#: and σ_z ‖∇z‖ ln 2 = DEAD_SLOPE (others 0), so that a pair weight with such a p is 0 from its own arithmetic
+#: (c = 0, a finite exponent) and :func:`tap_weight` evaluates it without the select on p's surface. Read at launch
+#: (:func:`launch_atrous`): True (default) the select-free levels, False the levels with the select (main's, the twin).
+SELECT_FREE = True
+#: the dead point's σ_z ‖∇z‖ ln 2: φ_z >= DEAD_SLOPE ‖p − q‖ > 0 for every pair with such a point, finite up to
+#: steps of 2^30 (‖p − q‖ <= 2.9 step), so that |z_p − z_q| / φ_z is finite and no 0 · ∞ arises
+DEAD_SLOPE = wp.constant(1.0e28)
 #: W_p's own term h(0)² = (3/8)²
 CENTRE_WEIGHT = wp.constant(0.140625)
 #: ln 2 and log2(e), the scales of :func:`pair_scales`
@@ -424,11 +432,20 @@ def pair_scales(sigma_depth: float, sigma_normal: float, sigma_luminance: float)
 
 @wp.func
 def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: int, active: bool, s: float,
-               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int) -> float:
+               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int,
+               select_free: int) -> float:
     """w(p, p + forward tap ``f``) from the loaded guides of p and q; 0 where p is not ``active`` (no surface, or
     a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold. With
     ``squarings`` (no branch in :func:`pair_weight`) the weight is evaluated either way and selected, without a
-    branch (an inactive p's weight may be NaN: q without a surface either, φ_z = 0; it is never used)."""
+    branch (an inactive p's weight may be NaN: q without a surface either, φ_z = 0; it is never used).
+    ``select_free`` (ungated, ``squarings`` > 0; a compile-time constant): no select either; the level gave every
+    point without a surface the guides (0, DEAD_SLOPE, 0, ...) (:func:`store_guide`), whose weight with any q is
+    max(0, 0·n_q)^σ_n 2^X = 0 with X finite (φ_z >= DEAD_SLOPE ‖p − q‖ > 0): the same 0 as the select's (a zero of
+    either sign, which adds nothing to the sums it enters; every sum starts at +0 or above). This needs every p
+    with a surface (Var >= 0) to have z > 0, as SVGF's inputs do (:func:`.kernels_svgf.surface_depth`)."""
+    if squarings > 0 and select_free != 0:
+        return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f), two_over_step,
+                           depth_eps, sigma_normal, gated, squarings)
     if squarings > 0:
         return wp.where(active, pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f),
                                             two_over_step, depth_eps, sigma_normal, gated, squarings), 0.0)
@@ -442,7 +459,7 @@ def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: in
 def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                  pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
                  lane: int, threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int,
-                 squarings: int):
+                 squarings: int, select_free: int):
     """Steps 2 and 3 of :func:`atrous_level` (cooperative: every thread of the block calls it). Writes ``pair``
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
     and ``inv_weight_sum`` (shared, 1 / W_q of the tile and an apron of 2, at their guide index)."""
@@ -469,13 +486,13 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
         active_1 = gs_1[3] > 0.0 and (gated == 0 or gd_1[3] * two_over_step > 1.0)
         active_2 = gs_2[3] > 0.0 and (gated == 0 or gd_2[3] * two_over_step > 1.0)
         # row 0: taps (0, 1) and (0, 2); u + 1 is p_1's first q
-        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
         for j in range(2):  # q = u + 2 + j: p_1's tap (0, 2) (j = 0), p_2's tap (0, 1 + j)
             gs_q = read_guide(guide_s, u + 2 + j)
             gd_q = read_guide(guide_d, u + 2 + j)
             if j == 0:
-                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
-            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
+            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
         # rows 1 and 2: q = u + dy PITCH + dx, dx = -2 .. 3: p_1's tap (dy, dx) for dx <= 2 (f = 5 dy - 1 + dx),
         # p_2's tap (dy, dx - 1) for dx >= -1
         for t in range(12):
@@ -485,9 +502,9 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
             gs_q = read_guide(guide_s, v)
             gd_q = read_guide(guide_d, v)
             if dx <= 2:
-                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
             if dx >= -1:
-                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
         k += threads
     block_sync()
 
@@ -865,16 +882,17 @@ ATROUS_GUIDE_RUN = {r: make_guide_run(r) for r in (4, 8)}
 @wp.func
 def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                 signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
-                s: float, gated: int) -> int:
+                s: float, gated: int, select_free: int) -> int:
     """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
     guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns the bits
     ``TO_FILTER`` if the point is a pixel of the output tile that some gate lets be filtered (``gated`` == 0: any
     with a surface) and ``HAS_SIGNAL`` if it is a point of the tile or its apron of 2 (the filter's taps) with a
-    surface and a signal: a colour channel != 0 or Var > 0 (NaN counts as signal)."""
+    surface and a signal: a colour channel != 0 or Var > 0 (NaN counts as signal). ``select_free``: a point without
+    a surface gets ``guide_d`` = (DEAD_SLOPE, 0, 0, 0) (:func:`tap_weight`)."""
     surface = inside and cv[3] >= 0.0
     if not surface:
         write_guide(guide_s, k, wp.vec4(0.0))
-        write_guide(guide_d, k, wp.vec4(0.0))
+        write_guide(guide_d, k, wp.vec4(wp.where(select_free != 0, DEAD_SLOPE, 0.0), 0.0, 0.0, 0.0))
         write_guide(signal, k, wp.vec4(0.0))
         return 0
     write_guide(guide_s, k, gs)
@@ -917,7 +935,7 @@ def blur_own_variance(guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], ring: wp.tile[wp.
         k += threads
 
 
-def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
+def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, select_free: int = 0):
     """:func:`atrous_level` compiled for one value of ``gated`` and of ``squarings`` (closure constants, folded by
     the compiler): the ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one
     (the caustics denoiser) is the same code with every gate evaluated. Same arithmetic either way (an open gate
@@ -925,13 +943,17 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
     (:func:`pair_weight`); 0: any σ_n, through a logarithm. ``self_guide`` (ungated, step 1, a packed input not
     in sub-lattice-major order): the level needs no guide pass; it reads σ_z ‖∇z‖ from ``slope`` and blurs its own
     variance (:func:`blur_own_variance`) from an apron of 5 instead of 4 (the Var of its outer ring, ``RING_N``
-    loads a block more), one barrier more."""
+    loads a block more), one barrier more. ``select_free`` (ungated, ``squarings`` > 0; section 85): the pair
+    weights without the select on p's surface (:func:`tap_weight`; a point without a surface gets the dead guide of
+    :func:`store_guide`), the same values."""
     GATED = int(gated)
     SQUARINGS = int(squarings)
     SELF_GUIDE = int(self_guide)
+    SELECT_FREE_ = int(select_free)
     assert not (SELF_GUIDE and GATED)
+    assert not (SELECT_FREE_ and (GATED or not SQUARINGS))
     name = (("atrous_level_gated" if GATED else "atrous_level") + (f"_pow{SQUARINGS}" if SQUARINGS else "")
-            + ("_self" if SELF_GUIDE else ""))
+            + ("_self" if SELF_GUIDE else "") + ("_free" if SELECT_FREE_ else ""))
 
     @wp.kernel(name=name,
                launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
@@ -1049,14 +1071,16 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
             else:
                 ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
                 ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
-            found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
+            found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED,
+                                         SELECT_FREE_)
             if r1 < _GUIDE_REAL:
-                found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
+                found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s,
+                                             GATED, SELECT_FREE_)
         # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
         for m in range(threads - 1 - lane, _EMPTY_N, threads):
             c = m % 4
             store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
-                        wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED)
+                        wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED, SELECT_FREE_)
 
         inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
@@ -1075,7 +1099,7 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
                 block_sync()
         if run:
             fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
-                         normal_scale, GATED, SQUARINGS)
+                         normal_scale, GATED, SQUARINGS, SELECT_FREE_)
 
         # 4. the filter of the tile's pixels
         k = lane
@@ -1141,6 +1165,19 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
 ATROUS_LEVEL = {(g, k): make_atrous_level(g, k) for g in (0, 1) for k in (0, NORMAL_SQUARINGS)}
 #: SVGF's first level (ungated, step 1, packed input, σ_n = 2^NORMAL_SQUARINGS) without a guide pass
 ATROUS_LEVEL_SELF = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1)
+#: SVGF's ungated σ_n = 128 levels without the pair weights' select (section 85), (chained, step 1 self-guided)
+ATROUS_LEVEL_FREE = make_atrous_level(0, NORMAL_SQUARINGS, select_free=1)
+ATROUS_LEVEL_SELF_FREE = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1, select_free=1)
+
+
+def level_kernel(gated: int, squarings: int, self_guide: int, select_free: bool):
+    """The compiled level :func:`launch_atrous` launches: ``select_free`` (:data:`SELECT_FREE`) picks the
+    select-free form where there is one (ungated, σ_n = 128)."""
+    if self_guide:
+        return ATROUS_LEVEL_SELF_FREE if select_free else ATROUS_LEVEL_SELF
+    if select_free and not gated and squarings == NORMAL_SQUARINGS:
+        return ATROUS_LEVEL_FREE
+    return ATROUS_LEVEL[int(gated), squarings]
 
 
 def normal_squarings(sigma_normal: float) -> int:
@@ -1305,7 +1342,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
-    level = ATROUS_LEVEL_SELF if self_guide else ATROUS_LEVEL[int(gated), normal_squarings(sigma_normal)]
+    level = level_kernel(int(gated), normal_squarings(sigma_normal), self_guide, SELECT_FREE)
     wp.launch_tiled(level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, depth_scale,
                             normal_scale, luminance_scale, int(conserve_energy),
