@@ -172,6 +172,17 @@ RING_N = 2 * RING_X + 2 * GUIDE_Y
 assert RING_N <= (GUIDE_Y * GUIDE_X + 1) // 2 and RING_Y * RING_X <= FORWARD_TAPS * PAIR_ROWS * GUIDE_PITCH
 _RING_X = wp.constant(RING_X)
 _RING_N = wp.constant(RING_N)
+#: section 85: SVGF's step-2 level that blurs its own variance (``self_guide`` = 2, :data:`FOLD_GUIDE2`): the dense
+#: pixels of its guide region's 3x3 neighbourhoods, ``REGION_Y`` x ``REGION_X`` (the guide points 2 pixels apart and
+#: a pixel more on each side), their Var read from the previous level's dense copy into the pair table's first
+#: entries, only in blocks that run, ``REGION_ROUND`` loads a thread in flight
+REGION_Y = 2 * GUIDE_Y + 1
+REGION_X = 2 * GUIDE_X + 1
+REGION_ROUND = 8
+assert REGION_Y * REGION_X <= FORWARD_TAPS * PAIR_ROWS * GUIDE_PITCH
+_REGION_X = wp.constant(REGION_X)
+_REGION_N = wp.constant(REGION_Y * REGION_X)
+_vec_round = wp.types.vector(length=REGION_ROUND, dtype=wp.float32)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: σ_n = 2^NORMAL_SQUARINGS (128, both denoisers' default) has a level of its own whose normal term is that many
@@ -935,6 +946,67 @@ def blur_own_variance(guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], ring: wp.tile[wp.
         k += threads
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __ldg(a.data + p);
+#else
+return a.data[p];
+#endif
+""")
+def load_float(a: wp.array(dtype=wp.float32), p: int) -> float:
+    """Entry ``p`` of a float32 array through the read-only path (``__ldg`` on CUDA)."""
+    ...
+
+
+@wp.func
+def load_region2(region: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], variance_in: wp.array(dtype=wp.float32),
+                 lane: int, threads: int, oy: int, ox: int, width: int, height: int):
+    """The step-2 level's region (cooperative, no barrier): the Var of pixels (oy + r, ox + c), r < REGION_Y, c <
+    REGION_X, from ``variance_in`` (H*W float32, NO_SURFACE without a surface) into ``region`` row-major
+    (NO_SURFACE outside the image); REGION_ROUND loads a thread issued before their stores."""
+    base = lane
+    while base < _REGION_N:
+        vals = _vec_round()
+        for m in range(REGION_ROUND):
+            k = base + m * threads
+            r = k // _REGION_X
+            y = oy + r
+            x = ox + k - r * _REGION_X
+            inside = k < _REGION_N and y >= 0 and y < height and x >= 0 and x < width
+            v = load_float(variance_in, wp.where(inside, y * width + x, 0))
+            vals[m] = wp.where(inside, v, NO_SURFACE)
+        for m in range(REGION_ROUND):
+            k = base + m * threads
+            if k < _REGION_N:
+                write_pair(region, k, vals[m])
+        base += REGION_ROUND * threads
+
+
+@wp.func
+def blur_region2(guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], region: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS],
+                 lane: int, threads: int):
+    """:func:`blur_own_variance` for the step-2 level (cooperative): guide point (i, j) is pixel (2i + 1, 2j + 1) of
+    ``region`` (:func:`load_region2`), its 3x3 neighbourhood the pixels around it there (other sub-lattices); the
+    same sums in the same order as :func:`gaussian_sums` and :func:`atrous_guide_run`, the same value as the guide
+    pass's bit for bit."""
+    k = lane
+    while k < _GUIDE_REAL:
+        i = k // _GUIDE_X
+        j = k - i * _GUIDE_X
+        c = (2 * i + 1) * _REGION_X + 2 * j + 1
+        if read_pair(region, c) >= 0.0:
+            sums = wp.vec3(0.0)
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    v = read_pair(region, c + dy * _REGION_X + dx)
+                    kq = wp.where(v >= 0.0, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
+                    sums += kq * wp.vec3(1.0, wp.max(v, 0.0), 0.0)
+            u = i * _PITCH + j + 2
+            gd = read_guide(guide_d, u)
+            write_guide(guide_d, u, wp.vec4(gd[0], 0.5 * (sums[1] / sums[0]), gd[2], gd[3]))
+        k += threads
+
+
 def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, select_free: int = 0):
     """:func:`atrous_level` compiled for one value of ``gated`` and of ``squarings`` (closure constants, folded by
     the compiler): the ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one
@@ -945,15 +1017,19 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
     variance (:func:`blur_own_variance`) from an apron of 5 instead of 4 (the Var of its outer ring, ``RING_N``
     loads a block more), one barrier more. ``select_free`` (ungated, ``squarings`` > 0; section 85): the pair
     weights without the select on p's surface (:func:`tap_weight`; a point without a surface gets the dead guide of
-    :func:`store_guide`), the same values."""
+    :func:`store_guide`), the same values. ``self_guide`` = 2 (ungated, step 2, a packed input not in sub-lattice-major
+    order; section 85): as 1, the blur's Var from the previous level's dense copy ``variance_in`` over the pixels
+    of the guide region's 3x3 neighbourhoods (:func:`load_region2`, :func:`blur_region2`), read only by blocks that
+    run, after the flags' barriers (one load round and two barriers more there)."""
     GATED = int(gated)
     SQUARINGS = int(squarings)
     SELF_GUIDE = int(self_guide)
     SELECT_FREE_ = int(select_free)
     assert not (SELF_GUIDE and GATED)
     assert not (SELECT_FREE_ and (GATED or not SQUARINGS))
+    assert SELF_GUIDE in (0, 1, 2)
     name = (("atrous_level_gated" if GATED else "atrous_level") + (f"_pow{SQUARINGS}" if SQUARINGS else "")
-            + ("_self" if SELF_GUIDE else "") + ("_free" if SELECT_FREE_ else ""))
+            + {0: "", 1: "_self", 2: "_guide2"}[SELF_GUIDE] + ("_free" if SELECT_FREE_ else ""))
 
     @wp.kernel(name=name,
                launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
@@ -984,6 +1060,7 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
         lattice_out: int,
         write_variance: int,
         variance_next: wp.array(dtype=wp.float32),
+        variance_in: wp.array(dtype=wp.float32),
     ):
         """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
         ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -1006,6 +1083,8 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
         ``lattice_out`` != 0 (a power of two): ``color_variance_out`` is written in that step's sub-lattice-major order
         (the next level's, whose guide pass then copies nothing); ``write_variance``: ``variance_next`` (H*W float32)
         gets the packed output's Var densely (NO_SURFACE without a surface), all the next guide pass reads of it.
+        ``variance_in`` (H*W float32): the input's Var densely, read only by the level compiled with ``self_guide`` =
+        2 (it must not alias ``variance_next``).
         """
         block, lane = wp.tid()
         threads = wp.block_dim()
@@ -1050,7 +1129,10 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
             cv1 = load_vec4(color_variance, p1)
             gs0 = load_vec4(guide, guide_offset + p0)
             gs1 = load_vec4(guide, guide_offset + p1)
-            if wp.static(SELF_GUIDE):  # the guide pass's terms but g3x3(Var) (1b), which needs the ring's Var
+            if wp.static(SELF_GUIDE == 2):  # the guide pass's terms but g3x3(Var) (1b, from the region's Var)
+                ax0 = wp.vec4(depth_scale * slope[p0], 0.0, luminance(wp.vec3(cv0[0], cv0[1], cv0[2])) * luminance_scale, 0.0)
+                ax1 = wp.vec4(depth_scale * slope[p1], 0.0, luminance(wp.vec3(cv1[0], cv1[1], cv1[2])) * luminance_scale, 0.0)
+            elif wp.static(SELF_GUIDE == 1):  # the guide pass's terms but g3x3(Var) (1b), which needs the ring's Var
                 sz0 = slope[p0]
                 sz1 = slope[p1]
                 # ring point r0 (< RING_N): the apron-5 rows 0 and RING_Y - 1, then its columns 0 and RING_X - 1
@@ -1093,9 +1175,15 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
         to_filter = block_sync_or(flag, found & TO_FILTER)
         any_signal = block_sync_or(flag, found & HAS_SIGNAL)
         run = to_filter != 0 and any_signal != 0
-        if wp.static(SELF_GUIDE):
+        if wp.static(SELF_GUIDE == 1):
             if run:  # 1b, g3x3(Var) / 2 from the ring (the pair table's first entries, overwritten by 2)
                 blur_own_variance(guide_d, pair, lane, threads)
+                block_sync()
+        if wp.static(SELF_GUIDE == 2):
+            if run:  # 1b, g3x3(Var) / 2 from the region's Var (the pair table's first entries, overwritten by 2)
+                load_region2(pair, variance_in, lane, threads, row0 + 2 * sy0 - 1, col0 + 2 * sx0 - 1, width, height)
+                block_sync()
+                blur_region2(guide_d, pair, lane, threads)
                 block_sync()
         if run:
             fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
@@ -1168,11 +1256,19 @@ ATROUS_LEVEL_SELF = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1)
 #: SVGF's ungated σ_n = 128 levels without the pair weights' select (section 85), (chained, step 1 self-guided)
 ATROUS_LEVEL_FREE = make_atrous_level(0, NORMAL_SQUARINGS, select_free=1)
 ATROUS_LEVEL_SELF_FREE = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1, select_free=1)
+#: SVGF's step-2 level without a guide pass (section 85, :data:`FOLD_GUIDE2`), by :data:`SELECT_FREE`
+ATROUS_LEVEL_GUIDE2 = {f: make_atrous_level(0, NORMAL_SQUARINGS, self_guide=2, select_free=int(f)) for f in (False, True)}
+#: Section 85: SVGF's step-2 level (ungated, packed, σ_n = 128, its input's dense Var given and not aliasing its
+#: ``variance_next``) makes its guide-pass terms itself (``self_guide`` = 2): no guide pass at step 2, the same values.
+#: Read at launch: True (default), False: the guide pass and the plain level (main's).
+FOLD_GUIDE2 = True
 
 
 def level_kernel(gated: int, squarings: int, self_guide: int, select_free: bool):
-    """The compiled level :func:`launch_atrous` launches: ``select_free`` (:data:`SELECT_FREE`) picks the
-    select-free form where there is one (ungated, σ_n = 128)."""
+    """The compiled level :func:`launch_atrous` launches: ``self_guide`` 0, 1 (step 1) or 2 (step 2, section 85);
+    ``select_free`` (:data:`SELECT_FREE`) picks the select-free form where there is one (ungated, σ_n = 128)."""
+    if self_guide == 2:
+        return ATROUS_LEVEL_GUIDE2[bool(select_free)]
     if self_guide:
         return ATROUS_LEVEL_SELF_FREE if select_free else ATROUS_LEVEL_SELF
     if select_free and not gated and squarings == NORMAL_SQUARINGS:
@@ -1322,8 +1418,14 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     else:
         cv_lattice = guide_lattice = spare["vec4"]
     # SVGF's first level (ungated, step 1, packed, σ_n = 128) makes its guide-pass terms itself: no guide pass
-    self_guide = (not gated and step == 1 and unpacked is None and not use_lattice
-                  and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
+    self_guide = int(not gated and step == 1 and unpacked is None and not use_lattice
+                     and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
+    # section 85: SVGF's step-2 level likewise, its blur from the previous level's dense Var (``variance``), which
+    # it must not overwrite while its blocks read it (its own ``variance_next`` another buffer)
+    if (FOLD_GUIDE2 and not gated and step == 2 and variance is not None and not use_lattice
+            and normal_squarings(sigma_normal) == NORMAL_SQUARINGS and variance_next is not variance
+            and (variance_next is None or variance_next.ptr != variance.ptr)):
+        self_guide = 2
     if not self_guide and GUIDE_RUN and variance is not None:  # SVGF's chained levels (ungated, packed: checked)
         wp.launch(ATROUS_GUIDE_RUN[GUIDE_RUN], dim=(height, (width + GUIDE_RUN - 1) // GUIDE_RUN), device=d,
                   inputs=[variance, slope, width, height, depth_scale, aux, int(step) if use_lattice else 0, guide,
@@ -1353,7 +1455,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
                             guide_row, slope, int(lattice_out), int(variance_next is not None),
-                            variance_next if variance_next is not None else spare["float"]])
+                            variance_next if variance_next is not None else spare["float"],
+                            variance if self_guide == 2 else spare["float"]])
     if unpack and not defer_unpack:
         wp.launch(unpack_level, dim=height * width, device=d,
                   inputs=[color_variance_out, *unpack_out, int(flip is not None),
