@@ -175,14 +175,17 @@ _RING_N = wp.constant(RING_N)
 #: section 85: SVGF's step-2 level that blurs its own variance (``self_guide`` = 2, :data:`FOLD_GUIDE2`): the dense
 #: pixels of its guide region's 3x3 neighbourhoods, ``REGION_Y`` x ``REGION_X`` (the guide points 2 pixels apart and
 #: a pixel more on each side), their Var read from the previous level's dense copy into the pair table's first
-#: entries, only in blocks that run, ``REGION_ROUND`` loads a thread in flight
+#: entries, only in blocks that run, a run of ``REGION_RUN`` pixels of a row a thread (its loads in flight together)
 REGION_Y = 2 * GUIDE_Y + 1
 REGION_X = 2 * GUIDE_X + 1
-REGION_ROUND = 8
+REGION_RUN = 9
+assert REGION_X % REGION_RUN == 0 and REGION_Y * REGION_X // REGION_RUN <= BLOCK_THREADS
 assert REGION_Y * REGION_X <= FORWARD_TAPS * PAIR_ROWS * GUIDE_PITCH
 _REGION_X = wp.constant(REGION_X)
 _REGION_N = wp.constant(REGION_Y * REGION_X)
-_vec_round = wp.types.vector(length=REGION_ROUND, dtype=wp.float32)
+_REGION_RUNS_X = wp.constant(REGION_X // REGION_RUN)
+_REGION_RUNS = wp.constant(REGION_Y * REGION_X // REGION_RUN)
+_vec_round = wp.types.vector(length=REGION_RUN, dtype=wp.float32)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: σ_n = 2^NORMAL_SQUARINGS (128, both denoisers' default) has a level of its own whose normal term is that many
@@ -963,23 +966,25 @@ def load_region2(region: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], varian
                  lane: int, threads: int, oy: int, ox: int, width: int, height: int):
     """The step-2 level's region (cooperative, no barrier): the Var of pixels (oy + r, ox + c), r < REGION_Y, c <
     REGION_X, from ``variance_in`` (H*W float32, NO_SURFACE without a surface) into ``region`` row-major
-    (NO_SURFACE outside the image); REGION_ROUND loads a thread issued before their stores."""
-    base = lane
-    while base < _REGION_N:
+    (NO_SURFACE outside the image); a run of REGION_RUN pixels of a row a thread, one 64-bit address and its
+    loads at constant offsets from it, issued before their stores."""
+    k = lane
+    while k < _REGION_RUNS:  # a run of REGION_RUN consecutive pixels of a row (on CUDA one a lane, 441 of 512)
+        r = k // _REGION_RUNS_X
+        x0 = ox + (k - r * _REGION_RUNS_X) * REGION_RUN
+        y = oy + r
+        row_in = y >= 0 and y < height
+        p = wp.where(row_in, y * width, 0) + x0
         vals = _vec_round()
-        for m in range(REGION_ROUND):
-            k = base + m * threads
-            r = k // _REGION_X
-            y = oy + r
-            x = ox + k - r * _REGION_X
-            inside = k < _REGION_N and y >= 0 and y < height and x >= 0 and x < width
-            v = load_float(variance_in, wp.where(inside, y * width + x, 0))
-            vals[m] = wp.where(inside, v, NO_SURFACE)
-        for m in range(REGION_ROUND):
-            k = base + m * threads
-            if k < _REGION_N:
-                write_pair(region, k, vals[m])
-        base += REGION_ROUND * threads
+        for m in range(REGION_RUN):  # the loads predicated, all in flight together
+            v = NO_SURFACE
+            if row_in and x0 + m >= 0 and x0 + m < width:
+                v = load_float(variance_in, p + m)
+            vals[m] = v
+        o = r * _REGION_X + x0 - ox
+        for m in range(REGION_RUN):
+            write_pair(region, o + m, vals[m])
+        k += threads
 
 
 @wp.func
