@@ -82,7 +82,10 @@ row a thread (:func:`make_guide_run`, ``GUIDE_RUN``), the same values; and why t
 Cornell box's (more blocks whose apron holds a signal at steps 8 and 16). Section 83 (predicted, not measured): the
 shared tables' rows an odd number of entries apart and the pair phase's items given to lanes by row pairs
 (``ODD_PITCH``), so that its 16-byte guide reads and pair writes take no bank conflicts (half the shared-memory
-cycles of that phase), the same values.
+cycles of that phase), the same values. Section 85 (predicted, not measured): SVGF's σ_n = 128 levels evaluate the pair
+weights without the select on p's surface (``SELECT_FREE``: a point without a surface has guides whose weights are
+0 by their own arithmetic), and its step-2 level blurs its own variance from the step-1 level's dense Var copy
+(``FOLD_GUIDE2``): one guide pass fewer; the same values.
 """
 
 from __future__ import annotations
@@ -1338,7 +1341,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   input_lattice: bool = False, variance_next: wp.array | None = None, lattice_out: int = 0,
                   defer_unpack: bool = False) -> bool:
     """One level: :func:`atrous_guide`, then :func:`atrous_level` (SVGF's first level, ungated at step 1 from a
-    packed input with σ_n = 128, without the guide pass: the level compiled with ``self_guide``).
+    packed input with σ_n = 128, without the guide pass: the level compiled with ``self_guide``; with
+    :data:`FOLD_GUIDE2` its second, step 2, given ``variance`` not aliasing ``variance_next``, likewise).
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
     (color_in, variance_in, depth, normal) and ``pack_into`` = (color_variance, guide) (H*W vec4 scratch each,
