@@ -1031,6 +1031,113 @@ def test_svgf_levels_match_naive_twin(device, feedback, levels, sigma_normal):
     np.testing.assert_allclose(svgf.variance.numpy().reshape(h, w), v_ref, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("conserve", [True, False])
+def test_select_free_levels_equal_the_select_levels(device, monkeypatch, conserve):
+    """Section 85: SVGF's σ_n = 128 levels without the pair weights' select on p's surface (``SELECT_FREE``, the
+    default: a point without a surface gets the dead guide, whose weights come out 0 from their own arithmetic) give
+    every output of SVGF's frame bit for bit as the levels with the select (its twin, ``SELECT_FREE = False``): 5
+    levels (step 1 self-guided, 2 and 4 dense, 8 and 16 in sub-lattice-major order), three frames with motion off, a
+    hole, a region without a surface between surfaces (every pair kind: both without, one without), a depth step,
+    noisy normals, blocks without signal and blocks whose apron alone holds it. Fails if ``DEAD_SLOPE`` is 0 (the
+    pairs of two points without a surface turn NaN and spread through W_q)."""
+    from cisp_warp.denoise import kernels_atrous as ka
+    rng = np.random.default_rng(85)
+    w, h = 83, 51
+    g = plane(w, h)
+    g["depth"][20:35, 30:50] = 1.25  # a depth step
+    g["depth"][5:12, 40:70] = 0.0  # no surface between surfaces
+    g["tri_id"][5:12, 40:70] = -1
+    n = g["normal"] + 0.05 * rng.standard_normal((h, w, 3)).astype(np.float32)
+    g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+    maps = []
+    for t in range(3):
+        e = photon_map(rng, h, w, 0.25, [4.0, 2.0, 1.0])
+        e[:, 56:] = 0.0  # a region without signal: its blocks skip (or filter only for their aprons)
+        maps.append(e)
+    s = SVGFSettings(sigma_luminance=2.0, conserve_energy=conserve, atrous_levels=5, feedback_level=1)
+    assert ka.normal_squarings(s.sigma_normal) == ka.NORMAL_SQUARINGS  # the default σ_n runs the compiled pow form
+    outputs = {}
+    for free in (True, False):
+        monkeypatch.setattr(ka, "SELECT_FREE", free)
+        monkeypatch.setattr(ka, "FOLD_GUIDE2", free)  # both section 85 changes, or main's levels
+        assert (ka.level_kernel(0, ka.NORMAL_SQUARINGS, 1, free) is ka.ATROUS_LEVEL_SELF_FREE) == free
+        assert (ka.level_kernel(0, ka.NORMAL_SQUARINGS, 0, free) is ka.ATROUS_LEVEL_FREE) == free
+        svgf = SVGF(w, h, device, s)
+        out = wp.zeros(w * h, dtype=wp.vec3, device=device)
+        seq = []
+        for e in maps:
+            seq.append(run_frame(svgf, g, e, out).copy())
+            seq.append(svgf.variance.numpy().copy())
+            seq.append(svgf.hist_color.numpy().copy())
+        outputs[free] = seq
+    assert any(np.any(a != 0) for a in outputs[True])
+    for a, b in zip(outputs[True], outputs[False]):
+        assert np.all(np.isfinite(a))
+        np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))  # bit for bit, zeros' signs included
+
+
+@pytest.mark.parametrize("w,h,conserve", [(45, 38, True), (83, 51, False), (7, 5, True), (70, 33, True)])
+def test_step2_level_makes_its_guide_terms_like_the_guide_pass(device, monkeypatch, w, h, conserve):
+    """Section 85: SVGF's step-2 level from the step-1 level's packed output and dense Var (``variance``) blurs its
+    own variance (``FOLD_GUIDE2``, the default) and writes bit for bit what the guide pass and the plain level write
+    (``FOLD_GUIDE2 = False``, main's): the colour and variance, the packed output and the next level's Var copy,
+    with and without ``SELECT_FREE``; ``aux`` (the guide pass's output) untouched; images smaller than a block, no
+    multiple of the tile, holes and a region without a surface. Fails if the region's origin is off by a pixel or its
+    Var is read from the wrong buffer (tried)."""
+    from cisp_warp.denoise import kernels_atrous as ka
+    rng = np.random.default_rng(850 + w)
+    g = plane(w, h)
+    g["depth"][h // 4:h // 2, w // 3:2 * w // 3] = 1.3
+    g["depth"][1:3, w // 2:] = 0.0
+    n = g["normal"] + 0.05 * rng.standard_normal((h, w, 3)).astype(np.float32)
+    g["normal"] = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+    color = rng.exponential(2.0, (h, w, 3)).astype(np.float32) * (rng.random((h, w, 1)) < 0.5)
+    color[g["depth"] <= 0] = 0.0
+    variance = (rng.exponential(1.0, (h, w)) * (rng.random((h, w)) < 0.7)).astype(np.float32)
+    variance[g["depth"] <= 0] = 0.0
+    s = SVGFSettings(sigma_luminance=2.0, conserve_energy=conserve)
+    sig = (s.sigma_depth, s.sigma_normal, s.sigma_luminance, conserve)
+    dev = upload(dict(depth=g["depth"], normal=g["normal"], irradiance=color), device)
+    slope = wp.array(depth_slope_naive(g["depth"]).astype(np.float32).reshape(-1), dtype=wp.float32, device=device)
+    var_in = wp.array(variance.reshape(-1), dtype=wp.float32, device=device)
+    packed = [wp.zeros(w * h, dtype=wp.vec4, device=device) for _ in range(2)]
+    launch_atrous(None, None, slope, w, h, 1, *sig, wp.zeros(w * h, dtype=wp.vec4, device=device),
+                  unpacked=(dev["irradiance"], var_in, dev["depth"], dev["normal"]), pack_into=packed,
+                  color_variance_out=wp.zeros(w * h, dtype=wp.vec4, device=device))
+    level1 = wp.zeros(w * h, dtype=wp.vec4, device=device)
+    var1 = wp.zeros(w * h, dtype=wp.float32, device=device)
+    launch_atrous(packed[0], packed[1], slope, w, h, 1, *sig, wp.zeros(w * h, dtype=wp.vec4, device=device),
+                  color_variance_out=level1, variance_next=var1)
+    assert (var1.numpy() < 0).any() and (var1.numpy() > 0).any()
+    results = {}
+    for fold in (False, True):
+        for free in (False, True):
+            monkeypatch.setattr(ka, "FOLD_GUIDE2", fold)
+            monkeypatch.setattr(ka, "SELECT_FREE", free)
+            aux = wp.full(w * h, wp.vec4(7.0), dtype=wp.vec4, device=device)
+            outs = (wp.full(w * h, wp.vec4(-7.0), dtype=wp.vec4, device=device),
+                    wp.full(w * h, -7.0, dtype=wp.float32, device=device))
+            launch_atrous(level1, packed[1], slope, w, h, 2, *sig, aux, color_variance_out=outs[0],
+                          variance_next=outs[1], variance=var1)
+            assert np.all(aux.numpy() == 7.0) == fold  # no guide pass where the level makes its terms
+            results[fold, free] = [o.numpy() for o in outs]
+    ref = results[False, False]
+    c_ref, v_ref = atrous_level_naive(color, variance, g["depth"], g["normal"], 1, *sig)
+    c_ref, v_ref = atrous_level_naive(c_ref, v_ref, g["depth"], g["normal"], 2, *sig)
+    surf = g["depth"].reshape(-1) > 0
+    np.testing.assert_allclose(ref[0][surf, :3], c_ref.reshape(-1, 3)[surf], rtol=1e-5, atol=1e-5)
+    for key, res in results.items():
+        for a, b in zip(res, ref):
+            np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32), err_msg=str(key))
+
+
+def test_step2_level_cooperative_cpu_blocks(monkeypatch):
+    """The step-2 level that blurs its own variance with real multi-lane CPU blocks: its region's load rounds (8
+    loads a lane, 512 lanes) and the barriers around the blur."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    test_step2_level_makes_its_guide_terms_like_the_guide_pass("cpu", monkeypatch, 45, 38, True)
+
+
 def test_atrous_fast_math_helpers(device):
     """The pair weight's ln cos (series above 0.5), atanh series and its CUDA intrinsics against numpy in float64."""
     from cisp_warp.denoise.kernels_atrous import (atanh_series, fast_div, fast_exp, fast_exp2, fast_rcp, fast_rsqrt,

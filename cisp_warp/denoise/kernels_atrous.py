@@ -82,7 +82,10 @@ row a thread (:func:`make_guide_run`, ``GUIDE_RUN``), the same values; and why t
 Cornell box's (more blocks whose apron holds a signal at steps 8 and 16). Section 83 (predicted, not measured): the
 shared tables' rows an odd number of entries apart and the pair phase's items given to lanes by row pairs
 (``ODD_PITCH``), so that its 16-byte guide reads and pair writes take no bank conflicts (half the shared-memory
-cycles of that phase), the same values.
+cycles of that phase), the same values. Section 85 (predicted, not measured): SVGF's σ_n = 128 levels evaluate the pair
+weights without the select on p's surface (``SELECT_FREE``: a point without a surface has guides whose weights are
+0 by their own arithmetic), and its step-2 level blurs its own variance from the step-1 level's dense Var copy
+(``FOLD_GUIDE2``): one guide pass fewer; the same values.
 """
 
 from __future__ import annotations
@@ -172,12 +175,34 @@ RING_N = 2 * RING_X + 2 * GUIDE_Y
 assert RING_N <= (GUIDE_Y * GUIDE_X + 1) // 2 and RING_Y * RING_X <= FORWARD_TAPS * PAIR_ROWS * GUIDE_PITCH
 _RING_X = wp.constant(RING_X)
 _RING_N = wp.constant(RING_N)
+#: section 85: SVGF's step-2 level that blurs its own variance (``self_guide`` = 2, :data:`FOLD_GUIDE2`): the dense
+#: pixels of its guide region's 3x3 neighbourhoods, ``REGION_Y`` x ``REGION_X`` (the guide points 2 pixels apart and
+#: a pixel more on each side), their Var read from the previous level's dense copy into the pair table's first
+#: entries, only in blocks that run, a run of ``REGION_RUN`` pixels of a row a thread (its loads in flight together)
+REGION_Y = 2 * GUIDE_Y + 1
+REGION_X = 2 * GUIDE_X + 1
+REGION_RUN = 9
+assert REGION_X % REGION_RUN == 0 and REGION_Y * REGION_X // REGION_RUN <= BLOCK_THREADS
+assert REGION_Y * REGION_X <= FORWARD_TAPS * PAIR_ROWS * GUIDE_PITCH
+_REGION_X = wp.constant(REGION_X)
+_REGION_N = wp.constant(REGION_Y * REGION_X)
+_REGION_RUNS_X = wp.constant(REGION_X // REGION_RUN)
+_REGION_RUNS = wp.constant(REGION_Y * REGION_X // REGION_RUN)
+_vec_round = wp.types.vector(length=REGION_RUN, dtype=wp.float32)
 _SUM_X = wp.constant(SUM_X)
 _SUM_N = wp.constant(SUM_Y * SUM_X)
 #: σ_n = 2^NORMAL_SQUARINGS (128, both denoisers' default) has a level of its own whose normal term is that many
 #: multiplications (:func:`pair_weight`); MAX_SQUARINGS bounds the unrolled loop that takes them
 NORMAL_SQUARINGS = 7
 MAX_SQUARINGS = wp.constant(8)
+#: Section 85: SVGF's ungated σ_n = 128 levels (steps 1-16) give a point without a surface the guide terms (n, z) = 0
+#: and σ_z ‖∇z‖ ln 2 = DEAD_SLOPE (others 0), so that a pair weight with such a p is 0 from its own arithmetic
+#: (c = 0, a finite exponent) and :func:`tap_weight` evaluates it without the select on p's surface. Read at launch
+#: (:func:`launch_atrous`): True (default) the select-free levels, False the levels with the select (main's, the twin).
+SELECT_FREE = True
+#: the dead point's σ_z ‖∇z‖ ln 2: φ_z >= DEAD_SLOPE ‖p − q‖ > 0 for every pair with such a point, finite up to
+#: steps of 2^30 (‖p − q‖ <= 2.9 step), so that |z_p − z_q| / φ_z is finite and no 0 · ∞ arises
+DEAD_SLOPE = wp.constant(1.0e28)
 #: W_p's own term h(0)² = (3/8)²
 CENTRE_WEIGHT = wp.constant(0.140625)
 #: ln 2 and log2(e), the scales of :func:`pair_scales`
@@ -424,11 +449,20 @@ def pair_scales(sigma_depth: float, sigma_normal: float, sigma_luminance: float)
 
 @wp.func
 def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: int, active: bool, s: float,
-               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int) -> float:
+               two_over_step: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int,
+               select_free: int) -> float:
     """w(p, p + forward tap ``f``) from the loaded guides of p and q; 0 where p is not ``active`` (no surface, or
     a closed gate). ``f`` is a constant where it is called, so its kernel weight and distance fold. With
     ``squarings`` (no branch in :func:`pair_weight`) the weight is evaluated either way and selected, without a
-    branch (an inactive p's weight may be NaN: q without a surface either, φ_z = 0; it is never used)."""
+    branch (an inactive p's weight may be NaN: q without a surface either, φ_z = 0; it is never used).
+    ``select_free`` (ungated, ``squarings`` > 0; a compile-time constant): no select either; the level gave every
+    point without a surface the guides (0, DEAD_SLOPE, 0, ...) (:func:`store_guide`), whose weight with any q is
+    max(0, 0·n_q)^σ_n 2^X = 0 with X finite (φ_z >= DEAD_SLOPE ‖p − q‖ > 0): the same 0 as the select's (a zero of
+    either sign, which adds nothing to the sums it enters; every sum starts at +0 or above). This needs every p
+    with a surface (Var >= 0) to have z > 0, as SVGF's inputs do (:func:`.kernels_svgf.surface_depth`)."""
+    if squarings > 0 and select_free != 0:
+        return pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f), two_over_step,
+                           depth_eps, sigma_normal, gated, squarings)
     if squarings > 0:
         return wp.where(active, pair_weight(gs_p, gd_p, gs_q, gd_q, forward_log2_kernel(f), s * forward_distance(f),
                                             two_over_step, depth_eps, sigma_normal, gated, squarings), 0.0)
@@ -442,7 +476,7 @@ def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: in
 def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                  pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
                  lane: int, threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int,
-                 squarings: int):
+                 squarings: int, select_free: int):
     """Steps 2 and 3 of :func:`atrous_level` (cooperative: every thread of the block calls it). Writes ``pair``
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
     and ``inv_weight_sum`` (shared, 1 / W_q of the tile and an apron of 2, at their guide index)."""
@@ -469,13 +503,13 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
         active_1 = gs_1[3] > 0.0 and (gated == 0 or gd_1[3] * two_over_step > 1.0)
         active_2 = gs_2[3] > 0.0 and (gated == 0 or gd_2[3] * two_over_step > 1.0)
         # row 0: taps (0, 1) and (0, 2); u + 1 is p_1's first q
-        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
         for j in range(2):  # q = u + 2 + j: p_1's tap (0, 2) (j = 0), p_2's tap (0, 1 + j)
             gs_q = read_guide(guide_s, u + 2 + j)
             gd_q = read_guide(guide_d, u + 2 + j)
             if j == 0:
-                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
-            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
+            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
         # rows 1 and 2: q = u + dy PITCH + dx, dx = -2 .. 3: p_1's tap (dy, dx) for dx <= 2 (f = 5 dy - 1 + dx),
         # p_2's tap (dy, dx - 1) for dx >= -1
         for t in range(12):
@@ -485,9 +519,9 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
             gs_q = read_guide(guide_s, v)
             gd_q = read_guide(guide_d, v)
             if dx <= 2:
-                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
             if dx >= -1:
-                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings))
+                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
         k += threads
     block_sync()
 
@@ -865,16 +899,17 @@ ATROUS_GUIDE_RUN = {r: make_guide_run(r) for r in (4, 8)}
 @wp.func
 def store_guide(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                 signal: wp.tile[wp.vec4, GUIDE_PIXELS], k: int, inside: bool, cv: wp.vec4, gs: wp.vec4, ax: wp.vec4,
-                s: float, gated: int) -> int:
+                s: float, gated: int, select_free: int) -> int:
     """Step 1 of :func:`atrous_level` for guide point ``k`` (``inside`` the image) from its loaded input ``cv``,
     guide ``gs`` and guide-pass output ``ax``: writes the shared guides (0 without a surface); returns the bits
     ``TO_FILTER`` if the point is a pixel of the output tile that some gate lets be filtered (``gated`` == 0: any
     with a surface) and ``HAS_SIGNAL`` if it is a point of the tile or its apron of 2 (the filter's taps) with a
-    surface and a signal: a colour channel != 0 or Var > 0 (NaN counts as signal)."""
+    surface and a signal: a colour channel != 0 or Var > 0 (NaN counts as signal). ``select_free``: a point without
+    a surface gets ``guide_d`` = (DEAD_SLOPE, 0, 0, 0) (:func:`tap_weight`)."""
     surface = inside and cv[3] >= 0.0
     if not surface:
         write_guide(guide_s, k, wp.vec4(0.0))
-        write_guide(guide_d, k, wp.vec4(0.0))
+        write_guide(guide_d, k, wp.vec4(wp.where(select_free != 0, DEAD_SLOPE, 0.0), 0.0, 0.0, 0.0))
         write_guide(signal, k, wp.vec4(0.0))
         return 0
     write_guide(guide_s, k, gs)
@@ -917,7 +952,70 @@ def blur_own_variance(guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], ring: wp.tile[wp.
         k += threads
 
 
-def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __ldg(a.data + p);
+#else
+return a.data[p];
+#endif
+""")
+def load_float(a: wp.array(dtype=wp.float32), p: int) -> float:
+    """Entry ``p`` of a float32 array through the read-only path (``__ldg`` on CUDA)."""
+    ...
+
+
+@wp.func
+def load_region2(region: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], variance_in: wp.array(dtype=wp.float32),
+                 lane: int, threads: int, oy: int, ox: int, width: int, height: int):
+    """The step-2 level's region (cooperative, no barrier): the Var of pixels (oy + r, ox + c), r < REGION_Y, c <
+    REGION_X, from ``variance_in`` (H*W float32, NO_SURFACE without a surface) into ``region`` row-major
+    (NO_SURFACE outside the image); a run of REGION_RUN pixels of a row a thread, one 64-bit address and its
+    loads at constant offsets from it, issued before their stores."""
+    k = lane
+    while k < _REGION_RUNS:  # a run of REGION_RUN consecutive pixels of a row (on CUDA one a lane, 441 of 512)
+        r = k // _REGION_RUNS_X
+        x0 = ox + (k - r * _REGION_RUNS_X) * REGION_RUN
+        y = oy + r
+        row_in = y >= 0 and y < height
+        p = wp.where(row_in, y * width, 0) + x0
+        vals = _vec_round()
+        for m in range(REGION_RUN):  # the loads predicated, all in flight together
+            v = NO_SURFACE
+            if row_in and x0 + m >= 0 and x0 + m < width:
+                v = load_float(variance_in, p + m)
+            vals[m] = v
+        o = r * _REGION_X + x0 - ox
+        for m in range(REGION_RUN):
+            write_pair(region, o + m, vals[m])
+        k += threads
+
+
+@wp.func
+def blur_region2(guide_d: wp.tile[wp.vec4, GUIDE_PIXELS], region: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS],
+                 lane: int, threads: int):
+    """:func:`blur_own_variance` for the step-2 level (cooperative): guide point (i, j) is pixel (2i + 1, 2j + 1) of
+    ``region`` (:func:`load_region2`), its 3x3 neighbourhood the pixels around it there (other sub-lattices); the
+    same sums in the same order as :func:`gaussian_sums` and :func:`atrous_guide_run`, the same value as the guide
+    pass's bit for bit."""
+    k = lane
+    while k < _GUIDE_REAL:
+        i = k // _GUIDE_X
+        j = k - i * _GUIDE_X
+        c = (2 * i + 1) * _REGION_X + 2 * j + 1
+        if read_pair(region, c) >= 0.0:
+            sums = wp.vec3(0.0)
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    v = read_pair(region, c + dy * _REGION_X + dx)
+                    kq = wp.where(v >= 0.0, wp.where(dx == 0, 0.5, 0.25) * wp.where(dy == 0, 0.5, 0.25), 0.0)
+                    sums += kq * wp.vec3(1.0, wp.max(v, 0.0), 0.0)
+            u = i * _PITCH + j + 2
+            gd = read_guide(guide_d, u)
+            write_guide(guide_d, u, wp.vec4(gd[0], 0.5 * (sums[1] / sums[0]), gd[2], gd[3]))
+        k += threads
+
+
+def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, select_free: int = 0):
     """:func:`atrous_level` compiled for one value of ``gated`` and of ``squarings`` (closure constants, folded by
     the compiler): the ungated level (SVGF) has no gate arithmetic in its pair weights and no R test; the gated one
     (the caustics denoiser) is the same code with every gate evaluated. Same arithmetic either way (an open gate
@@ -925,13 +1023,21 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
     (:func:`pair_weight`); 0: any σ_n, through a logarithm. ``self_guide`` (ungated, step 1, a packed input not
     in sub-lattice-major order): the level needs no guide pass; it reads σ_z ‖∇z‖ from ``slope`` and blurs its own
     variance (:func:`blur_own_variance`) from an apron of 5 instead of 4 (the Var of its outer ring, ``RING_N``
-    loads a block more), one barrier more."""
+    loads a block more), one barrier more. ``select_free`` (ungated, ``squarings`` > 0; section 85): the pair
+    weights without the select on p's surface (:func:`tap_weight`; a point without a surface gets the dead guide of
+    :func:`store_guide`), the same values. ``self_guide`` = 2 (ungated, step 2, a packed input not in sub-lattice-major
+    order; section 85): as 1, the blur's Var from the previous level's dense copy ``variance_in`` over the pixels
+    of the guide region's 3x3 neighbourhoods (:func:`load_region2`, :func:`blur_region2`), read only by blocks that
+    run, after the flags' barriers (one load round and two barriers more there)."""
     GATED = int(gated)
     SQUARINGS = int(squarings)
     SELF_GUIDE = int(self_guide)
+    SELECT_FREE_ = int(select_free)
     assert not (SELF_GUIDE and GATED)
+    assert not (SELECT_FREE_ and (GATED or not SQUARINGS))
+    assert SELF_GUIDE in (0, 1, 2)
     name = (("atrous_level_gated" if GATED else "atrous_level") + (f"_pow{SQUARINGS}" if SQUARINGS else "")
-            + ("_self" if SELF_GUIDE else ""))
+            + {0: "", 1: "_self", 2: "_guide2"}[SELF_GUIDE] + ("_free" if SELECT_FREE_ else ""))
 
     @wp.kernel(name=name,
                launch_bounds=(BLOCK_THREADS, 1024 // BLOCK_THREADS))
@@ -962,6 +1068,7 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
         lattice_out: int,
         write_variance: int,
         variance_next: wp.array(dtype=wp.float32),
+        variance_in: wp.array(dtype=wp.float32),
     ):
         """One à-trous level (module docstring), ``wp.launch_tiled`` over ``tiles_y * tiles_x * step²`` blocks of
         ``BLOCK_THREADS``; block ``((ty * tiles_x + tx) * step + a) * step + b`` filters the sub-lattice points
@@ -984,6 +1091,8 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
         ``lattice_out`` != 0 (a power of two): ``color_variance_out`` is written in that step's sub-lattice-major order
         (the next level's, whose guide pass then copies nothing); ``write_variance``: ``variance_next`` (H*W float32)
         gets the packed output's Var densely (NO_SURFACE without a surface), all the next guide pass reads of it.
+        ``variance_in`` (H*W float32): the input's Var densely, read only by the level compiled with ``self_guide`` =
+        2 (it must not alias ``variance_next``).
         """
         block, lane = wp.tid()
         threads = wp.block_dim()
@@ -1028,7 +1137,10 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
             cv1 = load_vec4(color_variance, p1)
             gs0 = load_vec4(guide, guide_offset + p0)
             gs1 = load_vec4(guide, guide_offset + p1)
-            if wp.static(SELF_GUIDE):  # the guide pass's terms but g3x3(Var) (1b), which needs the ring's Var
+            if wp.static(SELF_GUIDE == 2):  # the guide pass's terms but g3x3(Var) (1b, from the region's Var)
+                ax0 = wp.vec4(depth_scale * slope[p0], 0.0, luminance(wp.vec3(cv0[0], cv0[1], cv0[2])) * luminance_scale, 0.0)
+                ax1 = wp.vec4(depth_scale * slope[p1], 0.0, luminance(wp.vec3(cv1[0], cv1[1], cv1[2])) * luminance_scale, 0.0)
+            elif wp.static(SELF_GUIDE == 1):  # the guide pass's terms but g3x3(Var) (1b), which needs the ring's Var
                 sz0 = slope[p0]
                 sz1 = slope[p1]
                 # ring point r0 (< RING_N): the apron-5 rows 0 and RING_Y - 1, then its columns 0 and RING_X - 1
@@ -1049,14 +1161,16 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
             else:
                 ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
                 ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
-            found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED)
+            found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED,
+                                         SELECT_FREE_)
             if r1 < _GUIDE_REAL:
-                found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED)
+                found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s,
+                                             GATED, SELECT_FREE_)
         # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
         for m in range(threads - 1 - lane, _EMPTY_N, threads):
             c = m % 4
             store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
-                        wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED)
+                        wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED, SELECT_FREE_)
 
         inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
@@ -1069,13 +1183,19 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
         to_filter = block_sync_or(flag, found & TO_FILTER)
         any_signal = block_sync_or(flag, found & HAS_SIGNAL)
         run = to_filter != 0 and any_signal != 0
-        if wp.static(SELF_GUIDE):
+        if wp.static(SELF_GUIDE == 1):
             if run:  # 1b, g3x3(Var) / 2 from the ring (the pair table's first entries, overwritten by 2)
                 blur_own_variance(guide_d, pair, lane, threads)
                 block_sync()
+        if wp.static(SELF_GUIDE == 2):
+            if run:  # 1b, g3x3(Var) / 2 from the region's Var (the pair table's first entries, overwritten by 2)
+                load_region2(pair, variance_in, lane, threads, row0 + 2 * sy0 - 1, col0 + 2 * sx0 - 1, width, height)
+                block_sync()
+                blur_region2(guide_d, pair, lane, threads)
+                block_sync()
         if run:
             fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
-                         normal_scale, GATED, SQUARINGS)
+                         normal_scale, GATED, SQUARINGS, SELECT_FREE_)
 
         # 4. the filter of the tile's pixels
         k = lane
@@ -1141,6 +1261,27 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0):
 ATROUS_LEVEL = {(g, k): make_atrous_level(g, k) for g in (0, 1) for k in (0, NORMAL_SQUARINGS)}
 #: SVGF's first level (ungated, step 1, packed input, σ_n = 2^NORMAL_SQUARINGS) without a guide pass
 ATROUS_LEVEL_SELF = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1)
+#: SVGF's ungated σ_n = 128 levels without the pair weights' select (section 85), (chained, step 1 self-guided)
+ATROUS_LEVEL_FREE = make_atrous_level(0, NORMAL_SQUARINGS, select_free=1)
+ATROUS_LEVEL_SELF_FREE = make_atrous_level(0, NORMAL_SQUARINGS, self_guide=1, select_free=1)
+#: SVGF's step-2 level without a guide pass (section 85, :data:`FOLD_GUIDE2`), by :data:`SELECT_FREE`
+ATROUS_LEVEL_GUIDE2 = {f: make_atrous_level(0, NORMAL_SQUARINGS, self_guide=2, select_free=int(f)) for f in (False, True)}
+#: Section 85: SVGF's step-2 level (ungated, packed, σ_n = 128, its input's dense Var given and not aliasing its
+#: ``variance_next``) makes its guide-pass terms itself (``self_guide`` = 2): no guide pass at step 2, the same values.
+#: Read at launch: True (default), False: the guide pass and the plain level (main's).
+FOLD_GUIDE2 = True
+
+
+def level_kernel(gated: int, squarings: int, self_guide: int, select_free: bool):
+    """The compiled level :func:`launch_atrous` launches: ``self_guide`` 0, 1 (step 1) or 2 (step 2, section 85);
+    ``select_free`` (:data:`SELECT_FREE`) picks the select-free form where there is one (ungated, σ_n = 128)."""
+    if self_guide == 2:
+        return ATROUS_LEVEL_GUIDE2[bool(select_free)]
+    if self_guide:
+        return ATROUS_LEVEL_SELF_FREE if select_free else ATROUS_LEVEL_SELF
+    if select_free and not gated and squarings == NORMAL_SQUARINGS:
+        return ATROUS_LEVEL_FREE
+    return ATROUS_LEVEL[int(gated), squarings]
 
 
 def normal_squarings(sigma_normal: float) -> int:
@@ -1200,7 +1341,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                   input_lattice: bool = False, variance_next: wp.array | None = None, lattice_out: int = 0,
                   defer_unpack: bool = False) -> bool:
     """One level: :func:`atrous_guide`, then :func:`atrous_level` (SVGF's first level, ungated at step 1 from a
-    packed input with σ_n = 128, without the guide pass: the level compiled with ``self_guide``).
+    packed input with σ_n = 128, without the guide pass: the level compiled with ``self_guide``; with
+    :data:`FOLD_GUIDE2` its second, step 2, given ``variance`` not aliasing ``variance_next``, likewise).
 
     Input: packed (``color_variance``, ``guide``: H*W vec4, see the module docstring) or, given ``unpacked`` =
     (color_in, variance_in, depth, normal) and ``pack_into`` = (color_variance, guide) (H*W vec4 scratch each,
@@ -1285,8 +1427,14 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     else:
         cv_lattice = guide_lattice = spare["vec4"]
     # SVGF's first level (ungated, step 1, packed, σ_n = 128) makes its guide-pass terms itself: no guide pass
-    self_guide = (not gated and step == 1 and unpacked is None and not use_lattice
-                  and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
+    self_guide = int(not gated and step == 1 and unpacked is None and not use_lattice
+                     and normal_squarings(sigma_normal) == NORMAL_SQUARINGS)
+    # section 85: SVGF's step-2 level likewise, its blur from the previous level's dense Var (``variance``), which
+    # it must not overwrite while its blocks read it (its own ``variance_next`` another buffer)
+    if (FOLD_GUIDE2 and not gated and step == 2 and variance is not None and not use_lattice
+            and normal_squarings(sigma_normal) == NORMAL_SQUARINGS and variance_next is not variance
+            and (variance_next is None or variance_next.ptr != variance.ptr)):
+        self_guide = 2
     if not self_guide and GUIDE_RUN and variance is not None:  # SVGF's chained levels (ungated, packed: checked)
         wp.launch(ATROUS_GUIDE_RUN[GUIDE_RUN], dim=(height, (width + GUIDE_RUN - 1) // GUIDE_RUN), device=d,
                   inputs=[variance, slope, width, height, depth_scale, aux, int(step) if use_lattice else 0, guide,
@@ -1305,7 +1453,7 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
     unpack = unpack_from is not None and write_public and color_variance_out is None and step >= UNPACK_STEP
     if unpack:
         color_variance_out, unpack_out, write_public = unpack_from, (color_out, variance_out), False
-    level = ATROUS_LEVEL_SELF if self_guide else ATROUS_LEVEL[int(gated), normal_squarings(sigma_normal)]
+    level = level_kernel(int(gated), normal_squarings(sigma_normal), self_guide, SELECT_FREE)
     wp.launch_tiled(level, dim=blocks, block_dim=BLOCK_THREADS, device=d,
                     inputs=[color_variance, guide, aux, width, height, int(step), tiles_x, depth_scale,
                             normal_scale, luminance_scale, int(conserve_energy),
@@ -1316,7 +1464,8 @@ def launch_atrous(color_variance: wp.array | None, guide: wp.array | None, slope
                             parity if write_history else spare["parity"],
                             hist_color if write_history else spare["hist"], int(use_lattice), guide_parity,
                             guide_row, slope, int(lattice_out), int(variance_next is not None),
-                            variance_next if variance_next is not None else spare["float"]])
+                            variance_next if variance_next is not None else spare["float"],
+                            variance if self_guide == 2 else spare["float"]])
     if unpack and not defer_unpack:
         wp.launch(unpack_level, dim=height * width, device=d,
                   inputs=[color_variance_out, *unpack_out, int(flip is not None),

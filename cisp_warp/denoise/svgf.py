@@ -66,8 +66,9 @@ class SVGF:
     vec4: colour, Var; the à-trous levels' packed input and output, ping-ponged; the input of a level of step >=
     ``LATTICE_STEP`` in its sub-lattice-major order, written so by the level before (a little more than H*W); a
     last level of step >= ``UNPACK_STEP`` writes its output there packed, unpacked into ``out`` densely),
-    ``level_variance`` (float32: the Var of a level's output but the last's, NO_SURFACE without a surface, what
-    the next level's guide pass reads of it; None with fewer than 2 levels), ``level_guides`` (vec4: a
+    ``level_variance`` (1 or 2 x float32: the Var of a level's output but the last's, NO_SURFACE without a
+    surface, what the next level's guide pass (or the step-2 level itself) reads of it, level k's in [k % 2]; None
+    with fewer than 2 levels), ``level_guides`` (vec4: a
     level's ‖∇z‖, g3x3(Var), R from its guide pass; at steps >= ``LATTICE_STEP`` in sub-lattice-major order, a
     little more than H*W), ``lattice_guides`` ({step: vec4}: the guide in the sub-lattice-major order of the first
     two such steps, written by ``reproject``), ``lattice`` (2 x vec4: unused (one element), and the guide of any
@@ -114,8 +115,9 @@ class SVGF:
         self.lattice = (wp.zeros(1, dtype=wp.vec4, device=d),
                         wp.zeros(lattice if len(steps) > 2 else 1, dtype=wp.vec4, device=d)) if lattice else None
         # the Var of each level's output but the last, densely (NO_SURFACE without a surface): all the next level's
-        # guide pass reads of its input
-        self.level_variance = one(wp.float32) if settings.atrous_levels > 1 else None
+        # guide pass reads of its input; level k writes level_variance[k % 2] (section 85: the step-2 level reads its
+        # input's copy itself while it writes its own: two buffers with 3 levels or more)
+        self.level_variance = tuple(one(wp.float32) for _ in range(min(settings.atrous_levels - 1, 2))) or None
         self.lattice_guides = {st: wp.zeros(lattice_size(width, height, st), dtype=wp.vec4, device=d)
                                for st in steps[:2]}
         self.filtered_variance = one(wp.float32)
@@ -236,9 +238,9 @@ class SVGF:
                 lattice=(self.lattice[0], self.lattice_guides[1 << level]) if ready else self.lattice,
                 unpack_from=self.color_variance[(level + 1) % 2] if last else None, lattice_guide_ready=ready,
                 flip=self.parity if last else None, guide_parity=self.parity,
-                variance=self.level_variance if level > 0 else None,
+                variance=self.level_variance[(level - 1) % 2] if level > 0 else None,
                 input_lattice=level > 0 and self.lattice is not None and step >= LATTICE_STEP,
-                variance_next=None if last else self.level_variance, lattice_out=lattice_out,
+                variance_next=None if last else self.level_variance[level % 2], lattice_out=lattice_out,
                 defer_unpack=deferred and last)
         if not flipped and not deferred:  # the last level's unpack flips it where it runs; deferred: the caller
             wp.launch(K.flip_parity, dim=1, device=d, inputs=[self.parity])
