@@ -100,7 +100,7 @@ def test_folded_outcomes_are_the_outcome_pass(device, block, monkeypatch):
         np.testing.assert_allclose(map_f, map_t, rtol=1e-5, atol=1e-6 * map_t.max())
 
 
-@pytest.mark.parametrize("fast", [1, 0])
+@pytest.mark.parametrize("fast", [1 | int(C.OUTCOME_WIDE), 1, int(C.OUTCOME_WIDE), 0])
 @pytest.mark.parametrize("runs", ["several", "one"])
 def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
     """ledger_add_outcomes against numpy: records of every final entry (and codes outside the mask, which it must
@@ -108,7 +108,8 @@ def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
     come in two runs of slots (and a partial third) of which the last 5 of each lie past the view's photon count
     (stale records of a fixed-size launch): those must be left out too; or in one run (the records no more than a
     run's slots: the pass then skips the division by the run), its last 5 past the count. Both block sums: the warp
-    reduce-scatter (``fast``, CUDA; the CPU keeps the tiles) and the two tile sums (the twin); an inactive view adds
+    reduce-scatter (``fast`` bit 0, CUDA; the CPU keeps the tiles) and the two tile sums (the twin); the records in
+    16-byte loads (bit 1, ``OUTCOME_WIDE``, CUDA; the CPU's plain loads) and in 4-byte ones; an inactive view adds
     nothing."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     n = 3 * 32 * 7 + 13
