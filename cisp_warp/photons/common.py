@@ -881,10 +881,20 @@ def photon_group_scatter(
     tiles = offsets.shape[0] / SORT_GROUPS
     tile = block
     rounds = int(0)  # ballot rounds so far (their shared rows alternate)
+    # with ``ballot`` each tile's keys are loaded one tile ahead (``g_next``), so that a tile's chain of loads starts
+    # at its photon and offset (key -> photon, offset was two round trips a tile); the twin loads them in the tile
+    g_next = int(-1)
+    if ballot != 0 and tile * bd + lane < n_slots:
+        g_next = keys[tile * bd + lane]
     while tile < tiles and tile * bd < n_photons:  # tiles past the photons have nothing to write; uniform per block
         t = tile * bd + lane
         group = int(-1)
-        if t < n_slots:
+        if ballot != 0:
+            group = g_next
+            g_next = -1
+            if t + grid * bd < n_slots:  # the next tile's (a key past the photons is read for nothing)
+                g_next = keys[t + grid * bd]
+        elif t < n_slots:
             group = keys[t]
         # the photon and its group's offset loaded before the scan, in flight while the block scans
         k = int(0)
