@@ -487,6 +487,10 @@ class PhotonPass:
     #: True (default): on CUDA the outcome pass loads each 16-byte record in one load (``common._record16``,
     #: streaming); False: Warp's four 4-byte loads a record (the twin; docs/perf_notes.md section 88). Same values
     WIDE_OUTCOMES = True
+    #: True (default): records of exactly the six entries 4-9 (CISP's trace) are added by
+    #: ``common.ledger_add_outcomes6`` (one 6×3 float64 sum a thread, <= 80 registers, three blocks of 256 an SM);
+    #: False: ``ledger_add_outcomes`` (the twin: every final entry's sums, 124 registers, two blocks an SM; section 88)
+    OUTCOMES6 = True
     #: True: the trace kernel adds its photons' final entries to the ledger itself, in its epilogue, by one block
     #: reduction (``kernels_cisp.final_add``: the emission's reduce-scatter over six entries), writing no outcome
     #: records and launching no outcome pass; False (default): each photon's outcome record, added by
@@ -505,12 +509,18 @@ class PhotonPass:
         n = runs * batch.slots
         block = C.OUTCOME_BLOCK if self.device.is_cuda else self.ledger_block
         blocks = max(1, (n + block - 1) // block)
-        if self.outcome_max_blocks is not None:
-            blocks = min(blocks, self.outcome_max_blocks)
+        kernel = C.ledger_add_outcomes
+        max_blocks = self.outcome_max_blocks
+        if self.OUTCOMES6 and entries == int(C.FINAL6_ENTRIES):
+            kernel = C.ledger_add_outcomes6
+            if max_blocks is not None:  # CUDA (or a test's cap): three blocks an SM where the twin has two
+                max_blocks = max(1, max_blocks * C.OUTCOME6_BLOCKS_PER_SM // C.OUTCOME_BLOCKS_PER_SM)
+        if max_blocks is not None:
+            blocks = min(blocks, max_blocks)
         fast = int(self.FAST_OUTCOMES)
         if self.WIDE_OUTCOMES and self.device.is_cuda and outcome.ptr % 16 == 0 and outcome.strides[0] == 16:
             fast |= int(C.OUTCOME_WIDE)  # contiguous, 16-byte aligned records (an allocation's start)
-        wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=self.device,
+        wp.launch_tiled(kernel, dim=blocks, block_dim=block, device=self.device,
                         inputs=[outcome, n, blocks * block, entries, self.ledger_rows, batch.lights.states,
                                 batch.view_index, batch.light_photons, max(1, batch.slots), fast])
 

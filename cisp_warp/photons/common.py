@@ -412,6 +412,95 @@ def ledger_add_outcomes(
             _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
 
 
+#: the six final entries of a screen-space trace's records (lost from the light view, from the camera, occluded,
+#: rejected, out of steps, stored: ``kernels_cisp.CISP_FINAL_ENTRIES``), contiguous: :func:`ledger_add_outcomes6`
+FINAL6_ENTRIES = wp.constant(entry_mask(*range(4, 10)))
+assert int(L_LOST_LIGHT) == 4 and int(L_STORED) == 9
+#: the six entries' power [W] RGB (rows: entries 4 .. 9)
+Final6Sums = wp.types.matrix(shape=(6, 3), dtype=wp.float64)
+#: blocks of ledger_add_outcomes6 an SM (its launch bound: <= 80 registers for three blocks of OUTCOME_BLOCK)
+OUTCOME6_BLOCKS_PER_SM = 3
+
+
+@wp.func
+def _final6_add(s: Final6Sums, o: wp.vec4) -> Final6Sums:
+    """``s`` with record ``o``'s power added to its entry's row (entries 4-9; nothing for any other code)."""
+    code = int(o[3])
+    p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
+    r = s
+    if code == 4:
+        r[0] = r[0] + p
+    elif code == 5:
+        r[1] = r[1] + p
+    elif code == 6:
+        r[2] = r[2] + p
+    elif code == 7:
+        r[3] = r[3] + p
+    elif code == 8:
+        r[4] = r[4] + p
+    elif code == 9:
+        r[5] = r[5] + p
+    return r
+
+
+@wp.kernel(launch_bounds=(OUTCOME_BLOCK, OUTCOME6_BLOCKS_PER_SM))
+def ledger_add_outcomes6(
+    outcome: wp.array(dtype=wp.vec4),  # as ledger_add_outcomes'
+    count: int,
+    threads: int,
+    entries: int,  # FINAL6_ENTRIES (the caller launches this kernel for that mask only)
+    ledger: wp.array(dtype=wp.vec3d),
+    states: wp.array(dtype=CascadeState),
+    view_index: int,
+    light_photons: int,
+    run: int,
+    fast: int,  # as ledger_add_outcomes' (bit 0: inactive views return, the reduce-scatter; bit 1: 16-byte loads)
+):
+    """:func:`ledger_add_outcomes` for records of the six entries 4-9 (CISP's trace; ``PhotonPass.OUTCOMES6``): each
+    thread sums them in one 6×3 float64 matrix (36 registers, not the two 5×3 of every final entry: 60), so that the
+    kernel fits three blocks of 256 an SM (launch bound; 124 registers and two blocks for the twin) and keeps half as
+    many records again in flight. The block sums and the adds are the twin's (the rows placed in its two matrices):
+    the same sums in the same order, bit for bit on the CPU."""
+    block, lane = wp.tid()
+    n_photons = cascade_photons(states[view_index], light_photons)
+    if (fast & 1) != 0 and n_photons == 0:  # an inactive view wrote no records (uniform over the launch)
+        return
+    wide = fast & OUTCOME_WIDE
+    t = block * wp.block_dim() + lane
+    s = Final6Sums()
+    end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
+    one_run = wp.where(count <= run, 1, 0)
+    r = t
+    while r < end:
+        o0 = _outcome_at(outcome, r, end, run, n_photons, one_run, wide)
+        o1 = _outcome_at(outcome, r + threads, end, run, n_photons, one_run, wide)
+        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run, wide)
+        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run, wide)
+        s = _final6_add(s, o0)
+        s = _final6_add(s, o1)
+        s = _final6_add(s, o2)
+        s = _final6_add(s, o3)
+        r += 4 * threads
+    # OUTCOME_ROWS: entries 4, 5, 6 are rows 2-4 of the first matrix, 7, 8, 9 rows 0-2 of the second
+    sa = OutcomeSums()
+    sb = OutcomeSums()
+    sa[2] = s[0]
+    sa[3] = s[1]
+    sa[4] = s[2]
+    sb[0] = s[3]
+    sb[1] = s[4]
+    sb[2] = s[5]
+    reduced = int(0)
+    if (fast & 1) != 0:
+        reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
+    if reduced == 0:
+        ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
+        tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
+        if lane == 0:
+            _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
+            _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+
+
 #: the whole frame's clear in 16-byte stores: CUDA's st.global.v4 (Warp's vec4 is 4-byte aligned, so its stores may
 #: be split into four 4-byte ones: section 63's 4-byte clear, which lost to the memsets and is gone), elsewhere a vec4 store
 _ZERO16 = """
