@@ -100,7 +100,7 @@ def test_folded_outcomes_are_the_outcome_pass(device, block, monkeypatch):
         np.testing.assert_allclose(map_f, map_t, rtol=1e-5, atol=1e-6 * map_t.max())
 
 
-@pytest.mark.parametrize("fast", [1, 0])
+@pytest.mark.parametrize("fast", [1 | int(C.OUTCOME_WIDE), 1, int(C.OUTCOME_WIDE), 0])
 @pytest.mark.parametrize("runs", ["several", "one"])
 def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
     """ledger_add_outcomes against numpy: records of every final entry (and codes outside the mask, which it must
@@ -108,7 +108,8 @@ def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
     come in two runs of slots (and a partial third) of which the last 5 of each lie past the view's photon count
     (stale records of a fixed-size launch): those must be left out too; or in one run (the records no more than a
     run's slots: the pass then skips the division by the run), its last 5 past the count. Both block sums: the warp
-    reduce-scatter (``fast``, CUDA; the CPU keeps the tiles) and the two tile sums (the twin); an inactive view adds
+    reduce-scatter (``fast`` bit 0, CUDA; the CPU keeps the tiles) and the two tile sums (the twin); the records in
+    16-byte loads (bit 1, ``OUTCOME_WIDE``, CUDA; the CPU's plain loads) and in 4-byte ones; an inactive view adds
     nothing."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     n = 3 * 32 * 7 + 13
@@ -138,6 +139,47 @@ def test_outcome_pass_sums_every_record(device, rng, monkeypatch, runs, fast):
         expect[e] = power[(codes == e) & live].astype(np.float64).sum(axis=0)
     np.testing.assert_allclose(ledger.numpy(), expect, rtol=1e-12)
     assert not stripes.numpy().any()  # folded stripes are zero again
+
+
+@pytest.mark.parametrize("fast", [1 | int(C.OUTCOME_WIDE), 1, 0])
+@pytest.mark.parametrize("runs", ["several", "one"])
+def test_six_entry_outcome_pass_is_the_twin(device, rng, monkeypatch, runs, fast):
+    """ledger_add_outcomes6 (CISP's six final entries, ``PhotonPass.OUTCOMES6``) against the twin
+    (ledger_add_outcomes with the same mask) and numpy: records of every final entry and -1 (the entries outside 4-9
+    must add nothing), stale records past the view's photons in each run, 3 blocks of 32 (CPU) or 64 threads into 4
+    stripes: the same ledger bit for bit (the same sums in the same order; on CUDA to 1e-12: the block sums' order of
+    warps may differ) and numpy's to 1e-12; an inactive view adds nothing."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    n = 3 * 32 * 7 + 13
+    finals = [e for e in range(C.LEDGER_ENTRIES) if (int(C.FINAL_ENTRIES) >> e) & 1]
+    codes = rng.choice(finals + [-1], size=n)
+    power = rng.random((n, 3), dtype=np.float32)
+    mask = int(C.FINAL6_ENTRIES)
+    records = wp.array(np.concatenate([power, codes[:, None].astype(np.float32)], axis=1), dtype=wp.vec4, device=device)
+    run = n // 2 if runs == "several" else n
+    live = np.arange(n) % run < run - 5
+    block = 32 if wp.get_device(device).is_cpu else 64
+    blocks = 3
+    got = {}
+    for kernel in (C.ledger_add_outcomes6, C.ledger_add_outcomes):
+        stripes = wp.zeros(4 * C.LEDGER_ROW, dtype=wp.vec3d, device=device)
+        ledger = wp.zeros(C.LEDGER_ENTRIES, dtype=wp.vec3d, device=device)
+        for active in (True, False):
+            states = wp.array([_state(active, 1)], dtype=CascadeState, device=device)
+            wp.launch_tiled(kernel, dim=blocks, block_dim=block, device=device,
+                            inputs=[records, n, blocks * block, mask, stripes, states, 0, run - 5, run, fast])
+        wp.launch_tiled(C.ledger_fold, dim=C.LEDGER_ENTRIES, block_dim=4 if wp.get_device(device).is_cuda else 1,
+                        device=device, inputs=[stripes, ledger])
+        got[kernel] = ledger.numpy()
+    expect = np.zeros((C.LEDGER_ENTRIES, 3))
+    for e in range(4, 10):
+        expect[e] = power[(codes == e) & live].astype(np.float64).sum(axis=0)
+    np.testing.assert_allclose(got[C.ledger_add_outcomes6], expect, rtol=1e-12)
+    if wp.get_device(device).is_cpu:
+        assert got[C.ledger_add_outcomes6].tobytes() == got[C.ledger_add_outcomes].tobytes()
+    else:
+        np.testing.assert_allclose(got[C.ledger_add_outcomes6], got[C.ledger_add_outcomes], rtol=1e-12)
+    assert expect[4:10].all()
 
 
 def test_max_luminance_is_the_maximum(device, rng, monkeypatch):
@@ -261,9 +303,10 @@ def test_wide_clear_zeroes_every_accumulator(device):
         assert not arr.numpy().any()
 
 
-def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
+def _pool_frames(device, fused: bool, monkeypatch, flags=None, sort=None) -> dict[str, np.ndarray]:
     """Two frames of the shipped pool (a fitted sun and a fitted spot, split shadow maps) at 48×27 with the launch
-    folds of perf_notes section 63 on or off (their twins): the ledger and every AOV."""
+    folds of perf_notes section 63 on or off (their twins), or with ``flags`` (``PhotonPass`` attributes) set to
+    ``fused`` instead: the ledger and every AOV."""
     import warnings
     from pathlib import Path
 
@@ -271,15 +314,19 @@ def _pool_frames(device, fused: bool, monkeypatch) -> dict[str, np.ndarray]:
     from cisp_warp.raster.light_maps import LightMaps, _ShadowView
     from cisp_warp.usd import load_usd
 
-    for cls, name in ((PhotonPass, "FUSED_PILOT_PASS"), (PhotonPass, "WIDE_CLEAR"), (_ShadowView, "FUSED_GATES"),
-                      (LightMaps, "FUSED_SOLID_ANGLES"), (PhotonPass, "FOLDED_OUTCOMES")):
+    switches = ((PhotonPass, "FUSED_PILOT_PASS"), (PhotonPass, "WIDE_CLEAR"), (_ShadowView, "FUSED_GATES"),
+                (LightMaps, "FUSED_SOLID_ANGLES"), (PhotonPass, "FOLDED_OUTCOMES"))
+    if flags is not None:
+        switches = [(PhotonPass, name) for name in flags]
+    for cls, name in switches:
         monkeypatch.setattr(cls, name, fused)
     path = Path(__file__).resolve().parents[1] / "scenes_usd" / "pool.usda"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         stage = load_usd(path, width=48, height=27, device=device)
     r = Renderer(stage, RenderSettings(width=48, height=27, rsm_size=64, method="cisp", denoiser="svgf",
-                                       photons=PhotonSettings(photons=8000, seed=3)), device=device)
+                                       photons=PhotonSettings(photons=8000, seed=3, sort_photons=sort)),
+                 device=device)
     for _ in range(2):
         r.render_frame()
     out = {k: np.asarray(v) for k, v in r.aovs().items()}
@@ -303,3 +350,24 @@ def test_folded_launches_render_the_twins_frames(device, monkeypatch):
             np.testing.assert_allclose(fused[k], twin[k], rtol=1e-9, atol=1e-9 * twin[k].max())
         elif np.issubdtype(fused[k].dtype, np.floating):
             np.testing.assert_allclose(fused[k], twin[k], rtol=1e-5, atol=1e-5 * max(1e-30, np.abs(twin[k]).max()))
+
+
+def test_order15_paths_render_the_twins_frames(device, monkeypatch):
+    """The pool's two frames (sorted photons: the group partition runs; the outcome pass of CISP's six entries) with
+    ``BALLOT_GROUPS``, ``WIDE_OUTCOMES`` and ``OUTCOMES6`` on against off (perf_notes section 88): on the CPU every AOV
+    and the ledger bit for bit; on a GPU the ledger to 1e-9, the maps to 1e-5 of their maximum (atomics' order)."""
+    from cisp_warp.photons.base import PhotonPass
+
+    monkeypatch.setattr(PhotonPass, "FOLDED_OUTCOMES", False)
+    flags = ("BALLOT_GROUPS", "WIDE_OUTCOMES", "OUTCOMES6")
+    new = _pool_frames(device, True, monkeypatch, flags, sort=True)
+    twin = _pool_frames(device, False, monkeypatch, flags, sort=True)
+    assert new.keys() == twin.keys() and new["ledger"][C.L_STORED].sum() > 0.0
+    exact = wp.get_device(device).is_cpu
+    for k in new:
+        if exact:
+            assert new[k].tobytes() == twin[k].tobytes(), k
+        elif k == "ledger":
+            np.testing.assert_allclose(new[k], twin[k], rtol=1e-9, atol=1e-9 * twin[k].max())
+        elif np.issubdtype(new[k].dtype, np.floating):
+            np.testing.assert_allclose(new[k], twin[k], rtol=1e-5, atol=1e-5 * max(1e-30, np.abs(twin[k]).max()))

@@ -100,6 +100,24 @@ def test_few_blocks_group_as_one_a_tile(device):
     np.testing.assert_array_equal(got[1], want[1])
 
 
+def test_ballot_partition_is_the_tile_twin(device, monkeypatch):
+    """The group partition with warp ballots (``PhotonPass.BALLOT_GROUPS``, CUDA: blocks of 256 over many tiles) writes
+    the same keys, block counts and grouped order as Warp's tile sum and scan (the twin), every view of a frame."""
+    got = {}
+    for ballot in (True, False):
+        monkeypatch.setattr(PhotonPass, "BALLOT_GROUPS", ballot)
+        r = frame(device, "cisp", True)
+        p = r.photons
+        got[ballot] = [(a.numpy().copy(), c.numpy().copy(), k.numpy().copy())
+                       for b in p.rsm_batches(r.frame - 1)
+                       for a, c, k in [(p._grouped, p._group_counts, p._sort_keys)]]
+    assert len(got[True]) == len(got[False]) >= 1
+    for new, twin in zip(got[True], got[False]):
+        for a, b in zip(new, twin):
+            np.testing.assert_array_equal(a, b)
+    assert any((k == int(C.SORT_REFRACTED)).any() for _, _, k in got[True])
+
+
 @pytest.mark.parametrize("method", ["cisp", "sspm"])
 def test_fixed_order_traces_as_the_frame_order(device, monkeypatch, method):
     """The fixed texel order (sorted once) and the per-frame sort (its twin) trace the same photons: the same
@@ -171,11 +189,14 @@ def test_fixed_order_is_a_texel_order(device):
         assert cut <= 3 * np.median(fixed) / w, cut
 
 
-@pytest.mark.parametrize("block, grid", [(1, None), (32, None), (32, 2)])
-def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block, grid):
+@pytest.mark.parametrize("ballot", [1, 0])
+@pytest.mark.parametrize("block, grid", [(1, None), (32, None), (32, 2), (64, 2)])
+def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block, grid, ballot):
     """photon_group_keys' block counts, their scan and photon_group_scatter give the stable sort of the photons by
     group (numpy's stable argsort), in blocks of one thread and in CPU blocks of 32 with a partial last block, all
-    four groups (slots past the photon count last, left unwritten) and a padded tail; an inactive view writes nothing."""
+    four groups (slots past the photon count last, left unwritten) and a padded tail; an inactive view writes nothing.
+    On CUDA blocks of 32 and 64 with ``ballot`` run the warp-ballot ranks (two warps: the rows of the warps before;
+    2 blocks over 6 or 3 tiles: the rounds' alternating rows); the CPU takes the tile scan either way."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     n = 5 * 32 + 11
     groups = rng.integers(0, C.SORT_GROUPS, n).astype(np.int32)
@@ -196,7 +217,7 @@ def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block, grid)
     states = wp.array(states, dtype=CascadeState, device=device)
     out = wp.full(n + 7, -1, dtype=wp.int32, device=device)
     wp.launch_tiled(C.photon_group_scatter, dim=grid, block_dim=block, device=device,
-                    inputs=[states, 0, n, keys, order, 0, 1, n, offsets, out, grid])
+                    inputs=[states, 0, n, keys, order, 0, 1, n, offsets, out, grid, ballot])
     want = order_in[np.argsort(groups, kind="stable")]
     last = np.sort(groups, kind="stable") == int(C.SORT_GROUP_LAST)
     want[last] = -1  # the last group (slots past the photon count) is not written: no kernel reads it
@@ -204,7 +225,7 @@ def test_group_partition_is_a_stable_sort(device, rng, monkeypatch, block, grid)
     assert np.all(out.numpy()[n:] == -1)
     out.fill_(-1)  # an inactive view writes nothing
     wp.launch_tiled(C.photon_group_scatter, dim=grid, block_dim=block, device=device,
-                    inputs=[states, 1, n, keys, order, 0, 1, n, offsets, out, grid])
+                    inputs=[states, 1, n, keys, order, 0, 1, n, offsets, out, grid, ballot])
     assert np.all(out.numpy() == -1)
 
 

@@ -161,10 +161,10 @@ def outcomes_no_block_sums(
     one_run = wp.where(count <= run, 1, 0)
     r = t
     while r < end:
-        o0 = C._outcome_at(outcome, r, end, run, n_photons, one_run)
-        o1 = C._outcome_at(outcome, r + threads, end, run, n_photons, one_run)
-        o2 = C._outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run)
-        o3 = C._outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run)
+        o0 = C._outcome_at(outcome, r, end, run, n_photons, one_run, 0)
+        o1 = C._outcome_at(outcome, r + threads, end, run, n_photons, one_run, 0)
+        o2 = C._outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run, 0)
+        o3 = C._outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run, 0)
         sa, sb = C._outcome_add(sa, sb, o0)
         sa, sb = C._outcome_add(sa, sb, o1)
         sa, sb = C._outcome_add(sa, sb, o2)
@@ -236,6 +236,7 @@ def run_scene(name: str, args, device) -> None:
     r = Renderer(scene, settings, device=device)
     r.use_graph = False
     r.photons.FOLDED_OUTCOMES = False  # the outcome pass launched (and replayed below): the trace writes the records
+    r.photons.OUTCOMES6 = False  # the frame's pass is the twin (ledger_add_outcomes); section 88's is a variant below
     for lm in r.lights:  # main's copies below read the RSM's position, normal, flux, roughness and IOR, which the
         lm.keep_surface_maps()  # views no longer keep (perf_notes sections 43 and 58)
         lm.keep_texel_maps()
@@ -302,10 +303,23 @@ def run_scene(name: str, args, device) -> None:
         slow_outcome = list(o[3])
         slow_outcome[-1] = 0  # FAST_OUTCOMES off: the two tile sums, an inactive view's blocks run
         fast_outcome = list(o[3])
-        fast_outcome[-1] = 1
+        fast_outcome[-1] = 1  # section 77's, 4-byte loads
+        wide_outcome = list(o[3])
+        wide_outcome[-1] = 1 | int(C.OUTCOME_WIDE)  # section 88: 16-byte loads
+        # section 88's six-entry pass: three blocks an SM where the twin launched two, 16-byte loads
+        dim6 = max(1, o[1] * C.OUTCOME6_BLOCKS_PER_SM // C.OUTCOME_BLOCKS_PER_SM)
+        six_outcome = list(o[3])
+        six_outcome[2] = dim6 * o[2]
+        six_outcome[-1] = 1 | int(C.OUTCOME_WIDE)
+        tile_keys = list(g[3])
+        tile_keys[-1] = 0  # BALLOT_GROUPS off: Warp's tile sum and scan (the twin)
+        tile_scatter = list(s[3])
+        tile_scatter[-1] = 0
         views.append({"vi": vi, "light": P.lights.index(lm), "tiles": tiles, "g": g, "s": s, "o": o, "frame_order": frame_order,
                       "chained": chained, "chained_nopos": chained_nopos, "chained_frame": chained_frame, "scatter_frame": scatter_frame,
-                      "scan": sn, "o_slow": slow_outcome, "o_fast": fast_outcome})
+                      "scan": sn, "o_slow": slow_outcome, "o_fast": fast_outcome, "o_wide": wide_outcome,
+                      "tile_keys": tile_keys, "tile_scatter": tile_scatter,
+                      "o6": (C.ledger_add_outcomes6, dim6, o[2], six_outcome)})
 
     def L(kernel, dim, bd, inputs):
         return lambda: launch_tiled(kernel, dim=dim, block_dim=bd, device=device, inputs=inputs)
@@ -319,6 +333,7 @@ def run_scene(name: str, args, device) -> None:
         rows[label] = (total, each)
 
     variant("group_keys: frame", lambda v: [L(*v["g"][:3], v["g"][3])])
+    variant("group_keys: tile sums (before section 88)", lambda v: [L(*v["g"][:3], v["tile_keys"])])
     variant("group_keys: per-frame order", lambda v: [L(*v["g"][:3], v["frame_order"])])
     # main's kernel: one block a tile (the frame's launch has fewer blocks, each over many tiles)
     variant("group_keys: chained reads", lambda v: [L(group_keys_chained, v["tiles"], v["g"][2], v["chained"])])
@@ -328,6 +343,10 @@ def run_scene(name: str, args, device) -> None:
     variant("scatter: frame (after its keys)", lambda v: [L(*v["g"][:3], v["g"][3]), L(*v["s"][:3], v["s"][3])])
     variant("scatter: per-frame order (after its keys)",
             lambda v: [L(*v["g"][:3], v["frame_order"]), L(*v["s"][:3], v["scatter_frame"])])
+    variant("scatter: tile scan (before section 88, after its keys)",
+            lambda v: [L(*v["g"][:3], v["tile_keys"]), L(*v["s"][:3], v["tile_scatter"])])
+    variant("outcomes: six entries, 3 blocks an SM, 16-byte loads (section 88)", lambda v: [L(*v["o6"])])
+    variant("outcomes: 16-byte loads (section 88)", lambda v: [L(*v["o"][:3], v["o_wide"])])
     variant("outcomes: fast (section 77)", lambda v: [L(*v["o"][:3], v["o_fast"])])
     variant("outcomes: tile sums (section 40/63)", lambda v: [L(*v["o"][:3], v["o_slow"])])
     variant("outcomes: one record a step (main)", lambda v: [L(outcomes_one_a_step, *v["o"][1:3], v["o"][3][:-1])])

@@ -173,6 +173,11 @@ class PhotonPass:
     #: trace photons in a texel order sorted once per view size and photon slots (True), or sorted every frame
     #: over the frame's rotated R2 points (False: the twin, main's order up to section 40 of docs/perf_notes.md)
     FIXED_ORDER = True
+    #: True (default): on CUDA the group partition's per-tile counts (``photon_group_keys``) and ranks
+    #: (``photon_group_scatter``) by warp ballots with one barrier a tile (``common._group_count_ballot``,
+    #: ``_group_scan_ballot``); False: Warp's ``tile_sum`` and ``tile_scan_exclusive`` (the twin, main's before
+    #: docs/perf_notes.md section 88). The same counts and ranks; the CPU takes the tiles either way
+    BALLOT_GROUPS = True
     denoise = True  #: whether the renderer's denoiser runs on ``photon_map`` (False: shown raw)
     final = None  #: a method that renders its own final image sets this (H*W,) vec3 array
     #: the photons that land where the camera cannot see, per light view (``hidden_flux.HiddenFlux``), for the
@@ -479,6 +484,13 @@ class PhotonPass:
     #: by a warp reduce-scatter (``common._outcome_reduce``, one barrier, 30 float64 atomics); False: every block
     #: sums with two tile sums (the twin; docs/perf_notes.md section 77). The CPU's sums are the twin's either way
     FAST_OUTCOMES = True
+    #: True (default): on CUDA the outcome pass loads each 16-byte record in one load (``common._record16``,
+    #: streaming); False: Warp's four 4-byte loads a record (the twin; docs/perf_notes.md section 88). Same values
+    WIDE_OUTCOMES = True
+    #: True (default): records of exactly the six entries 4-9 (CISP's trace) are added by
+    #: ``common.ledger_add_outcomes6`` (one 6×3 float64 sum a thread, <= 80 registers, three blocks of 256 an SM);
+    #: False: ``ledger_add_outcomes`` (the twin: every final entry's sums, 124 registers, two blocks an SM; section 88)
+    OUTCOMES6 = True
     #: True: the trace kernel adds its photons' final entries to the ledger itself, in its epilogue, by one block
     #: reduction (``kernels_cisp.final_add``: the emission's reduce-scatter over six entries), writing no outcome
     #: records and launching no outcome pass; False (default): each photon's outcome record, added by
@@ -497,12 +509,20 @@ class PhotonPass:
         n = runs * batch.slots
         block = C.OUTCOME_BLOCK if self.device.is_cuda else self.ledger_block
         blocks = max(1, (n + block - 1) // block)
-        if self.outcome_max_blocks is not None:
-            blocks = min(blocks, self.outcome_max_blocks)
-        wp.launch_tiled(C.ledger_add_outcomes, dim=blocks, block_dim=block, device=self.device,
+        kernel = C.ledger_add_outcomes
+        max_blocks = self.outcome_max_blocks
+        if self.OUTCOMES6 and entries == int(C.FINAL6_ENTRIES):
+            kernel = C.ledger_add_outcomes6
+            if max_blocks is not None:  # CUDA (or a test's cap): three blocks an SM where the twin has two
+                max_blocks = max(1, max_blocks * C.OUTCOME6_BLOCKS_PER_SM // C.OUTCOME_BLOCKS_PER_SM)
+        if max_blocks is not None:
+            blocks = min(blocks, max_blocks)
+        fast = int(self.FAST_OUTCOMES)
+        if self.WIDE_OUTCOMES and self.device.is_cuda and outcome.ptr % 16 == 0 and outcome.strides[0] == 16:
+            fast |= int(C.OUTCOME_WIDE)  # contiguous, 16-byte aligned records (an allocation's start)
+        wp.launch_tiled(kernel, dim=blocks, block_dim=block, device=self.device,
                         inputs=[outcome, n, blocks * block, entries, self.ledger_rows, batch.lights.states,
-                                batch.view_index, batch.light_photons, max(1, batch.slots),
-                                int(self.FAST_OUTCOMES)])
+                                batch.view_index, batch.light_photons, max(1, batch.slots), fast])
 
     def fold_ledger(self) -> None:
         """Sum the striped ledger into ``ledger`` and zero the stripes (one small launch; idempotent)."""
@@ -580,11 +600,11 @@ class PhotonPass:
                 lm.views, lm.states, view_index, self.settings.photons, self.inputs.randoms, stream,
                 lm.emission(r), sp.tri_id, sc.geometry, sc.triangle_material, sc.opacity, max_lum,
                 float(self.settings.roughness_cutoff), float(self.settings.luminance_cutoff),
-                order, stride, orders, slots, self._sort_keys, counts, grid])
+                order, stride, orders, slots, self._sort_keys, counts, grid, int(self.BALLOT_GROUPS)])
             wp.utils.array_scan(counts, offsets, inclusive=False)
             wp.launch_tiled(C.photon_group_scatter, dim=grid, block_dim=self.group_block, device=self.device,
                             inputs=[lm.states, view_index, self.settings.photons, self._sort_keys, order, stride,
-                                    orders, slots, offsets, self._grouped, grid])
+                                    orders, slots, offsets, self._grouped, grid, int(self.BALLOT_GROUPS)])
             return self._grouped
         return self._order
 

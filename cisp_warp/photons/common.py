@@ -214,15 +214,38 @@ OutcomeSums = wp.types.matrix(shape=(5, 3), dtype=wp.float64)
 OutcomeRows = wp.types.vector(length=5, dtype=wp.int32)
 
 
+#: CUDA: record ``i`` in one 16-byte load (``ld.global.cs.v4.f32``: read once, evict first), where Warp's load of a
+#: 4-byte aligned vec4 is four 4-byte loads, each of which asks the L1 for all of a warp's 512 bytes (16 sectors) again;
+#: ``a`` must be contiguous and 16-byte aligned (``PhotonPass.add_outcomes`` checks). Elsewhere the plain load
+_RECORD16 = """
+#if defined(__CUDA_ARCH__)
+const float4 v = __ldcs(reinterpret_cast<const float4*>(a.data) + i);
+return wp::vec_t<4, float>(v.x, v.y, v.z, v.w);
+#else
+return wp::index(a, i);
+#endif
+"""
+
+
+@wp.func_native(_RECORD16)
+def _record16(a: wp.array(dtype=wp.vec4), i: int) -> wp.vec4:
+    """``a[i]``, on CUDA in one 16-byte load (``_RECORD16``)."""
+    ...
+
+
 @wp.func
-def _outcome_at(outcome: wp.array(dtype=wp.vec4), r: int, end: int, run: int, n_photons: int, one_run: int) -> wp.vec4:
+def _outcome_at(outcome: wp.array(dtype=wp.vec4), r: int, end: int, run: int, n_photons: int, one_run: int,
+                wide: int) -> wp.vec4:
     """Outcome record ``r``, or an empty one (entry -1) past ``end`` or past the view's photons in its run. With
-    ``one_run`` (the records are one run: ``end`` <= the view's photons already) without the division ``r % run``."""
+    ``one_run`` (the records are one run: ``end`` <= the view's photons already) without the division ``r % run``;
+    with ``wide`` in one 16-byte load (:func:`_record16`; the same values)."""
     if r >= end:
         return wp.vec4(0.0, 0.0, 0.0, -1.0)
     if one_run == 0:
         if r % run >= n_photons:
             return wp.vec4(0.0, 0.0, 0.0, -1.0)
+    if wide != 0:
+        return _record16(outcome, r)
     return outcome[r]
 
 
@@ -330,6 +353,9 @@ def _outcome_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, entries: int,
     ...
 
 
+OUTCOME_WIDE = wp.constant(2)  #: ledger_add_outcomes' ``fast`` bit: the records in 16-byte loads on CUDA
+
+
 @wp.kernel
 def ledger_add_outcomes(
     outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
@@ -341,7 +367,8 @@ def ledger_add_outcomes(
     view_index: int,  # the view whose photons wrote the records
     light_photons: int,  # the light's photons (cascade_photons)
     run: int,  # records per run (the trace's slots): record r is photon slot r % run of its run
-    fast: int,  # 1: an inactive view returns at once, the block sums by _outcome_reduce on CUDA; 0: the twin (tiles)
+    fast: int,  # bit 0: an inactive view returns at once, the block sums by _outcome_reduce on CUDA (0: the twin's
+    # tiles); bit 1 (OUTCOME_WIDE): each record in one 16-byte load on CUDA (0: four 4-byte loads, the twin)
 ):
     """The final entries of ``count`` outcome records: each thread sums its records per entry in registers, the
     block sums every entry at once (two tiles of 5×3 matrices, OUTCOME_ROWS) and lane 0 adds each entry of
@@ -351,8 +378,9 @@ def ledger_add_outcomes(
     a fitted cascade can get; never written this frame) are skipped."""
     block, lane = wp.tid()
     n_photons = cascade_photons(states[view_index], light_photons)
-    if fast != 0 and n_photons == 0:  # an inactive view wrote no records (uniform over the launch)
+    if (fast & 1) != 0 and n_photons == 0:  # an inactive view wrote no records (uniform over the launch)
         return
+    wide = fast & OUTCOME_WIDE
     t = block * wp.block_dim() + lane
     sa = OutcomeSums()
     sb = OutcomeSums()
@@ -362,10 +390,10 @@ def ledger_add_outcomes(
     # four records a step, their loads issued together, added in the order one at a time would add them
     r = t
     while r < end:
-        o0 = _outcome_at(outcome, r, end, run, n_photons, one_run)
-        o1 = _outcome_at(outcome, r + threads, end, run, n_photons, one_run)
-        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run)
-        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run)
+        o0 = _outcome_at(outcome, r, end, run, n_photons, one_run, wide)
+        o1 = _outcome_at(outcome, r + threads, end, run, n_photons, one_run, wide)
+        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run, wide)
+        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run, wide)
         sa, sb = _outcome_add(sa, sb, o0)
         sa, sb = _outcome_add(sa, sb, o1)
         sa, sb = _outcome_add(sa, sb, o2)
@@ -374,7 +402,96 @@ def ledger_add_outcomes(
     # the block's sums of all entries in two tile sums instead of ten (H100, in the frame against main's kernel in the
     # same call: -16% / -9% with ten, -20% / -18% with two; docs/perf_notes.md section 40), added by lane 0 in order
     reduced = int(0)
-    if fast != 0:
+    if (fast & 1) != 0:
+        reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
+    if reduced == 0:
+        ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
+        tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
+        if lane == 0:
+            _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
+            _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+
+
+#: the six final entries of a screen-space trace's records (lost from the light view, from the camera, occluded,
+#: rejected, out of steps, stored: ``kernels_cisp.CISP_FINAL_ENTRIES``), contiguous: :func:`ledger_add_outcomes6`
+FINAL6_ENTRIES = wp.constant(entry_mask(*range(4, 10)))
+assert int(L_LOST_LIGHT) == 4 and int(L_STORED) == 9
+#: the six entries' power [W] RGB (rows: entries 4 .. 9)
+Final6Sums = wp.types.matrix(shape=(6, 3), dtype=wp.float64)
+#: blocks of ledger_add_outcomes6 an SM (its launch bound: <= 80 registers for three blocks of OUTCOME_BLOCK)
+OUTCOME6_BLOCKS_PER_SM = 3
+
+
+@wp.func
+def _final6_add(s: Final6Sums, o: wp.vec4) -> Final6Sums:
+    """``s`` with record ``o``'s power added to its entry's row (entries 4-9; nothing for any other code)."""
+    code = int(o[3])
+    p = wp.vec3d(wp.float64(o[0]), wp.float64(o[1]), wp.float64(o[2]))
+    r = s
+    if code == 4:
+        r[0] = r[0] + p
+    elif code == 5:
+        r[1] = r[1] + p
+    elif code == 6:
+        r[2] = r[2] + p
+    elif code == 7:
+        r[3] = r[3] + p
+    elif code == 8:
+        r[4] = r[4] + p
+    elif code == 9:
+        r[5] = r[5] + p
+    return r
+
+
+@wp.kernel(launch_bounds=(OUTCOME_BLOCK, OUTCOME6_BLOCKS_PER_SM))
+def ledger_add_outcomes6(
+    outcome: wp.array(dtype=wp.vec4),  # as ledger_add_outcomes'
+    count: int,
+    threads: int,
+    entries: int,  # FINAL6_ENTRIES (the caller launches this kernel for that mask only)
+    ledger: wp.array(dtype=wp.vec3d),
+    states: wp.array(dtype=CascadeState),
+    view_index: int,
+    light_photons: int,
+    run: int,
+    fast: int,  # as ledger_add_outcomes' (bit 0: inactive views return, the reduce-scatter; bit 1: 16-byte loads)
+):
+    """:func:`ledger_add_outcomes` for records of the six entries 4-9 (CISP's trace; ``PhotonPass.OUTCOMES6``): each
+    thread sums them in one 6×3 float64 matrix (36 registers, not the two 5×3 of every final entry: 60), so that the
+    kernel fits three blocks of 256 an SM (launch bound; 124 registers and two blocks for the twin) and keeps half as
+    many records again in flight. The block sums and the adds are the twin's (the rows placed in its two matrices):
+    the same sums in the same order, bit for bit on the CPU."""
+    block, lane = wp.tid()
+    n_photons = cascade_photons(states[view_index], light_photons)
+    if (fast & 1) != 0 and n_photons == 0:  # an inactive view wrote no records (uniform over the launch)
+        return
+    wide = fast & OUTCOME_WIDE
+    t = block * wp.block_dim() + lane
+    s = Final6Sums()
+    end = wp.min(count, ((count - 1) / run) * run + wp.min(n_photons, run))
+    one_run = wp.where(count <= run, 1, 0)
+    r = t
+    while r < end:
+        o0 = _outcome_at(outcome, r, end, run, n_photons, one_run, wide)
+        o1 = _outcome_at(outcome, r + threads, end, run, n_photons, one_run, wide)
+        o2 = _outcome_at(outcome, r + 2 * threads, end, run, n_photons, one_run, wide)
+        o3 = _outcome_at(outcome, r + 3 * threads, end, run, n_photons, one_run, wide)
+        s = _final6_add(s, o0)
+        s = _final6_add(s, o1)
+        s = _final6_add(s, o2)
+        s = _final6_add(s, o3)
+        r += 4 * threads
+    # OUTCOME_ROWS: entries 4, 5, 6 are rows 2-4 of the first matrix, 7, 8, 9 rows 0-2 of the second
+    sa = OutcomeSums()
+    sb = OutcomeSums()
+    sa[2] = s[0]
+    sa[3] = s[1]
+    sa[4] = s[2]
+    sb[0] = s[3]
+    sb[1] = s[4]
+    sb[2] = s[5]
+    reduced = int(0)
+    if (fast & 1) != 0:
         reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
     if reduced == 0:
         ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
@@ -581,6 +698,98 @@ def _group_count_bit(group: int) -> int:
     return 1 << (SORT_COUNT_BITS * group)
 
 
+#: CUDA (blocks of whole warps): a tile's photons per group (SORT_COUNT_BITS-packed, as the tile sum of
+#: ``_group_count_bit``) by three warp ballots a warp, one shared row of counts a warp and ONE barrier, thread 0 adding
+#: the warps' rows: Warp's ``tile_sum`` of an int (warp shuffles, shared partials and three barriers a tile) is the
+#: twin (``PhotonPass.BALLOT_GROUPS``). The rows alternate between two buffers by ``parity`` (the caller's round:
+#: its tile's ``tile / grid``; the rounds that skip the call are the last ones): a warp writing round n + 1's row
+#: passed round n's barrier, and thread 0 read round n - 1's rows before it reached that barrier, so one barrier a
+#: round suffices. Returns the packed counts in thread 0 (0 in the others);
+#: elsewhere (the CPU, blocks of a partial warp) -1: the caller takes the tile sum.
+_GROUP_COUNT_BALLOT = """
+#if defined(__CUDA_ARCH__) && (WP_TILE_BLOCK_DIM % 32 == 0)
+constexpr int NW = WP_TILE_BLOCK_DIM / 32;
+__shared__ int group_count_rows[2][NW][3];
+const unsigned FULL = 0xffffffffu;
+const int lane = threadIdx.x & 31;
+const int warp = threadIdx.x >> 5;
+const int p = parity & 1;
+const int c0 = __popc(__ballot_sync(FULL, group == 0));
+const int c1 = __popc(__ballot_sync(FULL, group == 1));
+const int c2 = __popc(__ballot_sync(FULL, group == 2));
+if (lane == 0) {
+    group_count_rows[p][warp][0] = c0;
+    group_count_rows[p][warp][1] = c1;
+    group_count_rows[p][warp][2] = c2;
+}
+__syncthreads();
+int packed = 0;
+if (threadIdx.x == 0) {
+    #pragma unroll
+    for (int w = 0; w < NW; ++w)
+        packed += group_count_rows[p][w][0] | (group_count_rows[p][w][1] << 10) | (group_count_rows[p][w][2] << 20);
+}
+return packed;
+#else
+return -1;
+#endif
+"""
+
+
+@wp.func_native(_GROUP_COUNT_BALLOT)
+def _group_count_ballot(group: int, parity: int) -> int:
+    """On CUDA (blocks of whole warps): the tile's packed group counts in thread 0 (``_GROUP_COUNT_BALLOT``); -1
+    elsewhere."""
+    ...
+
+
+#: CUDA (blocks of whole warps): each thread's exclusive prefix of the tile's packed group counts (what
+#: ``tile_scan_exclusive`` of ``_group_count_bit`` gives, bit for bit) by ballots: its rank among its warp's lanes below
+#: it (popc of the ballot masked to the lower lanes) plus the counts of the warps before its own, from one shared row a
+#: warp written behind ONE barrier (two buffers by ``parity``, as ``_GROUP_COUNT_BALLOT``): Warp's scan (the tile
+#: copied to shared memory, two warp scans and six barriers a tile) is the twin (``PhotonPass.BALLOT_GROUPS``). A warp
+#: writing round n + 1's row has passed round n's barrier, which every thread reached after reading round n - 1's rows.
+#: Returns -1 elsewhere (the CPU, blocks of a partial warp): the caller takes the tile scan.
+_GROUP_SCAN_BALLOT = """
+#if defined(__CUDA_ARCH__) && (WP_TILE_BLOCK_DIM % 32 == 0)
+constexpr int NW = WP_TILE_BLOCK_DIM / 32;
+__shared__ int group_scan_rows[2][NW][3];
+const unsigned FULL = 0xffffffffu;
+const int lane = threadIdx.x & 31;
+const int warp = threadIdx.x >> 5;
+const int p = parity & 1;
+const unsigned below = (1u << lane) - 1u;
+const unsigned b0 = __ballot_sync(FULL, group == 0);
+const unsigned b1 = __ballot_sync(FULL, group == 1);
+const unsigned b2 = __ballot_sync(FULL, group == 2);
+if (lane == 0) {
+    group_scan_rows[p][warp][0] = __popc(b0);
+    group_scan_rows[p][warp][1] = __popc(b1);
+    group_scan_rows[p][warp][2] = __popc(b2);
+}
+__syncthreads();
+int r0 = __popc(b0 & below);
+int r1 = __popc(b1 & below);
+int r2 = __popc(b2 & below);
+for (int w = 0; w < warp; ++w) {
+    r0 += group_scan_rows[p][w][0];
+    r1 += group_scan_rows[p][w][1];
+    r2 += group_scan_rows[p][w][2];
+}
+return r0 | (r1 << 10) | (r2 << 20);
+#else
+return -1;
+#endif
+"""
+
+
+@wp.func_native(_GROUP_SCAN_BALLOT)
+def _group_scan_ballot(group: int, parity: int) -> int:
+    """On CUDA (blocks of whole warps): the exclusive prefix of the tile's packed group counts at this thread
+    (``_GROUP_SCAN_BALLOT``); -1 elsewhere."""
+    ...
+
+
 @wp.func
 def _march_group(
     views: wp.array(dtype=ViewParams),
@@ -664,6 +873,7 @@ def photon_group_keys(
     keys: wp.array(dtype=wp.int32),  # (>= N,) march group of thread t's photon (write, the first n_photons)
     block_counts: wp.array(dtype=wp.int32),  # (SORT_GROUPS * tiles,) photons per (group, tile), group-major (write)
     grid: int,  # blocks launched
+    ballot: int,  # 1: a tile's counts by warp ballots and one barrier on CUDA (_group_count_ballot); 0: tile_sum (twin)
 ):
     """The march group of each photon, over the photons already in texel order (so the RSM reads are coherent),
     and how many of each group each block holds; :func:`photon_group_scatter` then groups the photons stably, so
@@ -713,9 +923,14 @@ def photon_group_keys(
                                          rsm_tri, geometry, triangle_material, mat_opacity,
                                          max_lum, roughness_cutoff, luminance_cutoff, k)
                 keys[t] = group
-            packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
+            c = int(-1)
+            if ballot != 0:
+                c = _group_count_ballot(group, tile / grid)  # the round's parity: tile = block + round * grid
+            if c < 0:  # the twin, and the CPU (lane 0 reads the block's sum, as thread 0 has the ballots')
+                packed = wp.tile_sum(wp.tile(_group_count_bit(group)))
+                if lane == 0:
+                    c = packed[0]
             if lane == 0:
-                c = packed[0]
                 rest = wp.min(n_slots - first, bd)
                 for g in range(SORT_GROUPS - 1):
                     n_g = (c >> (SORT_COUNT_BITS * g)) & mask
@@ -739,6 +954,7 @@ def photon_group_scatter(
     offsets: wp.array(dtype=wp.int32),  # (SORT_GROUPS * tiles,) exclusive scan of the tile counts (read)
     grouped: wp.array(dtype=wp.int32),  # (>= N,) photon index per thread, grouped (write, first n_photons)
     grid: int,  # blocks launched (block b takes tiles b, b + grid, ...)
+    ballot: int,  # 1: the tile's ranks by warp ballots and one barrier on CUDA (_group_scan_ballot); 0: the tile scan
 ):
     """A stable partition of the photons by march group (the stable sort on the 2-bit group keys, without a radix
     sort's passes and copies): thread t's photon goes to its group's offset for its block plus the photons of its
@@ -753,10 +969,21 @@ def photon_group_scatter(
     base = order_base(cascade, order_stride, orders)
     tiles = offsets.shape[0] / SORT_GROUPS
     tile = block
+    rounds = int(0)  # ballot rounds so far (their shared rows alternate)
+    # with ``ballot`` each tile's keys are loaded one tile ahead (``g_next``), so that a tile's chain of loads starts
+    # at its photon and offset (key -> photon, offset was two round trips a tile); the twin loads them in the tile
+    g_next = int(-1)
+    if ballot != 0 and tile * bd + lane < n_slots:
+        g_next = keys[tile * bd + lane]
     while tile < tiles and tile * bd < n_photons:  # tiles past the photons have nothing to write; uniform per block
         t = tile * bd + lane
         group = int(-1)
-        if t < n_slots:
+        if ballot != 0:
+            group = g_next
+            g_next = -1
+            if t + grid * bd < n_slots:  # the next tile's (a key past the photons is read for nothing)
+                g_next = keys[t + grid * bd]
+        elif t < n_slots:
             group = keys[t]
         # the photon and its group's offset loaded before the scan, in flight while the block scans
         k = int(0)
@@ -764,7 +991,12 @@ def photon_group_scatter(
         if t < n_slots and group != SORT_GROUP_LAST:
             k = order[base + t]
             offset = offsets[group * tiles + tile]
-        before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
+        before = int(-1)
+        if ballot != 0:
+            before = _group_scan_ballot(group, rounds)
+            rounds += 1
+        if before < 0:  # the twin, and the CPU
+            before = wp.untile(wp.tile_scan_exclusive(wp.tile(_group_count_bit(group))))
         if t < n_slots and group != SORT_GROUP_LAST:
             rank = (before >> (SORT_COUNT_BITS * group)) & ((1 << SORT_COUNT_BITS) - 1)
             grouped[offset + rank] = k
