@@ -356,6 +356,23 @@ def _outcome_reduce(ledger: wp.array(dtype=wp.vec3d), stripe: int, entries: int,
 OUTCOME_WIDE = wp.constant(2)  #: ledger_add_outcomes' ``fast`` bit: the records in 16-byte loads on CUDA
 
 
+@wp.func
+def _outcome_block_add(ledger: wp.array(dtype=wp.vec3d), block: int, lane: int, entries: int, fast: int,
+                       sa: OutcomeSums, sb: OutcomeSums):
+    """The outcome passes' block sums of ``sa`` and ``sb`` (OUTCOME_ROWS) added once to the ledger's stripe of
+    ``block``: by :func:`_outcome_reduce` where ``fast`` bit 0 asks for it on CUDA, else by two tile sums that lane 0
+    adds in entry order (the twin; the CPU's)."""
+    reduced = int(0)
+    if (fast & 1) != 0:
+        reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
+    if reduced == 0:
+        ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
+        tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
+        if lane == 0:
+            _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
+            _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+
+
 @wp.kernel
 def ledger_add_outcomes(
     outcome: wp.array(dtype=wp.vec4),  # (>= count,) per photon: power [W] RGB, final ledger entry (read)
@@ -401,15 +418,7 @@ def ledger_add_outcomes(
         r += 4 * threads
     # the block's sums of all entries in two tile sums instead of ten (H100, in the frame against main's kernel in the
     # same call: -16% / -9% with ten, -20% / -18% with two; docs/perf_notes.md section 40), added by lane 0 in order
-    reduced = int(0)
-    if (fast & 1) != 0:
-        reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
-    if reduced == 0:
-        ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
-        tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
-        if lane == 0:
-            _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
-            _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+    _outcome_block_add(ledger, block, lane, entries, fast, sa, sb)
 
 
 #: the six final entries of a screen-space trace's records (lost from the light view, from the camera, occluded,
@@ -490,15 +499,7 @@ def ledger_add_outcomes6(
     sb[0] = s[3]
     sb[1] = s[4]
     sb[2] = s[5]
-    reduced = int(0)
-    if (fast & 1) != 0:
-        reduced = _outcome_reduce(ledger, ledger_slot(ledger, block, 0), entries, sa, sb)
-    if reduced == 0:
-        ta = wp.tile_sum(wp.tile(sa, preserve_type=True))
-        tb = wp.tile_sum(wp.tile(sb, preserve_type=True))
-        if lane == 0:
-            _outcome_rows_add(ledger, block, entries, ta[0], OutcomeRows(1, 3, 4, 5, 6))
-            _outcome_rows_add(ledger, block, entries, tb[0], OutcomeRows(7, 8, 9, 12, 13))
+    _outcome_block_add(ledger, block, lane, entries, fast, sa, sb)
 
 
 #: the whole frame's clear in 16-byte stores: CUDA's st.global.v4 (Warp's vec4 is 4-byte aligned, so its stores may
