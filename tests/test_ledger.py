@@ -78,7 +78,7 @@ def _cisp_frame(device, block: int, folded: bool, monkeypatch):
     return p.read_ledger(), p.photon_map.numpy(), p.outcome.numpy()[: p.photons_per_view(p.lights[0])]
 
 
-@pytest.mark.parametrize("block", [1, 32, 128])
+@pytest.mark.parametrize("block", [1, 32])  # 128 dropped for the suite's 5 minutes: 32 already spans whole warps
 def test_folded_outcomes_are_the_outcome_pass(device, block, monkeypatch):
     """``cisp``'s final entries added by the trace's epilogue (``kernels_cisp.final_add``: on CUDA the emission's
     reduce-scatter over six entries, 18 doubles; elsewhere a tile sum) against the twin, the outcome records added
