@@ -1076,7 +1076,7 @@ def test_select_free_levels_equal_the_select_levels(device, monkeypatch, conserv
         np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))  # bit for bit, zeros' signs included
 
 
-@pytest.mark.parametrize("w,h,conserve", [(45, 38, True), (83, 51, False), (7, 5, True), (70, 33, True)])
+@pytest.mark.parametrize("w,h,conserve", [(83, 51, False), (7, 5, True)])  # odd sizes both; two more were cut for the suite's 5 minutes
 def test_step2_level_makes_its_guide_terms_like_the_guide_pass(device, monkeypatch, w, h, conserve):
     """Section 85: SVGF's step-2 level from the step-1 level's packed output and dense Var (``variance``) blurs its
     own variance (``FOLD_GUIDE2``, the default) and writes bit for bit what the guide pass and the plain level write
