@@ -514,8 +514,8 @@ def test_column_raster_is_the_tile_raster(device, stride):
             # go to the other triangle of the edge (its depth there 1e-5 off). Covered pixels agree but for such centres, depths to 1e-4.
             both = (fast != empty) & (naive != empty)
             assert ((fast != empty) != (naive != empty)).mean() <= 0.01, f"view {k}"
-            qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
-            np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}")
+            np.testing.assert_allclose(key_depths(fast[both], vp.far), key_depths(naive[both], vp.far), rtol=1e-4,
+                                       atol=0, err_msg=f"view {k}")
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 
@@ -609,8 +609,8 @@ def test_reject_and_row_rasters_are_the_tile_raster(device, stride):
                 # CUDA may contract the edge and depth products into FMAs differently in the two kernels (section 24)
                 both = (fast != empty) & (naive != empty)
                 assert ((fast != empty) != (naive != empty)).mean() <= 0.01, f"view {k}"
-                qf, qn = (fast[both] >> np.uint64(32)).astype(np.float64), (naive[both] >> np.uint64(32)).astype(np.float64)
-                np.testing.assert_allclose(qf, qn, rtol=1e-4, atol=0, err_msg=f"view {k}")
+                np.testing.assert_allclose(key_depths(fast[both], vp.far), key_depths(naive[both], vp.far),
+                                           rtol=1e-4, atol=0, err_msg=f"view {k}")
         assert (out[0][0] != empty).mean() > 0.5 and (out[0][1] != empty).any()
 
 
@@ -689,6 +689,23 @@ def _texel_surface_of_layer(views: wp.array(dtype=ViewParams), k: int, tri_id: w
         x, n = RK.texel_surface(views[k], p, tri, depth[p], points, normals, indices)
         x_out[p] = x
         n_out[p] = n
+
+
+def depth_keys(depth, far):
+    """The high halves of the visibility keys of float32 depths in (0, far] (``RK.depth_key``'s two forms)."""
+    depth = np.asarray(depth, np.float32)
+    if RK.DEPTH_KEY_BITS:
+        return depth.view(np.uint32).astype(np.uint64) << np.uint64(32)
+    q = np.minimum(depth.astype(np.float64) / np.float64(np.float32(far)), 1.0) * float(RK.DEPTH_STEPS)
+    return q.astype(np.uint64) << np.uint64(32)
+
+
+def key_depths(keys, far):
+    """The depths [m] non-empty visibility keys hold (``RK.key_depth``), as float64."""
+    hi = np.asarray(keys, np.uint64) >> np.uint64(32)
+    if RK.DEPTH_KEY_BITS:
+        return hi.astype(np.uint32).view(np.float32).astype(np.float64)
+    return hi.astype(np.float64) / float(RK.DEPTH_STEPS) * np.float64(np.float32(far))
 
 
 def _bits(a):
@@ -822,7 +839,7 @@ def _hit_and_surface(views: wp.array(dtype=ViewParams), keys: wp.array(dtype=wp.
 
 
 def test_texel_surface_of_a_ray_in_the_triangles_plane(device, rng):
-    """A pixel ray in its triangle's plane (triangle_hit falls back to the key's quantised depth and barycentrics
+    """A pixel ray in its triangle's plane (triangle_hit falls back to the key's depth and barycentrics
     (1, 0, 0)): texel_surface gives the same point and normal from that depth. An orthographic view looking down -z
     (its rays exactly along -z) and triangles in planes x = const, which contain every ray; beside them triangles
     in general position (the ordinary case) and triangles the ray misses (clamped barycentrics)."""
@@ -844,8 +861,8 @@ def test_texel_surface_of_a_ray_in_the_triangles_plane(device, rng):
     nrm = rng.normal(size=pts.shape).astype(np.float32)
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     tris = n_in + n_gen
-    depth_q = rng.integers(1, 1 << 31, tris).astype(np.uint64)
-    keys = (depth_q << np.uint64(32)) | np.arange(tris, dtype=np.uint64)
+    depth = rng.uniform(0.05, 9.5, tris).astype(np.float32)
+    keys = depth_keys(depth, view.far) | np.arange(tris, dtype=np.uint64)
     pixels = rng.integers(0, w * h, tris).astype(np.int32)
     arr = lambda a, t: wp.array(a, dtype=t, device=device)  # noqa: E731
     hit, surf = wp.zeros(2 * tris, dtype=wp.vec3, device=device), wp.zeros(2 * tris, dtype=wp.vec3, device=device)
@@ -856,8 +873,7 @@ def test_texel_surface_of_a_ray_in_the_triangles_plane(device, rng):
     np.testing.assert_array_equal(_bits(s_np), _bits(h_np))
     # the in-plane probes took the fallback: the vertex normal of corner 0, the point at the key's depth
     np.testing.assert_allclose(h_np[1:2 * n_in:2], nrm[0:3 * n_in:3], atol=3e-7)  # (normalised again)
-    t_key = (depth_q[:n_in].astype(np.float64) / float(RK.DEPTH_STEPS)) * 10.0
-    np.testing.assert_allclose(-h_np[0:2 * n_in:2, 2], t_key, rtol=1e-6)
+    np.testing.assert_allclose(-h_np[0:2 * n_in:2, 2], key_depths(keys[:n_in], view.far), rtol=1e-6)
 
 
 @pytest.mark.parametrize("size", [(48, 32), (70, 45)])
@@ -1134,3 +1150,36 @@ def test_split_redraw_gates_in_one_launch_are_the_two_gates(device, rng):
         drawn[0] += int(twin[2].numpy()[0]["far"] > 0.0)
         drawn[1] += int(twin[2].numpy()[0]["far"] == 0.0)
     assert drawn[0] > 3 and drawn[1] > 3  # both decisions were taken
+
+
+@wp.kernel
+def _keys_and_back(views: wp.array(dtype=ViewParams), depth: wp.array(dtype=float), keys: wp.array(dtype=wp.uint64),
+                   back: wp.array(dtype=float)):
+    i = wp.tid()
+    k = RK.depth_key(views[0], depth[i], wp.uint64(i))
+    keys[i] = k
+    back[i] = RK.key_depth(views[0], k)
+
+
+def test_depth_keys_order_as_their_depths(device, rng):
+    """``depth_key`` puts a fragment's depth in the key's high half as the numpy form says, keys order as their
+    depths (ties by triangle id), and ``key_depth`` gives the depth back (exactly with the float bits, to the
+    quantisation's step without them). Depths over (0, far], with pairs one float32 ulp apart and far itself."""
+    view = camera_view(Camera(np.eye(4), near=0.01, far=37.5, width=8, height=8)).params()
+    d = rng.uniform(1e-3, 37.5, 500).astype(np.float32)
+    d = np.concatenate([d, np.nextafter(d[:50], np.float32(np.inf)), [np.float32(37.5), np.float32(1e-6)]])
+    n = len(d)
+    keys, back = wp.zeros(n, dtype=wp.uint64, device=device), wp.zeros(n, dtype=float, device=device)
+    wp.launch(_keys_and_back, dim=n, device=device,
+              inputs=[wp.array([view], dtype=ViewParams, device=device), wp.array(d, dtype=float, device=device),
+                      keys, back])
+    k = keys.numpy()
+    np.testing.assert_array_equal(k, depth_keys(d, view.far) | np.arange(n, dtype=np.uint64))
+    ks = k[np.lexsort((np.arange(n), d))]
+    if RK.DEPTH_KEY_BITS:  # strictly: distinct depths get distinct keys
+        assert (ks[1:] > ks[:-1]).all()
+    else:
+        assert ((ks[1:] >> np.uint64(32)) >= (ks[:-1] >> np.uint64(32))).all()
+    step = 0.0 if RK.DEPTH_KEY_BITS else 37.5 / float(RK.DEPTH_STEPS) * 2
+    np.testing.assert_allclose(back.numpy(), d, rtol=0, atol=step)
+    np.testing.assert_array_equal(key_depths(k, view.far).astype(np.float32), back.numpy())

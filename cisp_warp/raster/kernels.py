@@ -1,8 +1,8 @@
 """Warp kernels of the software rasterizer: triangle setup, tiled visibility raster, attribute resolve.
 
-The visibility buffer holds one uint64 per pixel: the high 32 bits are the linear depth quantised
-over [0, far] (2^32 steps, so ordering is exact to far·2.3e-10), the low 32 bits the triangle id.
-``wp.atomic_min`` on it keeps the nearest triangle. The resolve pass then intersects the pixel's ray
+The visibility buffer holds one uint64 per pixel: the high 32 bits are the fragment's float32 depth's own bits
+(a positive float's bits grow with it, so ordering is exact to the depth the raster computes; ``DEPTH_KEY_BITS``), the
+low 32 bits the triangle id. ``wp.atomic_min`` on it keeps the nearest triangle. The resolve pass then intersects the pixel's ray
 with that triangle, so depth, position and barycentrics are exact, not quantised.
 
 Large triangles do not serialise onto one thread: setup counts the 8x8-pixel tiles each (clipped)
@@ -26,6 +26,7 @@ sections 43 and 58).
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import warp as wp
@@ -36,6 +37,11 @@ TILE = 8  #: tile edge [pixels] of one raster work item
 EMPTY_KEY_VALUE = 0xFFFFFFFFFFFFFFFF  #: visibility value of a pixel no triangle covers
 EMPTY_KEY = wp.constant(wp.uint64(EMPTY_KEY_VALUE))
 DEPTH_STEPS = wp.constant(4294967040.0)  # largest float32 below 2^32: the quantised depth fits 32 bits
+#: The visibility key's depth (docs/perf_notes.md section 90): True (default), the fragment's float32 depth's bits,
+#: a bit move; False (the twin: ``CISP_DEPTH_KEY=quotient`` in the environment before this module is imported), the
+#: depth quantised linearly over [0, far], a float64 division, product and conversion a fragment. Both orders agree
+#: wherever the quantised depths differ; the bits also separate depths closer than far·2.3e-10.
+DEPTH_KEY_BITS = os.environ.get("CISP_DEPTH_KEY", "bits") != "quotient"
 
 # depth bounds of a depth buffer (``photons.march.depth_bounds``, and :func:`resolve_rsm_view` in its resolve): defined
 # here, beside the resolves that may write them, and imported by ``photons.march``
@@ -257,12 +263,52 @@ def fragment_depth(view: ViewParams, a: wp.vec3, b: wp.vec3, c: wp.vec3, w0: flo
     return z
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return wp::uint64(__float_as_uint(x));
+#else
+unsigned int u;
+memcpy(&u, &x, 4);
+return wp::uint64(u);
+#endif
+""")
+def float_bits(x: float) -> wp.uint64:
+    """The IEEE-754 bits of float32 ``x`` (in the low 32 bits): for ``x >= 0`` they order as ``x`` does."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return __uint_as_float((unsigned int)(u));
+#else
+unsigned int v = (unsigned int)(u);
+float x;
+memcpy(&x, &v, 4);
+return x;
+#endif
+""")
+def bits_float(u: wp.uint64) -> float:
+    """The float32 whose IEEE-754 bits are the low 32 bits of ``u`` (:func:`float_bits`' inverse)."""
+    ...
+
+
 @wp.func
 def depth_key(view: ViewParams, depth: float, tri: wp.uint64) -> wp.uint64:
-    """The visibility key of a fragment: depth quantised over [0, far] in the high 32 bits, the triangle id below
-    (an ``atomic_min`` keeps the nearest)."""
+    """The visibility key of a fragment (``0 < depth <= far``): the depth in the high 32 bits (its float32 bits, or
+    quantised over [0, far] without ``DEPTH_KEY_BITS``), the triangle id below (an ``atomic_min`` keeps the
+    nearest)."""
+    if wp.static(DEPTH_KEY_BITS):
+        return (float_bits(depth) << wp.uint64(32)) | tri
     q = wp.uint64(wp.min(wp.float64(depth) / wp.float64(view.far), wp.float64(1.0)) * wp.float64(DEPTH_STEPS))
     return (q << wp.uint64(32)) | tri
+
+
+@wp.func
+def key_depth(view: ViewParams, key: wp.uint64) -> float:
+    """The depth [m] a (non-empty) visibility key holds: :func:`depth_key`'s depth, or its quantised value."""
+    if wp.static(DEPTH_KEY_BITS):
+        return bits_float(key >> wp.uint64(32))
+    return float(wp.float64(key >> wp.uint64(32)) / wp.float64(DEPTH_STEPS) * wp.float64(view.far))
 
 
 @wp.func
@@ -740,8 +786,8 @@ def triangle_hit(view: ViewParams, key: wp.uint64, pixel: int, points: wp.array(
         return int(-1), float(0.0), wp.vec3(0.0), wp.vec3(0.0), d
     tri = int(key & wp.uint64(0xFFFFFFFF))
     u, v, t, ok = _ray_barycentrics(o, d, tri, points, indices)
-    if ok == 0:  # ray in the triangle's plane: fall back to the quantised raster depth (u = v = 0)
-        t = float(wp.float64(key >> wp.uint64(32)) / wp.float64(DEPTH_STEPS) * wp.float64(view.far))
+    if ok == 0:  # ray in the triangle's plane: fall back to the raster's depth (u = v = 0)
+        t = key_depth(view, key)
     return tri, t, o + d * t, _clamped_barycentrics(u, v), d
 
 
