@@ -1231,6 +1231,7 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     test_atrous_level_tiles_match_naive_twin("cpu", 1, True, None, True, 128.0)  # the step-1 level's own guide terms
     test_atrous_level_signal_in_the_apron_only_is_filtered("cpu", None)  # the two barriers' flags across lanes
     test_atrous_level_signal_free_block_skips_its_weights("cpu")
+    test_atrous_level_running_block_skips_what_no_output_needs("cpu", True)  # the masks' ballots and warp barrier
     test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin("cpu", 0, None)
 
 
@@ -1466,6 +1467,34 @@ def test_atrous_level_signal_free_block_skips_its_weights(device):
     assert np.all(c[:, :32] == 0.0) and np.all(v[:, :32] == 0.0)
     np.testing.assert_allclose(c[:, 32:], c_ref[:, 32:], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(v[:, 32:], v_ref[:, 32:], rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("conserve", [True, False])
+def test_atrous_level_running_block_skips_what_no_output_needs(device, conserve):
+    """Section 91 (``ATROUS_SKIP``): a running block (step 1, pixels x 32-63) whose signal lies only at x >= 56 skips
+    the pair weights, weight sums and taps no output needs: a NaN normal at x = 40 (more than 6 from the signal, so
+    that none of its pairs touches a weight sum the filter reads) makes those pair weights NaN if they are evaluated
+    (main's kernels: NaN outputs around it); skipped, every pixel more than 2 from the signal writes +0 (colour and
+    Var, sign bit clear) and the rest equals the twin. Fails if the masks' dilations are a column short (the pixels
+    at the signal's reach read unset weights) or if nothing is skipped."""
+    from cisp_warp.denoise import kernels_atrous as ka
+    rng = np.random.default_rng(91)
+    w, h = 72, 20
+    x = np.arange(w)[None, :].repeat(h, 0)
+    g, color, variance = _signal_region_frame(rng, w, h, (x >= 56) & (x < 64))
+    g["normal"][8, 40] = np.nan
+    c, v, c_ref, v_ref = _tiled_level(device, g, color, variance, 1, None, conserve)
+    if not ka.ATROUS_SKIP:  # main's kernels evaluate the NaN point's pairs
+        assert np.isnan(c[8, 40]).any()
+        return
+    assert np.all(np.isfinite(c)) and np.all(np.isfinite(v))
+    far = (slice(None), slice(0, 54))
+    assert not np.signbit(c[far]).any() and not np.signbit(v[far]).any()
+    assert np.all(c[far] == 0.0) and np.all(v[far] == 0.0)
+    near = (slice(None), slice(50, w))
+    np.testing.assert_allclose(c[near], c_ref[near], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v[near], v_ref[near], rtol=1e-5, atol=1e-7)
+    assert c[:, 54:56].max() > 0.0  # the signal's reach is filtered
 
 
 def _two_levels(device, g, color, variance, gate):
