@@ -1471,30 +1471,28 @@ def test_atrous_level_signal_free_block_skips_its_weights(device):
 
 @pytest.mark.parametrize("conserve", [True, False])
 def test_atrous_level_running_block_skips_what_no_output_needs(device, conserve):
-    """Section 91 (``ATROUS_SKIP``): a running block (step 1, pixels x 32-63) whose signal lies only at x >= 56 skips
-    the pair weights, weight sums and taps no output needs: a NaN normal at x = 40 (more than 6 from the signal, so
-    that none of its pairs touches a weight sum the filter reads) makes those pair weights NaN if they are evaluated
-    (main's kernels: NaN outputs around it); skipped, every pixel more than 2 from the signal writes +0 (colour and
-    Var, sign bit clear) and the rest equals the twin. Fails if the masks' dilations are a column short (the pixels
-    at the signal's reach read unset weights) or if nothing is skipped."""
+    """Section 91 (``ATROUS_SKIP``): a running block (step 1, pixel rows 16-31) whose signal lies only in rows >= 28
+    skips the pair weights, weight sums and taps no output needs: a NaN normal in row 18 (more than 6 rows from the
+    signal, so that none of its pairs touches a weight sum the filter reads) makes those pair weights NaN if they are
+    evaluated (main's kernels: NaN outputs around it); skipped, every pixel more than 2 rows from the signal writes +0
+    (colour and Var, sign bit clear) and the rest equals the twin. Fails if the masks' dilations are a row short (the
+    rows at the signal's reach read unset weights) or if nothing is skipped."""
     from cisp_warp.denoise import kernels_atrous as ka
     rng = np.random.default_rng(91)
-    w, h = 72, 20
-    x = np.arange(w)[None, :].repeat(h, 0)
-    g, color, variance = _signal_region_frame(rng, w, h, (x >= 56) & (x < 64))
-    g["normal"][8, 40] = np.nan
+    w, h = 40, 40
+    y = np.arange(h)[:, None].repeat(w, 1)
+    g, color, variance = _signal_region_frame(rng, w, h, y >= 28)
+    g["normal"][18, 20] = np.nan
     c, v, c_ref, v_ref = _tiled_level(device, g, color, variance, 1, None, conserve)
     if not ka.ATROUS_SKIP:  # main's kernels evaluate the NaN point's pairs
-        assert np.isnan(c[8, 40]).any()
+        assert np.isnan(c[18, 20]).any()
         return
     assert np.all(np.isfinite(c)) and np.all(np.isfinite(v))
-    far = (slice(None), slice(0, 54))
-    assert not np.signbit(c[far]).any() and not np.signbit(v[far]).any()
-    assert np.all(c[far] == 0.0) and np.all(v[far] == 0.0)
-    near = (slice(None), slice(50, w))
-    np.testing.assert_allclose(c[near], c_ref[near], rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(v[near], v_ref[near], rtol=1e-5, atol=1e-7)
-    assert c[:, 54:56].max() > 0.0  # the signal's reach is filtered
+    assert not np.signbit(c[:26]).any() and not np.signbit(v[:26]).any()
+    assert np.all(c[:26] == 0.0) and np.all(v[:26] == 0.0)
+    np.testing.assert_allclose(c[22:], c_ref[22:], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v[22:], v_ref[22:], rtol=1e-5, atol=1e-7)
+    assert c[26:28].max() > 0.0  # the signal's reach is filtered
 
 
 def _two_levels(device, g, color, variance, gate):

@@ -335,120 +335,83 @@ def block_sync_or(t: wp.tile[wp.int32, 1], x: int) -> int:
 #: surface) comes out exactly +0 (colour and Var) whatever its weights: c'_p = A_pp c_p + Σ A_pq c_q sums ±0 terms
 #: from +0, the same for Var (finite A_pq). Only the points F with a surface and a signal within 2 are filtered; their
 #: weight sums W_q are needed within 2 of F (S, conserving: A_pq = w_pq / max(W_p, W_q)), and a pair weight only where
-#: one of its points lies in S. A warp none of whose lanes' items (pairs, sums, pixels) are needed skips them; the
-#: rest is main's arithmetic on main's operands (the same values bit for bit). Ungated levels only (SVGF). Read at
-#: import, from the environment (the lead's A/B: ``os.environ["CISP_ATROUS_SKIP"] = "0"`` before the import: main's
-#: kernels)
+#: one of its points lies in S. F and S are kept by guide row (a row is in F if it is a row of the tile and a row
+#: within 2 has a signal; in S if a row within 2 is in F): a warp's work spans whole rows, and the rows alone skip
+#: nearly as much as the points would (section 91's counts). A warp none of whose lanes' items (pairs, sums, pixels)
+#: lie in those rows skips them; the rest is main's arithmetic on main's operands (the same values bit for bit).
+#: Ungated levels only (SVGF). Read at import, from the environment (the lead's A/B:
+#: ``os.environ["CISP_ATROUS_SKIP"] = "0"`` before the import: main's kernels)
 ATROUS_SKIP = os.environ.get("CISP_ATROUS_SKIP", "1") != "0"
-#: the masks' shared table (int32): the guide region's signal bits (``HAS_SIGNAL``) row-major, 32 points a word; its
-#: ``TO_FILTER`` bits likewise; then per guide row F and S as 64-bit rows (two words, bit j = guide column j)
+#: the masks (32-bit words in the first entries of the weight sums' table, guide row 0, which no weight sum uses: no
+#: shared table more, no pointer more to keep in a register): the guide region's signal bits (``HAS_SIGNAL``)
+#: row-major, 32 points a word; then the rows of F and of S (bit i: guide row i)
 MASK_WORDS = GUIDE_Y * GUIDE_X // 32
-assert GUIDE_Y * GUIDE_X % 32 == 0 and ((GUIDE_Y * GUIDE_X + 1) // 2) % 32 == 0 and GUIDE_X <= 60
-MASK_F = 2 * MASK_WORDS
-MASK_S = MASK_F + 2 * GUIDE_Y
-MASK_N = MASK_S + 2 * GUIDE_Y
+assert GUIDE_Y * GUIDE_X % 32 == 0 and ((GUIDE_Y * GUIDE_X + 1) // 2) % 32 == 0 and GUIDE_Y <= 32
+assert all((GUIDE_X * j) % 32 + GUIDE_X <= 64 for j in range(GUIDE_Y))  # a row within two words
+MASK_F = MASK_WORDS
+MASK_S = MASK_F + 1
+MASK_N = MASK_S + 1
+assert MASK_N <= 2 * GUIDE_PITCH  # the weight sums' rows 0 and 1 (the sums are of rows 2 .. GUIDE_Y − 3)
 _MASK_F = wp.constant(MASK_F)
 _MASK_S = wp.constant(MASK_S)
-_GUIDE_Y = wp.constant(GUIDE_Y)
 
 
 @wp.func_native(f"""
 #if defined(__CUDA_ARCH__)
 const unsigned sig = __ballot_sync(0xffffffffu, (bits & 2) != 0);
-const unsigned flt = __ballot_sync(0xffffffffu, (bits & 1) != 0);
-if ((threadIdx.x & 31) == 0) {{
-    t.data(wp::tile_coord(r >> 5)) = (int)sig;
-    t.data(wp::tile_coord({MASK_WORDS} + (r >> 5))) = (int)flt;
-}}
+if ((threadIdx.x & 31) == 0)
+    reinterpret_cast<unsigned&>(t.data(wp::tile_coord(r >> 5))) = sig;
 #else
 const unsigned b = 1u << (r & 31);
 unsigned& sig = reinterpret_cast<unsigned&>(t.data(wp::tile_coord(r >> 5)));
-unsigned& flt = reinterpret_cast<unsigned&>(t.data(wp::tile_coord({MASK_WORDS} + (r >> 5))));
 sig = (bits & 2) ? (sig | b) : (sig & ~b);
-flt = (bits & 1) ? (flt | b) : (flt & ~b);
 #endif
 """)
-def ballot_bits(t: wp.tile[wp.int32, MASK_N], r: int, bits: int):
-    """Point ``r`` (row-major in the guide region) of :func:`store_guide`'s ``bits`` into the masks' words: on CUDA
-    one ballot a warp, whose 32 lanes hold the points 32w .. 32w + 31 in lane order (the load round's r0 = lane,
+def ballot_bits(t: wp.tile[wp.float32, GUIDE_PIXELS], r: int, bits: int):
+    """Point ``r``'s ``HAS_SIGNAL`` (row-major in the guide region; :func:`store_guide`'s ``bits``) into the masks'
+    words (``t``: the weight sums' table, :data:`MASK_WORDS`): on CUDA one ballot a warp, whose 32 lanes hold the points 32w .. 32w + 31 in lane order (the load round's r0 = lane,
     r1 = lane + 480, 512 threads: every warp of it full) and lane 0 stores the words; on the CPU the point's own bit
     (its fibers switch only at barriers)."""
     ...
 
 
 @wp.func_native(f"""
-#define ROW_BITS(base, j) ((j) < 0 || (j) >= {GUIDE_Y} ? 0ull : \
-    ((((unsigned long long)(unsigned)t.data(wp::tile_coord((base) + (({GUIDE_X} * (j)) >> 5))) | \
-       ((unsigned long long)(unsigned)t.data(wp::tile_coord((base) + (({GUIDE_X} * (j)) >> 5) + 1)) << 32)) \
-      >> (({GUIDE_X} * (j)) & 31)) & {(1 << GUIDE_X) - 1}ull))
-unsigned long long v = 0ull;
-for (int d = -2; d <= 2; ++d)
-    v |= ROW_BITS(0, r + d);
-v = (v | (v << 1) | (v << 2) | (v >> 1) | (v >> 2)) & ROW_BITS({MASK_WORDS}, r);
-#undef ROW_BITS
-t.data(wp::tile_coord({MASK_F} + 2 * r)) = (int)(unsigned)v;
-t.data(wp::tile_coord({MASK_F} + 2 * r + 1)) = (int)(unsigned)(v >> 32);
-""")
-def filter_row(t: wp.tile[wp.int32, MASK_N], r: int):
-    """F of guide row ``r``: the points to filter (``TO_FILTER``) with a signal (``HAS_SIGNAL``) within 2 rows and 2
-    columns (their 5x5 taps), a 64-bit row (bit j = column j) at ``MASK_F`` + 2r."""
-    ...
-
-
-@wp.func_native(f"""
-unsigned long long v = 0ull;
-for (int d = -2; d <= 2; ++d) {{
-    const int j = r + d;
-    if (j >= 0 && j < {GUIDE_Y})
-        v |= (unsigned long long)(unsigned)t.data(wp::tile_coord({MASK_F} + 2 * j))
-             | ((unsigned long long)(unsigned)t.data(wp::tile_coord({MASK_F} + 2 * j + 1)) << 32);
-}}
-v = (v | (v << 1) | (v << 2) | (v >> 1) | (v >> 2)) & {(1 << GUIDE_X) - 1}ull;
-t.data(wp::tile_coord({MASK_S} + 2 * r)) = (int)(unsigned)v;
-t.data(wp::tile_coord({MASK_S} + 2 * r + 1)) = (int)(unsigned)(v >> 32);
-""")
-def sum_row(t: wp.tile[wp.int32, MASK_N], r: int):
-    """S of guide row ``r``: the points within 2 rows and 2 columns of F (whose weight sums the filter of F reads), a
-    64-bit row at ``MASK_S`` + 2r."""
-    ...
-
-
-@wp.func_native("""
-const unsigned long long w = (unsigned long long)(unsigned)t.data(wp::tile_coord(base + 2 * r))
-    | ((unsigned long long)(unsigned)t.data(wp::tile_coord(base + 2 * r + 1)) << 32);
-return (int)(((w << 2) >> (c + 2)) & ((1ull << n) - 1ull));
-""")
-def row_bits(t: wp.tile[wp.int32, MASK_N], base: int, r: int, c: int, n: int) -> int:
-    """Bits c .. c + n − 1 (c >= −2, n <= 32; columns below 0 read 0) of the 64-bit mask row ``r`` at ``base``."""
-    ...
-
-
-@wp.func_native("""
+#define ROW_ANY(base, j) (((((unsigned long long)reinterpret_cast<const unsigned&>(t.data(wp::tile_coord((base) + (({GUIDE_X} * (j)) >> 5)))) | \
+    ((unsigned long long)reinterpret_cast<const unsigned&>(t.data(wp::tile_coord((base) + (({GUIDE_X} * (j)) >> 5) + 1))) << 32)) \
+    >> (({GUIDE_X} * (j)) & 31)) & {(1 << GUIDE_X) - 1}ull) != 0ull)
 #if defined(__CUDA_ARCH__)
-__syncwarp();
+if (threadIdx.x < 32) {{  // warp 0: a row a lane, its flags by ballot
+    const int r = threadIdx.x;
+    const unsigned rows_signal = __ballot_sync(0xffffffffu, r < {GUIDE_Y} && ROW_ANY(0, r));
 #else
-WP_TILE_SYNC();
+if (lane == 0) {{
+    unsigned rows_signal = 0u;
+    for (int r = 0; r < {GUIDE_Y}; ++r)
+        rows_signal |= (ROW_ANY(0, r) ? 1u : 0u) << r;
 #endif
+    const unsigned near = rows_signal | (rows_signal << 1) | (rows_signal << 2) | (rows_signal >> 1) | (rows_signal >> 2);
+    const unsigned f = near & {((1 << TILE_Y) - 1) << 4}u;  // the tile's rows
+    const unsigned s = (f | (f << 1) | (f << 2) | (f >> 1) | (f >> 2)) & {(1 << GUIDE_Y) - 1}u;
+    if (lane == 0) {{
+        reinterpret_cast<unsigned&>(t.data(wp::tile_coord({MASK_F}))) = f;
+        reinterpret_cast<unsigned&>(t.data(wp::tile_coord({MASK_S}))) = s;
+    }}
+}}
+#undef ROW_ANY
 """)
-def warp_sync():
-    """The warp's barrier on CUDA (its lanes' shared writes visible to each other); a block barrier on the CPU (every
-    thread must call it)."""
+def needed_rows(t: wp.tile[wp.float32, GUIDE_PIXELS], lane: int):
+    """The rows of F and S (bit i: guide row i) from the signal words, into ``MASK_F`` and ``MASK_S`` (cooperative, no
+    barrier: the next one publishes them): a row is in F if it is a row of the tile and a row within 2 of it has a
+    signal (its points' 5x5 taps, over-estimated by whole rows and without the surface test: the rows of F are a
+    superset of those with a point to filter), in S if a row within 2 is in F. On CUDA warp 0, a row a lane (one
+    ballot); on the CPU lane 0."""
     ...
 
 
-@wp.func
-def needed_masks(t: wp.tile[wp.int32, MASK_N], lane: int, threads: int):
-    """F and S of every guide row from the signal and to-filter words (cooperative; on CUDA warp 0 alone writes
-    them, a warp barrier between; the block barrier after it publishes them)."""
-    r = lane
-    while r < _GUIDE_Y:
-        filter_row(t, r)
-        r += threads
-    warp_sync()
-    r = lane
-    while r < _GUIDE_Y:
-        sum_row(t, r)
-        r += threads
+@wp.func_native("return (int)((reinterpret_cast<const unsigned&>(t.data(wp::tile_coord(base))) >> r) & ((1u << n) - 1u));")
+def mask_rows(t: wp.tile[wp.float32, GUIDE_PIXELS], base: int, r: int, n: int) -> int:
+    """Bits r .. r + n − 1 of the row mask at ``base`` (``MASK_F`` or ``MASK_S``)."""
+    ...
 
 
 @wp.func
@@ -685,23 +648,19 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
 @wp.func
 def fill_weights_skip(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                       pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS],
-                      inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS], masks: wp.tile[wp.int32, MASK_N], lane: int,
-                      threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int, squarings: int,
-                      select_free: int):
-    """:func:`fill_weights` where some are needed (:data:`ATROUS_SKIP`; ``masks`` from :func:`needed_masks`): an item
-    whose pairs have no point in S, and a weight sum outside S, is skipped where its warp's lanes all are (on the
-    CPU, where it is). What is evaluated is :func:`fill_weights`' values; what is skipped nothing reads."""
+                      inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS], lane: int, threads: int, s: float,
+                      depth_eps: float, sigma_normal: float, gated: int, squarings: int, select_free: int):
+    """:func:`fill_weights` where some are needed (:data:`ATROUS_SKIP`; the masks of :func:`needed_rows` in
+    ``inv_weight_sum``'s first entries): an item whose pairs have no point in S's rows, and a weight sum outside
+    them, is skipped where its warp's lanes all are (on the CPU, where it is). What is evaluated is :func:`fill_weights`' values; what is skipped nothing reads."""
     two_over_step = 2.0 / s
     k = lane
     while k < _RUN_N:
         im = pair_item_point(k)
         i = im[0]
         m = im[1]
-        # the item's pairs: (u, u + f) for u = 2m, 2m + 1 of row i: their points are row i's columns 2m .. 2m + 3
-        # and rows i + 1, i + 2's columns 2m − 2 .. 2m + 3
-        need = (row_bits(masks, _MASK_S, i, 2 * m, 4) | row_bits(masks, _MASK_S, i + 1, 2 * m - 2, 6)
-                | row_bits(masks, _MASK_S, i + 2, 2 * m - 2, 6))
-        if warp_any(need != 0) != 0:
+        # the item's pairs (u, u + f), u = 2m, 2m + 1 of row i: their points lie in rows i .. i + 2
+        if warp_any(mask_rows(inv_weight_sum, _MASK_S, i, 3) != 0) != 0:
             pair_item(guide_s, guide_d, pair, i, m, s, two_over_step, depth_eps, sigma_normal, gated, squarings,
                       select_free)
         k += threads
@@ -709,7 +668,7 @@ def fill_weights_skip(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[
 
     k = lane
     while k < _SUM_N:
-        if warp_any(row_bits(masks, _MASK_S, 2 + k // _SUM_X, 2 + k % _SUM_X, 1) != 0) != 0:
+        if warp_any(mask_rows(inv_weight_sum, _MASK_S, 2 + k // _SUM_X, 1) != 0) != 0:
             weight_sum(pair, inv_weight_sum, k)
         k += threads
     block_sync()
@@ -1296,8 +1255,8 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
         # TO_FILTER: this thread read a pixel of the output tile with a surface and some gate open; HAS_SIGNAL: a
         # point of the tile or its apron of 2 with a surface and a signal (a colour or a variance != 0)
         found = int(0)
-        if wp.static(SKIP_):  # section 91: the signal and to-filter bits of every guide point
-            masks = wp.tile_empty(shape=MASK_N, dtype=wp.int32, storage="shared")
+        if wp.static(SKIP_):  # section 91: the signal bit of every guide point in its first entries (MASK_WORDS)
+            inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
         # latency), their six loads issued before any is used; the empty columns are written without loads
         for r0 in range(lane, _GUIDE_HALF, threads):
@@ -1345,10 +1304,10 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
             if wp.static(SKIP_):  # r1 < GUIDE_REAL: GUIDE_Y * GUIDE_X is even (MASK_WORDS)
                 b0 = store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED,
                                  SELECT_FREE_)
+                ballot_bits(inv_weight_sum, r0, b0)
                 b1 = store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED,
                                  SELECT_FREE_)
-                ballot_bits(masks, r0, b0)
-                ballot_bits(masks, r1, b1)
+                ballot_bits(inv_weight_sum, r1, b1)
                 found = found | b0 | b1
             else:
                 found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s,
@@ -1362,7 +1321,8 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
             store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
                         wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED, SELECT_FREE_)
 
-        inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
+        if wp.static(not SKIP_):
+            inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
         # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
         # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
@@ -1373,7 +1333,7 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
         if wp.static(SKIP_):  # the masks between the two barriers (the second publishes them), where a signal is
             any_signal = block_sync_or(flag, found & HAS_SIGNAL)
             if any_signal != 0:
-                needed_masks(masks, lane, threads)
+                needed_rows(inv_weight_sum, lane)
             to_filter = block_sync_or(flag, found & TO_FILTER)
         else:
             to_filter = block_sync_or(flag, found & TO_FILTER)
@@ -1391,7 +1351,7 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
                 block_sync()
         if run:
             if wp.static(SKIP_):
-                fill_weights_skip(guide_s, guide_d, pair, inv_weight_sum, masks, lane, threads, s,
+                fill_weights_skip(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s,
                                   depth_scale * DEPTH_NOISE_REL, normal_scale, GATED, SQUARINGS, SELECT_FREE_)
             else:
                 fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
@@ -1418,10 +1378,10 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
                 # c'_p = c_p = 0 and Var'_p = Var_p = 0, above)
                 go = surface and run and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s)
                 if wp.static(SKIP_):
-                    # section 91: a warp none of whose pixels is in F (a signal within its taps) skips the taps: each
-                    # pixel's filtered colour and Var are +0, which it writes (the filter's sums of ±0 give +0)
+                    # section 91: a warp none of whose pixels lies in F's rows (a signal within its taps) skips the
+                    # taps: each pixel's filtered colour and Var are +0, which it writes (the filter's sums of ±0 give +0)
                     if go:
-                        if warp_any(row_bits(masks, _MASK_F, 4 + k // _TILE_X, 4 + k % _TILE_X, 1) != 0) == 0:
+                        if warp_any(mask_rows(inv_weight_sum, _MASK_F, 4 + k // _TILE_X, 1) != 0) == 0:
                             go = False
                             c_new = wp.vec3(0.0)
                             v_new = float(0.0)
