@@ -1544,10 +1544,10 @@ def test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin(device, 
 
 
 def test_pair_items_cover_the_pair_rows_and_spread_over_the_banks():
-    """The pair phase's items in :func:`kernels_atrous.fill_weights`' order (``ODD_PITCH``, section 83; mirrored here
-    in Python: the twin tests above check the kernel's values): every item of the pair rows once, and each 8 lanes'
-    first points in 8 different 16-byte banks (``u`` mod 8), which with the even pitch's row-major items they are
-    not (every other bank twice)."""
+    """The pair phase's items in :func:`kernels_atrous.pair_item_point`'s order (``ODD_PITCH``, section 83; mirrored
+    here in Python: the twin tests above check the kernel's values): every item of the pair rows once, and each 8
+    lanes' first points in 8 different 16-byte banks (``u`` mod 8), which with the even pitch's row-major items they
+    are not (every other bank twice)."""
     from cisp_warp.denoise import kernels_atrous as ka
 
     def items(odd):

@@ -85,7 +85,9 @@ shared tables' rows an odd number of entries apart and the pair phase's items gi
 cycles of that phase), the same values. Section 85 (predicted, not measured): SVGF's σ_n = 128 levels evaluate the pair
 weights without the select on p's surface (``SELECT_FREE``: a point without a surface has guides whose weights are
 0 by their own arithmetic), and its step-2 level blurs its own variance from the step-1 level's dense Var copy
-(``FOLD_GUIDE2``): one guide pass fewer; the same values.
+(``FOLD_GUIDE2``): one guide pass fewer; the same values. Section 91 (predicted, not measured): running blocks skip,
+a warp at a time, the pair weights, weight sums and taps of the guide rows no output needs (``ATROUS_SKIP``: rows
+more than 2 from a tile row with a signal within 2), the same values.
 """
 
 from __future__ import annotations
@@ -369,9 +371,9 @@ sig = (bits & 2) ? (sig | b) : (sig & ~b);
 """)
 def ballot_bits(t: wp.tile[wp.float32, GUIDE_PIXELS], r: int, bits: int):
     """Point ``r``'s ``HAS_SIGNAL`` (row-major in the guide region; :func:`store_guide`'s ``bits``) into the masks'
-    words (``t``: the weight sums' table, :data:`MASK_WORDS`): on CUDA one ballot a warp, whose 32 lanes hold the points 32w .. 32w + 31 in lane order (the load round's r0 = lane,
-    r1 = lane + 480, 512 threads: every warp of it full) and lane 0 stores the words; on the CPU the point's own bit
-    (its fibers switch only at barriers)."""
+    words (``t``: the weight sums' table, :data:`MASK_WORDS`): on CUDA one ballot a warp, whose 32 lanes hold the
+    points 32w .. 32w + 31 in lane order (the load round's r0 = lane, r1 = lane + 480, 512 threads: every warp of it
+    full) and lane 0 stores the word; on the CPU the point's own bit (its fibers switch only at barriers)."""
     ...
 
 
