@@ -1231,7 +1231,6 @@ def test_atrous_level_cooperative_cpu_blocks(monkeypatch):
     test_atrous_level_tiles_match_naive_twin("cpu", 1, True, None, True, 128.0)  # the step-1 level's own guide terms
     test_atrous_level_signal_in_the_apron_only_is_filtered("cpu", None)  # the two barriers' flags across lanes
     test_atrous_level_signal_free_block_skips_its_weights("cpu")
-    test_atrous_level_running_block_skips_what_no_output_needs("cpu", True)  # the masks' ballots and warp barrier
     test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin("cpu", 0, None)
 
 
@@ -1469,32 +1468,6 @@ def test_atrous_level_signal_free_block_skips_its_weights(device):
     np.testing.assert_allclose(v[:, 32:], v_ref[:, 32:], rtol=1e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("conserve", [True, False])
-def test_atrous_level_running_block_skips_what_no_output_needs(device, conserve):
-    """Section 91 (``ATROUS_SKIP``): a running block (step 1, pixel rows 16-31) whose signal lies only in rows >= 28
-    skips the pair weights, weight sums and taps no output needs: a NaN normal in row 18 (more than 6 rows from the
-    signal, so that none of its pairs touches a weight sum the filter reads) makes those pair weights NaN if they are
-    evaluated (main's kernels: NaN outputs around it); skipped, every pixel more than 2 rows from the signal writes +0
-    (colour and Var, sign bit clear) and the rest equals the twin. Fails if the masks' dilations are a row short (the
-    rows at the signal's reach read unset weights) or if nothing is skipped."""
-    from cisp_warp.denoise import kernels_atrous as ka
-    rng = np.random.default_rng(91)
-    w, h = 40, 40
-    y = np.arange(h)[:, None].repeat(w, 1)
-    g, color, variance = _signal_region_frame(rng, w, h, y >= 28)
-    g["normal"][18, 20] = np.nan
-    c, v, c_ref, v_ref = _tiled_level(device, g, color, variance, 1, None, conserve)
-    if not ka.ATROUS_SKIP:  # main's kernels evaluate the NaN point's pairs
-        assert np.isnan(c[18, 20]).any()
-        return
-    assert np.all(np.isfinite(c)) and np.all(np.isfinite(v))
-    assert not np.signbit(c[:26]).any() and not np.signbit(v[:26]).any()
-    assert np.all(c[:26] == 0.0) and np.all(v[:26] == 0.0)
-    np.testing.assert_allclose(c[22:], c_ref[22:], rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(v[22:], v_ref[22:], rtol=1e-5, atol=1e-7)
-    assert c[26:28].max() > 0.0  # the signal's reach is filtered
-
-
 def _two_levels(device, g, color, variance, gate):
     """Levels of steps 1 and 2 chained as SVGF and the caustics denoiser chain them (packed); returns the second's
     packed output (H, W, 4), its public colour and Var and the twins' colour and Var."""
@@ -1544,10 +1517,10 @@ def test_atrous_levels_chained_over_signal_free_blocks_match_naive_twin(device, 
 
 
 def test_pair_items_cover_the_pair_rows_and_spread_over_the_banks():
-    """The pair phase's items in :func:`kernels_atrous.pair_item_point`'s order (``ODD_PITCH``, section 83; mirrored
-    here in Python: the twin tests above check the kernel's values): every item of the pair rows once, and each 8
-    lanes' first points in 8 different 16-byte banks (``u`` mod 8), which with the even pitch's row-major items they
-    are not (every other bank twice)."""
+    """The pair phase's items in :func:`kernels_atrous.fill_weights`' order (``ODD_PITCH``, section 83; mirrored here
+    in Python: the twin tests above check the kernel's values): every item of the pair rows once, and each 8 lanes'
+    first points in 8 different 16-byte banks (``u`` mod 8), which with the even pitch's row-major items they are
+    not (every other bank twice)."""
     from cisp_warp.denoise import kernels_atrous as ka
 
     def items(odd):

@@ -85,9 +85,7 @@ shared tables' rows an odd number of entries apart and the pair phase's items gi
 cycles of that phase), the same values. Section 85 (predicted, not measured): SVGF's σ_n = 128 levels evaluate the pair
 weights without the select on p's surface (``SELECT_FREE``: a point without a surface has guides whose weights are
 0 by their own arithmetic), and its step-2 level blurs its own variance from the step-1 level's dense Var copy
-(``FOLD_GUIDE2``): one guide pass fewer; the same values. Section 91 (predicted, not measured): running blocks skip,
-a warp at a time, the pair weights, weight sums and taps of the guide rows no output needs (``ATROUS_SKIP``: rows
-more than 2 from a tile row with a signal within 2), the same values.
+(``FOLD_GUIDE2``): one guide pass fewer; the same values.
 """
 
 from __future__ import annotations
@@ -98,7 +96,7 @@ import warp as wp
 
 from .kernels_atrous_pixel import UNGATED_RADIUS, footprint_radius, launch_atrous_level  # noqa: F401 (re-exported)
 from .kernels_svgf import (DEPTH_NOISE_REL, VARIANCE_EPS, b3_spline, lattice_index, load_vec4, luminance,  # noqa: F401
-                           store_vec4, warp_any)  # lattice_index and the vec4 accesses re-exported
+                           store_vec4)  # lattice_index and the vec4 accesses re-exported
 
 
 #: Var of a packed pixel without a surface
@@ -332,90 +330,6 @@ def block_sync_or(t: wp.tile[wp.int32, 1], x: int) -> int:
     ...
 
 
-#: Section 91: SVGF's running blocks skip, a warp at a time, the pair weights, weight sums and taps that no output
-#: needs. An output point p of the tile whose 5x5 taps hold no signal (colour 0 and Var <= 0 at every point with a
-#: surface) comes out exactly +0 (colour and Var) whatever its weights: c'_p = A_pp c_p + Σ A_pq c_q sums ±0 terms
-#: from +0, the same for Var (finite A_pq). Only the points F with a surface and a signal within 2 are filtered; their
-#: weight sums W_q are needed within 2 of F (S, conserving: A_pq = w_pq / max(W_p, W_q)), and a pair weight only where
-#: one of its points lies in S. F and S are kept by guide row (a row is in F if it is a row of the tile and a row
-#: within 2 has a signal; in S if a row within 2 is in F): a warp's work spans whole rows, and the rows alone skip
-#: nearly as much as the points would (section 91's counts). A warp none of whose lanes' items (pairs, sums, pixels)
-#: lie in those rows skips them; the rest is main's arithmetic on main's operands (the same values bit for bit).
-#: Ungated levels only (SVGF). Read at import, from the environment (the lead's A/B:
-#: ``os.environ["CISP_ATROUS_SKIP"] = "0"`` before the import: main's kernels)
-ATROUS_SKIP = os.environ.get("CISP_ATROUS_SKIP", "1") != "0"
-#: the masks (32-bit words in the first entries of the weight sums' table, guide row 0, which no weight sum uses: no
-#: shared table more, no pointer more to keep in a register): the guide region's signal bits (``HAS_SIGNAL``)
-#: row-major, 32 points a word; then the rows of F and of S (bit i: guide row i)
-MASK_WORDS = GUIDE_Y * GUIDE_X // 32
-assert GUIDE_Y * GUIDE_X % 32 == 0 and ((GUIDE_Y * GUIDE_X + 1) // 2) % 32 == 0 and GUIDE_Y <= 32
-assert all((GUIDE_X * j) % 32 + GUIDE_X <= 64 for j in range(GUIDE_Y))  # a row within two words
-MASK_F = MASK_WORDS
-MASK_S = MASK_F + 1
-MASK_N = MASK_S + 1
-assert MASK_N <= 2 * GUIDE_PITCH  # the weight sums' rows 0 and 1 (the sums are of rows 2 .. GUIDE_Y − 3)
-_MASK_F = wp.constant(MASK_F)
-_MASK_S = wp.constant(MASK_S)
-
-
-@wp.func_native(f"""
-#if defined(__CUDA_ARCH__)
-const unsigned sig = __ballot_sync(0xffffffffu, (bits & 2) != 0);
-if ((threadIdx.x & 31) == 0)
-    reinterpret_cast<unsigned&>(t.data(wp::tile_coord(r >> 5))) = sig;
-#else
-const unsigned b = 1u << (r & 31);
-unsigned& sig = reinterpret_cast<unsigned&>(t.data(wp::tile_coord(r >> 5)));
-sig = (bits & 2) ? (sig | b) : (sig & ~b);
-#endif
-""")
-def ballot_bits(t: wp.tile[wp.float32, GUIDE_PIXELS], r: int, bits: int):
-    """Point ``r``'s ``HAS_SIGNAL`` (row-major in the guide region; :func:`store_guide`'s ``bits``) into the masks'
-    words (``t``: the weight sums' table, :data:`MASK_WORDS`): on CUDA one ballot a warp, whose 32 lanes hold the
-    points 32w .. 32w + 31 in lane order (the load round's r0 = lane, r1 = lane + 480, 512 threads: every warp of it
-    full) and lane 0 stores the word; on the CPU the point's own bit (its fibers switch only at barriers)."""
-    ...
-
-
-@wp.func_native(f"""
-#define ROW_ANY(base, j) (((((unsigned long long)reinterpret_cast<const unsigned&>(t.data(wp::tile_coord((base) + (({GUIDE_X} * (j)) >> 5)))) | \
-    ((unsigned long long)reinterpret_cast<const unsigned&>(t.data(wp::tile_coord((base) + (({GUIDE_X} * (j)) >> 5) + 1))) << 32)) \
-    >> (({GUIDE_X} * (j)) & 31)) & {(1 << GUIDE_X) - 1}ull) != 0ull)
-#if defined(__CUDA_ARCH__)
-if (threadIdx.x < 32) {{  // warp 0: a row a lane, its flags by ballot
-    const int r = threadIdx.x;
-    const unsigned rows_signal = __ballot_sync(0xffffffffu, r < {GUIDE_Y} && ROW_ANY(0, r));
-#else
-if (lane == 0) {{
-    unsigned rows_signal = 0u;
-    for (int r = 0; r < {GUIDE_Y}; ++r)
-        rows_signal |= (ROW_ANY(0, r) ? 1u : 0u) << r;
-#endif
-    const unsigned near = rows_signal | (rows_signal << 1) | (rows_signal << 2) | (rows_signal >> 1) | (rows_signal >> 2);
-    const unsigned f = near & {((1 << TILE_Y) - 1) << 4}u;  // the tile's rows
-    const unsigned s = (f | (f << 1) | (f << 2) | (f >> 1) | (f >> 2)) & {(1 << GUIDE_Y) - 1}u;
-    if (lane == 0) {{
-        reinterpret_cast<unsigned&>(t.data(wp::tile_coord({MASK_F}))) = f;
-        reinterpret_cast<unsigned&>(t.data(wp::tile_coord({MASK_S}))) = s;
-    }}
-}}
-#undef ROW_ANY
-""")
-def needed_rows(t: wp.tile[wp.float32, GUIDE_PIXELS], lane: int):
-    """The rows of F and S (bit i: guide row i) from the signal words, into ``MASK_F`` and ``MASK_S`` (cooperative, no
-    barrier: the next one publishes them): a row is in F if it is a row of the tile and a row within 2 of it has a
-    signal (its points' 5x5 taps, over-estimated by whole rows and without the surface test: the rows of F are a
-    superset of those with a point to filter), in S if a row within 2 is in F. On CUDA warp 0, a row a lane (one
-    ballot); on the CPU lane 0."""
-    ...
-
-
-@wp.func_native("return (int)((reinterpret_cast<const unsigned&>(t.data(wp::tile_coord(base))) >> r) & ((1u << n) - 1u));")
-def mask_rows(t: wp.tile[wp.float32, GUIDE_PIXELS], base: int, r: int, n: int) -> int:
-    """Bits r .. r + n − 1 of the row mask at ``base`` (``MASK_F`` or ``MASK_S``)."""
-    ...
-
-
 @wp.func
 def atanh_series(t: float) -> float:
     """atanh(t) = ln((1 + t)/(1 − t)) / 2 for t in [−1/3, 0] by its series to t¹¹ (truncation error below 1.5e-8 |t|)."""
@@ -559,69 +473,6 @@ def tap_weight(gs_p: wp.vec4, gd_p: wp.vec4, gs_q: wp.vec4, gd_q: wp.vec4, f: in
 
 
 @wp.func
-def pair_item_point(k: int) -> wp.vec2i:
-    """(i, m) of the pair phase's item ``k`` < ``_RUN_N``: the points 2m, 2m + 1 of the guide region's row i; with
-    ``ODD_PITCH``, items 8r .. 8r + 7 of a row pair are 4 consecutive of its first row, then the same 4 of its
-    second (rows an odd pitch apart: the 8 lanes' first points lie in 8 different 16-byte banks)."""
-    i = k // _RUNS_X
-    m = k - i * _RUNS_X
-    if wp.static(ODD_PITCH):
-        pair_row = k // (2 * _RUNS_X)
-        r = k - pair_row * (2 * _RUNS_X)
-        i = 2 * pair_row + (r // 4) % 2
-        m = 4 * (r // 8) + r % 4
-    return wp.vec2i(i, m)
-
-
-@wp.func
-def pair_item(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
-              pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], i: int, m: int, s: float, two_over_step: float,
-              depth_eps: float, sigma_normal: float, gated: int, squarings: int, select_free: int):
-    """Step 2 for one item: the 24 forward pair weights of the points u = 2m, u + 1 of the guide region's row i,
-    with both points' guides in registers: the q of a tap row are read once for both (16 guide points read from
-    shared memory for 24 pairs; one point and 3 taps an item read 4 for 3)."""
-    u = i * _PITCH + 2 * m + 2
-    gs_1 = read_guide(guide_s, u)
-    gd_1 = read_guide(guide_d, u)
-    gs_2 = read_guide(guide_s, u + 1)
-    gd_2 = read_guide(guide_d, u + 1)
-    active_1 = gs_1[3] > 0.0 and (gated == 0 or gd_1[3] * two_over_step > 1.0)
-    active_2 = gs_2[3] > 0.0 and (gated == 0 or gd_2[3] * two_over_step > 1.0)
-    # row 0: taps (0, 1) and (0, 2); u + 1 is p_1's first q
-    write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
-    for j in range(2):  # q = u + 2 + j: p_1's tap (0, 2) (j = 0), p_2's tap (0, 1 + j)
-        gs_q = read_guide(guide_s, u + 2 + j)
-        gd_q = read_guide(guide_d, u + 2 + j)
-        if j == 0:
-            write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
-        write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
-    # rows 1 and 2: q = u + dy PITCH + dx, dx = -2 .. 3: p_1's tap (dy, dx) for dx <= 2 (f = 5 dy - 1 + dx),
-    # p_2's tap (dy, dx - 1) for dx >= -1
-    for t in range(12):
-        dy = 1 + t // 6
-        dx = t % 6 - 2
-        v = u + dy * _PITCH + dx
-        gs_q = read_guide(guide_s, v)
-        gd_q = read_guide(guide_d, v)
-        if dx <= 2:
-            write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
-        if dx >= -1:
-            write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
-
-
-@wp.func
-def weight_sum(pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
-               k: int):
-    """Step 3 for point ``k`` < ``_SUM_N`` of the tile and its apron of 2 (row-major): 1 / W_q, W_q = Σ_r w_qr
-    (centre (3/8)² included)."""
-    u = (2 + k // _SUM_X) * _PITCH + 4 + k % _SUM_X
-    sum_w = CENTRE_WEIGHT
-    for f in range(FORWARD_TAPS):
-        sum_w += read_pair(pair, f * _PAIR_PIXELS + u) + read_pair(pair, f * _PAIR_PIXELS + u - forward_offset(f))
-    write_guide_scalar(inv_weight_sum, u, fast_rcp(sum_w))
-
-
-@wp.func
 def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
                  pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS], inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS],
                  lane: int, threads: int, s: float, depth_eps: float, sigma_normal: float, gated: int,
@@ -630,48 +481,58 @@ def fill_weights(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.ve
     (shared, the forward pair weights w(u, u + f) of the guide rows 0 .. PAIR_ROWS - 1 at f * PAIR_PIXELS + u)
     and ``inv_weight_sum`` (shared, 1 / W_q of the tile and an apron of 2, at their guide index)."""
     two_over_step = 2.0 / s
-    # 2. forward pair weights, once per unordered pair, an item (two points of a row, :func:`pair_item`) a thread
+    # 2. forward pair weights, once per unordered pair. An item is a run of two points u, u + 1 of a row and
+    # all 24 of their forward taps, with both points' guides in registers: the q of a tap row are read once for
+    # both (16 guide points read from shared memory for 24 pairs; one point and 3 taps an item read 4 for 3)
     k = lane
     while k < _RUN_N:
-        im = pair_item_point(k)
-        pair_item(guide_s, guide_d, pair, im[0], im[1], s, two_over_step, depth_eps, sigma_normal, gated, squarings,
-                  select_free)
+        i = k // _RUNS_X
+        m = k - i * _RUNS_X  # item m of row i: points 2m, 2m + 1 of the guide region's row
+        if wp.static(ODD_PITCH):
+            # items 8r .. 8r + 7 of a row pair: 4 consecutive of its first row, then the same 4 of its second
+            # (rows an odd pitch apart: the 8 lanes' first points lie in 8 different 16-byte banks)
+            pair_row = k // (2 * _RUNS_X)
+            r = k - pair_row * (2 * _RUNS_X)
+            i = 2 * pair_row + (r // 4) % 2
+            m = 4 * (r // 8) + r % 4
+        u = i * _PITCH + 2 * m + 2
+        gs_1 = read_guide(guide_s, u)
+        gd_1 = read_guide(guide_d, u)
+        gs_2 = read_guide(guide_s, u + 1)
+        gd_2 = read_guide(guide_d, u + 1)
+        active_1 = gs_1[3] > 0.0 and (gated == 0 or gd_1[3] * two_over_step > 1.0)
+        active_2 = gs_2[3] > 0.0 and (gated == 0 or gd_2[3] * two_over_step > 1.0)
+        # row 0: taps (0, 1) and (0, 2); u + 1 is p_1's first q
+        write_pair(pair, u, tap_weight(gs_1, gd_1, gs_2, gd_2, 0, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
+        for j in range(2):  # q = u + 2 + j: p_1's tap (0, 2) (j = 0), p_2's tap (0, 1 + j)
+            gs_q = read_guide(guide_s, u + 2 + j)
+            gd_q = read_guide(guide_d, u + 2 + j)
+            if j == 0:
+                write_pair(pair, _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 1, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
+            write_pair(pair, j * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, j, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
+        # rows 1 and 2: q = u + dy PITCH + dx, dx = -2 .. 3: p_1's tap (dy, dx) for dx <= 2 (f = 5 dy - 1 + dx),
+        # p_2's tap (dy, dx - 1) for dx >= -1
+        for t in range(12):
+            dy = 1 + t // 6
+            dx = t % 6 - 2
+            v = u + dy * _PITCH + dx
+            gs_q = read_guide(guide_s, v)
+            gd_q = read_guide(guide_d, v)
+            if dx <= 2:
+                write_pair(pair, (5 * dy - 1 + dx) * _PAIR_PIXELS + u, tap_weight(gs_1, gd_1, gs_q, gd_q, 5 * dy - 1 + dx, active_1, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
+            if dx >= -1:
+                write_pair(pair, (5 * dy - 2 + dx) * _PAIR_PIXELS + u + 1, tap_weight(gs_2, gd_2, gs_q, gd_q, 5 * dy - 2 + dx, active_2, s, two_over_step, depth_eps, sigma_normal, gated, squarings, select_free))
         k += threads
     block_sync()
 
-    # 3. 1 / W_q of the tile and an apron of 2
+    # 3. 1 / W_q, W_q = Σ_r w_qr of the tile and an apron of 2 (centre (3/8)² included)
     k = lane
     while k < _SUM_N:
-        weight_sum(pair, inv_weight_sum, k)
-        k += threads
-    block_sync()
-
-
-@wp.func
-def fill_weights_skip(guide_s: wp.tile[wp.vec4, GUIDE_PIXELS], guide_d: wp.tile[wp.vec4, GUIDE_PIXELS],
-                      pair: wp.tile[wp.float32, FORWARD_TAPS * PAIR_PIXELS],
-                      inv_weight_sum: wp.tile[wp.float32, GUIDE_PIXELS], lane: int, threads: int, s: float,
-                      depth_eps: float, sigma_normal: float, gated: int, squarings: int, select_free: int):
-    """:func:`fill_weights` where some are needed (:data:`ATROUS_SKIP`; the masks of :func:`needed_rows` in
-    ``inv_weight_sum``'s first entries): an item whose pairs have no point in S's rows, and a weight sum outside
-    them, is skipped where its warp's lanes all are (on the CPU, where it is). What is evaluated is :func:`fill_weights`' values; what is skipped nothing reads."""
-    two_over_step = 2.0 / s
-    k = lane
-    while k < _RUN_N:
-        im = pair_item_point(k)
-        i = im[0]
-        m = im[1]
-        # the item's pairs (u, u + f), u = 2m, 2m + 1 of row i: their points lie in rows i .. i + 2
-        if warp_any(mask_rows(inv_weight_sum, _MASK_S, i, 3) != 0) != 0:
-            pair_item(guide_s, guide_d, pair, i, m, s, two_over_step, depth_eps, sigma_normal, gated, squarings,
-                      select_free)
-        k += threads
-    block_sync()
-
-    k = lane
-    while k < _SUM_N:
-        if warp_any(mask_rows(inv_weight_sum, _MASK_S, 2 + k // _SUM_X, 1) != 0) != 0:
-            weight_sum(pair, inv_weight_sum, k)
+        u = (2 + k // _SUM_X) * _PITCH + 4 + k % _SUM_X
+        sum_w = CENTRE_WEIGHT
+        for f in range(FORWARD_TAPS):
+            sum_w += read_pair(pair, f * _PAIR_PIXELS + u) + read_pair(pair, f * _PAIR_PIXELS + u - forward_offset(f))
+        write_guide_scalar(inv_weight_sum, u, fast_rcp(sum_w))
         k += threads
     block_sync()
 
@@ -1172,7 +1033,6 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
     SQUARINGS = int(squarings)
     SELF_GUIDE = int(self_guide)
     SELECT_FREE_ = int(select_free)
-    SKIP_ = int(ATROUS_SKIP and not GATED)
     assert not (SELF_GUIDE and GATED)
     assert not (SELECT_FREE_ and (GATED or not SQUARINGS))
     assert SELF_GUIDE in (0, 1, 2)
@@ -1257,8 +1117,6 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
         # TO_FILTER: this thread read a pixel of the output tile with a surface and some gate open; HAS_SIGNAL: a
         # point of the tile or its apron of 2 with a surface and a signal (a colour or a variance != 0)
         found = int(0)
-        if wp.static(SKIP_):  # section 91: the signal bit of every guide point in its first entries (MASK_WORDS)
-            inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         # the GUIDE_Y x GUIDE_X points of the guide region, two a thread in one round (960 <= 2 x 512: one memory
         # latency), their six loads issued before any is used; the empty columns are written without loads
         for r0 in range(lane, _GUIDE_HALF, threads):
@@ -1303,28 +1161,18 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
             else:
                 ax0 = load_aux(aux, p0, cv0, luminance_scale, GATED)
                 ax1 = load_aux(aux, p1, cv1, luminance_scale, GATED)
-            if wp.static(SKIP_):  # r1 < GUIDE_REAL: GUIDE_Y * GUIDE_X is even (MASK_WORDS)
-                b0 = store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED,
-                                 SELECT_FREE_)
-                ballot_bits(inv_weight_sum, r0, b0)
-                b1 = store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s, GATED,
-                                 SELECT_FREE_)
-                ballot_bits(inv_weight_sum, r1, b1)
-                found = found | b0 | b1
-            else:
-                found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s,
+            found = found | store_guide(guide_s, guide_d, signal, i0 * _PITCH + j0 + 2, in0, cv0, gs0, ax0, s, GATED,
+                                         SELECT_FREE_)
+            if r1 < _GUIDE_REAL:
+                found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s,
                                              GATED, SELECT_FREE_)
-                if r1 < _GUIDE_REAL:
-                    found = found | store_guide(guide_s, guide_d, signal, i1 * _PITCH + j1 + 2, in1, cv1, gs1, ax1, s,
-                                                 GATED, SELECT_FREE_)
         # the empty columns (GUIDE_Y rows x 4), from the last lane down (on CUDA the lanes above GUIDE_HALF)
         for m in range(threads - 1 - lane, _EMPTY_N, threads):
             c = m % 4
             store_guide(guide_s, guide_d, signal, (m // 4) * _PITCH + c + wp.where(c >= 2, _GUIDE_X, 0), False,
                         wp.vec4(0.0), wp.vec4(0.0), wp.vec4(0.0), s, GATED, SELECT_FREE_)
 
-        if wp.static(not SKIP_):
-            inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
+        inv_weight_sum = wp.tile_empty(shape=_GUIDE_N, dtype=wp.float32, storage="shared")
         flag = wp.tile_empty(shape=1, dtype=wp.int32, storage="shared")
         # the barrier after 1, which also tells whether any thread read a pixel to filter: a block whose tile has no
         # surface (the sky, the space around the Cornell box) or, on a gated level, only pixels that need less than
@@ -1332,14 +1180,8 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
         # apron of 2 hold no signal (colour 0 and Var <= 0 at every point with a surface: the walls no photon
         # reaches): every tap it would filter with is 0, c'_p = A_pp c_p + Σ A_pq c_q = 0 and Var'_p = Σ A_pq² Var_q
         # = 0 (the A_pq finite), which are its own c_p and Var_p, kept as a pixel with every gate 0 keeps them
-        if wp.static(SKIP_):  # the masks between the two barriers (the second publishes them), where a signal is
-            any_signal = block_sync_or(flag, found & HAS_SIGNAL)
-            if any_signal != 0:
-                needed_rows(inv_weight_sum, lane)
-            to_filter = block_sync_or(flag, found & TO_FILTER)
-        else:
-            to_filter = block_sync_or(flag, found & TO_FILTER)
-            any_signal = block_sync_or(flag, found & HAS_SIGNAL)
+        to_filter = block_sync_or(flag, found & TO_FILTER)
+        any_signal = block_sync_or(flag, found & HAS_SIGNAL)
         run = to_filter != 0 and any_signal != 0
         if wp.static(SELF_GUIDE == 1):
             if run:  # 1b, g3x3(Var) / 2 from the ring (the pair table's first entries, overwritten by 2)
@@ -1352,12 +1194,8 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
                 blur_region2(guide_d, pair, lane, threads)
                 block_sync()
         if run:
-            if wp.static(SKIP_):
-                fill_weights_skip(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s,
-                                  depth_scale * DEPTH_NOISE_REL, normal_scale, GATED, SQUARINGS, SELECT_FREE_)
-            else:
-                fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
-                             normal_scale, GATED, SQUARINGS, SELECT_FREE_)
+            fill_weights(guide_s, guide_d, pair, inv_weight_sum, lane, threads, s, depth_scale * DEPTH_NOISE_REL,
+                         normal_scale, GATED, SQUARINGS, SELECT_FREE_)
 
         # 4. the filter of the tile's pixels
         k = lane
@@ -1378,16 +1216,7 @@ def make_atrous_level(gated: int, squarings: int = 0, self_guide: int = 0, selec
                     v_new = v_p
                 # ungated, or else unless every gate of p is 0 (then A_pp = 1); not in a block without signal (then
                 # c'_p = c_p = 0 and Var'_p = Var_p = 0, above)
-                go = surface and run and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s)
-                if wp.static(SKIP_):
-                    # section 91: a warp none of whose pixels lies in F's rows (a signal within its taps) skips the
-                    # taps: each pixel's filtered colour and Var are +0, which it writes (the filter's sums of ±0 give +0)
-                    if go:
-                        if warp_any(mask_rows(inv_weight_sum, _MASK_F, 4 + k // _TILE_X, 1) != 0) == 0:
-                            go = False
-                            c_new = wp.vec3(0.0)
-                            v_new = float(0.0)
-                if go:
+                if surface and run and (GATED == 0 or 2.0 * read_guide(guide_d, u)[3] > s):
                     iw_p = read_guide_scalar(inv_weight_sum, u)
                     sum_a = float(0.0)  # Σ_{q≠p} A_pq
                     sum_ac = wp.vec3(0.0)  # Σ_{q≠p} A_pq c_q
