@@ -13,6 +13,8 @@ from a light's RSM, the specular bounce and the store into the camera's photon m
 
 from __future__ import annotations
 
+import os
+
 import warp as wp
 
 from ..denoise.kernels_svgf import luminance
@@ -675,8 +677,14 @@ def order_base(cascade: CascadeState, order_stride: int, orders: int) -> int:
     return wp.min(wp.max(1, cascade.active_views), orders) * order_stride - order_stride
 
 
-SORT_REFRACTED = wp.constant(0)  #: sort groups: photons predicted to refract (most at water: down to the floor)
-SORT_REFLECTED = wp.constant(1)  #: predicted to reflect (at water mostly up and out of the view: long marches)
+#: The photon order's groups, in the order the trace takes them (the group partition lays them out by number). With
+#: ``REFLECTED_FIRST`` (default) the photons predicted to reflect come first: their marches are the longest (up and
+#: out of the view), so they start first and the refracted ones' shorter marches fill the launch's tail, as the
+#: longest-job-first rule of scheduling says (perf_notes section 92: the pool's traces 1.01 / 0.90 -> 0.92 / 0.75 ms on
+#: the H100). ``CISP_REFLECTED_FIRST=0`` in the environment before the import: refracted first (the order before).
+REFLECTED_FIRST = os.environ.get("CISP_REFLECTED_FIRST", "1") != "0"
+SORT_REFLECTED = wp.constant(0 if REFLECTED_FIRST else 1)  #: sort groups: predicted to reflect (long marches)
+SORT_REFRACTED = wp.constant(1 if REFLECTED_FIRST else 0)  #: predicted to refract (most at water: down to the floor)
 SORT_NOT_TRACED = wp.constant(2)  #: no specular texel, left to a finer cascade, or culled: no march at all
 SORT_GROUP_LAST = wp.constant(3)  #: slots past the view's photon count (fixed launch dims): after every group
 
