@@ -584,9 +584,10 @@ class PhotonPass:
     def photon_order(self, lm: LightMaps, view_index: int, r, slots: int, stream: int, max_lum: wp.array) -> wp.array:
         """The order in which to trace the ``slots`` photon slots of RSM view ``r`` (kernels take it with
         ``use_order``): by texel (:meth:`texel_order`), then stably grouped by how each will march (reflected,
-        refracted, not traced: the longest marches first, ``common.REFLECTED_FIRST``; :func:`~.common.photon_group_keys` counts each group per block, a scan of the counts
-        places the blocks, :func:`~.common.photon_group_scatter` writes the grouped order into ``_grouped``: no
-        second sort, no device copies); slots past the view's photon count (on the device) are not written."""
+        refracted, not traced: the longest marches first, ``common.REFLECTED_FIRST``;
+        :func:`~.common.photon_group_keys` counts each group per block, a scan of the counts places the blocks,
+        :func:`~.common.photon_group_scatter` writes the grouped order into ``_grouped``: no second sort, no device
+        copies); slots past the view's photon count (on the device) are not written."""
         if self.use_order and slots > 0:
             order, stride, orders = self.texel_order(lm, view_index, r, slots, stream)
             sp, sc = r.specular, lm.scene

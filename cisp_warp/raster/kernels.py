@@ -1,9 +1,9 @@
 """Warp kernels of the software rasterizer: triangle setup, tiled visibility raster, attribute resolve.
 
 The visibility buffer holds one uint64 per pixel: the high 32 bits are the fragment's float32 depth's own bits
-(a positive float's bits grow with it, so ordering is exact to the depth the raster computes; ``DEPTH_KEY_BITS``), the
-low 32 bits the triangle id. ``wp.atomic_min`` on it keeps the nearest triangle. The resolve pass then intersects the pixel's ray
-with that triangle, so depth, position and barycentrics are exact, not quantised.
+(a positive float's bits grow with it, so ordering is exact to the depth the raster computes; ``DEPTH_KEY_BITS``),
+the low 32 bits the triangle id. ``wp.atomic_min`` on it keeps the nearest triangle. The resolve pass then
+intersects the pixel's ray with that triangle, so depth, position and barycentrics are exact, not quantised.
 
 Large triangles do not serialise onto one thread: setup counts the 8x8-pixel tiles each (clipped)
 triangle's bounding box touches, an inclusive scan turns counts into offsets, and the tile kernel hands

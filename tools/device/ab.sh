@@ -4,7 +4,7 @@
 # Each run is a separate process, so flags read at import (CISP_* environment variables) can differ:
 #   RUNS="on:pool:- off:pool:CISP_DEPTH_KEY=quotient" bash tools/device/ab.sh
 # PRE=<python statements, ';'-separated, no spaces or commas> runs before bench_frame (tools/device/pre.py).
-# A/B on the lent GPU: RUNS="tag:scene:K=V,K=V ..." (env per run; '-' for none); ARGS for bench_frame;
+# RUNS="tag:scene:K=V,K=V ..." (env per run; '-' for none); ARGS for bench_frame;
 # each run's JSON to $OUT/<i>_<tag>_<scene>.json; prints the graph/frame lines and the kernels named in GREP.
 set -u
 test -f /tmp/cisp_gpu/env.sh || { echo COLD; exit 3; }

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # CUDA test batches on a lent GPU (Warp staged as for ab.sh): TESTS="tests/test_raster.py" K="cuda" bash tools/device/tests.sh
-# CUDA tests: TESTS="tests/a.py tests/b.py" K="cuda and ..." TT=timeout
+# TT: the timeout [s]; TAILN: lines of pytest's output kept.
 set -u
 test -f /tmp/cisp_gpu/env.sh || { echo COLD; exit 3; }
 . /tmp/cisp_gpu/env.sh
